@@ -1,0 +1,1 @@
+"""Flight analysis: geodesy, the paper's task metrics, plots and comparisons."""

@@ -1,0 +1,110 @@
+"""The one mechanism that hands data from I/O threads to asyncio: a latest-value slot.
+
+A producer thread (MAVLink reader, camera capture, the twin) calls `publish(value)`;
+consumers read the newest value with `get()` or wait for a newer one with
+`await wait_newer(version)`. Nothing queues: a slow consumer skips straight to the
+newest value, so no buffer grows and no consumer delays another (viser's
+"latest value wins", pikvm's streamer pattern).
+
+Waking the waiters goes through `loop.call_soon_threadsafe`, so a thread never touches
+the event loop's objects directly. `publish` is cheap when nobody waits.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True, slots=True)
+class Versioned(Generic[T]):
+    """A value and its version: versions start at 1 and grow by one per publish."""
+
+    version: int
+    value: T
+
+
+class Latest(Generic[T]):
+    """Thread-safe latest-value slot with async waiting for a newer version."""
+
+    def __init__(self, initial: T | None = None) -> None:
+        self._lock = threading.Lock()
+        self._current: Versioned[T] | None = (
+            Versioned(1, initial) if initial is not None else None
+        )
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]] = []
+        self._closed = False
+
+    @property
+    def version(self) -> int:
+        """The version of the newest value, 0 before the first publish."""
+        current = self._current
+        return current.version if current is not None else 0
+
+    def get(self) -> Versioned[T] | None:
+        """The newest value with its version, or None before the first publish."""
+        return self._current
+
+    def publish(self, value: T) -> int:
+        """Store `value` as the newest one and wake every waiter. Callable from any thread."""
+        with self._lock:
+            version = self.version + 1
+            self._current = Versioned(version, value)
+            waiters, self._waiters = self._waiters, []
+        for loop, fut in waiters:
+            try:
+                loop.call_soon_threadsafe(_wake, fut)
+            except RuntimeError:  # that loop is closed: its waiter is gone with it
+                pass
+        return version
+
+    def close(self) -> None:
+        """Wake every waiter for good; later waits return at once."""
+        with self._lock:
+            self._closed = True
+            waiters, self._waiters = self._waiters, []
+        for loop, fut in waiters:
+            try:
+                loop.call_soon_threadsafe(_wake, fut)
+            except RuntimeError:
+                pass
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    async def wait_newer(self, version: int, timeout: float | None = None) -> Versioned[T] | None:
+        """Wait until a value newer than `version` exists and return it.
+
+        Returns the current value (possibly not newer) on timeout or when the slot is
+        closed; callers compare versions. Returns None only if nothing was ever published.
+        """
+        with self._lock:
+            current = self._current
+            if self._closed or (current is not None and current.version > version):
+                return current
+            loop = asyncio.get_running_loop()
+            fut: asyncio.Future[None] = loop.create_future()
+            self._waiters.append((loop, fut))
+        try:
+            await asyncio.wait_for(fut, timeout)
+        except asyncio.TimeoutError:
+            pass
+        finally:
+            # On timeout or cancellation the waiter must leave the list, or a consumer
+            # that polls with a timeout while nothing is published would grow it.
+            with self._lock:
+                try:
+                    self._waiters.remove((loop, fut))
+                except ValueError:
+                    pass
+        return self._current
+
+
+def _wake(fut: asyncio.Future[None]) -> None:
+    if not fut.done():
+        fut.set_result(None)

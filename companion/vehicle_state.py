@@ -1,0 +1,161 @@
+"""The typed flight state of the autopilot, one group per MAVLink message family.
+
+Every group carries `t_mono` (station's time.monotonic() when the group was last
+updated, None before its first message) and, where the message has one, the vehicle's
+own timestamp (`time_boot_ms` or `time_usec`). Units are in the names. These names are
+the contract for the WebSocket JSON, the recorder's CSV columns (flattened as
+`group.field`, tuples as `group.field.N`), and the analysis loaders: rename with care.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(slots=True)
+class Heartbeat:
+    t_mono: float | None = None
+    sysid: int | None = None
+    compid: int | None = None
+    autopilot: str = "unknown"  # "px4", "ardupilot", "generic", ...
+    vehicle_type: str = "unknown"  # "quadrotor", ...
+    armed: bool = False
+    mode: str = "UNKNOWN"  # human mode name in the autopilot family's own words
+    base_mode: int = 0
+    custom_mode: int = 0
+    system_status: str = "UNKNOWN"
+    mavlink_version: int | None = None  # 1 or 2, from the wire format of its packets
+
+
+@dataclass(slots=True)
+class GpsRaw:
+    """GPS_RAW_INT: the receiver's own solution."""
+
+    t_mono: float | None = None
+    time_usec: int | None = None
+    fix_type: int = 0  # 0-1 no fix, 2 = 2D, 3 = 3D, 4 DGPS, 5 RTK float, 6 RTK fixed
+    satellites: int | None = None
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    alt_m: float | None = None  # MSL
+    eph_m: float | None = None
+    epv_m: float | None = None
+    ground_speed_mps: float | None = None
+    course_deg: float | None = None
+
+
+@dataclass(slots=True)
+class GlobalPosition:
+    """GLOBAL_POSITION_INT: the autopilot's fused position."""
+
+    t_mono: float | None = None
+    time_boot_ms: int | None = None
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    alt_m: float | None = None  # MSL
+    relative_alt_m: float | None = None  # the autopilot's own, relative to its home
+    vx_mps: float | None = None  # north
+    vy_mps: float | None = None  # east
+    vz_mps: float | None = None  # down
+    heading_deg: float | None = None
+
+
+@dataclass(slots=True)
+class VfrHud:
+    t_mono: float | None = None
+    ground_speed_mps: float | None = None
+    airspeed_mps: float | None = None
+    climb_mps: float | None = None
+    heading_deg: float | None = None
+    throttle_pct: float | None = None
+    alt_m: float | None = None
+
+
+@dataclass(slots=True)
+class Attitude:
+    t_mono: float | None = None
+    time_boot_ms: int | None = None
+    roll_rad: float | None = None
+    pitch_rad: float | None = None
+    yaw_rad: float | None = None
+    rollspeed_rad_s: float | None = None
+    pitchspeed_rad_s: float | None = None
+    yawspeed_rad_s: float | None = None
+
+
+@dataclass(slots=True)
+class RcChannels:
+    """RC_CHANNELS: the pilot's stick inputs as PWM (us); 0 or 65535 = unused."""
+
+    t_mono: float | None = None
+    time_boot_ms: int | None = None
+    chancount: int = 0
+    pwm_us: tuple[int, ...] = (0,) * 18
+    rssi: int | None = None
+
+
+@dataclass(slots=True)
+class ServoOutputs:
+    """SERVO_OUTPUT_RAW: the autopilot's outputs (motors) as PWM (us)."""
+
+    t_mono: float | None = None
+    time_usec: int | None = None
+    port: int = 0
+    pwm_us: tuple[int, ...] = (0,) * 16
+
+
+@dataclass(slots=True)
+class Battery:
+    """SYS_STATUS and BATTERY_STATUS merged."""
+
+    t_mono: float | None = None
+    voltage_v: float | None = None
+    current_a: float | None = None
+    remaining_pct: float | None = None
+
+
+@dataclass(slots=True)
+class LocalPosition:
+    """LOCAL_POSITION_NED, when the autopilot sends it."""
+
+    t_mono: float | None = None
+    time_boot_ms: int | None = None
+    x_m: float | None = None  # north
+    y_m: float | None = None  # east
+    z_m: float | None = None  # down
+    vx_mps: float | None = None
+    vy_mps: float | None = None
+    vz_mps: float | None = None
+
+
+@dataclass(slots=True)
+class PilotAltitude:
+    """The altitude the pilot sees: altitude now minus the altitude at arming.
+
+    Reset at each arming; before the first arming it is relative to the first GPS fix
+    (`reference` says which). The paper's definition, not the autopilot's relative_alt,
+    which drifts with the power-on position.
+    """
+
+    t_mono: float | None = None
+    relative_alt_m: float | None = None
+    reference_alt_m: float | None = None  # MSL altitude the value is relative to
+    reference: str = "none"  # "none", "first_fix" or "arming"
+    home_lat_deg: float | None = None  # where the reference was taken
+    home_lon_deg: float | None = None
+
+
+@dataclass(slots=True)
+class VehicleState:
+    """Everything the station knows about the autopilot it follows."""
+
+    heartbeat: Heartbeat = field(default_factory=Heartbeat)
+    gps: GpsRaw = field(default_factory=GpsRaw)
+    global_position: GlobalPosition = field(default_factory=GlobalPosition)
+    vfr_hud: VfrHud = field(default_factory=VfrHud)
+    attitude: Attitude = field(default_factory=Attitude)
+    rc: RcChannels = field(default_factory=RcChannels)
+    servo: ServoOutputs = field(default_factory=ServoOutputs)
+    battery: Battery = field(default_factory=Battery)
+    local_position: LocalPosition = field(default_factory=LocalPosition)
+    altitude: PilotAltitude = field(default_factory=PilotAltitude)

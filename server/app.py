@@ -1,0 +1,36 @@
+"""The FastAPI app: routers, pages and the lifespan that runs the station."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import AsyncIterator
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from server import __version__
+from server.errors import install_error_handlers
+from server.routes import health
+from server.settings import Settings
+from server.station import open_station
+from web import WEB_DIR
+
+
+def create_app(settings: Settings) -> FastAPI:
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        async with open_station(settings) as station:
+            app.state.station = station
+            yield
+
+    app = FastAPI(
+        title="fpv-station",
+        version=__version__,
+        summary="Ground station for FPV flight demonstrations",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    install_error_handlers(app)
+    app.include_router(health.router)
+    app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
+    return app

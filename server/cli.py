@@ -1,0 +1,82 @@
+"""`fpv-station`: the command line.
+
+    fpv-station serve [--source CONN] [--host H] [--port P] [--config FILE.toml] ...
+
+Each subcommand registers its flags in its own `add_*_parser` function; flags map onto
+dotted settings keys so that the CLI is the last layer over TOML and environment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+from server.settings import Settings, SettingsError, load_settings
+
+
+def add_serve_parser(sub: Any) -> None:
+    p = sub.add_parser("serve", help="run the ground station (web UI, telemetry, video, recording)")
+    p.add_argument("--config", type=Path, help="TOML settings file")
+    p.add_argument("--host", dest="server.host", help="address to listen on (default 0.0.0.0)")
+    p.add_argument("--port", dest="server.port", type=int, help="HTTP port (default 8000)")
+    p.add_argument("--token", dest="server.token", help="token that guards control endpoints")
+    p.add_argument(
+        "--source",
+        dest="link.source",
+        help="MAVLink source: sim, /dev/serial0:921600, /dev/ttyACM0, udpin:0.0.0.0:14550, "
+        "udpout:HOST:PORT, tcp:HOST:PORT, replay:FILE.tlog[?speed=N]",
+    )
+    p.add_argument("--sysid", dest="link.sysid", type=int, help="follow this autopilot system id")
+    p.add_argument(
+        "--forward",
+        dest="link.forward",
+        action="append",
+        help="also copy raw MAVLink to this connection (udpout:HOST:PORT), repeatable",
+    )
+    p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
+    p.set_defaults(func=run_serve)
+
+
+def settings_from_args(args: argparse.Namespace) -> Settings:
+    overrides = {k: v for k, v in vars(args).items() if "." in k}
+    return load_settings(getattr(args, "config", None), overrides)
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from server.app import create_app
+
+    settings = settings_from_args(args)
+    app = create_app(settings)
+    print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
+    uvicorn.run(app, host=settings.server.host, port=settings.server.port, log_level="info")
+    return 0
+
+
+def _display_host(host: str) -> str:
+    return "localhost" if host in ("0.0.0.0", "::", "") else host
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fpv-station", description=__doc__.split("\n")[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_serve_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return args.func(args)
+    except SettingsError as exc:
+        print(f"fpv-station: {exc}", file=sys.stderr)
+        return 2

@@ -1,0 +1,85 @@
+"""API errors and their one reply shape: `{"error": Name, "error_msg": text}`.
+
+    ApiError                  (500, base; never raised bare)
+    ├── BadRequest            (400)
+    ├── Unauthorized          (401)
+    ├── NotFound              (404)
+    ├── Conflict              (409)
+    └── Unavailable           (503, a service that is not running or not ready)
+
+Handlers are installed in one place (`install_error_handlers`); unexpected exceptions
+are logged with their traceback and answered with a short 500, never the traceback.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+log = logging.getLogger(__name__)
+
+
+class ErrorReply(BaseModel):
+    error: str
+    error_msg: str
+
+
+class ApiError(Exception):
+    status_code = 500
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+class BadRequest(ApiError):
+    status_code = 400
+
+
+class Unauthorized(ApiError):
+    status_code = 401
+
+
+class NotFound(ApiError):
+    status_code = 404
+
+
+class Conflict(ApiError):
+    status_code = 409
+
+
+class Unavailable(ApiError):
+    status_code = 503
+
+
+def error_response(status_code: int, name: str, message: str) -> JSONResponse:
+    return JSONResponse(
+        ErrorReply(error=name, error_msg=message).model_dump(), status_code=status_code
+    )
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(ApiError)
+    async def _api_error(_: Request, exc: ApiError) -> JSONResponse:
+        return error_response(exc.status_code, type(exc).__name__, exc.message)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in err['loc'])}: {err['msg']}" for err in exc.errors()
+        )
+        return error_response(422, "ValidationError", problems)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        return error_response(exc.status_code, "HTTPError", str(exc.detail))
+
+    @app.exception_handler(Exception)
+    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return error_response(500, "InternalError", "Internal error; see the station's log.")

@@ -1,0 +1,102 @@
+"""The station's one settings object: defaults, then a TOML file, then the environment,
+then the command line, each overriding the one before.
+
+Environment variables are `FPV_<SECTION>__<KEY>` (for example `FPV_SERVER__PORT=9000`,
+`FPV_LINK__SOURCE=udpin:0.0.0.0:14550`); values are parsed as TOML literals when they
+can be (numbers, booleans, lists), as plain strings otherwise.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+from typing import Any, Mapping
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class ServerSettings(_Section):
+    host: str = "0.0.0.0"
+    port: int = Field(8000, ge=1, le=65535)
+    # When set, control endpoints (recording, delete, twin control) need
+    # `Authorization: Bearer <token>`; reading stays open, as on a field network.
+    token: str | None = None
+
+
+class LinkSettings(_Section):
+    # serial (/dev/serial0:921600, /dev/ttyACM0), udpin:/udpout:/tcp: strings,
+    # replay:FILE.tlog[?speed=N], or "sim" for the embedded digital twin.
+    source: str = "sim"
+    sysid: int | None = Field(None, ge=1, le=255)  # pin the autopilot; None = auto-detect
+    forward: list[str] = Field(default_factory=list)  # raw MAVLink copies (udpout:HOST:PORT)
+    link_lost_s: float = Field(2.0, gt=0)
+    heartbeat_hz: float = Field(1.0, gt=0)
+    reconnect_s: float = Field(1.0, gt=0)
+
+
+class Settings(_Section):
+    server: ServerSettings = Field(default_factory=ServerSettings)
+    link: LinkSettings = Field(default_factory=LinkSettings)
+
+
+class SettingsError(ValueError):
+    """A settings file, variable or flag that cannot be used; the message says which."""
+
+
+ENV_PREFIX = "FPV_"
+
+
+def load_settings(
+    config_file: Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    environ: Mapping[str, str] | None = None,
+) -> Settings:
+    """Build the settings: defaults < TOML file < environment < `overrides`.
+
+    `overrides` maps dotted keys (`"server.port"`) to values, as the CLI gives them;
+    None values are skipped so that absent flags do not override anything.
+    """
+    data: dict[str, Any] = {}
+    if config_file is not None:
+        try:
+            data = tomllib.loads(Path(config_file).read_text())
+        except FileNotFoundError:
+            raise SettingsError(f"Config file '{config_file}' does not exist.") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise SettingsError(f"Config file '{config_file}' is not valid TOML: {exc}") from None
+    env = os.environ if environ is None else environ
+    for name, raw in env.items():
+        if name.startswith(ENV_PREFIX) and "__" in name:
+            keys = name[len(ENV_PREFIX) :].lower().split("__")
+            _set_dotted(data, keys, _parse_env_value(raw))
+    for dotted, value in (overrides or {}).items():
+        if value is not None:
+            _set_dotted(data, dotted.split("."), value)
+    try:
+        return Settings.model_validate(data)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"'{'.'.join(str(p) for p in err['loc'])}': {err['msg']}" for err in exc.errors()
+        )
+        raise SettingsError(f"Invalid settings: {problems}") from None
+
+
+def _set_dotted(data: dict[str, Any], keys: list[str], value: Any) -> None:
+    node = data
+    for key in keys[:-1]:
+        node = node.setdefault(key, {})
+        if not isinstance(node, dict):
+            raise SettingsError(f"Setting '{'.'.join(keys)}' collides with a plain value.")
+    node[keys[-1]] = value
+
+
+def _parse_env_value(raw: str) -> Any:
+    try:
+        return tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        return raw

@@ -1,0 +1,49 @@
+"""Named, supervised background tasks: none of their exceptions vanish.
+
+Every long-running coroutine of the station runs through `TaskGroupSupervisor.spawn`,
+which keeps a reference, logs a crash with the task's name, records it for
+`/api/health`, and cancels everything at shutdown.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Coroutine
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+
+class TaskSupervisor:
+    def __init__(self) -> None:
+        self._tasks: dict[str, asyncio.Task[Any]] = {}
+        self.failures: dict[str, str] = {}  # task name -> what killed it
+
+    def spawn(self, name: str, coro: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:
+        if name in self._tasks and not self._tasks[name].done():
+            coro.close()
+            raise RuntimeError(f"Task '{name}' is already running.")
+        task = asyncio.create_task(coro, name=name)
+        self._tasks[name] = task
+        task.add_done_callback(self._on_done)
+        return task
+
+    def _on_done(self, task: asyncio.Task[Any]) -> None:
+        if task.cancelled():
+            return
+        exc = task.exception()
+        if exc is not None:
+            self.failures[task.get_name()] = f"{type(exc).__name__}: {exc}"
+            log.error("background task %r died", task.get_name(), exc_info=exc)
+
+    @property
+    def healthy(self) -> bool:
+        return not self.failures
+
+    async def aclose(self) -> None:
+        tasks = [t for t in self._tasks.values() if not t.done()]
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        self._tasks.clear()
