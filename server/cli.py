@@ -37,7 +37,27 @@ def add_serve_parser(sub: Any) -> None:
         help="also copy raw MAVLink to this connection (udpout:HOST:PORT), repeatable",
     )
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
+    add_camera_flags(p)
     p.set_defaults(func=run_serve)
+
+
+def add_camera_flags(p: Any) -> None:
+    specs = "v4l2:/dev/video0[?width=640&height=480&fps=30&fourcc=MJPG], v4l2:0, file:X.mp4, "
+    specs += "folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none"
+    p.add_argument("--front", dest="cameras.front.spec", help=f"front camera: {specs}")
+    p.add_argument("--bottom", dest="cameras.bottom.spec", help="bottom camera (same specs)")
+
+
+def add_cameras_parser(sub: Any) -> None:
+    p = sub.add_parser("cameras", help="list V4L2 video devices and their formats")
+    p.set_defaults(func=run_cameras)
+
+
+def run_cameras(args: argparse.Namespace) -> int:
+    from companion.cameras.devices import format_devices, list_devices
+
+    print(format_devices(list_devices()))
+    return 0
 
 
 def settings_from_args(args: argparse.Namespace) -> Settings:
@@ -66,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     add_serve_parser(sub)
+    add_cameras_parser(sub)
     return parser
 
 
