@@ -73,7 +73,11 @@ def run_serve(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     app = create_app(settings)
     print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
-    uvicorn.run(app, host=settings.server.host, port=settings.server.port, log_level="info")
+    # Our own listening socket: it caps unsent bytes per connection (see server/listen.py).
+    from server.listen import listening_socket
+
+    sock = listening_socket(settings.server.host, settings.server.port)
+    uvicorn.Server(uvicorn.Config(app, log_level="info")).run(sockets=[sock])
     return 0
 
 

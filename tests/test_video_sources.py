@@ -34,9 +34,8 @@ def _rate(camera, seconds: float) -> tuple[float, list]:
             seen.append(item.value)
         time.sleep(0.002)
     good = [f for f in seen if f.signal]
-    if len(good) < 2:
-        return 0.0, good
-    return (len(good) - 1) / (good[-1].t_mono - good[0].t_mono), good
+    # Frames made in the window over its length: robust to the jitter of single frames.
+    return (good[-1].seq - good[0].seq + 1) / seconds if good else 0.0, good
 
 
 def test_specs_parse_and_bad_specs_are_clear(tmp_path):
@@ -82,7 +81,7 @@ def test_folder_source_loops_at_configured_rate_and_encodes_once(tmp_path):
         fps, frames = _rate(camera, 1.5)
     finally:
         camera.stop()
-    assert 17.0 <= fps <= 21.0, fps
+    assert 17.0 <= fps <= 21.0, fps  # 20 configured
     assert [b - a for a, b in zip([f.seq for f in frames], [f.seq for f in frames[1:]])] == [1] * (len(frames) - 1)
     assert _decode(frames[-1].jpeg).shape == (120, 160, 3)
     assert frames[-1].t_wall == pytest.approx(time.time(), abs=2.0)
@@ -118,7 +117,7 @@ def test_video_file_source_loops(tmp_path):
         fps, frames = _rate(camera, 1.2)  # 5 frames of file, so it must have looped
     finally:
         camera.stop()
-    assert len(frames) >= 20 and 22.0 <= fps <= 26.0, (len(frames), fps)
+    assert len(frames) >= 20 and 21.0 <= fps <= 26.5, (len(frames), fps)  # 25 configured
     assert camera.stats().opens == 1 and camera.stats().signal
 
 
@@ -131,7 +130,7 @@ def test_sim_source_at_configured_rate_and_recovers_from_a_failing_twin():
     camera.start()
     try:
         fps, frames = _rate(camera, 1.5)
-        assert 28.0 <= fps <= 31.0, fps
+        assert 26.0 <= fps <= 31.5, fps  # 30 configured
         assert renderer.calls["bottom"] >= len(frames) and "front" not in renderer.calls
         assert _decode(frames[-1].jpeg).shape == (480, 640, 3)  # scaled to the configured size
         renderer.fail.set()
