@@ -206,3 +206,31 @@ def test_a_stalled_source_shows_no_signal_then_recovers():
         assert wait_until(lambda: camera.frames.get().value.signal, 3.0)
     finally:
         camera.stop()
+
+
+def test_device_listing_reads_sysfs_and_says_when_there_are_none(tmp_path):
+    from companion.cameras.devices import format_devices, list_devices
+
+    assert "No V4L2 video devices found" in format_devices(list_devices(tmp_path / "absent"))
+    sysfs = tmp_path / "video4linux"
+    for name, label in (("video10", "Grabber B"), ("video2", "USB2.0 PC CAMERA")):
+        (sysfs / name).mkdir(parents=True)
+        (sysfs / name / "name").write_text(label + "\n")
+    devices = list_devices(sysfs, dev=tmp_path / "dev")
+    assert [d.path for d in devices] == [str(tmp_path / "dev/video2"), str(tmp_path / "dev/video10")]
+    assert devices[0].name == "USB2.0 PC CAMERA" and "missing in /dev" in devices[0].note
+    # A /dev node that is no V4L2 device (a plain file): the query fails with a clear note.
+    (tmp_path / "dev").mkdir()
+    (tmp_path / "dev/video2").write_bytes(b"")
+    device = list_devices(sysfs, dev=tmp_path / "dev")[0]
+    assert "V4L2 query failed" in device.note and "OpenCV says" in device.note
+
+
+def test_cameras_command_runs_here():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "server", "cameras"], capture_output=True,
+                         text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert "/dev/video" in out.stdout or "No V4L2 video devices found" in out.stdout
