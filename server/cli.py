@@ -77,7 +77,9 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.listen import listening_socket
 
     sock = listening_socket(settings.server.host, settings.server.port)
-    uvicorn.Server(uvicorn.Config(app, log_level="info")).run(sockets=[sock])
+    # MJPEG streams never end by themselves: give them 2 s at shutdown, then cancel them.
+    config = uvicorn.Config(app, log_level="info", timeout_graceful_shutdown=2)
+    uvicorn.Server(config).run(sockets=[sock])
     return 0
 
 
