@@ -15,6 +15,7 @@ from companion.link import MavlinkLink
 from companion.vehicle_state import VehicleState
 from server.settings import Settings
 from server.tasks import TaskSupervisor
+from server.telemetry_json import SharedStateJson
 
 
 @dataclass
@@ -25,6 +26,7 @@ class Station:
     # stays empty, so consumers need no special case: they simply never get a state.
     link: MavlinkLink | None = None
     state: Latest[VehicleState] = field(default_factory=Latest)
+    telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
 
 
 @contextlib.asynccontextmanager
