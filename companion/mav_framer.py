@@ -68,12 +68,40 @@ class MavFramer:
             except mavlink.MAVError:
                 self._skip_one()
                 continue
+            if isinstance(msg, mavlink.MAVLink_unknown):
+                verdict = self._hides_real_packet(total)
+                if verdict is None:
+                    break  # a packet may start inside it: wait for its end to decide
+                if verdict:
+                    self._skip_one()
+                    continue
+                self.counters.unknown_ids += 1
             del buf[:total]
             self.counters.packets += 1
-            if isinstance(msg, mavlink.MAVLink_unknown):
-                self.counters.unknown_ids += 1
             out.append(msg)
         return out
+
+    def _hides_real_packet(self, total: int) -> bool | None:
+        """An unknown id has no checksum we can verify, so junk that starts with a
+        marker can pass as one. Reject it if a verifiable packet starts inside it;
+        None if such a packet may be there but has not fully arrived."""
+        buf = self._buf
+        j = _find_magic(buf, 1)
+        undecided = False
+        while 0 < j < total:
+            length = _frame_length(buf[j : j + 3])
+            if length is None or (length > 0 and j + length > len(buf)):
+                undecided = True
+            elif length > 0:
+                try:
+                    inner = self._mav.decode(bytearray(buf[j : j + length]))
+                except mavlink.MAVError:
+                    pass
+                else:
+                    if not isinstance(inner, mavlink.MAVLink_unknown):
+                        return True
+            j = _find_magic(buf, j + 1)
+        return None if undecided else False
 
     def _skip_one(self) -> None:
         self.counters.bad_crc += 1
@@ -85,9 +113,9 @@ class MavFramer:
         self._buf.clear()
 
 
-def _find_magic(buf: bytearray) -> int:
-    a = buf.find(MAGIC_V2)
-    b = buf.find(MAGIC_V1)
+def _find_magic(buf: bytearray, start: int = 0) -> int:
+    a = buf.find(MAGIC_V2, start)
+    b = buf.find(MAGIC_V1, start)
     if a < 0:
         return b
     if b < 0:
