@@ -154,8 +154,11 @@ def task_window(a: AlignedTrack, task: str, p: TaskParams, trial: tuple[int, int
     return Window(i0=i0, i1=i1, start_s=float(t[i0]), end_s=float(t[i1]))
 
 
-def analyze(a: AlignedTrack, task: str, params: TaskParams | None = None) -> TaskResult:
-    """The paper's metrics (and the extras) for one aligned flight."""
+def analyze(
+    a: AlignedTrack, task: str, params: TaskParams | None = None, count_contacts: bool = True
+) -> TaskResult:
+    """The paper's metrics (and the extras) for one aligned flight; obstacle contacts when
+    `count_contacts` and the field's obstacles are known (else None)."""
     p = params or TaskParams()
     check_task(task)
     trial = trial_span(a, p)
@@ -168,7 +171,7 @@ def analyze(a: AlignedTrack, task: str, params: TaskParams | None = None) -> Tas
     trial_s = float(t[i_land] - t[i_to])
     path_m = float(np.sum(np.linalg.norm(np.diff(fly, axis=0), axis=1)))
     contacts = None
-    if a.field is not None and a.field.obstacles:
+    if count_contacts and a.field is not None and a.field.obstacles:
         contacts = obstacle_contacts(fly, a.field.obstacles, p.vehicle_radius_m)
     return TaskResult(
         task=task,
