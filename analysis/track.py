@@ -14,7 +14,6 @@ Rows without a fix (`gps.fix_type` < `min_fix_type`, or no coordinates) are drop
 
 from __future__ import annotations
 
-import io
 import json
 import tempfile
 import zipfile
@@ -25,6 +24,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from analysis.csvcols import CsvColumns, to_bool, to_float
 from analysis.errors import NoGpsFixError, TrackLoadError
 
 Array = NDArray[np.float64]
@@ -169,10 +169,10 @@ def load_telemetry_csv(
     raw: bytes, label: str, source: str, position: PositionSource = "gps",
     min_fix_type: int = MIN_FIX_3D,
 ) -> Track:  # fmt: skip
-    """Parse the recorder's CSV: read only the columns analysis needs, vectorized."""
-    text = raw.decode("utf-8", errors="replace")
-    header_line, _, body = text.partition("\n")
-    header = [h.strip().strip('"') for h in header_line.strip().split(",")]
+    """Parse the recorder's CSV: only the columns analysis needs, only the first row of
+    each GPS message, all vectorized (see `analysis.csvcols`)."""
+    header_line, _, body = raw.partition(b"\n")
+    header = [h.strip().strip('"') for h in header_line.decode("utf-8", "replace").split(",")]
     index = {name: i for i, name in enumerate(header)}
     pos = position
     if f"{pos}.lat_deg" not in index:
@@ -197,29 +197,22 @@ def load_telemetry_csv(
         "climb": ["vfr_hud.climb_mps"],
     }
     chosen = {k: next((c for c in cands if c in index), None) for k, cands in wanted.items()}
-    cols = sorted({index[c] for c in chosen.values() if c is not None})
-    if not body.strip():
+    table = CsvColumns(body, len(header))
+    if table.rows == 0:
         raise NoGpsFixError(f"'{source}' has a header but no telemetry rows.")
-    try:
-        # loadtxt's C tokenizer reads just these columns as strings; the conversion to
-        # numbers below is vectorized (empty cells are values never reported).
-        table = np.loadtxt(
-            io.StringIO(body), dtype=str, delimiter=",", usecols=cols, ndmin=2,
-            quotechar='"', comments=None,
-        )  # fmt: skip
-    except ValueError as exc:
-        raise TrackLoadError(f"'{source}': malformed CSV row ({exc}).") from None
-    at = {c: j for j, c in enumerate(cols)}
+    first = _first_of_each_message(table, [index[chosen["key"]]] if chosen["key"] else
+                                   [index[n] for n in need])  # fmt: skip
 
     def column(key: str) -> Array:
         name = chosen[key]
         if name is None:
-            return np.full(table.shape[0], np.nan)
-        return _to_float(table[:, at[index[name]]])
+            return np.full(first.size, np.nan)
+        try:
+            return to_float(table.column(index[name], first))
+        except ValueError as exc:
+            raise TrackLoadError(f"'{source}': column {name}: {exc}") from None
 
-    t_s = column("t_s")
-    lat, lon, alt = column("lat"), column("lon"), column("alt")
-    fix = column("fix")
+    t_s, lat, lon, alt, fix = (column(k) for k in ("t_s", "lat", "lon", "alt", "fix"))
     ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & np.isfinite(t_s)
     ok &= ~((lat == 0) & (lon == 0))  # autopilots report 0,0 before a fix
     if chosen["fix"] is not None:
@@ -229,60 +222,35 @@ def load_telemetry_csv(
             f"'{source}' has no sample with a GPS fix (fix_type >= {min_fix_type}); "
             "was the GPS locked during the flight?"
         )
-    key = column("key") if chosen["key"] is not None else None
-    first = _first_of_each_message(ok, key, lat, lon, alt)
-    armed_col = chosen["armed"]
     armed = (
-        _to_bool(table[:, at[index[armed_col]]]) if armed_col else np.zeros(t_s.size, bool)
-    )
+        to_bool(table.column(index[chosen["armed"]], first))
+        if chosen["armed"] else np.zeros(first.size, bool)
+    )  # fmt: skip
     return Track(
         label=label,
         source=source,
-        t_s=t_s[first],
-        wall_time=column("wall_time")[first],
-        lat_deg=lat[first],
-        lon_deg=lon[first],
-        alt_m=alt[first],
-        fix_type=np.nan_to_num(fix[first], nan=MIN_FIX_3D).astype(np.int16),
-        armed=armed[first],
-        relative_alt_m=column("rel")[first],
-        ground_speed_mps=column("speed")[first],
-        climb_mps=column("climb")[first],
+        t_s=t_s[ok],
+        wall_time=column("wall_time")[ok],
+        lat_deg=lat[ok],
+        lon_deg=lon[ok],
+        alt_m=alt[ok],
+        fix_type=np.nan_to_num(fix[ok], nan=MIN_FIX_3D).astype(np.int16),
+        armed=armed[ok],
+        relative_alt_m=column("rel")[ok],
+        ground_speed_mps=column("speed")[ok],
+        climb_mps=column("climb")[ok],
     )
 
 
-def _first_of_each_message(
-    ok: NDArray[np.bool_], key: Array | None, lat: Array, lon: Array, alt: Array
-) -> NDArray[np.intp]:
-    """Indices of the first fixed row of each distinct GPS message."""
-    idx = np.flatnonzero(ok)
-    if key is not None and np.isfinite(key[idx]).all():
-        k = key[idx]
-        new = np.empty(idx.size, bool)
-        new[0] = True
-        new[1:] = k[1:] != k[:-1]
-    else:
-        p = np.stack([lat[idx], lon[idx], alt[idx]], axis=1)
-        new = np.empty(idx.size, bool)
-        new[0] = True
-        new[1:] = np.any(p[1:] != p[:-1], axis=1)
-    return idx[new]
-
-
-def _to_float(values: NDArray[np.str_]) -> Array:
-    """Strings to float; empty, 'None' and 'nan' become NaN, True/False become 1/0."""
-    v = np.char.strip(values)
-    v = np.where((v == "") | (v == "None") | (v == "null"), "nan", v)
-    v = np.where(v == "True", "1", np.where(v == "False", "0", v))
-    try:
-        return v.astype(np.float64)
-    except ValueError as exc:
-        raise TrackLoadError(f"A numeric telemetry column holds text: {exc}") from None
-
-
-def _to_bool(values: NDArray[np.str_]) -> NDArray[np.bool_]:
-    v = np.char.lower(np.char.strip(values))
-    return (v == "true") | (v == "1") | (v == "1.0")
+def _first_of_each_message(table: CsvColumns, key_cols: list[int]) -> NDArray[np.intp]:
+    """Row indices where the GPS message changes: its t_mono (or time) column, or else
+    its coordinates. Compared as the raw text, before any number parsing."""
+    new = np.zeros(table.rows, bool)
+    new[0] = True
+    for k in key_cols:
+        v = table.column(k)
+        new[1:] |= v[1:] != v[:-1]
+    return np.flatnonzero(new)
 
 
 # ---------------------------------------------------------------- .tlog
