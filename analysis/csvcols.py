@@ -36,14 +36,8 @@ class CsvColumns:
             # Every row must end in a newline exactly at its last separator.
             fast = bool(np.all(self._buf[ends[:, -1]] == ord("\n"))) if ends.size else True
         if fast:
-            self._ends = ends.astype(np.int64)
-            starts = np.empty_like(self._ends)
-            starts[:, 1:] = self._ends[:, :-1] + 1
-            starts[1:, 0] = self._ends[:-1, -1] + 1
-            if starts.shape[0]:
-                starts[0, 0] = 0
-            self._starts = starts
-            self.rows = int(self._ends.shape[0])
+            self._ends = ends  # (rows, width) positions of each field's terminator
+            self.rows = int(ends.shape[0])
         else:
             rows = [r for r in csv.reader(io.StringIO(body.decode("utf-8", "replace")))
                     if len(r) == width]  # fmt: skip
@@ -55,9 +49,14 @@ class CsvColumns:
         if self._table is not None:
             col = self._table[:, k]
             return col if rows is None else col[rows]
-        s, e = self._starts[:, k], self._ends[:, k]
-        if rows is not None:
-            s, e = s[rows], e[rows]
+        # A field starts after the previous field's terminator (the row's first field
+        # after the previous row's newline).
+        e = self._ends[:, k] if rows is None else self._ends[rows, k]
+        if k > 0:
+            s = (self._ends[:, k - 1] if rows is None else self._ends[rows, k - 1]) + 1
+        else:
+            prev = np.concatenate([[-1], self._ends[:-1, -1]])
+            s = (prev if rows is None else prev[rows]) + 1
         if s.size == 0:
             return np.array([], dtype="S1")
         length = e - s

@@ -22,6 +22,7 @@ from companion.vehicle_state import VehicleState
 
 Array = NDArray[np.float64]
 FIELD_HOME = (43.0021, -78.7875, 180.0)  # the paper's field, from MISSION.md
+CAMERAS = ("front", "bottom")  # the recorder adds these columns after the state
 
 
 @dataclass(frozen=True)
@@ -181,6 +182,8 @@ def csv_columns() -> list[str]:
                 cols += [f"{g.name}.{f.name}.{i}" for i in range(len(value))]
             else:
                 cols.append(f"{g.name}.{f.name}")
+    for cam in CAMERAS:
+        cols += [f"{cam}.seq", f"{cam}.file", f"{cam}.t_wall", f"{cam}.skew_s"]
     return cols
 
 
@@ -225,6 +228,12 @@ def write_session(
     put("vfr_hud.climb_mps", vel[:, 2])
     cols["heartbeat.armed"] = np.where(flight.armed, "True", "False")
     cols["heartbeat.mode"] = np.full(n, "POSCTL", dtype=object)
+    seq = np.floor(t * 30.0).astype(np.int64)  # cameras at 30 fps
+    for cam in CAMERAS:
+        put(f"{cam}.seq", seq, "%d")
+        cols[f"{cam}.file"] = np.char.mod(f"{cam}/%08d.jpg", seq)
+        put(f"{cam}.t_wall", wall_t0 + seq / 30.0, "%.6f")
+        put(f"{cam}.skew_s", t - seq / 30.0, "%.6f")
     table = np.column_stack([np.asarray(v, dtype=object) for v in cols.values()])
     lines = [",".join(cols)] + [",".join(row) for row in table.tolist()]
     (folder / "telemetry.csv").write_text("\n".join(lines) + "\n")

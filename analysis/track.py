@@ -128,7 +128,7 @@ def load_session_zip(
         names = zf.namelist()
         meta: dict = {}
         for m in sorted((n for n in names if n.rsplit("/", 1)[-1] in META_FILES), key=len):
-            meta = _parse_meta(zf.read(m))
+            meta = parse_meta(zf.read(m))
             break
         name = label or str(meta.get("label") or zip_path.stem)
         csvs = sorted((n for n in names if n.rsplit("/", 1)[-1] == TELEMETRY_CSV), key=len)
@@ -150,11 +150,11 @@ def _read_meta_dir(folder: Path) -> dict:
     for name in META_FILES:
         f = folder / name
         if f.is_file():
-            return _parse_meta(f.read_bytes())
+            return parse_meta(f.read_bytes())
     return {}
 
 
-def _parse_meta(raw: bytes) -> dict:
+def parse_meta(raw: bytes) -> dict:
     try:
         meta = json.loads(raw)
     except (ValueError, UnicodeDecodeError):
