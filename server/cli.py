@@ -64,10 +64,29 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.app import create_app
 
     settings = settings_from_args(args)
+    check_link_settings(settings)
     app = create_app(settings)
     print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
     uvicorn.run(app, host=settings.server.host, port=settings.server.port, log_level="info")
     return 0
+
+
+def check_link_settings(settings: Settings) -> None:
+    """Refuse unusable connection strings before the server starts, with a clear message."""
+    from companion.stream_request import message_id
+    from companion.transports import ConnectionStringError, parse_connection
+
+    try:
+        parse_connection(settings.link.source)
+        for fwd in settings.link.forward:
+            if parse_connection(fwd).kind not in ("udpin", "udpout"):
+                raise ConnectionStringError(
+                    f"--forward '{fwd}' must be udpout:HOST:PORT or udpin:HOST:PORT."
+                )
+        for name in settings.link.message_rates_hz:
+            message_id(name)
+    except ValueError as exc:
+        raise SettingsError(str(exc)) from None
 
 
 def _display_host(host: str) -> str:

@@ -10,14 +10,23 @@ import contextlib
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
+from companion.latest import Latest
+from companion.link import MavlinkLink
+from companion.vehicle_state import VehicleState
 from server.settings import Settings
 from server.tasks import TaskSupervisor
+from server.telemetry_json import SharedStateJson
 
 
 @dataclass
 class Station:
     settings: Settings
     tasks: TaskSupervisor = field(default_factory=TaskSupervisor)
+    # The vehicle link (None for source "none") and its state slot. For "none" the slot
+    # stays empty, so consumers need no special case: they simply never get a state.
+    link: MavlinkLink | None = None
+    state: Latest[VehicleState] = field(default_factory=Latest)
+    telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
 
 
 @contextlib.asynccontextmanager
@@ -25,4 +34,19 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
     station = Station(settings=settings)
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
+
+        # -- vehicle link ----------------------------------------------------------
+        source = settings.link.source.strip()
+        if source == "sim":
+            # The twin section starts an embedded twin vehicle here, then points a
+            # MavlinkLink at it over a loopback socket and sets station.link/state,
+            # exactly as for a real vehicle below.
+            pass
+        elif source != "none":
+            link = MavlinkLink(settings.link)
+            link.start()
+            stack.callback(link.stop)
+            station.link = link
+            station.state = link.state
+
         yield station
