@@ -40,6 +40,19 @@ def add_serve_parser(sub: Any) -> None:
     p.set_defaults(func=run_serve)
 
 
+def add_analyze_parser(sub: Any) -> None:
+    from analysis import cli as analysis_cli
+
+    p = sub.add_parser(
+        "analyze",
+        help="the paper's task metrics, table and plots for sessions, zips or .tlogs",
+        description=analysis_cli.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    analysis_cli.add_arguments(p)
+    p.set_defaults(func=analysis_cli.run)
+
+
 def settings_from_args(args: argparse.Namespace) -> Settings:
     overrides = {k: v for k, v in vars(args).items() if "." in k}
     return load_settings(getattr(args, "config", None), overrides)
@@ -85,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     add_serve_parser(sub)
+    add_analyze_parser(sub)
     return parser
 
 
