@@ -235,7 +235,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--viewers", type=int, nargs="+", default=[1, 10, 50])
     parser.add_argument("--seconds", type=float, default=6.0)
-    parser.add_argument("--mode", choices=("encode", "passthrough"), default="encode")
+    parser.add_argument("--mode", choices=("encode", "passthrough"), default="passthrough")
     run(parser.parse_args())
 
 

@@ -107,6 +107,11 @@ class Camera:
         self._threads.clear()
         self.frames.close()
 
+    @property
+    def fps(self) -> float:
+        """The configured frame rate (the recorder sizes its buffers by it)."""
+        return self.config.fps
+
     @contextlib.contextmanager
     def watching(self) -> Iterator[None]:
         """Count a viewer for as long as the block runs (event loop only)."""
