@@ -91,7 +91,12 @@ def test_a_viewer_that_stops_reading_does_not_delay_the_others(server):
         made = _cameras(server)["front"]["frames"] - before
         assert _cameras(server)["front"]["clients"] == 1  # the stuck one is still there
         assert _increasing(healthy.seqs)
-        assert len(healthy.parts) >= 0.85 * made, (len(healthy.parts), made)
+        # Had the stuck viewer held the camera or the loop, the healthy one would have got
+        # nothing for as long as it is stuck. (How many of the frames it gets depends
+        # on this machine's load, so only a loose share is asked for.)
+        arrivals = [p.arrived for p in healthy.parts]
+        assert len(arrivals) >= 0.5 * made, (len(arrivals), made)
+        assert max(b - a for a, b in zip(arrivals, arrivals[1:])) < 0.5
         # The stuck viewer resumes: it skips to new frames instead of draining a backlog.
         stuck.settimeout(2.0)
         data = b""
