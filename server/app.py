@@ -11,6 +11,7 @@ from fastapi.staticfiles import StaticFiles
 from server import __version__
 from server.errors import install_error_handlers
 from server.routes import health
+from server.routes import viser_panel
 from server.settings import Settings
 from server.station import open_station
 from web import WEB_DIR
@@ -32,5 +33,6 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.settings = settings
     install_error_handlers(app)
     app.include_router(health.router)
+    app.include_router(viser_panel.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

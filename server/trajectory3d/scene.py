@@ -114,7 +114,7 @@ class LiveScene:
         pts = np.stack([lifted, np.roll(lifted, -1, axis=0)], axis=1)
         if self._footprint is None:
             self._footprint = self.scene.add_line_segments(
-                "/footprint", points=pts, colors=_FOOTPRINT_RGB, line_width=2.0
+                "/footprint", points=pts, colors=_FOOTPRINT_RGB, thickness=2.0, thickness_units="screen"
             )
         else:
             self._footprint.points = pts
@@ -137,12 +137,11 @@ class LiveScene:
         handle = self.chunk_handles.get(chunk.id)
         if handle is None:
             self.chunk_handles[chunk.id] = self.scene.add_line_segments(
-                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, line_width=3.0
+                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=3.0, thickness_units="screen"
             )
         else:
-            with self.server.atomic():
-                handle.points = pts
-                handle.colors = colors
+            handle.points = pts
+            handle.colors = colors
 
     def drop_chunks(self, chunks: list[TrailChunk]) -> None:
         for chunk in chunks:

@@ -79,6 +79,8 @@ class Trajectory3D:
         self.steps = 0
         self._last_sample_t: float | None = None
         self._status_due = 0.0
+        self._ground_for: Origin | None = None
+        self._ground_up = 0.0
 
     # -- lifecycle ----------------------------------------------------------------
 
@@ -144,8 +146,15 @@ class Trajectory3D:
 
     def step(self, state: VehicleState) -> None:
         """Bring the scene up to `state`: origin, trail, vehicle, footprint, camera."""
-        assert self.scene is not None and self.controls is not None and self.server is not None
+        assert self.server is not None
         self.steps += 1
+        # One atomic batch per update: viewers apply it as a whole, and viser wakes its
+        # sender once per step instead of once per message.
+        with self.server.atomic():
+            self._step(state)
+
+    def _step(self, state: VehicleState) -> None:
+        assert self.scene is not None and self.controls is not None
         self.apply_requests()
         origin = origin_from_state(state)
         if origin is not None and self.trail.set_origin(origin):
@@ -166,7 +175,9 @@ class Trajectory3D:
             self.scene.drop_chunks(dropped)
             self.scene.sync_chunk(chunk)
         assert self.trail.origin is not None
-        pos = geodetic_to_enu(sample.lat_deg, sample.lon_deg, sample.alt_m, *self.trail.origin)
+        pos = self.trail.last_enu_m
+        if pos is None:  # the trail was just cleared and this fix is not new
+            pos = geodetic_to_enu(sample.lat_deg, sample.lon_deg, sample.alt_m, *self.trail.origin)
         R = self._attitude(state)
         self.scene.set_vehicle_pose(pos, wxyz_from_matrix(R))
         s = self.settings
@@ -189,7 +200,10 @@ class Trajectory3D:
         """The ground's height in the flight frame: the field's if known, else the origin's."""
         if self.field is None or self.trail.origin is None:
             return 0.0
-        return float(self.field.anchor_in_enu(self.trail.origin)[2])
+        if self._ground_for != self.trail.origin:
+            self._ground_for = self.trail.origin
+            self._ground_up = float(self.field.anchor_in_enu(self.trail.origin)[2])
+        return self._ground_up
 
     def _follow(self, pos: np.ndarray) -> None:
         """Keep each viewer's camera offset, moved along with the vehicle."""
