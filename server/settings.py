@@ -37,6 +37,37 @@ class LinkSettings(_Section):
     link_lost_s: float = Field(2.0, gt=0)
     heartbeat_hz: float = Field(1.0, gt=0)
     reconnect_s: float = Field(1.0, gt=0)
+    gcs_sysid: int = Field(255, ge=1, le=255)  # our own system id on the link (GCS convention)
+    # What the station asks the autopilot for (SET_MESSAGE_INTERVAL, or REQUEST_DATA_STREAM
+    # on older firmware); 0 leaves a message at the autopilot's own rate.
+    message_rates_hz: dict[str, float] = Field(
+        default_factory=lambda: {
+            "ATTITUDE": 50.0,
+            "GLOBAL_POSITION_INT": 25.0,
+            "LOCAL_POSITION_NED": 25.0,
+            "VFR_HUD": 10.0,
+            "GPS_RAW_INT": 5.0,
+            "RC_CHANNELS": 10.0,
+            "SERVO_OUTPUT_RAW": 10.0,
+            "SYS_STATUS": 2.0,
+            "BATTERY_STATUS": 1.0,
+        }
+    )
+    request_streams: bool = True  # False: listen only (another GCS already asks)
+
+
+class RecordingSettings(_Section):
+    """Synchronized flight recording (companion.recording); format in docs/SESSION_FORMAT.md."""
+
+    sessions_dir: Path = Path("./sessions")
+    rate_hz: float = Field(30.0, ge=1, le=100)  # telemetry.csv rows per second
+    auto_record_on_arm: bool = True
+    post_disarm_tail_s: float = Field(5.0, ge=0, le=600)
+    min_free_mb: float = Field(200.0, ge=0)  # stop cleanly under this much free disk
+    row_queue: int = Field(2000, ge=10)  # bounded writer buffers (items)
+    frame_queue: int = Field(90, ge=2)  # per camera
+    packet_queue: int = Field(20000, ge=100)
+    flush_interval_s: float = Field(0.5, gt=0, le=1.0)  # at most 1 s: kill -9 keeps all but it
 
 
 class ViserSettings(_Section):
@@ -60,6 +91,7 @@ class ViserSettings(_Section):
 class Settings(_Section):
     server: ServerSettings = Field(default_factory=ServerSettings)
     link: LinkSettings = Field(default_factory=LinkSettings)
+    recording: RecordingSettings = Field(default_factory=RecordingSettings)
     viser: ViserSettings = Field(default_factory=ViserSettings)
 
 

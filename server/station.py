@@ -12,8 +12,13 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from companion.latest import Latest
+from companion.link import MavlinkLink
+from companion.recording.recorder import Recorder
+from companion.vehicle_state import VehicleState
 from server.settings import Settings
 from server.tasks import TaskSupervisor
+from server.telemetry_json import SharedStateJson
 
 if TYPE_CHECKING:
     from server.trajectory3d.service import Trajectory3D
@@ -23,6 +28,12 @@ if TYPE_CHECKING:
 class Station:
     settings: Settings
     tasks: TaskSupervisor = field(default_factory=TaskSupervisor)
+    # The vehicle link (None for source "none") and its state slot. For "none" the slot
+    # stays empty, so consumers need no special case: they simply never get a state.
+    link: MavlinkLink | None = None
+    state: Latest[VehicleState] = field(default_factory=Latest)
+    telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
+    recorder: Recorder | None = None
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
 
 
@@ -31,21 +42,50 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
     station = Station(settings=settings)
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
+
+        # -- vehicle link ----------------------------------------------------------
+        source = settings.link.source.strip()
+        if source == "sim":
+            # The twin section starts an embedded twin vehicle here, then points a
+            # MavlinkLink at it over a loopback socket and sets station.link/state,
+            # exactly as for a real vehicle below.
+            pass
+        elif source != "none":
+            link = MavlinkLink(settings.link)
+            link.start()
+            stack.callback(link.stop)
+            station.link = link
+            station.state = link.state
+
+        # -- recorder (after the link and cameras it records) -----------------------
+        station.recorder = await _open_recorder(station, stack)
+
+        # -- 3D trajectory panel (after the link whose state it draws) ----------------
         if settings.viser.enabled:
             await _start_trajectory3d(station, stack)
         yield station
 
 
+async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
+    from server.recording import open_recorder
+
+    state = station.state
+    cams = getattr(station, "cameras", None) or {}
+    return await open_recorder(
+        station.settings, stack, station.tasks.spawn, state,
+        {name: cam.frames for name, cam in cams.items()},
+        {name: getattr(cam, "fps", None) for name, cam in cams.items()},
+        getattr(station, "link", None),
+    )
+
+
 async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
-    from companion.latest import Latest
     from server.trajectory3d.field import default_field
     from server.trajectory3d.service import open_trajectory3d
 
-    # The vehicle state slot comes from the link; without a link the panel shows the field.
-    state = getattr(station, "state", None) or Latest()
     s = station.settings
     field = default_field() if s.link.source == "sim" else None
-    service = await open_trajectory3d(s.viser, state, s.server.host, field)
+    service = await open_trajectory3d(s.viser, station.state, s.server.host, field)
     station.trajectory3d = service
     # viser's stop joins its thread: keep that wait off the event loop.
     stack.push_async_callback(asyncio.to_thread, service.stop)
