@@ -15,7 +15,13 @@ import viser.transforms as vtf
 
 from analysis.geodesy import enu_to_geodetic
 from companion.latest import Latest
-from companion.vehicle_state import VehicleState
+from companion.vehicle_state import (
+    Attitude,
+    GlobalPosition,
+    GpsRaw,
+    PilotAltitude,
+    VehicleState,
+)
 from server.app import create_app
 from server.settings import ViserSettings, load_settings
 from server.trajectory3d.colors import ramp_rgb
@@ -32,20 +38,18 @@ ORIGIN = (FIELD.anchor_lat_deg, FIELD.anchor_lon_deg, FIELD.anchor_alt_m)
 def make_state(t_s: float, enu: tuple[float, float, float], fix_type: int = 3,
                yaw_rad: float = 0.0, armed_origin: tuple | None = None) -> VehicleState:
     """A vehicle state at ENU position `enu` about the field's anchor."""
-    lat, lon, alt = enu_to_geodetic(enu, *ORIGIN)
-    s = VehicleState()
-    s.gps.t_mono, s.gps.fix_type = t_s, fix_type
-    s.gps.lat_deg, s.gps.lon_deg, s.gps.alt_m = float(lat), float(lon), float(alt)
-    gp = s.global_position
-    gp.t_mono, gp.lat_deg, gp.lon_deg, gp.alt_m = t_s, float(lat), float(lon), float(alt)
-    gp.vx_mps, gp.vy_mps, gp.vz_mps = 1.0, 0.5, 0.0
-    s.attitude.t_mono = t_s
-    s.attitude.roll_rad, s.attitude.pitch_rad, s.attitude.yaw_rad = 0.0, 0.0, yaw_rad
+    lat, lon, alt = (float(v) for v in enu_to_geodetic(enu, *ORIGIN))
+    altitude = PilotAltitude()
     if armed_origin is not None:
-        a = s.altitude
-        a.reference = "arming"
-        a.home_lat_deg, a.home_lon_deg, a.reference_alt_m = armed_origin
-    return s
+        altitude = PilotAltitude(t_mono=t_s, reference="arming", home_lat_deg=armed_origin[0],
+                                 home_lon_deg=armed_origin[1], reference_alt_m=armed_origin[2])
+    return VehicleState(
+        gps=GpsRaw(t_mono=t_s, fix_type=fix_type, lat_deg=lat, lon_deg=lon, alt_m=alt),
+        global_position=GlobalPosition(t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt,
+                                       vx_mps=1.0, vy_mps=0.5, vz_mps=0.0),
+        attitude=Attitude(t_mono=t_s, roll_rad=0.0, pitch_rad=0.0, yaw_rad=yaw_rad),
+        altitude=altitude,
+    )
 
 
 @pytest.fixture
@@ -226,13 +230,15 @@ def test_update_cost_stays_flat_over_a_30_minute_flight(service):
     t = np.arange(18_000) * 0.1
     enu = np.stack([10 * np.sin(t / 30), 6 * np.sin(t / 15), 3 + rng.normal(0, 0.3, t.size)], 1)
     geo = enu_to_geodetic(enu, *ORIGIN)
-    state = make_state(0.0, (0.0, 0.0, 3.0))
     for i in range(t.size):
-        gp = state.global_position
-        gp.t_mono = state.gps.t_mono = state.attitude.t_mono = float(t[i])
-        gp.lat_deg, gp.lon_deg, gp.alt_m = (float(v) for v in geo[i])
-        state.gps.fix_type = 1 if (i % 3000) < 20 else 3  # a 2 s dropout every 5 minutes
-        state.attitude.yaw_rad = float(t[i] / 10)
+        fix = 1 if (i % 3000) < 20 else 3  # a 2 s dropout every 5 minutes
+        ti, (lat, lon, alt) = float(t[i]), (float(v) for v in geo[i])
+        state = VehicleState(
+            gps=GpsRaw(t_mono=ti, fix_type=fix, lat_deg=lat, lon_deg=lon, alt_m=alt),
+            global_position=GlobalPosition(t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt,
+                                           vx_mps=1.0, vy_mps=0.0),
+            attitude=Attitude(t_mono=ti, roll_rad=0.0, pitch_rad=0.0, yaw_rad=ti / 10),
+        )
         first_id = buffer.message_counter
         service.step(state)
         new_ids = range(first_id, buffer.message_counter)
