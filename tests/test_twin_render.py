@@ -98,7 +98,9 @@ def test_front_view_sees_far_obstacle_from_the_side(renderer: Renderer) -> None:
     assert got[0] > 2 * got[2]  # blue
 
 
-def test_horizon_follows_roll(renderer: Renderer) -> None:
+def test_horizon_follows_roll() -> None:
+    no_net = SCENE.model_copy(update={"field": SCENE.field.model_copy(update={"net_height_m": 0})})
+    renderer = Renderer(no_net)
     roll = np.radians(20)
     R = yaw_matrix(np.array([0.0]))[0] @ np.array(
         [[1, 0, 0], [0, np.cos(roll), -np.sin(roll)], [0, np.sin(roll), np.cos(roll)]])
