@@ -37,6 +37,7 @@ def add_serve_parser(sub: Any) -> None:
         help="also copy raw MAVLink to this connection (udpout:HOST:PORT), repeatable",
     )
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
+    add_camera_flags(p)
     p.set_defaults(func=run_serve)
 
 
@@ -85,6 +86,36 @@ def run_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_analyze_parser(sub: Any) -> None:
+    from analysis import cli as analysis_cli
+
+    p = sub.add_parser(
+        "analyze",
+        help="the paper's task metrics, table and plots for sessions, zips or .tlogs",
+        description=analysis_cli.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    analysis_cli.add_arguments(p)
+    p.set_defaults(func=analysis_cli.run)
+def add_camera_flags(p: Any) -> None:
+    specs = "v4l2:/dev/video0[?width=640&height=480&fps=30&fourcc=MJPG], v4l2:0, file:X.mp4, "
+    specs += "folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none"
+    p.add_argument("--front", dest="cameras.front.spec", help=f"front camera: {specs}")
+    p.add_argument("--bottom", dest="cameras.bottom.spec", help="bottom camera (same specs)")
+
+
+def add_cameras_parser(sub: Any) -> None:
+    p = sub.add_parser("cameras", help="list V4L2 video devices and their formats")
+    p.set_defaults(func=run_cameras)
+
+
+def run_cameras(args: argparse.Namespace) -> int:
+    from companion.cameras.devices import format_devices, list_devices
+
+    print(format_devices(list_devices()))
+    return 0
+
+
 def settings_from_args(args: argparse.Namespace) -> Settings:
     overrides = {k: v for k, v in vars(args).items() if "." in k}
     return load_settings(getattr(args, "config", None), overrides)
@@ -96,10 +127,33 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.app import create_app
 
     settings = settings_from_args(args)
+    check_link_settings(settings)
     app = create_app(settings)
     print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
-    uvicorn.run(app, host=settings.server.host, port=settings.server.port, log_level="info")
+    # Our own listening socket: it caps unsent bytes per connection (see server/listen.py).
+    from server.listen import listening_socket
+
+    sock = listening_socket(settings.server.host, settings.server.port)
+    uvicorn.Server(uvicorn.Config(app, log_level="info")).run(sockets=[sock])
     return 0
+
+
+def check_link_settings(settings: Settings) -> None:
+    """Refuse unusable connection strings before the server starts, with a clear message."""
+    from companion.stream_request import message_id
+    from companion.transports import ConnectionStringError, parse_connection
+
+    try:
+        parse_connection(settings.link.source)
+        for fwd in settings.link.forward:
+            if parse_connection(fwd).kind not in ("udpin", "udpout"):
+                raise ConnectionStringError(
+                    f"--forward '{fwd}' must be udpout:HOST:PORT or udpin:HOST:PORT."
+                )
+        for name in settings.link.message_rates_hz:
+            message_id(name)
+    except ValueError as exc:
+        raise SettingsError(str(exc)) from None
 
 
 def _display_host(host: str) -> str:
@@ -112,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     add_serve_parser(sub)
     add_sim_parser(sub)
+    add_analyze_parser(sub)
+    add_cameras_parser(sub)
     return parser
 
 

@@ -13,7 +13,9 @@ import tomllib
 from pathlib import Path
 from typing import Any, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from companion.cameras.spec import parse_spec
 
 
 class _Section(BaseModel):
@@ -37,6 +39,63 @@ class LinkSettings(_Section):
     link_lost_s: float = Field(2.0, gt=0)
     heartbeat_hz: float = Field(1.0, gt=0)
     reconnect_s: float = Field(1.0, gt=0)
+    gcs_sysid: int = Field(255, ge=1, le=255)  # our own system id on the link (GCS convention)
+    # What the station asks the autopilot for (SET_MESSAGE_INTERVAL, or REQUEST_DATA_STREAM
+    # on older firmware); 0 leaves a message at the autopilot's own rate.
+    message_rates_hz: dict[str, float] = Field(
+        default_factory=lambda: {
+            "ATTITUDE": 50.0,
+            "GLOBAL_POSITION_INT": 25.0,
+            "LOCAL_POSITION_NED": 25.0,
+            "VFR_HUD": 10.0,
+            "GPS_RAW_INT": 5.0,
+            "RC_CHANNELS": 10.0,
+            "SERVO_OUTPUT_RAW": 10.0,
+            "SYS_STATUS": 2.0,
+            "BATTERY_STATUS": 1.0,
+        }
+    )
+    request_streams: bool = True  # False: listen only (another GCS already asks)
+
+
+class RecordingSettings(_Section):
+    """Synchronized flight recording (companion.recording); format in docs/SESSION_FORMAT.md."""
+
+    sessions_dir: Path = Path("./sessions")
+    rate_hz: float = Field(30.0, ge=1, le=100)  # telemetry.csv rows per second
+    auto_record_on_arm: bool = True
+    post_disarm_tail_s: float = Field(5.0, ge=0, le=600)
+    min_free_mb: float = Field(200.0, ge=0)  # stop cleanly under this much free disk
+    row_queue: int = Field(2000, ge=10)  # bounded writer buffers (items)
+    frame_queue: int = Field(90, ge=2)  # per camera
+    packet_queue: int = Field(20000, ge=100)
+    flush_interval_s: float = Field(0.5, gt=0, le=1.0)  # at most 1 s: kill -9 keeps all but it
+
+
+class CameraConfig(_Section):
+    # A camera spec (see companion/cameras/spec.py): v4l2:/dev/video0, v4l2:0, file:X.mp4,
+    # folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none. None = sim:<name> when
+    # link.source is "sim", else none. Spec options (?width=..&fps=..) override the rest.
+    spec: str | None = None
+    width: int = Field(640, ge=16, le=8192)
+    height: int = Field(480, ge=16, le=8192)
+    fps: float = Field(30.0, gt=0, le=240)
+    jpeg_quality: int = Field(80, ge=1, le=100)
+
+    @field_validator("spec")
+    @classmethod
+    def _spec_is_usable(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_spec(value)  # CameraSpecError (a ValueError) says what is wrong
+        return value
+
+
+class CameraSettings(_Section):
+    front: CameraConfig = Field(default_factory=CameraConfig)
+    bottom: CameraConfig = Field(default_factory=CameraConfig)
+    stall_s: float = Field(2.0, gt=0)  # no frame for this long = NO SIGNAL (stalled)
+    retry_min_s: float = Field(0.5, gt=0)  # reopen back-off, doubling up to retry_max_s
+    retry_max_s: float = Field(5.0, gt=0)
 
 
 class TwinSettings(_Section):
@@ -53,13 +112,14 @@ class TwinSettings(_Section):
     gps_rate_hz: float = Field(5.0, ge=1.0, le=20.0)
     max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
     rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
-    fpv_noise: bool = False  # analog-FPV look on the rendered cameras
-    camera_fps: float = Field(30.0, gt=0, le=60.0)
+    fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
 
 
 class Settings(_Section):
     server: ServerSettings = Field(default_factory=ServerSettings)
     link: LinkSettings = Field(default_factory=LinkSettings)
+    recording: RecordingSettings = Field(default_factory=RecordingSettings)
+    cameras: CameraSettings = Field(default_factory=CameraSettings)
     twin: TwinSettings = Field(default_factory=TwinSettings)
 
 

@@ -6,18 +6,35 @@ the settings, starts them in dependency order and stops them in reverse.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
+from typing import Any
 
+from companion.latest import Latest
+from companion.link import MavlinkLink
+from companion.recording.recorder import Recorder
+from companion.vehicle_state import VehicleState
 from server.settings import Settings
 from server.tasks import TaskSupervisor
+from server.telemetry_json import SharedStateJson
 
 
 @dataclass
 class Station:
     settings: Settings
     tasks: TaskSupervisor = field(default_factory=TaskSupervisor)
+    # The vehicle link (None for source "none") and its state slot. For "none" the slot
+    # stays empty, so consumers need no special case: they simply never get a state.
+    link: MavlinkLink | None = None
+    state: Latest[VehicleState] = field(default_factory=Latest)
+    telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
+    recorder: Recorder | None = None
+    # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
+    cameras: dict[str, Any] = field(default_factory=dict)
+    # The digital twin (twin.runner.Twin) when link.source is "sim", else None.
+    twin: Any = None
 
 
 @contextlib.asynccontextmanager
@@ -25,4 +42,57 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
     station = Station(settings=settings)
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
+
+        # -- vehicle link ----------------------------------------------------------
+        source = settings.link.source.strip()
+        if source == "sim":
+            # The embedded twin vehicle, reached by a MavlinkLink over a loopback socket,
+            # exactly as a real vehicle below (server/sim.py).
+            from server.sim import open_sim
+
+            open_sim(station, stack)
+        elif source != "none":
+            link = MavlinkLink(settings.link)
+            link.start()
+            stack.callback(link.stop)
+            station.link = link
+            station.state = link.state
+
+        # -- cameras (after the twin, whose renderer the sim cameras use) ------------
+        await _open_cameras(station, stack)
+
+        # -- recorder (after the link and cameras it records) -----------------------
+        station.recorder = await _open_recorder(station, stack)
         yield station
+
+
+async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
+    from server.recording import open_recorder
+
+    state = station.state
+    cams = station.cameras
+    return await open_recorder(
+        station.settings, stack, station.tasks.spawn, state,
+        {name: cam.frames for name, cam in cams.items()},
+        {name: getattr(cam, "fps", None) for name, cam in cams.items()},
+        getattr(station, "link", None),
+    )
+
+
+async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> None:
+    """Front and bottom cameras; after the twin, whose renderer the sim cameras use."""
+    from companion.cameras.rig import CAMERA_NAMES, build_camera, start_cameras, stop_cameras
+
+    cams = station.settings.cameras
+    for name in CAMERA_NAMES:
+        station.cameras[name] = build_camera(
+            name,
+            getattr(cams, name),
+            link_source=station.settings.link.source,
+            renderer=lambda: getattr(station, "twin", None),
+            stall_s=cams.stall_s,
+            retry_min_s=cams.retry_min_s,
+            retry_max_s=cams.retry_max_s,
+        )
+    start_cameras(station.cameras.values())
+    stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
