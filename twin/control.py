@@ -101,10 +101,10 @@ class Controller:
               vel_mps: np.ndarray, R: np.ndarray, target_m: np.ndarray) -> None:
         """Velocity and thrust-vector setpoints. `target_m` (N, 3) serves the AUTO modes."""
         g = self.g
-        roll = _stick_with_deadband(sticks[:, 0], g.stick_deadband)
-        pitch = _stick_with_deadband(sticks[:, 1], g.stick_deadband)
-        yaw = _stick_with_deadband(sticks[:, 2], g.stick_deadband)
-        climb = _stick_with_deadband(2.0 * sticks[:, 3] - 1.0, g.stick_deadband)
+        centred = sticks.copy()
+        centred[:, 3] = 2.0 * sticks[:, 3] - 1.0
+        db = _stick_with_deadband(centred, g.stick_deadband)
+        roll, pitch, yaw, climb = db[:, 0], db[:, 1], db[:, 2], db[:, 3]
         auto = mode >= AUTO_TAKEOFF
         self.yaw_sp_rad = np.where(auto, self.yaw_sp_rad,
                                    self.yaw_sp_rad + yaw * g.max_yaw_rate_rad_s * dt)
@@ -163,19 +163,26 @@ class Controller:
                                         np.tan(pitch_a) * s - np.tan(roll_a) * c])
             acc[manual_tilt, :2] = tilt_dir[manual_tilt] * acc[manual_tilt, 2:3]
             self.vel_int[manual_tilt, :2] = 0.0
-        z_d = acc / np.linalg.norm(acc, axis=1, keepdims=True)
-        thrust = self.af.mass_kg * np.linalg.norm(acc, axis=1)
+        acc_norm = np.sqrt((acc * acc).sum(axis=1))
+        z_d = acc / acc_norm[:, None]
+        thrust = self.af.mass_kg * acc_norm
         stab = mode == STABILIZED
         if stab.any():
             max_thrust = 4 * self.af.thrust_coeff_n_per_rad2 * (self.af.kv_rad_s_per_v * 12.0) ** 2
             thrust[stab] = sticks[stab, 3] * max_thrust / np.maximum(z_d[stab, 2], 0.5)
         self.thrust_sp_n = thrust
-        x_c = np.column_stack([np.cos(self.yaw_sp_rad), np.sin(self.yaw_sp_rad),
-                               np.zeros(self.n)])
-        y_d = np.cross(z_d, x_c)
-        y_d /= np.linalg.norm(y_d, axis=1, keepdims=True)
-        self.R_sp = np.stack([np.cross(y_d, z_d), y_d, z_d], axis=2)
-        self._R_sp_T = np.swapaxes(self.R_sp, 1, 2).copy()
+        # R_sp = [x_d, y_d, z_d] with y_d = z_d x (cos yaw, sin yaw, 0), x_d = y_d x z_d.
+        zx, zy, zz = z_d[:, 0], z_d[:, 1], z_d[:, 2]
+        R_sp = np.empty((self.n, 3, 3))
+        y_d = R_sp[:, :, 1]
+        y_d[:, 0], y_d[:, 1], y_d[:, 2] = -zz * s, zz * c, zx * s - zy * c
+        y_d /= np.sqrt((y_d * y_d).sum(axis=1))[:, None]
+        yx, yy, yz = y_d[:, 0], y_d[:, 1], y_d[:, 2]
+        R_sp[:, 0, 0], R_sp[:, 1, 0], R_sp[:, 2, 0] = yy * zz - yz * zy, yz * zx - yx * zz, \
+            yx * zy - yy * zx
+        R_sp[:, :, 2] = z_d
+        self.R_sp = R_sp
+        self._R_sp_T = np.swapaxes(R_sp, 1, 2).copy()
         self._z_sp = z_d
 
     def inner(self, R: np.ndarray, omega: np.ndarray, max_rotor_rad_s: np.ndarray,

@@ -163,8 +163,8 @@ class Dynamics:
     def step(self, s: BodyState, throttle: np.ndarray) -> None:
         """Advance every vehicle by dt under per-rotor throttle (N, 4) in [0, 1]; in place.
 
-        The fast part only (rotors, rigid body, ground); call `slow_update` at the outer
-        rate for the battery, gusts and collisions, which change slowly.
+        The fast part only (rotors, rigid body, ground); `collisions` (~50 Hz) and
+        `slow_update` (~10 Hz: battery, gusts) run at lower rates from the caller.
         """
         af, dt = self.airframe, self.dt_s
         u = np.minimum(np.maximum(throttle, 0.0), 1.0) * self._w_max_alive
@@ -197,7 +197,7 @@ class Dynamics:
             self._ground(s)
 
     def slow_update(self, s: BodyState, dt: float) -> None:
-        """Battery, gusts and collisions, at the outer-loop rate (~50 Hz)."""
+        """Battery and gusts, which change slowly (~10 Hz is plenty)."""
         self._battery(s, s.rotor_thrust_n, dt)
         if self.wind.gust_std_mps > 0:
             k = dt / self.wind.gust_tau_s
@@ -205,7 +205,6 @@ class Dynamics:
             gust += -gust * k + self.wind.gust_std_mps * np.sqrt(2 * k) * self._rng.standard_normal(
                 gust.shape)
             s.wind_mps = gust + self.wind.mean_enu_mps
-        self._collisions(s)
         alive = (s.crash == 0) & (s.charge_c > 0)
         self._w_max_alive = (self.airframe.kv_rad_s_per_v * s.voltage_v * alive)[:, None]
 
@@ -220,7 +219,8 @@ class Dynamics:
         s.voltage_v = ocv - s.current_a * af.internal_resistance_ohm
         s.charge_c = np.maximum(s.charge_c - s.current_a * dt, 0.0)
 
-    def _collisions(self, s: BodyState) -> None:
+    def collisions(self, s: BodyState) -> None:
+        """Obstacles and the net (~50 Hz: 10 cm of travel at 5 m/s between checks)."""
         r = self.airframe.frame_radius_m
         z = s.pos_m[:, 2]
         if len(self.obstacle_boxes_m):
@@ -231,6 +231,7 @@ class Dynamics:
             hit = (s.crash == 0) & inside
             s.crash[hit] = CRASH_OBSTACLE
             s.vel_mps[hit, :2] = 0.0  # stopped by the obstacle; it falls from there
+            self._w_max_alive[hit] = 0.0
         if self.net_half_extent_m is not None:
             hx, hy = self.net_half_extent_m
             out = ((np.abs(s.pos_m[:, 0]) > hx - r) | (np.abs(s.pos_m[:, 1]) > hy - r)) & (
@@ -238,6 +239,7 @@ class Dynamics:
             hit = (s.crash == 0) & out
             s.crash[hit] = CRASH_NET
             s.vel_mps[hit, :2] = 0.0  # caught in the net
+            self._w_max_alive[hit] = 0.0
 
     def _ground(self, s: BodyState) -> None:
         touching = s.pos_m[:, 2] <= 0.0

@@ -30,7 +30,8 @@ _FRD_TO_FLU = np.diag([1.0, -1.0, -1.0])
 @dataclass(frozen=True)
 class SimConfig:
     physics_hz: float = 250.0
-    outer_every: int = 5  # position/velocity loop and commander at physics_hz / 5 = 50 Hz
+    outer_every: int = 5  # position/velocity loop at physics_hz / 5 = 50 Hz
+    slow_every: int = 5  # commander, battery, sensor drifts every 5 outer loops = 10 Hz
     seed: int = 0
     wind: Wind = field(default_factory=Wind)
     sensors: SensorParams = field(default_factory=SensorParams)
@@ -115,16 +116,19 @@ class Sim:
     def step(self, n_steps: int = 1) -> None:
         cfg, s = self.config, self.state
         com, ctl = self.commander, self.controller
+        slow_every = cfg.outer_every * cfg.slow_every
+        dt_outer, dt_slow = self.dt_s * cfg.outer_every, self.dt_s * slow_every
         for _ in range(n_steps):
-            if self.steps % cfg.outer_every == 0:
-                dt_outer = self.dt_s * cfg.outer_every
-                self.dynamics.slow_update(s, dt_outer)
-                self.sensors.update(dt_outer)
+            if self.steps % slow_every == 0:  # 10 Hz: battery, drifts, commander
+                self.dynamics.slow_update(s, dt_slow)
+                self.sensors.update(dt_slow)
+                fix = np.full(self.n, self.sensors.has_fix(self.t_s))
+                com.update(dt_slow, self.sticks, s.on_ground, s.crash, self.est_pos_m,
+                           ctl.vel_sp_mps[:, 2], self.battery_pct_all(), fix)
+            if self.steps % cfg.outer_every == 0:  # 50 Hz: collisions, estimate, outer loop
+                self.dynamics.collisions(s)
                 self.sensors.poll_gps(self.t_s, s.pos_m, s.vel_mps)
                 self.est_pos_m, self.est_vel_mps = self.sensors.estimate(s.pos_m, s.vel_mps)
-                fix = np.full(self.n, self.sensors.has_fix(self.t_s))
-                com.update(dt_outer, self.sticks, s.on_ground, s.crash, self.est_pos_m,
-                           ctl.vel_sp_mps[:, 2], self.battery_pct_all(), fix)
                 stab = com.mode == STABILIZED
                 grounded = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
                                                  ctl.vel_sp_mps[:, 2] <= 0.2)
