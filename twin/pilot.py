@@ -167,3 +167,36 @@ def fly(sim, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0,
         sim.step(n)
         track.append((sim.t_s, *pose.pos_enu_m))
     return np.array(track)
+
+
+def fly_twin(twin, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0,
+             stop=None) -> np.ndarray:
+    """Fly a `twin.runner.Twin` with `pilot`; returns the true track (K, 4) of t_s, x, y, z.
+
+    With the twin's real-time thread running (as in the station), the sticks go in at
+    `rate_hz` of sim time, paced by the wall clock, and everything else (MAVLink,
+    cameras, recorder) sees a normal flight. Without it, the twin is stepped faster than
+    real time (`Twin.step_for`, MAVLink still polled every tick). `stop` (a
+    threading.Event) ends the flight early.
+    """
+    import time
+
+    period_s = 1.0 / rate_hz
+    t0 = twin.pose().t_s
+    track = []
+    while not pilot.done and not (stop is not None and stop.is_set()):
+        with twin.lock:
+            sim = twin.sim
+            pose = sim.pose()
+            armed, crashed = bool(sim.commander.armed[0]), bool(sim.state.crash[0])
+        if crashed or pose.t_s - t0 > timeout_s:
+            break
+        yaw = float(np.arctan2(pose.R_world_body[1, 0], pose.R_world_body[0, 0]))
+        twin.set_sticks(*pilot.update(Observation(pose.t_s, pose.pos_enu_m, pose.vel_enu_mps,
+                                                  yaw, armed)))
+        track.append((pose.t_s, *pose.pos_enu_m))
+        if twin.running:
+            time.sleep(period_s / twin.realtime_factor)
+        else:
+            twin.step_for(period_s)
+    return np.array(track)

@@ -52,6 +52,11 @@ class Pose:
     omega_body_rad_s: np.ndarray
 
     @property
+    def yaw_enu_rad(self) -> float:
+        """Heading counter-clockwise from east (0 = facing east, the field's start heading)."""
+        return float(np.arctan2(self.R_world_body[1, 0], self.R_world_body[0, 0]))
+
+    @property
     def R_ned_frd(self) -> np.ndarray:
         return _ENU_TO_NED @ self.R_world_body @ _FRD_TO_FLU
 
