@@ -116,3 +116,39 @@ def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
         saved = page.evaluate("JSON.parse(localStorage.getItem('fpv.control.gamepad'))")
         assert saved["map"]["roll"]["index"] == 5
         browser.close()
+
+
+def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
+    """What `make run` does: the station on the twin, from the command line."""
+    import subprocess
+    import sys
+
+    import httpx
+
+    from tests.helpers import free_port
+
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "server", "serve", "--source", "sim", "--host", "127.0.0.1",
+         "--port", str(port)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
+        env={**__import__("os").environ, "PYTHONPATH": str(__import__("pathlib").Path(
+            __file__).resolve().parents[1])})
+    try:
+        first = proc.stdout.readline()
+        assert f"http://127.0.0.1:{port}/" in first
+
+        def status():
+            try:
+                return httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=2).json()
+            except httpx.HTTPError:
+                return None
+
+        assert wait_until(lambda: (s := status()) and s.get("state", {}).get("heartbeat", {})
+                          .get("autopilot") == "px4", timeout=20), status()
+        assert status()["source"] == "sim"
+        page = httpx.get(f"http://127.0.0.1:{port}/", timeout=5).text
+        assert "/control.js" in page and 'id="control-widget"' in page
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
