@@ -318,3 +318,24 @@ def test_v4l2_raw_format_device_is_encoded_once_per_frame():
     stats = camera.stats()
     assert stats.encodes == 5 and stats.passthrough_frames == 0
     assert "delivered no frame" in stats.reason and "YUYV" in stats.description
+
+
+def test_sim_cameras_render_the_real_twin():
+    from twin.runner import twin_from_settings
+
+    twin = twin_from_settings(load_settings(environ={}).twin, None)
+    cams = [build_camera(name, CameraConfig(fps=10), link_source="sim", renderer=lambda: twin)
+            for name in ("front", "bottom")]
+    for cam in cams:
+        cam.start()
+    try:
+        assert wait_until(lambda: all(c.stats().frames >= 3 for c in cams), 10.0)
+        front, bottom = (_decode(c.frames.get().value.jpeg) for c in cams)
+    finally:
+        for cam in cams:
+            cam.stop()
+    assert front.shape == bottom.shape == (480, 640, 3)
+    assert all(c.stats().description == f"digital twin camera '{c.name}'" for c in cams)
+    # On the start pad the front camera sees sky above the horizon, the bottom one the pad:
+    # two different views, not one picture twice.
+    assert np.abs(front.astype(int) - bottom.astype(int)).mean() > 20
