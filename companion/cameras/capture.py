@@ -98,6 +98,10 @@ class Camera:
             self._threads.append(thread)
             thread.start()
 
+    def request_stop(self) -> None:
+        """Ask the threads to end without waiting (to stop several cameras at once)."""
+        self._stop.set()
+
     def stop(self, timeout_s: float = 3.0) -> None:
         self._stop.set()
         for thread in self._threads:
