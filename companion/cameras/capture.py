@@ -231,7 +231,8 @@ class Camera:
 
     def _watchdog_loop(self) -> None:
         """Show NO SIGNAL when an open source stops delivering (its read is stuck)."""
-        stall_s = self.config.stall_s
+        # A slow camera (fps < 1.5) must not look stalled between two of its own frames.
+        stall_s = max(self.config.stall_s, 3.0 / self.config.fps)
         while not self._stop.wait(min(0.25, stall_s / 4)):
             last = self._last_good_mono
             now = time.monotonic()
