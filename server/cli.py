@@ -54,7 +54,15 @@ def run_serve(args: argparse.Namespace) -> int:
     check_link_settings(settings)
     app = create_app(settings)
     print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
-    uvicorn.run(app, host=settings.server.host, port=settings.server.port, log_level="info")
+    # No permessage-deflate: browsers ask for it, and it would compress every telemetry
+    # message once per client, the per-client re-encoding the shared JSON body avoids.
+    uvicorn.run(
+        app,
+        host=settings.server.host,
+        port=settings.server.port,
+        log_level="info",
+        ws_per_message_deflate=False,
+    )
     return 0
 
 
