@@ -73,6 +73,7 @@ class MavlinkLink:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._stop = threading.Event()
+        self._pipe_closed = False
         self._thread: threading.Thread | None = None
         self._transport: Transport | None = None
         self._forwarders: list[UdpTransport] = []
@@ -95,14 +96,16 @@ class MavlinkLink:
         self._wake()
         if self._thread is not None:
             self._thread.join(timeout)
+        self.state.close()
+        if self._thread is not None and self._thread.is_alive():
+            log.error("MAVLink link thread did not stop within %.1f s", timeout)
+            return  # leave its fds open rather than pull them from under it
         for fwd in self._forwarders:
             fwd.close()
-        self.state.close()
-        for fd in (self._wake_r, self._wake_w):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        if not self._pipe_closed:  # twice would close fd numbers the OS may have reused
+            self._pipe_closed = True
+            os.close(self._wake_r)
+            os.close(self._wake_w)
 
     def add_packet_listener(self, cb: PacketListener) -> None:
         """`cb(t_wall_s, packet)` runs in the link thread for every good packet; it must
@@ -134,6 +137,8 @@ class MavlinkLink:
     # -- the thread ------------------------------------------------------------------
 
     def _wake(self) -> None:
+        if self._pipe_closed:
+            return  # never write to a closed fd number: the OS may have reused it
         try:
             os.write(self._wake_w, b"\0")
         except (BlockingIOError, OSError):

@@ -94,14 +94,15 @@ class FakeVehicle:
 
     def publish_now(self) -> None:
         now = time.monotonic()
-        s = VehicleState()
-        s.heartbeat = Heartbeat(t_mono=now, sysid=1, compid=1, autopilot="px4", armed=self.armed,
-                                mode="POSCTL")
-        s.rc = RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14)
-        s.altitude = PilotAltitude(
-            t_mono=now, relative_alt_m=self.alt_m, reference_alt_m=180.0,
-            reference="arming" if self.armed else "first_fix", home_lat_deg=43.0021,
-            home_lon_deg=-78.7875,
+        s = VehicleState(  # frozen: built whole, as the link publishes it
+            heartbeat=Heartbeat(t_mono=now, sysid=1, compid=1, autopilot="px4",
+                                armed=self.armed, mode="POSCTL"),
+            rc=RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14),
+            altitude=PilotAltitude(
+                t_mono=now, relative_alt_m=self.alt_m, reference_alt_m=180.0,
+                reference="arming" if self.armed else "first_fix", home_lat_deg=43.0021,
+                home_lon_deg=-78.7875,
+            ),
         )
         self.state.publish(s)
 
