@@ -5,6 +5,10 @@ updated, None before its first message) and, where the message has one, the vehi
 own timestamp (`time_boot_ms` or `time_usec`). Units are in the names. These names are
 the contract for the WebSocket JSON, the recorder's CSV columns (flattened as
 `group.field`, tuples as `group.field.N`), and the analysis loaders: rename with care.
+
+Every class is frozen: the link publishes a new `VehicleState` (sharing unchanged
+groups) for every change, and readers in other threads hold snapshots that never move
+under them. Build changed copies with `dataclasses.replace`.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class Heartbeat:
     t_mono: float | None = None
     sysid: int | None = None
@@ -27,7 +31,7 @@ class Heartbeat:
     mavlink_version: int | None = None  # 1 or 2, from the wire format of its packets
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class GpsRaw:
     """GPS_RAW_INT: the receiver's own solution."""
 
@@ -44,7 +48,7 @@ class GpsRaw:
     course_deg: float | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class GlobalPosition:
     """GLOBAL_POSITION_INT: the autopilot's fused position."""
 
@@ -60,7 +64,7 @@ class GlobalPosition:
     heading_deg: float | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class VfrHud:
     t_mono: float | None = None
     ground_speed_mps: float | None = None
@@ -71,7 +75,7 @@ class VfrHud:
     alt_m: float | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class Attitude:
     t_mono: float | None = None
     time_boot_ms: int | None = None
@@ -83,7 +87,7 @@ class Attitude:
     yawspeed_rad_s: float | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class RcChannels:
     """RC_CHANNELS: the pilot's stick inputs as PWM (us); 0 or 65535 = unused."""
 
@@ -94,7 +98,7 @@ class RcChannels:
     rssi: int | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class ServoOutputs:
     """SERVO_OUTPUT_RAW: the autopilot's outputs (motors) as PWM (us)."""
 
@@ -104,7 +108,7 @@ class ServoOutputs:
     pwm_us: tuple[int, ...] = (0,) * 16
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class Battery:
     """SYS_STATUS and BATTERY_STATUS merged."""
 
@@ -114,7 +118,7 @@ class Battery:
     remaining_pct: float | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class LocalPosition:
     """LOCAL_POSITION_NED, when the autopilot sends it."""
 
@@ -128,7 +132,7 @@ class LocalPosition:
     vz_mps: float | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class PilotAltitude:
     """The altitude the pilot sees: altitude now minus the altitude at arming.
 
@@ -145,7 +149,20 @@ class PilotAltitude:
     home_lon_deg: float | None = None
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
+class LinkStatus:
+    """Whether the autopilot is heard: `link_lost` after `link.link_lost_s` of silence.
+
+    Part of the state so that the pilot's page, the recorder and the WebSocket see a
+    lost link as a state change (nothing else changes when the vehicle goes silent).
+    """
+
+    t_mono: float | None = None  # when link_lost last changed
+    link_lost: bool = True
+    last_heartbeat_mono: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class VehicleState:
     """Everything the station knows about the autopilot it follows."""
 
@@ -159,3 +176,4 @@ class VehicleState:
     battery: Battery = field(default_factory=Battery)
     local_position: LocalPosition = field(default_factory=LocalPosition)
     altitude: PilotAltitude = field(default_factory=PilotAltitude)
+    link: LinkStatus = field(default_factory=LinkStatus)

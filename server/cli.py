@@ -40,6 +40,19 @@ def add_serve_parser(sub: Any) -> None:
     p.set_defaults(func=run_serve)
 
 
+def add_analyze_parser(sub: Any) -> None:
+    from analysis import cli as analysis_cli
+
+    p = sub.add_parser(
+        "analyze",
+        help="the paper's task metrics, table and plots for sessions, zips or .tlogs",
+        description=analysis_cli.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    analysis_cli.add_arguments(p)
+    p.set_defaults(func=analysis_cli.run)
+
+
 def settings_from_args(args: argparse.Namespace) -> Settings:
     overrides = {k: v for k, v in vars(args).items() if "." in k}
     return load_settings(getattr(args, "config", None), overrides)
@@ -51,10 +64,29 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.app import create_app
 
     settings = settings_from_args(args)
+    check_link_settings(settings)
     app = create_app(settings)
     print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
     uvicorn.run(app, host=settings.server.host, port=settings.server.port, log_level="info")
     return 0
+
+
+def check_link_settings(settings: Settings) -> None:
+    """Refuse unusable connection strings before the server starts, with a clear message."""
+    from companion.stream_request import message_id
+    from companion.transports import ConnectionStringError, parse_connection
+
+    try:
+        parse_connection(settings.link.source)
+        for fwd in settings.link.forward:
+            if parse_connection(fwd).kind not in ("udpin", "udpout"):
+                raise ConnectionStringError(
+                    f"--forward '{fwd}' must be udpout:HOST:PORT or udpin:HOST:PORT."
+                )
+        for name in settings.link.message_rates_hz:
+            message_id(name)
+    except ValueError as exc:
+        raise SettingsError(str(exc)) from None
 
 
 def _display_host(host: str) -> str:
@@ -66,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     add_serve_parser(sub)
+    add_analyze_parser(sub)
     return parser
 
 

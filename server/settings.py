@@ -37,6 +37,23 @@ class LinkSettings(_Section):
     link_lost_s: float = Field(2.0, gt=0)
     heartbeat_hz: float = Field(1.0, gt=0)
     reconnect_s: float = Field(1.0, gt=0)
+    gcs_sysid: int = Field(255, ge=1, le=255)  # our own system id on the link (GCS convention)
+    # What the station asks the autopilot for (SET_MESSAGE_INTERVAL, or REQUEST_DATA_STREAM
+    # on older firmware); 0 leaves a message at the autopilot's own rate.
+    message_rates_hz: dict[str, float] = Field(
+        default_factory=lambda: {
+            "ATTITUDE": 50.0,
+            "GLOBAL_POSITION_INT": 25.0,
+            "LOCAL_POSITION_NED": 25.0,
+            "VFR_HUD": 10.0,
+            "GPS_RAW_INT": 5.0,
+            "RC_CHANNELS": 10.0,
+            "SERVO_OUTPUT_RAW": 10.0,
+            "SYS_STATUS": 2.0,
+            "BATTERY_STATUS": 1.0,
+        }
+    )
+    request_streams: bool = True  # False: listen only (another GCS already asks)
 
 
 class RecordingSettings(_Section):

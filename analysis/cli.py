@@ -1,0 +1,79 @@
+"""`fpv-station analyze`: the paper's task analysis of one or more sessions.
+
+    fpv-station analyze SESSION [SESSION ...] --task {hover,a-to-b,obstacle,figure8}
+                        [--reference LAT,LON] [--out DIR] [--scene FILE | --no-scene]
+                        [--label NAME ...] [--hover-height M] [--hover-window S]
+                        [--margin M] [--airborne-height M]
+
+SESSION is a session folder, a downloaded session zip, or a bare .tlog. Prints the
+comparison table (Markdown) and writes it as .md/.csv/.json with the three figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from analysis.errors import AnalysisError
+from analysis.tasks import TASKS, TaskParams
+
+
+def parse_latlon(text: str) -> tuple[float, float]:
+    try:
+        lat_s, lon_s = text.split(",")
+        lat, lon = float(lat_s), float(lon_s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"'{text}' is not LAT,LON in degrees (for example 43.0021,-78.7870)."
+        ) from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise argparse.ArgumentTypeError(f"'{text}' is outside latitude/longitude range.")
+    return lat, lon
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    d = TaskParams()
+    p.add_argument("sessions", nargs="+", type=Path, metavar="SESSION",
+                   help="session folder, session .zip or .tlog")  # fmt: skip
+    # Not `choices=`: a wrong task gets the same clear message as through REST.
+    p.add_argument("--task", required=True, help=f"one of: {', '.join(TASKS)}")
+    p.add_argument("--reference", type=parse_latlon, metavar="LAT,LON",
+                   help="point that sets +x (default: the scene's landing pad, else the "
+                   "landing point)")  # fmt: skip
+    p.add_argument("--out", type=Path, help="output folder (default: ./analysis-TASK)")
+    scene = p.add_mutually_exclusive_group()
+    scene.add_argument("--scene", type=Path, help="twin scene TOML with pads and obstacles")
+    scene.add_argument("--no-scene", action="store_true", help="ignore the field layout")
+    p.add_argument("--label", action="append", help="name of each session, in order")
+    p.add_argument("--hover-height", type=float, default=d.hover_height_m, metavar="M")
+    p.add_argument("--hover-window", type=float, default=d.hover_window_s, metavar="S")
+    p.add_argument("--margin", type=float, default=d.margin_m, metavar="M",
+                   help="window starts/ends this far along x from take-off/landing")  # fmt: skip
+    p.add_argument("--airborne-height", type=float, default=d.airborne_height_m, metavar="M")
+
+
+def run(args: argparse.Namespace) -> int:
+    from analysis.report import analyze_paths
+
+    params = TaskParams(
+        hover_height_m=args.hover_height,
+        hover_window_s=args.hover_window,
+        margin_m=args.margin,
+        airborne_height_m=args.airborne_height,
+    )
+    scene: Any = False if args.no_scene else (args.scene if args.scene else True)
+    try:
+        analysis = analyze_paths(
+            args.sessions, args.task, args.reference, scene, params, args.label
+        )
+        out = args.out or Path(f"analysis-{args.task}")
+        files = analysis.write(out)
+    except (AnalysisError, OSError) as exc:
+        print(f"fpv-station analyze: {exc}", file=sys.stderr)
+        return 2
+    print(analysis.comparison.to_markdown())
+    for f in files:
+        print(f"wrote {f}")
+    return 0

@@ -1,0 +1,97 @@
+"""A track in the paper's frame: ENU about the arming point (or the first point), rotated
+so that the line from the start to a reference point is +x. x = longitudinal,
+y = lateral, z = height above the start.
+
+The reference, in order of preference: the one given (`--reference LAT,LON`); the scene's
+landing pad (when the flight is on a known field); the landing point; the point farthest
+from the start (a figure 8 lands where it took off, so its landing point gives no
+direction). With none farther than `min_reference_m`, the ENU axes stay unrotated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from analysis.errors import TooFewPointsError
+from analysis.field import FieldLayout
+from analysis.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
+from analysis.track import Track
+
+Array = NDArray[np.float64]
+ReferenceKind = Literal["given", "scene", "landing", "farthest", "none"]
+OriginKind = Literal["arming", "first"]
+
+
+@dataclass(frozen=True)
+class AlignedTrack:
+    track: Track
+    xyz_m: Array  # (n, 3) aligned frame
+    origin: tuple[float, float, float]  # lat_deg, lon_deg, alt_m
+    rotation_rad: float  # applied about Up to ENU
+    reference_latlon: tuple[float, float] | None
+    reference_kind: ReferenceKind
+    field: FieldLayout | None  # the field's pads and obstacles in this frame, when known
+
+    @property
+    def t_s(self) -> Array:
+        return self.track.t_s
+
+    @property
+    def label(self) -> str:
+        return self.track.label
+
+
+def align_track(
+    track: Track,
+    reference_latlon: tuple[float, float] | None = None,
+    field: FieldLayout | None = None,
+    reference_pad: str = "landing",
+    origin: OriginKind = "arming",
+    min_points: int = 10,
+    min_reference_m: float = 2.0,
+) -> AlignedTrack:
+    if len(track) < min_points:
+        raise TooFewPointsError(
+            f"'{track.source}' has {len(track)} GPS samples with a fix; at least "
+            f"{min_points} are needed to analyse a flight."
+        )
+    i0 = 0
+    if origin == "arming" and track.armed.any():
+        i0 = int(np.argmax(track.armed))
+    o = (float(track.lat_deg[i0]), float(track.lon_deg[i0]), float(track.alt_m[i0]))
+    enu = geodetic_to_enu(track.lat_deg, track.lon_deg, track.alt_m, *o)
+
+    kind: ReferenceKind = "none"
+    ref: tuple[float, float] | None = None
+    ref_en: Array | None = None
+    if reference_latlon is not None:
+        kind, ref = "given", reference_latlon
+    elif field is not None and field.pad_latlon(reference_pad) is not None:
+        kind, ref = "scene", field.pad_latlon(reference_pad)
+    if ref is not None:
+        ref_en = geodetic_to_enu(ref[0], ref[1], o[2], *o)[:2]
+    else:
+        dist = np.hypot(enu[:, 0], enu[:, 1])
+        armed = np.flatnonzero(track.armed)
+        last = int(armed[-1]) if armed.size else len(track) - 1
+        if dist[last] >= min_reference_m:
+            kind, ref_en = "landing", enu[last, :2]
+        elif dist.max() >= min_reference_m:
+            kind, ref_en = "farthest", enu[int(np.argmax(dist)), :2]
+    rotation = 0.0
+    if ref_en is not None and np.hypot(*ref_en) > 1e-6:
+        rotation = heading_alignment_rad((0.0, 0.0), ref_en)
+    xyz = rotate_about_up(enu, rotation)
+    return AlignedTrack(
+        track=track,
+        xyz_m=xyz,
+        origin=o,
+        rotation_rad=rotation,
+        reference_latlon=ref,
+        reference_kind=kind,
+        field=field.in_track_frame(o, rotation) if field is not None else None,
+    )

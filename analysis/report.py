@@ -1,0 +1,110 @@
+"""From session paths to a finished analysis: load, align, measure, compare, and write the
+table and figures. The CLI and the REST routes both call `analyze_tracks`, so they give
+the same numbers.
+
+The field (pads and obstacles of the twin's scene) is used for a flight that starts
+within `scene_radius_m` of one of its pads: its landing pad then gives the +x direction
+(unless a reference is given), plots draw it, and twin flights get their obstacle
+contacts counted. Contacts are not counted for physical flights: the scene only
+approximates the real obstacles, and GPS noise would invent contacts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from analysis import plots
+from analysis.compare import Comparison, compare
+from analysis.field import FieldLayout, load_scene
+from analysis.frame import AlignedTrack, align_track
+from analysis.geodesy import geodetic_to_enu
+from analysis.tasks import TaskParams, analyze, check_task
+from analysis.track import Track, load_track
+
+SCENE_RADIUS_M = 150.0
+
+
+@dataclass(frozen=True)
+class Analysis:
+    task: str
+    aligned: tuple[AlignedTrack, ...]
+    comparison: Comparison
+
+    @property
+    def results(self):
+        return self.comparison.results
+
+    def plot(self, kind: str) -> bytes:
+        return plots.render(kind, self._ordered(), self.results)
+
+    def _ordered(self) -> list[AlignedTrack]:
+        by_source = {(a.track.source, a.label): a for a in self.aligned}
+        return [by_source[(r.source, r.label)] for r in self.results]
+
+    def write(self, out_dir: Path) -> list[Path]:
+        """Table as Markdown, CSV and JSON, and the three figures; returns the paths."""
+        out_dir.mkdir(parents=True, exist_ok=True)
+        prefix = self.task
+        files = []
+        for ext, text in (
+            ("md", self.comparison.to_markdown()),
+            ("csv", self.comparison.to_csv()),
+            ("json", self.comparison.to_json()),
+        ):
+            path = out_dir / f"{prefix}_table.{ext}"
+            path.write_text(text)
+            files.append(path)
+        return files + plots.write_all(self._ordered(), self.results, out_dir, prefix)
+
+
+def field_for(track: Track, field: FieldLayout | None, radius_m: float = SCENE_RADIUS_M):
+    """`field` if the track starts near one of its pads, else None."""
+    if field is None or not field.pads or len(track) == 0:
+        return None
+    pads = np.array([[p.x_m, p.y_m] for p in field.pads])
+    start = geodetic_to_enu(track.lat_deg[0], track.lon_deg[0], field.home[2], *field.home)
+    return field if np.min(np.hypot(*(pads - start[:2]).T)) <= radius_m else None
+
+
+def analyze_tracks(
+    tracks: Sequence[Track],
+    task: str,
+    reference_latlon: tuple[float, float] | None = None,
+    field: FieldLayout | None = None,
+    params: TaskParams | None = None,
+) -> Analysis:
+    check_task(task)
+    p = params or TaskParams()
+    aligned, results = [], []
+    for track in tracks:
+        near = field_for(track, field)
+        a = align_track(track, reference_latlon, near, min_points=p.min_points,
+                        min_reference_m=p.margin_m)  # fmt: skip
+        # Draw the field for every flight, count contacts for the twin only (see above).
+        result = analyze(a, task, p, count_contacts=track.platform == "twin")
+        aligned.append(a)
+        results.append(result)
+    return Analysis(task=task, aligned=tuple(aligned), comparison=compare(results))
+
+
+def analyze_paths(
+    paths: Sequence[str | Path],
+    task: str,
+    reference_latlon: tuple[float, float] | None = None,
+    scene: str | Path | None | bool = True,
+    params: TaskParams | None = None,
+    labels: Sequence[str] | None = None,
+) -> Analysis:
+    """`scene`: True = the repository's default twin scene if present, False = none,
+    or a path to a scene file."""
+    check_task(task)
+    field = None if scene is False else load_scene(None if scene is True else scene)
+    names = list(labels or [])
+    tracks = [
+        load_track(path, names[i] if i < len(names) else None) for i, path in enumerate(paths)
+    ]
+    return analyze_tracks(tracks, task, reference_latlon, field, params)

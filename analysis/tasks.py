@@ -1,0 +1,217 @@
+"""The paper's four flight tasks: trial detection, analysis windows and metrics.
+
+- Trial: from take-off to landing, detected from the armed state and the height z (the
+  vehicle is airborne while armed and more than `airborne_height_m` above the start),
+  not from the file's length.
+- Hover window: from the first time z reaches `hover_height_m` (4 m) to
+  `hover_window_s` (10 s) later.
+- Other tasks' window: from the first time x is `margin_m` (2 m) past the take-off x to
+  the last time it is still `margin_m` short of the landing x (distances along x, so a
+  figure 8 that lands where it started works too).
+- Metrics: hovering distance to origin = mean horizontal distance to the origin over the
+  window; lateral deviation = std(y); height deviation = std(z) (population std,
+  ddof=0, as numpy's default); trial time. Extras: path length (3D, over the trial),
+  mean speed = path length / trial time, max speed over `speed_span_s` (1 s) baselines
+  (GPS noise makes sample-to-sample speeds meaningless), time in window, and obstacle
+  contacts when the field is known.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+import numpy as np
+
+from analysis.errors import TaskWindowError, TooFewPointsError, UnknownTaskError
+from analysis.field import obstacle_contacts
+from analysis.frame import AlignedTrack
+
+TaskName = Literal["hover", "a-to-b", "obstacle", "figure8"]
+TASKS: tuple[str, ...] = get_args(TaskName)
+TASK_TITLES = {
+    "hover": "Task 1: Take off, hover, and land",
+    "a-to-b": "Task 2: A to B",
+    "obstacle": "Task 3: Obstacle avoidance",
+    "figure8": "Task 4: Figure 8",
+}
+
+
+@dataclass(frozen=True)
+class TaskParams:
+    """Every threshold of the method; the defaults are the paper's."""
+
+    hover_height_m: float = 4.0
+    hover_window_s: float = 10.0
+    margin_m: float = 2.0
+    airborne_height_m: float = 0.5
+    min_points: int = 10
+    min_window_points: int = 3
+    speed_span_s: float = 1.0
+    vehicle_radius_m: float = 0.3  # F450: 450 mm motor-to-motor, props reach ~0.35 m
+
+
+@dataclass(frozen=True)
+class Window:
+    i0: int  # first sample index in the window
+    i1: int  # last sample index in the window (inclusive)
+    start_s: float
+    end_s: float
+
+    @property
+    def duration_s(self) -> float:
+        return self.end_s - self.start_s
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    task: str
+    label: str
+    platform: str  # "physical" or "twin"
+    source: str
+    trial_time_s: float
+    takeoff_s: float
+    landing_s: float
+    window_start_s: float
+    window_end_s: float
+    time_in_window_s: float
+    lateral_deviation_m: float
+    height_deviation_m: float
+    hover_distance_m: float | None  # hover task only
+    path_length_m: float
+    mean_speed_mps: float
+    max_speed_mps: float
+    obstacle_contacts: int | None  # None when the field's obstacles are unknown
+    samples: int
+    window_samples: int
+    reference_kind: str
+    origin_lat_deg: float
+    origin_lon_deg: float
+    origin_alt_m: float
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def check_task(task: str) -> str:
+    if task not in TASKS:
+        raise UnknownTaskError(f"Unknown task '{task}'; use one of: {', '.join(TASKS)}.")
+    return task
+
+
+def trial_span(a: AlignedTrack, p: TaskParams) -> tuple[int, int]:
+    """Indices of take-off and landing (first and last airborne samples)."""
+    airborne = a.xyz_m[:, 2] > p.airborne_height_m
+    if a.track.armed.any():  # without a heartbeat in the log, height alone decides
+        airborne &= a.track.armed
+    idx = np.flatnonzero(airborne)
+    if idx.size < 2:
+        raise TaskWindowError(
+            f"'{a.track.source}': the vehicle never flew (never armed and "
+            f"{p.airborne_height_m} m above the start), so there is no trial to analyse."
+        )
+    return int(idx[0]), int(idx[-1])
+
+
+def task_window(a: AlignedTrack, task: str, p: TaskParams, trial: tuple[int, int]) -> Window:
+    t, x, z = a.t_s, a.xyz_m[:, 0], a.xyz_m[:, 2]
+    i_to, i_land = trial
+    if task == "hover":
+        reached = np.flatnonzero(z[i_to : i_land + 1] >= p.hover_height_m)
+        if reached.size == 0:
+            raise TaskWindowError(
+                f"'{a.track.source}': the vehicle never reached {p.hover_height_m:g} m "
+                f"(highest {np.max(z):.2f} m above the start); no hover window."
+            )
+        i0 = i_to + int(reached[0])
+        t_end = t[i0] + p.hover_window_s
+        if t_end > t[i_land]:
+            raise TaskWindowError(
+                f"'{a.track.source}': it landed {t[i_land] - t[i0]:.1f} s after reaching "
+                f"{p.hover_height_m:g} m; the hover window needs {p.hover_window_s:g} s."
+            )
+        i1 = int(np.searchsorted(t, t_end, side="right")) - 1
+    else:
+        seg = slice(i_to, i_land + 1)
+        past_start = np.flatnonzero(np.abs(x[seg] - x[i_to]) >= p.margin_m)
+        short_of_end = np.flatnonzero(np.abs(x[seg] - x[i_land]) >= p.margin_m)
+        if past_start.size == 0 or short_of_end.size == 0:
+            raise TaskWindowError(
+                f"'{a.track.source}': the vehicle never went {p.margin_m:g} m along x from "
+                f"its take-off or landing point; no {task} window."
+            )
+        i0, i1 = i_to + int(past_start[0]), i_to + int(short_of_end[-1])
+        if i1 <= i0:
+            raise TaskWindowError(
+                f"'{a.track.source}': it is never both {p.margin_m:g} m past the start and "
+                f"{p.margin_m:g} m short of the end along x; no {task} window."
+            )
+    if i1 - i0 + 1 < p.min_window_points:
+        raise TooFewPointsError(
+            f"'{a.track.source}': only {i1 - i0 + 1} GPS samples in the {task} window."
+        )
+    return Window(i0=i0, i1=i1, start_s=float(t[i0]), end_s=float(t[i1]))
+
+
+def analyze(
+    a: AlignedTrack, task: str, params: TaskParams | None = None, count_contacts: bool = True
+) -> TaskResult:
+    """The paper's metrics (and the extras) for one aligned flight; obstacle contacts when
+    `count_contacts` and the field's obstacles are known (else None)."""
+    p = params or TaskParams()
+    check_task(task)
+    trial = trial_span(a, p)
+    w = task_window(a, task, p, trial)
+    t, xyz = a.t_s, a.xyz_m
+    win = xyz[w.i0 : w.i1 + 1]
+    i_to, i_land = trial
+    fly = xyz[i_to : i_land + 1]
+    t_fly = t[i_to : i_land + 1]
+    trial_s = float(t[i_land] - t[i_to])
+    path_m = float(np.sum(np.linalg.norm(np.diff(fly, axis=0), axis=1)))
+    contacts = None
+    if count_contacts and a.field is not None and a.field.obstacles:
+        contacts = obstacle_contacts(fly, a.field.obstacles, p.vehicle_radius_m)
+    return TaskResult(
+        task=task,
+        label=a.label,
+        platform=a.track.platform,
+        source=a.track.source,
+        trial_time_s=trial_s,
+        takeoff_s=float(t[i_to]),
+        landing_s=float(t[i_land]),
+        window_start_s=w.start_s,
+        window_end_s=w.end_s,
+        time_in_window_s=w.duration_s,
+        lateral_deviation_m=float(np.std(win[:, 1])),
+        height_deviation_m=float(np.std(win[:, 2])),
+        hover_distance_m=(
+            float(np.mean(np.hypot(win[:, 0], win[:, 1]))) if task == "hover" else None
+        ),
+        path_length_m=path_m,
+        mean_speed_mps=path_m / trial_s if trial_s > 0 else 0.0,
+        max_speed_mps=_max_speed(t_fly, fly, p.speed_span_s),
+        obstacle_contacts=contacts,
+        samples=len(a.track),
+        window_samples=w.i1 - w.i0 + 1,
+        reference_kind=a.reference_kind,
+        origin_lat_deg=a.origin[0],
+        origin_lon_deg=a.origin[1],
+        origin_alt_m=a.origin[2],
+    )
+
+
+def _max_speed(t: np.ndarray, xyz: np.ndarray, span_s: float) -> float:
+    """Largest speed between samples at least `span_s` apart (a 1 s baseline)."""
+    j = np.searchsorted(t, t + span_s, side="left")
+    ok = j < t.size
+    if not ok.any():
+        return float(np.linalg.norm(xyz[-1] - xyz[0]) / max(t[-1] - t[0], 1e-9))
+    i = np.flatnonzero(ok)
+    d = np.linalg.norm(xyz[j[ok]] - xyz[i], axis=1)
+    return float(np.max(d / (t[j[ok]] - t[i])))
+
+
+def window_of(result: TaskResult) -> tuple[float, float]:
+    return result.window_start_s, result.window_end_s

@@ -1,0 +1,262 @@
+"""A flight track as typed numpy columns, loaded from a session folder's `telemetry.csv`,
+a downloaded session zip, or a bare `.tlog`.
+
+One sample per GPS solution. The recorder writes one CSV row per telemetry tick (faster
+than the GPS updates), so the same GPS solution appears on several rows; counting it
+several times would weight slow-update stretches more than others and bias every mean
+and standard deviation. We keep the first row of each GPS *message*, recognised by a
+change of the group's `t_mono` (or `time_usec`) column; only when neither column exists
+do we fall back to a change of (lat, lon, alt). Identical coordinates from distinct
+messages (a perfect hover) are therefore kept, as they are real samples.
+
+Rows without a fix (`gps.fix_type` < `min_fix_type`, or no coordinates) are dropped.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import zipfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from analysis.csvcols import CsvColumns, to_bool, to_float
+from analysis.errors import NoGpsFixError, TrackLoadError
+
+Array = NDArray[np.float64]
+PositionSource = Literal["gps", "global_position"]
+
+TELEMETRY_CSV = "telemetry.csv"
+META_FILES = ("session.json", "meta.json", "metadata.json")
+MIN_FIX_3D = 3
+
+
+@dataclass(frozen=True)
+class Track:
+    """One sample per GPS solution, time-ordered. NaN where a value was never reported."""
+
+    label: str  # how tables and plots name this flight ("physical", "twin", folder name)
+    source: str  # the file or folder it came from
+    t_s: Array  # session clock (s), starts near 0
+    wall_time: Array  # Unix time (s) of the sample, NaN if unknown
+    lat_deg: Array
+    lon_deg: Array
+    alt_m: Array  # MSL
+    fix_type: NDArray[np.int16]
+    armed: NDArray[np.bool_]
+    relative_alt_m: Array  # the pilot's altitude (since arming), else the autopilot's
+    ground_speed_mps: Array
+    climb_mps: Array
+    meta: dict = field(default_factory=dict)  # the session's metadata, when it has some
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+    def select(self, mask: NDArray[np.bool_] | NDArray[np.intp]) -> "Track":
+        """The same track restricted to `mask` (boolean or index array)."""
+        arrays = {
+            name: getattr(self, name)[mask]
+            for name in _ARRAY_FIELDS
+        }
+        return replace(self, **arrays)
+
+    @property
+    def platform(self) -> str:
+        """'twin' when the session says it came from the digital twin, else 'physical'."""
+        source = str(self.meta.get("platform") or self.meta.get("source") or "").lower()
+        twin = source.startswith(("sim", "twin", "airsim", "digital twin"))
+        return "twin" if twin else "physical"
+
+
+_ARRAY_FIELDS = (
+    "t_s", "wall_time", "lat_deg", "lon_deg", "alt_m", "fix_type", "armed",
+    "relative_alt_m", "ground_speed_mps", "climb_mps",
+)  # fmt: skip
+
+
+def load_track(
+    path: str | Path,
+    label: str | None = None,
+    position: PositionSource = "gps",
+    min_fix_type: int = MIN_FIX_3D,
+) -> Track:
+    """Load a session folder, a session zip, a `telemetry.csv` or a `.tlog`."""
+    p = Path(path)
+    if not p.exists():
+        raise TrackLoadError(f"'{p}' does not exist; give a session folder, zip or .tlog.")
+    if p.is_dir():
+        return load_session_dir(p, label, position, min_fix_type)
+    if p.suffix.lower() == ".zip":
+        return load_session_zip(p, label, position, min_fix_type)
+    if p.suffix.lower() == ".tlog":
+        return load_tlog(p, label, min_fix_type)
+    if p.suffix.lower() == ".csv":
+        return load_telemetry_csv(p.read_bytes(), label or p.parent.name, str(p), position, min_fix_type)
+    raise TrackLoadError(f"'{p}' is not a session folder, .zip, .csv or .tlog.")
+
+
+def load_session_dir(
+    folder: Path, label: str | None = None, position: PositionSource = "gps",
+    min_fix_type: int = MIN_FIX_3D,
+) -> Track:  # fmt: skip
+    meta = _read_meta_dir(folder)
+    name = label or str(meta.get("label") or folder.name)
+    csv_path = folder / TELEMETRY_CSV
+    if csv_path.is_file():
+        track = load_telemetry_csv(csv_path.read_bytes(), name, str(folder), position, min_fix_type)
+    else:
+        tlogs = sorted(folder.glob("*.tlog"))
+        if not tlogs:
+            raise TrackLoadError(f"Session '{folder}' has neither {TELEMETRY_CSV} nor a .tlog.")
+        track = load_tlog(tlogs[0], name, min_fix_type)
+    return replace(track, meta=meta, source=str(folder))
+
+
+def load_session_zip(
+    zip_path: Path, label: str | None = None, position: PositionSource = "gps",
+    min_fix_type: int = MIN_FIX_3D,
+) -> Track:  # fmt: skip
+    try:
+        zf = zipfile.ZipFile(zip_path)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise TrackLoadError(f"'{zip_path}' is not a readable zip: {exc}") from None
+    with zf:
+        names = zf.namelist()
+        meta: dict = {}
+        for m in sorted((n for n in names if n.rsplit("/", 1)[-1] in META_FILES), key=len):
+            meta = parse_meta(zf.read(m))
+            break
+        name = label or str(meta.get("label") or zip_path.stem)
+        csvs = sorted((n for n in names if n.rsplit("/", 1)[-1] == TELEMETRY_CSV), key=len)
+        if csvs:
+            track = load_telemetry_csv(zf.read(csvs[0]), name, str(zip_path), position, min_fix_type)
+            return replace(track, meta=meta)
+        tlogs = sorted((n for n in names if n.lower().endswith(".tlog")), key=len)
+        if not tlogs:
+            raise TrackLoadError(f"Zip '{zip_path}' holds neither {TELEMETRY_CSV} nor a .tlog.")
+        # pymavlink reads from a path, so the tlog goes through a temporary file.
+        with tempfile.NamedTemporaryFile(suffix=".tlog") as tmp:
+            tmp.write(zf.read(tlogs[0]))
+            tmp.flush()
+            track = load_tlog(Path(tmp.name), name, min_fix_type)
+        return replace(track, meta=meta, source=str(zip_path))
+
+
+def _read_meta_dir(folder: Path) -> dict:
+    for name in META_FILES:
+        f = folder / name
+        if f.is_file():
+            return parse_meta(f.read_bytes())
+    return {}
+
+
+def parse_meta(raw: bytes) -> dict:
+    try:
+        meta = json.loads(raw)
+    except (ValueError, UnicodeDecodeError):
+        return {}  # metadata is a nicety; a broken file must not stop the analysis
+    return meta if isinstance(meta, dict) else {}
+
+
+# ---------------------------------------------------------------- telemetry.csv
+
+
+def load_telemetry_csv(
+    raw: bytes, label: str, source: str, position: PositionSource = "gps",
+    min_fix_type: int = MIN_FIX_3D,
+) -> Track:  # fmt: skip
+    """Parse the recorder's CSV: only the columns analysis needs, only the first row of
+    each GPS message, all vectorized (see `analysis.csvcols`)."""
+    header_line, _, body = raw.partition(b"\n")
+    header = [h.strip().strip('"') for h in header_line.decode("utf-8", "replace").split(",")]
+    index = {name: i for i, name in enumerate(header)}
+    pos = position
+    if f"{pos}.lat_deg" not in index:
+        pos = "global_position" if pos == "gps" else "gps"  # fall back to the other source
+    need = [f"{pos}.lat_deg", f"{pos}.lon_deg", f"{pos}.alt_m"]
+    if "t_s" not in index or any(n not in index for n in need):
+        raise TrackLoadError(
+            f"'{source}' is not a telemetry CSV: it needs columns t_s and "
+            f"{pos}.lat_deg/lon_deg/alt_m."
+        )
+    wanted = {
+        "t_s": ["t_s"],
+        "wall_time": ["wall_time"],
+        "lat": [f"{pos}.lat_deg"],
+        "lon": [f"{pos}.lon_deg"],
+        "alt": [f"{pos}.alt_m"],
+        "fix": ["gps.fix_type"],
+        "key": [f"{pos}.t_mono", f"{pos}.time_usec", f"{pos}.time_boot_ms"],
+        "armed": ["heartbeat.armed"],
+        "rel": ["altitude.relative_alt_m", "global_position.relative_alt_m"],
+        "speed": ["vfr_hud.ground_speed_mps", "gps.ground_speed_mps"],
+        "climb": ["vfr_hud.climb_mps"],
+    }
+    chosen = {k: next((c for c in cands if c in index), None) for k, cands in wanted.items()}
+    table = CsvColumns(body, len(header))
+    if table.rows == 0:
+        raise NoGpsFixError(f"'{source}' has a header but no telemetry rows.")
+    first = _first_of_each_message(table, [index[chosen["key"]]] if chosen["key"] else
+                                   [index[n] for n in need])  # fmt: skip
+
+    def column(key: str) -> Array:
+        name = chosen[key]
+        if name is None:
+            return np.full(first.size, np.nan)
+        try:
+            return to_float(table.column(index[name], first))
+        except ValueError as exc:
+            raise TrackLoadError(f"'{source}': column {name}: {exc}") from None
+
+    t_s, lat, lon, alt, fix = (column(k) for k in ("t_s", "lat", "lon", "alt", "fix"))
+    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & np.isfinite(t_s)
+    ok &= ~((lat == 0) & (lon == 0))  # autopilots report 0,0 before a fix
+    if chosen["fix"] is not None:
+        ok &= np.nan_to_num(fix, nan=0) >= min_fix_type
+    if not ok.any():
+        raise NoGpsFixError(
+            f"'{source}' has no sample with a GPS fix (fix_type >= {min_fix_type}); "
+            "was the GPS locked during the flight?"
+        )
+    armed = (
+        to_bool(table.column(index[chosen["armed"]], first))
+        if chosen["armed"] else np.zeros(first.size, bool)
+    )  # fmt: skip
+    return Track(
+        label=label,
+        source=source,
+        t_s=t_s[ok],
+        wall_time=column("wall_time")[ok],
+        lat_deg=lat[ok],
+        lon_deg=lon[ok],
+        alt_m=alt[ok],
+        fix_type=np.nan_to_num(fix[ok], nan=MIN_FIX_3D).astype(np.int16),
+        armed=armed[ok],
+        relative_alt_m=column("rel")[ok],
+        ground_speed_mps=column("speed")[ok],
+        climb_mps=column("climb")[ok],
+    )
+
+
+def _first_of_each_message(table: CsvColumns, key_cols: list[int]) -> NDArray[np.intp]:
+    """Row indices where the GPS message changes: its t_mono (or time) column, or else
+    its coordinates. Compared as the raw text, before any number parsing."""
+    new = np.zeros(table.rows, bool)
+    new[0] = True
+    for k in key_cols:
+        v = table.column(k)
+        new[1:] |= v[1:] != v[:-1]
+    return np.flatnonzero(new)
+
+
+# ---------------------------------------------------------------- .tlog
+
+def load_tlog(path: Path, label: str | None = None, min_fix_type: int = MIN_FIX_3D) -> Track:
+    """A bare MAVLink telemetry log; see `analysis.tlog` (imported late: it imports us)."""
+    from analysis.tlog import read_tlog
+
+    return read_tlog(Path(path), label or Path(path).stem, min_fix_type)

@@ -1,0 +1,65 @@
+"""Analysis speed: load + paper's metrics (+ figures) for 1, 10 and 60 min sessions at 50 Hz.
+
+    python benchmarks/analysis.py [--minutes 1 10 60] [--rate-hz 50] [--repeat 3]
+
+Sessions are synthetic A-to-B flights written in the recorder's own telemetry.csv format
+(every VehicleState column plus the camera columns, GPS at 10 Hz held between updates),
+and as a bare .tlog. Prints the best of `--repeat` runs for each stage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from analysis import synthetic as syn  # noqa: E402
+from analysis.report import analyze_tracks  # noqa: E402
+from analysis.track import load_track  # noqa: E402
+
+
+def best(fn, repeat: int) -> tuple[float, object]:
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return min(times), out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--minutes", type=float, nargs="+", default=[1, 10, 60])
+    ap.add_argument("--rate-hz", type=float, default=50.0)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    print("| session | rows | CSV MB | load CSV (s) | metrics (s) | load+metrics (s) | 3 figures (s) | load tlog (s) |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    with tempfile.TemporaryDirectory() as tmp:
+        for minutes in args.minutes:
+            seconds = minutes * 60
+            # A-to-B long enough to fill the session at 1.2 m/s (climb and landing add ~12 s).
+            flight = syn.a_to_b_flight(length_m=1.2 * (seconds - 12), dt=1 / args.rate_hz)
+            folder = syn.write_session(flight, Path(tmp) / f"s{minutes:g}")
+            tlog = syn.write_tlog(flight, Path(tmp) / f"s{minutes:g}.tlog")
+            csv_mb = (folder / "telemetry.csv").stat().st_size / 1e6
+            t_load, track = best(lambda: load_track(folder), args.repeat)
+            t_metrics, an = best(lambda: analyze_tracks([track], "a-to-b"), args.repeat)
+            t_both, _ = best(lambda: analyze_tracks([load_track(folder)], "a-to-b"), args.repeat)
+            t_plots, _ = best(lambda: [an.plot(k) for k in ("trajectory3d", "birdseye", "history")], 1)
+            t_tlog, _ = best(lambda: load_track(tlog), 1)
+            print(
+                f"| {minutes:g} min | {flight.t_s.size} | {csv_mb:.1f} | {t_load:.3f} | "
+                f"{t_metrics:.4f} | {t_both:.3f} | {t_plots:.2f} | {t_tlog:.2f} |"
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,312 @@
+"""The MAVLink link to the vehicle: one thread owns the port, everyone else reads snapshots.
+
+The thread reads bytes, cuts them into packets (`MavFramer`), hands every raw packet to
+the packet listeners (recorder, forwarders), merges the autopilot's messages into the
+`VehicleState` (`StateTracker`) and publishes each new state through `link.state`
+(`Latest`). It also sends the GCS heartbeat, asks for message rates, reconnects when the
+port or peer goes away, and flags `link_lost` after `link_lost_s` without an autopilot
+heartbeat. Nothing here ever runs on the event loop: `send()` only queues and wakes.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import os
+import select
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.latest import Latest
+from companion.link_health import HealthMeter, LinkHealth
+from companion.mav_framer import MavFramer
+from companion.state_tracker import StateTracker
+from companion.stream_request import StreamRequester
+from companion.tlog import TlogReader
+from companion.transports import (
+    ConnectionStringError,
+    Transport,
+    UdpTransport,
+    open_transport,
+    parse_connection,
+)
+from companion.vehicle_state import VehicleState
+
+if TYPE_CHECKING:  # the settings model lives with the others in server.settings
+    from server.settings import LinkSettings
+
+log = logging.getLogger(__name__)
+
+PacketListener = Callable[[float, bytes], None]
+_TICK_S = 0.05  # the longest the thread sleeps between housekeeping passes
+_OUTBOX_MAX = 256  # queued outgoing messages; the oldest go first when full
+
+
+class MavlinkLink:
+    """Owns the vehicle connection described by `settings.source` (not "none"/"sim")."""
+
+    def __init__(self, settings: LinkSettings, source: str | None = None) -> None:
+        self.settings = settings
+        self.spec = parse_connection(source or settings.source)
+        if self.spec.kind in ("none", "sim"):
+            raise ConnectionStringError(f"'{self.spec.text}' is not a vehicle connection.")
+        self._forward_specs = [parse_connection(f) for f in settings.forward]
+        for spec in self._forward_specs:
+            if spec.kind not in ("udpin", "udpout"):
+                raise ConnectionStringError(
+                    f"--forward '{spec.text}' must be udpout:HOST:PORT or udpin:HOST:PORT."
+                )
+        self.mav = mavlink.MAVLink(None, srcSystem=settings.gcs_sysid, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.state: Latest[VehicleState] = Latest(VehicleState())
+        self._tracker = StateTracker(settings.sysid)
+        self._framer = MavFramer()
+        self._meter = HealthMeter(self.spec.text)
+        self._streams = StreamRequester(self.mav, settings.message_rates_hz)
+        self._listeners: list[PacketListener] = []
+        self._outbox: collections.deque[mavlink.MAVLink_message] = collections.deque(maxlen=_OUTBOX_MAX)
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._transport: Transport | None = None
+        self._forwarders: list[UdpTransport] = []
+        self._last_hb_mono: float | None = None
+        self._next_gcs_hb = 0.0
+        self._force_v1 = False
+        self._listener_errors = 0
+
+    # -- public interface ---------------------------------------------------------
+
+    def start(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError("MavlinkLink already started")
+        self._forwarders = [UdpTransport(spec) for spec in self._forward_specs]
+        self._thread = threading.Thread(target=self._run, name=f"mavlink {self.spec.text}", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 3.0) -> None:
+        self._stop.set()
+        self._wake()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        for fwd in self._forwarders:
+            fwd.close()
+        self.state.close()
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def add_packet_listener(self, cb: PacketListener) -> None:
+        """`cb(t_wall_s, packet)` runs in the link thread for every good packet; it must
+        not block (put into a bounded buffer and return)."""
+        self._listeners = [*self._listeners, cb]  # copy-on-write: the thread iterates safely
+
+    def remove_packet_listener(self, cb: PacketListener) -> None:
+        self._listeners = [c for c in self._listeners if c is not cb]
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        """Queue a message for the vehicle; thread-safe and never blocks. Build it with
+        `link.mav.<name>_encode(...)`. Dropped (oldest first) if the port is down long."""
+        self._outbox.append(msg)
+        self._wake()
+
+    def health(self) -> LinkHealth:
+        return self._meter.report(
+            self._framer.counters,
+            self.state.get().value.link.link_lost if self.state.get() else True,
+            self._last_hb_mono,
+            self._tracker.sysid if self._tracker.compid is not None else self._tracker.pinned_sysid,
+            self._tracker.compid,
+        )
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # -- the thread ------------------------------------------------------------------
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_w, b"\0")
+        except (BlockingIOError, OSError):
+            pass  # pipe full (already woken) or closed (stopping)
+
+    def _run(self) -> None:
+        try:
+            if self.spec.kind == "replay":
+                self._run_replay()
+            else:
+                self._run_live()
+        except Exception:  # a bug must show in the log and the health, not vanish
+            log.exception("MAVLink link thread died")
+            self._meter.last_error = "link thread crashed; see the station's log"
+            self._meter.connected = False
+
+    def _run_live(self) -> None:
+        first = True
+        while not self._stop.is_set():
+            if not first:
+                self._meter.reconnects += 1
+                self._idle(self.settings.reconnect_s)
+                if self._stop.is_set():
+                    return
+            first = False
+            try:
+                transport = open_transport(self.spec)
+            except OSError as exc:
+                self._meter.last_error = f"cannot open {self.spec.text}: {exc}"
+                log.warning("%s", self._meter.last_error)
+                continue
+            self._transport = transport
+            self._meter.connected = True
+            self._framer.reset()
+            self._meter.on_reconnect()
+            self._next_gcs_hb = 0.0
+            self._streams.mode = "none"
+            log.info("MAVLink connected: %s", self.spec.text)
+            try:
+                self._serve(transport)
+            except OSError as exc:  # includes ConnectionError and pyserial's SerialException
+                self._meter.last_error = f"{self.spec.text}: {exc}"
+                log.warning("MAVLink connection lost: %s", self._meter.last_error)
+            finally:
+                self._meter.connected = False
+                self._transport = None
+                transport.close()
+
+    def _serve(self, transport: Transport) -> None:
+        fds: list[object] = [transport, self._wake_r, *self._forwarders]
+        while not self._stop.is_set():
+            ready, _, _ = select.select(fds, [], [], _TICK_S)
+            now = time.monotonic()
+            for r in ready:
+                if r is transport:
+                    data = transport.read()
+                    if data:
+                        self._on_bytes(data, now)
+                elif r == self._wake_r:
+                    try:
+                        os.read(self._wake_r, 4096)
+                    except BlockingIOError:
+                        pass
+                else:  # a forward peer (QGroundControl) talks back: pass it to the vehicle
+                    data = r.read()  # type: ignore[attr-defined]
+                    if data:
+                        transport.write(data)
+            while self._outbox:
+                self._write(transport, self._outbox.popleft())
+            self._housekeeping(transport, now)
+
+    def _run_replay(self) -> None:
+        path = Path(self.spec.path)
+        if not path.is_file():
+            self._meter.last_error = f"replay file {path} does not exist"
+            log.error("%s", self._meter.last_error)
+            self._idle_forever()
+            return
+        reader = TlogReader(path)
+        self._meter.connected = True
+        t0_rec: float | None = None
+        t0_mono = time.monotonic()
+        for t_rec, packet in reader:
+            if self._stop.is_set():
+                return
+            if t0_rec is None:
+                t0_rec = t_rec
+            if self.spec.speed > 0:
+                due = t0_mono + (t_rec - t0_rec) / self.spec.speed
+                while (wait := due - time.monotonic()) > 0 and not self._stop.is_set():
+                    self._stop.wait(min(wait, _TICK_S))
+                    self._housekeeping(None, time.monotonic())
+            now = time.monotonic()
+            self._on_bytes(packet, now)
+            self._housekeeping(None, now)
+        self._meter.truncated_records = reader.truncated
+        self._meter.replay_done = True
+        self._meter.connected = False
+        log.info("replay of %s done (%d truncated records)", path, reader.truncated)
+        self._idle_forever()
+
+    def _idle(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while not self._stop.is_set() and (left := deadline - time.monotonic()) > 0:
+            self._stop.wait(min(left, _TICK_S))
+            self._housekeeping(None, time.monotonic())
+
+    def _idle_forever(self) -> None:
+        while not self._stop.is_set():
+            self._idle(1.0)
+
+    # -- per packet and periodic work -------------------------------------------------
+
+    def _on_bytes(self, data: bytes, now: float) -> None:
+        self._meter.on_bytes(len(data))
+        msgs = self._framer.feed(data)
+        if not msgs:
+            return
+        t_wall = time.time()
+        tracker = self._tracker
+        changed = False
+        for msg in msgs:
+            packet = bytes(msg.get_msgbuf())
+            self._meter.on_packet(msg.get_type(), packet)
+            for cb in self._listeners:
+                try:
+                    cb(t_wall, packet)
+                except Exception:
+                    self._listener_errors += 1
+                    if self._listener_errors in (1, 10, 100, 1000):
+                        log.exception("packet listener %r failed (%d times)", cb, self._listener_errors)
+            for fwd in self._forwarders:
+                fwd.write(packet)
+            if tracker.update(msg, now):
+                changed = True
+                if msg.get_type() == "HEARTBEAT":
+                    self._on_autopilot_heartbeat(now, packet[0] == 0xFE)
+            elif msg.get_type() == "COMMAND_ACK" and self._transport is not None:
+                for req in self._streams.on_ack(msg, now):
+                    self._write(self._transport, req)
+        if changed:
+            self.state.publish(tracker.state)
+
+    def _on_autopilot_heartbeat(self, now: float, mavlink1: bool) -> None:
+        self._last_hb_mono = now
+        self._force_v1 = mavlink1
+        if self._tracker.state.link.link_lost:
+            self._tracker.set_link_lost(False, now, now)
+            # (Re)gained the autopilot: (re)ask for our rates; it may have rebooted.
+            if self._transport is not None and self.settings.request_streams:
+                for req in self._streams.start(now, self._tracker.sysid or 0, self._tracker.compid or 0):
+                    self._write(self._transport, req)
+        else:
+            self._tracker.set_link_lost(False, self._tracker.state.link.t_mono or now, now)
+
+    def _housekeeping(self, transport: Transport | None, now: float) -> None:
+        if transport is not None:
+            if now >= self._next_gcs_hb:
+                self._next_gcs_hb = now + 1.0 / self.settings.heartbeat_hz
+                hb = self.mav.heartbeat_encode(
+                    mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+                )
+                self._write(transport, hb)
+            for req in self._streams.poll(now):
+                self._write(transport, req)
+        self._meter.stream_request = self._streams.mode
+        lost = self._last_hb_mono is None or now - self._last_hb_mono > self.settings.link_lost_s
+        if lost and not self._tracker.state.link.link_lost:
+            self._tracker.set_link_lost(True, now, self._last_hb_mono)
+            self.state.publish(self._tracker.state)
+            log.warning("link lost: no autopilot heartbeat for %.1f s", self.settings.link_lost_s)
+        self._meter.tick(now)
+
+    def _write(self, transport: Transport, msg: mavlink.MAVLink_message) -> None:
+        transport.write(msg.pack(self.mav, force_mavlink1=self._force_v1))
+        self.mav.seq = (self.mav.seq + 1) % 256

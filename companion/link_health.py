@@ -1,0 +1,132 @@
+"""How well the vehicle is heard: rates per message type, loss, throughput, junk counts.
+
+`HealthMeter` is fed by the link thread only; `LinkHealth` is the immutable report any
+thread may read. Rates come from counter snapshots taken twice a second over a ~2 s
+window, so nothing is computed per packet beyond a few increments.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from dataclasses import dataclass, field
+
+from companion.mav_framer import MAGIC_V1, FramerCounters
+
+_SNAPSHOT_EVERY_S = 0.5
+_WINDOW_SNAPSHOTS = 5  # 4 intervals = 2 s window
+
+
+@dataclass(frozen=True, slots=True)
+class LinkHealth:
+    source: str
+    connected: bool  # transport open (serial port, TCP connection, socket, replay file)
+    link_lost: bool  # no autopilot heartbeat for link_lost_s (or never)
+    since_heartbeat_s: float | None
+    autopilot_sysid: int | None
+    autopilot_compid: int | None
+    rates_hz: dict[str, float] = field(default_factory=dict)  # per message type, ~2 s window
+    packets: int = 0  # good packets received (all systems)
+    lost_packets: int = 0  # gaps in MAVLink sequence numbers, per (sysid, compid)
+    loss_ratio: float = 0.0  # lost / (lost + received)
+    bytes_per_s: float = 0.0
+    bytes_total: int = 0
+    garbage_bytes: int = 0
+    bad_crc: int = 0
+    unknown_ids: int = 0
+    truncated_records: int = 0  # replay: a last record cut short
+    reconnects: int = 0
+    last_error: str | None = None
+    replay_done: bool = False
+    stream_request: str = "none"  # "none", "message_interval", "data_stream"
+
+
+class HealthMeter:
+    """Counts what the link thread sees. Only the link thread calls the `on_*` methods."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+        self.counts: dict[str, int] = collections.defaultdict(int)
+        self.bytes_total = 0
+        self.lost_packets = 0
+        self.truncated_records = 0
+        self.reconnects = 0
+        self.connected = False
+        self.last_error: str | None = None
+        self.replay_done = False
+        self.stream_request = "none"
+        self._last_seq: dict[tuple[int, int], int] = {}
+        self._snapshots: collections.deque[tuple[float, dict[str, int], int]] = collections.deque(
+            maxlen=_WINDOW_SNAPSHOTS
+        )
+        self._rates: dict[str, float] = {}  # replaced whole, never mutated: safe to read
+        self._bytes_per_s = 0.0
+
+    def on_bytes(self, n: int) -> None:
+        self.bytes_total += n
+
+    def on_packet(self, mtype: str, packet: bytes) -> None:
+        self.counts[mtype] += 1
+        if packet[0] == MAGIC_V1:
+            seq, sysid, compid = packet[2], packet[3], packet[4]
+        else:
+            seq, sysid, compid = packet[4], packet[5], packet[6]
+        key = (sysid, compid)
+        last = self._last_seq.get(key)
+        if last is not None:
+            self.lost_packets += (seq - last - 1) % 256
+        self._last_seq[key] = seq
+
+    def on_reconnect(self) -> None:
+        self._last_seq.clear()  # a new connection starts new sequences
+
+    def tick(self, t_mono: float) -> None:
+        """Take a counter snapshot if due and refresh the rates from the window."""
+        if self._snapshots and t_mono - self._snapshots[-1][0] < _SNAPSHOT_EVERY_S:
+            return
+        self._snapshots.append((t_mono, dict(self.counts), self.bytes_total))
+        t0, counts0, bytes0 = self._snapshots[0]
+        span = t_mono - t0
+        if span <= 0:
+            return
+        self._rates = {
+            k: round((n - counts0.get(k, 0)) / span, 2)
+            for k, n in self._snapshots[-1][1].items()
+            if n - counts0.get(k, 0) > 0
+        }
+        self._bytes_per_s = (self.bytes_total - bytes0) / span
+
+    def report(
+        self,
+        framer: FramerCounters,
+        link_lost: bool,
+        last_heartbeat_mono: float | None,
+        sysid: int | None,
+        compid: int | None,
+    ) -> LinkHealth:
+        packets = framer.packets
+        lost = self.lost_packets
+        return LinkHealth(
+            source=self.source,
+            connected=self.connected,
+            link_lost=link_lost,
+            since_heartbeat_s=None
+            if last_heartbeat_mono is None
+            else round(time.monotonic() - last_heartbeat_mono, 3),
+            autopilot_sysid=sysid,
+            autopilot_compid=compid,
+            rates_hz=self._rates,
+            packets=packets,
+            lost_packets=lost,
+            loss_ratio=lost / (lost + packets) if lost + packets else 0.0,
+            bytes_per_s=round(self._bytes_per_s, 1),
+            bytes_total=self.bytes_total,
+            garbage_bytes=framer.garbage_bytes,
+            bad_crc=framer.bad_crc,
+            unknown_ids=framer.unknown_ids,
+            truncated_records=self.truncated_records,
+            reconnects=self.reconnects,
+            last_error=self.last_error,
+            replay_done=self.replay_done,
+            stream_request=self.stream_request,
+        )

@@ -1,0 +1,346 @@
+"""Merge decoded MAVLink messages into the autopilot's `VehicleState`. Pure: no sockets.
+
+A link carries several systems (the autopilot, a telemetry radio, other ground
+stations, cameras). The tracker follows one autopilot: the sysid pinned in the
+settings, or the first system whose HEARTBEAT names a real autopilot. Messages from
+anyone else are ignored. Every update builds new frozen groups, so a published state
+never changes under a reader.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.mav_framer import packet_version
+from companion.vehicle_state import (
+    Attitude,
+    Battery,
+    GlobalPosition,
+    GpsRaw,
+    Heartbeat,
+    LinkStatus,
+    LocalPosition,
+    PilotAltitude,
+    RcChannels,
+    ServoOutputs,
+    VehicleState,
+    VfrHud,
+)
+
+_AUTOPILOT_NAMES = {
+    mavlink.MAV_AUTOPILOT_PX4: "px4",
+    mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot",
+    mavlink.MAV_AUTOPILOT_GENERIC: "generic",
+}
+_GPS_3D_FIX = 3
+_UINT16_UNKNOWN = 65535
+
+
+def _enum_name(enum: str, value: int, prefix: str) -> str:
+    entry = mavlink.enums.get(enum, {}).get(value)
+    if entry is None:
+        return f"{prefix}{value}" if prefix else str(value)
+    return entry.name.removeprefix(prefix).lower()
+
+
+def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: int) -> str:
+    """The flight mode in the autopilot family's own words (PX4 'POSCTL', ArduCopter
+    'LOITER'); pymavlink keeps the tables of both families up to date."""
+
+    class _Hb:  # mode_string_v10 reads these attributes from a HEARTBEAT
+        def get_type(self) -> str:
+            return "HEARTBEAT"
+
+    hb = _Hb()
+    hb.autopilot, hb.type, hb.base_mode, hb.custom_mode = (
+        autopilot,
+        vehicle_type,
+        base_mode,
+        custom_mode,
+    )
+    return mavutil.mode_string_v10(hb)
+
+
+def _scaled(value: int, scale: float, unknown: int | None = None) -> float | None:
+    if unknown is not None and value == unknown:
+        return None
+    return value * scale
+
+
+class StateTracker:
+    """Holds the current `VehicleState`; `update` says whether a message changed it."""
+
+    def __init__(self, sysid: int | None = None) -> None:
+        self.pinned_sysid = sysid
+        self.sysid: int | None = sysid
+        self.compid: int | None = None
+        self.state = VehicleState()
+        self._gp_seen = False  # GLOBAL_POSITION_INT ever received (preferred altitude)
+
+    def is_autopilot_heartbeat(self, msg: mavlink.MAVLink_message) -> bool:
+        if msg.get_type() != "HEARTBEAT" or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+            return False
+        if msg.type == mavlink.MAV_TYPE_GCS:
+            return False
+        if self.sysid is not None and msg.get_srcSystem() != self.sysid:
+            return False
+        return self.compid is None or msg.get_srcComponent() == self.compid
+
+    def update(self, msg: mavlink.MAVLink_message, t_mono: float) -> bool:
+        mtype = msg.get_type()
+        if mtype == "HEARTBEAT":
+            if not self.is_autopilot_heartbeat(msg):
+                return False
+            self.sysid = msg.get_srcSystem()
+            self.compid = msg.get_srcComponent()
+            self._heartbeat(msg, t_mono)
+            return True
+        if self.compid is None or msg.get_srcSystem() != self.sysid:
+            return False  # not (yet) the autopilot we follow
+        if msg.get_srcComponent() != self.compid:
+            return False
+        handler = _HANDLERS.get(mtype)
+        if handler is None:
+            return False
+        handler(self, msg, t_mono)
+        return True
+
+    def set_link_lost(self, lost: bool, t_mono: float, last_heartbeat_mono: float | None) -> bool:
+        link = self.state.link
+        if link.link_lost == lost and link.last_heartbeat_mono == last_heartbeat_mono:
+            return False
+        self.state = replace(
+            self.state,
+            link=LinkStatus(
+                t_mono=t_mono if link.link_lost != lost else link.t_mono,
+                link_lost=lost,
+                last_heartbeat_mono=last_heartbeat_mono,
+            ),
+        )
+        return True
+
+    # -- one method per message family ---------------------------------------------
+
+    def _heartbeat(self, m: mavlink.MAVLink_message, t: float) -> None:
+        armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        was_armed = self.state.heartbeat.armed
+        hb = Heartbeat(
+            t_mono=t,
+            sysid=m.get_srcSystem(),
+            compid=m.get_srcComponent(),
+            autopilot=_AUTOPILOT_NAMES.get(m.autopilot, _enum_name("MAV_AUTOPILOT", m.autopilot, "MAV_AUTOPILOT_")),
+            vehicle_type=_enum_name("MAV_TYPE", m.type, "MAV_TYPE_"),
+            armed=armed,
+            mode=mode_name(m.autopilot, m.type, m.base_mode, m.custom_mode),
+            base_mode=m.base_mode,
+            custom_mode=m.custom_mode,
+            system_status=_enum_name("MAV_STATE", m.system_status, "MAV_STATE_").upper(),
+            mavlink_version=packet_version(m),
+        )
+        self.state = replace(self.state, heartbeat=hb)
+        if armed and not was_armed:
+            self._take_reference("arming", t)
+
+    def _gps_raw(self, m: mavlink.MAVLink_message, t: float) -> None:
+        g = GpsRaw(
+            t_mono=t,
+            time_usec=m.time_usec,
+            fix_type=m.fix_type,
+            satellites=None if m.satellites_visible == 255 else m.satellites_visible,
+            lat_deg=m.lat * 1e-7,
+            lon_deg=m.lon * 1e-7,
+            alt_m=m.alt * 1e-3,
+            eph_m=_scaled(m.eph, 0.01, _UINT16_UNKNOWN),
+            epv_m=_scaled(m.epv, 0.01, _UINT16_UNKNOWN),
+            ground_speed_mps=_scaled(m.vel, 0.01, _UINT16_UNKNOWN),
+            course_deg=_scaled(m.cog, 0.01, _UINT16_UNKNOWN),
+        )
+        self.state = replace(self.state, gps=g)
+        if not self._gp_seen:
+            self._altitude_changed(t)
+
+    def _global_position(self, m: mavlink.MAVLink_message, t: float) -> None:
+        old_alt = self._current_alt_m()
+        gp = GlobalPosition(
+            t_mono=t,
+            time_boot_ms=m.time_boot_ms,
+            lat_deg=m.lat * 1e-7,
+            lon_deg=m.lon * 1e-7,
+            alt_m=m.alt * 1e-3,
+            relative_alt_m=m.relative_alt * 1e-3,
+            vx_mps=m.vx * 0.01,
+            vy_mps=m.vy * 0.01,
+            vz_mps=m.vz * 0.01,
+            heading_deg=_scaled(m.hdg, 0.01, _UINT16_UNKNOWN),
+        )
+        self.state = replace(self.state, global_position=gp)
+        if not self._gp_seen:
+            self._gp_seen = True
+            alt = self.state.altitude
+            if alt.reference_alt_m is not None and old_alt is not None:
+                # Switching from GPS to fused altitude: keep the pilot's value continuous.
+                self.state = replace(
+                    self.state,
+                    altitude=replace(alt, reference_alt_m=alt.reference_alt_m + gp.alt_m - old_alt),
+                )
+        self._altitude_changed(t)
+
+    def _vfr_hud(self, m: mavlink.MAVLink_message, t: float) -> None:
+        hud = VfrHud(
+            t_mono=t,
+            ground_speed_mps=m.groundspeed,
+            airspeed_mps=m.airspeed,
+            climb_mps=m.climb,
+            heading_deg=float(m.heading),
+            throttle_pct=float(m.throttle),
+            alt_m=m.alt,
+        )
+        self.state = replace(self.state, vfr_hud=hud)
+
+    def _attitude(self, m: mavlink.MAVLink_message, t: float) -> None:
+        att = Attitude(
+            t_mono=t,
+            time_boot_ms=m.time_boot_ms,
+            roll_rad=m.roll,
+            pitch_rad=m.pitch,
+            yaw_rad=m.yaw,
+            rollspeed_rad_s=m.rollspeed,
+            pitchspeed_rad_s=m.pitchspeed,
+            yawspeed_rad_s=m.yawspeed,
+        )
+        self.state = replace(self.state, attitude=att)
+
+    def _rc_channels(self, m: mavlink.MAVLink_message, t: float) -> None:
+        pwm = tuple(getattr(m, f"chan{i}_raw") for i in range(1, 19))
+        rc = RcChannels(
+            t_mono=t,
+            time_boot_ms=m.time_boot_ms,
+            chancount=m.chancount,
+            pwm_us=pwm,
+            rssi=None if m.rssi == 255 else m.rssi,
+        )
+        self.state = replace(self.state, rc=rc)
+
+    def _servo_output(self, m: mavlink.MAVLink_message, t: float) -> None:
+        pwm = tuple(getattr(m, f"servo{i}_raw", 0) for i in range(1, 17))
+        servo = ServoOutputs(t_mono=t, time_usec=m.time_usec, port=m.port, pwm_us=pwm)
+        self.state = replace(self.state, servo=servo)
+
+    def _sys_status(self, m: mavlink.MAVLink_message, t: float) -> None:
+        b = self.state.battery
+        self.state = replace(
+            self.state,
+            battery=Battery(
+                t_mono=t,
+                voltage_v=_scaled(m.voltage_battery, 1e-3, _UINT16_UNKNOWN),
+                current_a=None if m.current_battery == -1 else m.current_battery * 0.01,
+                remaining_pct=float(m.battery_remaining)
+                if m.battery_remaining != -1
+                else b.remaining_pct,
+            ),
+        )
+
+    def _battery_status(self, m: mavlink.MAVLink_message, t: float) -> None:
+        if m.id != 0:  # the first battery is the flight pack; SYS_STATUS mirrors it
+            return
+        cells_mv = [v for v in m.voltages if v != _UINT16_UNKNOWN]
+        b = self.state.battery
+        self.state = replace(
+            self.state,
+            battery=Battery(
+                t_mono=t,
+                voltage_v=sum(cells_mv) * 1e-3 if cells_mv else b.voltage_v,
+                current_a=m.current_battery * 0.01 if m.current_battery != -1 else b.current_a,
+                remaining_pct=float(m.battery_remaining)
+                if m.battery_remaining != -1
+                else b.remaining_pct,
+            ),
+        )
+
+    def _local_position(self, m: mavlink.MAVLink_message, t: float) -> None:
+        lp = LocalPosition(
+            t_mono=t,
+            time_boot_ms=m.time_boot_ms,
+            x_m=m.x,
+            y_m=m.y,
+            z_m=m.z,
+            vx_mps=m.vx,
+            vy_mps=m.vy,
+            vz_mps=m.vz,
+        )
+        self.state = replace(self.state, local_position=lp)
+
+    # -- the pilot's altitude (paper: relative to the altitude at arming) ---------------
+
+    def _current_alt_m(self) -> float | None:
+        if self._gp_seen:
+            return self.state.global_position.alt_m
+        gps = self.state.gps
+        return gps.alt_m if gps.fix_type >= _GPS_3D_FIX else None
+
+    def _current_latlon(self) -> tuple[float | None, float | None]:
+        if self._gp_seen:
+            gp = self.state.global_position
+            return gp.lat_deg, gp.lon_deg
+        return self.state.gps.lat_deg, self.state.gps.lon_deg
+
+    def _has_fix(self) -> bool:
+        if self.state.gps.t_mono is not None:
+            return self.state.gps.fix_type >= _GPS_3D_FIX
+        gp = self.state.global_position  # no GPS_RAW_INT at all: a fused position counts
+        return gp.lat_deg not in (None, 0.0) or gp.lon_deg not in (None, 0.0)
+
+    def _take_reference(self, reference: str, t: float) -> None:
+        alt = self._current_alt_m()
+        if alt is None:
+            # Armed before any altitude: take the reference at the first altitude.
+            self.state = replace(
+                self.state, altitude=PilotAltitude(t_mono=t, reference=f"pending_{reference}")
+            )
+            return
+        lat, lon = self._current_latlon()
+        self.state = replace(
+            self.state,
+            altitude=PilotAltitude(
+                t_mono=t,
+                relative_alt_m=0.0,
+                reference_alt_m=alt,
+                reference=reference,
+                home_lat_deg=lat,
+                home_lon_deg=lon,
+            ),
+        )
+
+    def _altitude_changed(self, t: float) -> None:
+        pilot = self.state.altitude
+        if pilot.reference.startswith("pending_"):
+            if self._current_alt_m() is not None:
+                self._take_reference(pilot.reference.removeprefix("pending_"), t)
+            return
+        if pilot.reference == "none":
+            if self._has_fix() and self._current_alt_m() is not None:
+                self._take_reference("first_fix", t)
+            return
+        alt = self._current_alt_m()
+        if alt is None or pilot.reference_alt_m is None:
+            return
+        self.state = replace(
+            self.state,
+            altitude=replace(pilot, t_mono=t, relative_alt_m=alt - pilot.reference_alt_m),
+        )
+
+
+_HANDLERS = {
+    "GPS_RAW_INT": StateTracker._gps_raw,
+    "GLOBAL_POSITION_INT": StateTracker._global_position,
+    "VFR_HUD": StateTracker._vfr_hud,
+    "ATTITUDE": StateTracker._attitude,
+    "RC_CHANNELS": StateTracker._rc_channels,
+    "SERVO_OUTPUT_RAW": StateTracker._servo_output,
+    "SYS_STATUS": StateTracker._sys_status,
+    "BATTERY_STATUS": StateTracker._battery_status,
+    "LOCAL_POSITION_NED": StateTracker._local_position,
+}

@@ -1,0 +1,186 @@
+"""Connection strings and the byte transports behind them (serial, UDP, TCP).
+
+    /dev/serial0:921600        serial port with baud rate (Pi UART to the Pixhawk TELEM2)
+    /dev/ttyACM0               serial port, default baud (USB: the rate does not matter)
+    udpin:0.0.0.0:14550        listen; replies go to whoever sent last (udp: is the same)
+    udpout:192.168.1.5:14550   send to a fixed peer; its replies come back to our port
+    tcp:127.0.0.1:5760         TCP client (SITL, mavlink-router, ser2net)
+    replay:FILE.tlog[?speed=N] play a telemetry log back, real time unless speed says
+    none                       no vehicle link
+
+Transports are blocking-free for the reader (it selects on `fileno()` first) and raise
+`ConnectionError` (or `OSError`) when the port or peer goes away; the link reconnects.
+"""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Protocol
+from urllib.parse import parse_qs
+
+DEFAULT_BAUD = 115200
+_UDP_MAX = 65535
+
+Kind = Literal["serial", "udpin", "udpout", "tcp", "replay", "none", "sim"]
+
+
+class ConnectionStringError(ValueError):
+    """A --source or --forward string that cannot be understood; says what is expected."""
+
+
+@dataclass(frozen=True, slots=True)
+class ConnSpec:
+    kind: Kind
+    text: str
+    host: str = ""
+    port: int = 0
+    path: str = ""
+    baud: int = DEFAULT_BAUD
+    speed: float = 1.0  # replay pace; 0 = as fast as possible
+
+
+def parse_connection(text: str) -> ConnSpec:
+    text = text.strip()
+    if text in ("none", "sim"):
+        return ConnSpec(kind=text, text=text)  # type: ignore[arg-type]
+    if text.startswith("replay:"):
+        rest = text.removeprefix("replay:")
+        path, _, query = rest.partition("?")
+        speed = 1.0
+        if query:
+            params = parse_qs(query)
+            raw = params.get("speed", ["1"])[0]
+            try:
+                speed = 0.0 if raw == "max" else float(raw)
+            except ValueError:
+                raise ConnectionStringError(
+                    f"Replay speed '{raw}' in '{text}' is not a number (use ?speed=4 or ?speed=max)."
+                ) from None
+            if speed < 0:
+                raise ConnectionStringError(f"Replay speed in '{text}' must be >= 0.")
+        if not path:
+            raise ConnectionStringError(f"'{text}' names no file: use replay:FILE.tlog.")
+        return ConnSpec(kind="replay", text=text, path=path, speed=speed)
+    for prefix, kind in (("udpin:", "udpin"), ("udp:", "udpin"), ("udpout:", "udpout"), ("tcp:", "tcp")):
+        if text.startswith(prefix):
+            host, sep, port = text.removeprefix(prefix).rpartition(":")
+            if not sep or not port.isdigit() or not 0 < int(port) < 65536:
+                raise ConnectionStringError(
+                    f"'{text}' needs HOST:PORT after '{prefix}' (for example {prefix}127.0.0.1:14550)."
+                )
+            return ConnSpec(kind=kind, text=text, host=host or "0.0.0.0", port=int(port))  # type: ignore[arg-type]
+    if text.startswith("/") or text.upper().startswith("COM"):
+        path, sep, baud = text.rpartition(":")
+        if sep and baud.isdigit():
+            return ConnSpec(kind="serial", text=text, path=path, baud=int(baud))
+        return ConnSpec(kind="serial", text=text, path=text)
+    raise ConnectionStringError(
+        f"Unknown MAVLink connection '{text}'. Use a serial port (/dev/serial0:921600), "
+        "udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, replay:FILE.tlog, sim or none."
+    )
+
+
+class Transport(Protocol):
+    def fileno(self) -> int: ...
+    def read(self) -> bytes: ...
+    def write(self, data: bytes) -> None: ...
+    def close(self) -> None: ...
+
+
+class UdpTransport:
+    """udpin binds and answers the last sender; udpout sends to a fixed peer."""
+
+    def __init__(self, spec: ConnSpec) -> None:
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.setblocking(False)
+        if spec.kind == "udpin":
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self._sock.bind((spec.host, spec.port))
+            self._peer: tuple[str, int] | None = None
+        else:
+            self._peer = (spec.host, spec.port)
+        self._fixed_peer = spec.kind == "udpout"
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def read(self) -> bytes:
+        try:
+            data, addr = self._sock.recvfrom(_UDP_MAX)
+        except (BlockingIOError, ConnectionRefusedError):
+            # udpout: an ICMP "port unreachable" for our last send; the peer may come back
+            return b""
+        if not self._fixed_peer:
+            self._peer = addr
+        return data
+
+    def write(self, data: bytes) -> None:
+        if self._peer is None:
+            return  # udpin: nobody has spoken yet, so nobody to answer
+        try:
+            self._sock.sendto(data, self._peer)
+        except (BlockingIOError, ConnectionRefusedError):
+            pass  # UDP: a dropped datagram is the protocol's normal loss
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+class TcpTransport:
+    def __init__(self, spec: ConnSpec, connect_timeout_s: float = 2.0) -> None:
+        self._sock = socket.create_connection((spec.host, spec.port), timeout=connect_timeout_s)
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._sock.settimeout(1.0)  # bounds a write to a peer that stopped reading
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def read(self) -> bytes:
+        data = self._sock.recv(_UDP_MAX)
+        if not data:
+            raise ConnectionError("TCP peer closed the connection")
+        return data
+
+    def write(self, data: bytes) -> None:
+        self._sock.sendall(data)
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+class SerialTransport:
+    def __init__(self, spec: ConnSpec) -> None:
+        import serial  # pyserial; imported here so that tests without ports never need it
+
+        if not Path(spec.path).exists():
+            raise FileNotFoundError(f"serial port {spec.path} does not exist")
+        self._port = serial.Serial(spec.path, spec.baud, timeout=0, write_timeout=1.0)
+
+    def fileno(self) -> int:
+        return self._port.fileno()
+
+    def read(self) -> bytes:
+        waiting = self._port.in_waiting
+        data = self._port.read(max(waiting, 1))
+        if not data and not waiting:
+            # select said readable but nothing came: the device is gone (unplugged USB)
+            raise ConnectionError("serial port returned no data: device gone")
+        return data
+
+    def write(self, data: bytes) -> None:
+        self._port.write(data)
+
+    def close(self) -> None:
+        self._port.close()
+
+
+def open_transport(spec: ConnSpec) -> Transport:
+    if spec.kind in ("udpin", "udpout"):
+        return UdpTransport(spec)
+    if spec.kind == "tcp":
+        return TcpTransport(spec)
+    if spec.kind == "serial":
+        return SerialTransport(spec)
+    raise ConnectionStringError(f"'{spec.text}' is not a byte transport.")

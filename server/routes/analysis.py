@@ -1,0 +1,221 @@
+"""Flight analysis over REST: the paper's task metrics as JSON and its figures as PNG, for
+one recorded session or a comparison of several.
+
+    GET /api/sessions/{id}/analysis?task=hover[&reference=LAT,LON&...thresholds]
+    GET /api/sessions/{id}/analysis/{plot}.png?task=...     plot: trajectory3d|birdseye|history
+    GET /api/analysis?task=...&sessions=ID&sessions=ID2     one table over several sessions
+    GET /api/analysis/{plot}.png?task=...&sessions=...
+
+Sessions are found only through the recorder's `SessionStore` (ids and file names are
+untrusted). Loading and plotting run in a worker thread, never on the event loop; the
+last few analyses are cached, keyed on the files' size and modification time, so a page
+asking for the table and three figures loads the session once. The JSON is the CLI's
+`TABLE.json`, computed by the same `analysis.report.analyze_tracks`.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import replace
+from pathlib import Path
+
+from fastapi import APIRouter, Depends, Query, Request
+from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
+
+from analysis import errors as ae
+from analysis.field import load_scene
+from analysis.plots import PLOTS
+from analysis.report import Analysis, analyze_tracks
+from analysis.tasks import TaskParams
+from analysis.track import TELEMETRY_CSV, load_track, parse_meta
+from companion.recording import store as st
+from server.errors import ApiError, BadRequest, NotFound
+
+router = APIRouter(tags=["analysis"])
+MAX_SESSIONS = 8
+TLOG = "mavlink.tlog"
+META = "session.json"
+
+
+class Unprocessable(ApiError):
+    """The session is readable but the analysis cannot be done (422)."""
+
+    status_code = 422
+
+
+class NoGpsFix(Unprocessable):
+    pass
+
+
+class TooFewPoints(Unprocessable):
+    pass
+
+
+class NoTaskWindow(Unprocessable):
+    pass
+
+
+class UnreadableSession(Unprocessable):
+    pass
+
+
+_ERRORS: dict[type[Exception], type[ApiError]] = {
+    ae.UnknownTaskError: BadRequest,
+    ae.NoGpsFixError: NoGpsFix,
+    ae.TooFewPointsError: TooFewPoints,
+    ae.TaskWindowError: NoTaskWindow,
+    ae.TrackLoadError: UnreadableSession,
+    st.InvalidSessionId: BadRequest,
+    st.InvalidPath: BadRequest,
+    st.SessionNotFound: NotFound,
+    st.SessionFileNotFound: NotFound,
+}
+
+
+def _api_error(exc: Exception) -> ApiError:
+    for kind, api in _ERRORS.items():
+        if isinstance(exc, kind):
+            return api(str(exc))
+    return Unprocessable(str(exc))
+
+
+def _reference(text: str | None) -> tuple[float, float] | None:
+    if text is None or text == "":
+        return None
+    from analysis.cli import parse_latlon
+
+    try:
+        return parse_latlon(text)
+    except Exception as exc:  # argparse's ArgumentTypeError carries the message
+        raise BadRequest(str(exc)) from None
+
+
+def _session_files(store: st.SessionStore, session_id: str) -> tuple[Path, Path | None]:
+    """The telemetry file (CSV, else the tlog) and session.json, through the store."""
+    store.resolve(session_id)
+    try:
+        data = store.file(session_id, TELEMETRY_CSV)
+    except st.SessionFileNotFound:
+        try:
+            data = store.file(session_id, TLOG)
+        except st.SessionFileNotFound:
+            raise st.SessionFileNotFound(
+                f"Session '{session_id}' has neither {TELEMETRY_CSV} nor {TLOG} to analyse."
+            ) from None
+    try:
+        meta = store.file(session_id, META)
+    except st.SessionFileNotFound:
+        meta = None
+    return data, meta
+
+
+def _stamp(path: Path | None) -> tuple[str, int, int] | None:
+    if path is None:
+        return None
+    s = path.stat()
+    return (str(path), s.st_mtime_ns, s.st_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _cached(
+    files: tuple[tuple[str, tuple, tuple | None], ...],
+    task: str,
+    reference: tuple[float, float] | None,
+    scene: str | None,
+    params: TaskParams,
+) -> Analysis:
+    tracks = []
+    for session_id, (data, _, _), meta in files:
+        track = load_track(Path(data), label=session_id)
+        m = parse_meta(Path(meta[0]).read_bytes()) if meta else {}
+        tracks.append(replace(track, meta=m, source=str(Path(data).parent)))
+    field = load_scene(scene) if scene else load_scene()
+    return analyze_tracks(tracks, task, reference, field, params)
+
+
+def _analyze(request: Request, session_ids: list[str], task: str, reference: str | None,
+             params: TaskParams) -> Analysis:  # fmt: skip
+    """Runs in a worker thread: file access, parsing and numpy."""
+    settings = request.app.state.settings
+    store = st.SessionStore(settings.recording.sessions_dir)
+    files = []
+    for sid in session_ids:
+        data, meta = _session_files(store, sid)
+        files.append((sid, _stamp(data), _stamp(meta)))
+    twin = getattr(settings, "twin", None)
+    scene = getattr(twin, "scene", None)
+    return _cached(tuple(files), task, _reference(reference), str(scene) if scene else None,
+                   params)  # fmt: skip
+
+
+async def _run(request: Request, session_ids: list[str], task: str, reference: str | None,
+               params: TaskParams, plot: str | None = None) -> Analysis | bytes:  # fmt: skip
+    if not session_ids:
+        raise BadRequest("Give at least one session (sessions=ID).")
+    if len(session_ids) > MAX_SESSIONS:
+        raise BadRequest(f"At most {MAX_SESSIONS} sessions in one comparison.")
+    if plot is not None and plot not in PLOTS:
+        raise NotFound(f"No plot '{plot}'; use one of: {', '.join(PLOTS)}.")
+
+    def work() -> Analysis | bytes:
+        try:
+            an = _analyze(request, session_ids, task, reference, params)
+            return an if plot is None else an.plot(plot)
+        except (ae.AnalysisError, st.SessionStoreError) as exc:
+            raise _api_error(exc) from None
+
+    return await run_in_threadpool(work)
+
+
+_TASK = Query(..., description="hover, a-to-b, obstacle or figure8")
+_REF = Query(None, description="LAT,LON of the point that sets +x")
+_D = TaskParams()
+
+
+def _thresholds(
+    hover_height_m: float = Query(_D.hover_height_m, gt=0),
+    hover_window_s: float = Query(_D.hover_window_s, gt=0),
+    margin_m: float = Query(_D.margin_m, ge=0),
+    airborne_height_m: float = Query(_D.airborne_height_m, ge=0),
+) -> TaskParams:
+    """The method's thresholds as query parameters, the paper's values by default."""
+    return TaskParams(
+        hover_height_m=hover_height_m,
+        hover_window_s=hover_window_s,
+        margin_m=margin_m,
+        airborne_height_m=airborne_height_m,
+    )
+
+
+_P = Depends(_thresholds)
+
+
+@router.get("/api/sessions/{session_id}/analysis", summary="Task metrics of one session")
+async def session_analysis(request: Request, session_id: str, task: str = _TASK,
+                           reference: str | None = _REF, params: TaskParams = _P) -> dict:  # fmt: skip
+    an = await _run(request, [session_id], task, reference, params)
+    return {"sessions": [session_id], **an.comparison.to_dict()}
+
+
+@router.get("/api/sessions/{session_id}/analysis/{plot}.png", summary="A figure of one session")
+async def session_plot(request: Request, session_id: str, plot: str, task: str = _TASK,
+                       reference: str | None = _REF, params: TaskParams = _P) -> Response:  # fmt: skip
+    png = await _run(request, [session_id], task, reference, params, plot)
+    return Response(png, media_type="image/png")
+
+
+@router.get("/api/analysis", summary="One table comparing sessions of one task")
+async def compare_sessions(request: Request, task: str = _TASK,
+                           sessions: list[str] | None = Query(None),
+                           reference: str | None = _REF, params: TaskParams = _P) -> dict:  # fmt: skip
+    an = await _run(request, sessions or [], task, reference, params)
+    return {"sessions": sessions or [], **an.comparison.to_dict()}
+
+
+@router.get("/api/analysis/{plot}.png", summary="A figure overlaying sessions of one task")
+async def compare_plot(request: Request, plot: str, task: str = _TASK,
+                       sessions: list[str] | None = Query(None),
+                       reference: str | None = _REF, params: TaskParams = _P) -> Response:  # fmt: skip
+    png = await _run(request, sessions or [], task, reference, params, plot)
+    return Response(png, media_type="image/png")

@@ -1,0 +1,68 @@
+"""The vehicle state as JSON, encoded once per state version and shared by every client.
+
+The body is cached by version; each WebSocket message is a short per-send prefix
+(`t_server`, `t_server_mono`: the server's clock at the moment of sending) spliced onto
+that shared body, so twenty browsers cost one `json.dumps`, not twenty.
+
+    {"t_server": unix_s, "t_server_mono": monotonic_s, "version": n,
+     "state": {"heartbeat": {...}, "gps": {...}, ..., "link": {...}}}
+
+Each group carries `t_mono` (station monotonic time of its last update; a browser's age
+for it is `t_server_mono - t_mono`) and the vehicle's own `time_boot_ms`/`time_usec`.
+Non-finite floats (NaN from an autopilot) become null: browsers reject NaN in JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import fields
+from typing import Any
+
+from companion.latest import Versioned
+from companion.vehicle_state import VehicleState
+
+_GROUPS = tuple(f.name for f in fields(VehicleState))
+_GROUP_FIELDS: dict[type, tuple[str, ...]] = {}
+
+
+def _group_dict(group: Any) -> dict[str, Any]:
+    names = _GROUP_FIELDS.get(type(group))
+    if names is None:
+        names = _GROUP_FIELDS[type(group)] = tuple(f.name for f in fields(group))
+    out: dict[str, Any] = {}
+    for name in names:
+        v = getattr(group, name)
+        if type(v) is float and not math.isfinite(v):
+            v = None
+        out[name] = v
+    return out
+
+
+def state_to_dict(state: VehicleState) -> dict[str, Any]:
+    """Plain JSON-able dict with the contract's names (tuples become lists)."""
+    return {g: _group_dict(getattr(state, g)) for g in _GROUPS}
+
+
+class SharedStateJson:
+    """Caches the JSON body of the newest version. Used from the event loop only."""
+
+    def __init__(self) -> None:
+        self._current: Versioned[VehicleState] | None = None
+        self._body = ""
+        self.encodes = 0  # how many times a body was built (for tests and benchmarks)
+
+    def body(self, current: Versioned[VehicleState]) -> str:
+        # Identity, not version: each publish makes a new Versioned, and a slot swapped
+        # by another service (the twin) may reuse version numbers.
+        if current is not self._current:
+            payload = {"version": current.version, "state": state_to_dict(current.value)}
+            self._body = json.dumps(payload, separators=(",", ":"))
+            self._current = current
+            self.encodes += 1
+        return self._body
+
+    def message(self, current: Versioned[VehicleState]) -> str:
+        body = self.body(current)
+        return f'{{"t_server":{time.time():.6f},"t_server_mono":{time.monotonic():.6f},{body[1:]}'

@@ -1,0 +1,307 @@
+"""A test MAVLink vehicle: real packets from pymavlink's encoder over real sockets.
+
+    with MavVehicle("udp") as v:              # sends to the station's udpin port
+        link = MavlinkLink(LinkSettings(source=v.station_source))
+        v.arm(); v.set_mode("POSCTL"); v.alt_m += 3; v.silent = True; v.inject(b"junk")
+
+UDP: the vehicle sends from its own socket to `station_port` (station source
+`udpin:127.0.0.1:PORT`), as a Pixhawk's network bridge does. TCP: the vehicle listens
+(`tcp:127.0.0.1:PORT`), as SITL does, and accepts the station again after a drop.
+It answers SET_MESSAGE_INTERVAL (or refuses, or ignores it: `interval_reply`), records
+what the station sends, and changes its own rates on request. Parsing of what the station
+sends uses pymavlink's own parser, not the station's code.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import socket
+import threading
+import time
+from typing import Literal
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from tests.helpers import free_port
+
+DEFAULT_RATES_HZ = {
+    "HEARTBEAT": 1.0,
+    "ATTITUDE": 20.0,
+    "GLOBAL_POSITION_INT": 10.0,
+    "GPS_RAW_INT": 5.0,
+    "VFR_HUD": 5.0,
+    "SYS_STATUS": 2.0,
+    "RC_CHANNELS": 5.0,
+    "SERVO_OUTPUT_RAW": 5.0,
+    "BATTERY_STATUS": 1.0,
+    "LOCAL_POSITION_NED": 5.0,
+}
+
+
+def px4_custom_mode(name: str) -> tuple[int, int]:
+    base, main, sub = mavutil.px4_map[name]
+    return base, (main << 16) | (sub << 24)
+
+
+def copter_custom_mode(name: str) -> int:
+    return {v: k for k, v in mavutil.mode_mapping_acm.items()}[name]
+
+
+class MavVehicle:
+    def __init__(
+        self,
+        transport: Literal["udp", "tcp"] = "udp",
+        *,
+        sysid: int = 1,
+        compid: int = 1,
+        autopilot: Literal["px4", "ardupilot", "invalid"] = "px4",
+        mavlink1: bool = False,
+        rates_hz: dict[str, float] | None = None,
+        station_port: int | None = None,
+        port: int | None = None,
+        interval_reply: Literal["accept", "unsupported", "ignore"] = "accept",
+    ) -> None:
+        self.transport = transport
+        self.sysid, self.compid = sysid, compid
+        self.autopilot = autopilot
+        self.mavlink1 = mavlink1
+        self.rates_hz = dict(DEFAULT_RATES_HZ if rates_hz is None else rates_hz)
+        self.interval_reply = interval_reply
+        self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        # The flight state it reports; tests change these attributes directly.
+        self.armed = False
+        self.mode = "POSCTL" if autopilot == "px4" else "LOITER"
+        self.lat_deg, self.lon_deg, self.alt_m = 43.0021, -78.7875, 180.0
+        self.relative_alt_m = 0.0
+        self.vx_mps, self.vy_mps, self.vz_mps = 0.0, 0.0, 0.0
+        self.roll_rad, self.pitch_rad, self.yaw_rad = 0.0, 0.0, 0.0
+        self.fix_type, self.satellites = 3, 12
+        self.voltage_v, self.current_a, self.remaining_pct = 12.3, 4.5, 87
+        self.rc_pwm = [1500] * 8 + [0] * 10
+        self.servo_pwm = [1100] * 4 + [0] * 12
+        self.silent = False  # True: sends nothing (a vehicle gone out of range)
+        self.received: collections.deque[mavlink.MAVLink_message] = collections.deque(maxlen=2000)
+        self.sent: collections.Counter[str] = collections.Counter()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._t0 = time.monotonic()
+        self._threads: list[threading.Thread] = []
+        self._conn: socket.socket | None = None
+        if transport == "udp":
+            self.station_port = station_port or free_port(socket.SOCK_DGRAM)
+            self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self._sock.bind(("127.0.0.1", port or 0))
+            self._sock.settimeout(0.05)
+            self.port = self._sock.getsockname()[1]
+            self.station_source = f"udpin:127.0.0.1:{self.station_port}"
+        else:
+            self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self._sock.bind(("127.0.0.1", port or 0))
+            self._sock.listen(1)
+            self._sock.settimeout(0.05)
+            self.port = self._sock.getsockname()[1]
+            self.station_source = f"tcp:127.0.0.1:{self.port}"
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def start(self) -> "MavVehicle":
+        for target, name in ((self._send_loop, "send"), (self._recv_loop, "recv")):
+            t = threading.Thread(target=target, name=f"mav-vehicle-{name}", daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(2)
+        self.drop_connection()
+        self._sock.close()
+
+    def __enter__(self) -> "MavVehicle":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- what tests do -------------------------------------------------------------------
+
+    def arm(self) -> None:
+        self.armed = True
+        self.send_now("HEARTBEAT")
+
+    def disarm(self) -> None:
+        self.armed = False
+        self.send_now("HEARTBEAT")
+
+    def set_mode(self, name: str) -> None:
+        self.mode = name
+        self.send_now("HEARTBEAT")
+
+    def inject(self, data: bytes) -> None:
+        """Raw bytes onto the wire (garbage, corrupted packets)."""
+        self._write(data)
+
+    def skip_seq(self, n: int) -> None:
+        """Pretend `n` packets were lost on the way: advance the sequence number."""
+        with self._lock:
+            self.mav.seq = (self.mav.seq + n) % 256
+
+    def send_message(self, msg: mavlink.MAVLink_message) -> bytes:
+        with self._lock:
+            buf = msg.pack(self.mav, force_mavlink1=self.mavlink1)
+            self.mav.seq = (self.mav.seq + 1) % 256
+        self._write(buf)
+        self.sent[msg.get_type()] += 1
+        return buf
+
+    def send_now(self, name: str) -> bytes:
+        return self.send_message(self.build(name))
+
+    def drop_connection(self) -> None:
+        """TCP: close the station's connection (it must reconnect)."""
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            try:
+                conn.close()
+            except OSError:
+                pass
+
+    def received_types(self) -> list[str]:
+        return [m.get_type() for m in list(self.received)]
+
+    # -- messages ----------------------------------------------------------------------
+
+    def time_boot_ms(self) -> int:
+        return int((time.monotonic() - self._t0) * 1000)
+
+    def heartbeat(self) -> mavlink.MAVLink_message:
+        armed = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0
+        if self.autopilot == "px4":
+            base, custom = px4_custom_mode(self.mode)
+            ap = mavlink.MAV_AUTOPILOT_PX4
+        elif self.autopilot == "ardupilot":
+            base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            custom, ap = copter_custom_mode(self.mode), mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+        else:  # a radio, camera or other GCS: no autopilot
+            return self.mav.heartbeat_encode(
+                mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+            )
+        status = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
+        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, ap, base | armed, custom, status)
+
+    def build(self, name: str) -> mavlink.MAVLink_message:
+        m, t = self.mav, self.time_boot_ms()
+        lat, lon = int(self.lat_deg * 1e7), int(self.lon_deg * 1e7)
+        speed = math.hypot(self.vx_mps, self.vy_mps)
+        if name == "HEARTBEAT":
+            return self.heartbeat()
+        if name == "ATTITUDE":
+            return m.attitude_encode(t, self.roll_rad, self.pitch_rad, self.yaw_rad, 0.01, 0.02, 0.03)
+        if name == "GLOBAL_POSITION_INT":
+            return m.global_position_int_encode(
+                t, lat, lon, int(self.alt_m * 1000), int(self.relative_alt_m * 1000),
+                int(self.vx_mps * 100), int(self.vy_mps * 100), int(self.vz_mps * 100),
+                int(math.degrees(self.yaw_rad) % 360 * 100),
+            )  # fmt: skip
+        if name == "GPS_RAW_INT":
+            return m.gps_raw_int_encode(
+                t * 1000, self.fix_type, lat, lon, int(self.alt_m * 1000), 80, 120,
+                int(speed * 100), 9000, self.satellites,
+            )  # fmt: skip
+        if name == "VFR_HUD":
+            return m.vfr_hud_encode(
+                speed, speed, int(math.degrees(self.yaw_rad)) % 360, 50, self.alt_m, -self.vz_mps
+            )
+        if name == "SYS_STATUS":
+            return m.sys_status_encode(
+                0, 0, 0, 500, int(self.voltage_v * 1000), int(self.current_a * 100),
+                self.remaining_pct, 0, 0, 0, 0, 0, 0,
+            )  # fmt: skip
+        if name == "BATTERY_STATUS":
+            cells = [int(self.voltage_v * 1000 / 3)] * 3 + [65535] * 7
+            return m.battery_status_encode(
+                0, 0, 0, 2500, cells, int(self.current_a * 100), -1, -1, self.remaining_pct
+            )
+        if name == "RC_CHANNELS":
+            return m.rc_channels_encode(t, 8, *self.rc_pwm, 200)
+        if name == "SERVO_OUTPUT_RAW":
+            return m.servo_output_raw_encode(t * 1000, 0, *self.servo_pwm)
+        if name == "LOCAL_POSITION_NED":
+            return m.local_position_ned_encode(
+                t, 1.0, 2.0, -self.relative_alt_m, self.vx_mps, self.vy_mps, self.vz_mps
+            )
+        raise ValueError(f"MavVehicle cannot build {name}")
+
+    # -- threads -------------------------------------------------------------------------
+
+    def _write(self, data: bytes) -> None:
+        try:
+            if self.transport == "udp":
+                self._sock.sendto(data, ("127.0.0.1", self.station_port))
+            elif self._conn is not None:
+                self._conn.sendall(data)
+        except OSError:
+            self.drop_connection() if self.transport == "tcp" else None
+
+    def _send_loop(self) -> None:
+        due: dict[str, float] = {}
+        while not self._stop.is_set():
+            now = time.monotonic()
+            for name, rate in list(self.rates_hz.items()):
+                if rate <= 0:
+                    continue
+                t_due = due.setdefault(name, now)
+                if now >= t_due:
+                    due[name] = max(t_due + 1.0 / rate, now - 0.5)
+                    if not self.silent:
+                        self.send_now(name)
+            nxt = min((due.get(n, now) for n, r in self.rates_hz.items() if r > 0), default=now + 0.05)
+            self._stop.wait(min(max(nxt - time.monotonic(), 0.0), 0.05))
+
+    def _recv_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                if self.transport == "udp":
+                    data, _ = self._sock.recvfrom(65535)
+                elif self._conn is None:
+                    conn, _ = self._sock.accept()
+                    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    conn.settimeout(0.05)
+                    self._conn = conn
+                    continue
+                else:
+                    data = self._conn.recv(65535)
+                    if not data:
+                        self.drop_connection()
+                        continue
+            except (TimeoutError, socket.timeout, BlockingIOError):
+                continue
+            except OSError:
+                if self.transport == "tcp":
+                    self.drop_connection()
+                    continue
+                return
+            for msg in self._parser.parse_buffer(data) or []:
+                if msg.get_type() != "BAD_DATA":
+                    self.received.append(msg)
+                    self._handle(msg)
+
+    def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        if msg.get_type() != "COMMAND_LONG" or msg.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return
+        if self.interval_reply == "ignore":
+            return
+        result = mavlink.MAV_RESULT_ACCEPTED
+        if self.interval_reply == "unsupported":
+            result = mavlink.MAV_RESULT_UNSUPPORTED
+        else:
+            name = mavlink.mavlink_map[int(msg.param1)].msgname
+            if msg.param2 > 0:
+                self.rates_hz[name] = 1e6 / msg.param2
+        self.send_message(self.mav.command_ack_encode(msg.command, result))

@@ -1,0 +1,248 @@
+"""MavlinkLink through real sockets: UDP, TCP, a pty serial port, and tlog replay."""
+
+import contextlib
+import os
+import pty
+import random
+import socket
+import time
+import tty
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.link import MavlinkLink
+from companion.tlog import write_record
+from server.settings import LinkSettings
+from tests.helpers import free_port, wait_until
+from tests.mav_vehicle import MavVehicle
+
+
+@contextlib.contextmanager
+def running_link(source, **kw):
+    kw.setdefault("link_lost_s", 1.5)
+    kw.setdefault("reconnect_s", 0.2)
+    link = MavlinkLink(LinkSettings(source=source, **kw))
+    link.start()
+    try:
+        yield link
+    finally:
+        link.stop()
+
+
+def state(link):
+    current = link.state.get()
+    return current.value if current else None
+
+
+@pytest.mark.parametrize("transport", ["udp", "tcp"])
+def test_state_over_udp_and_tcp(transport):
+    with MavVehicle(transport) as v, running_link(v.station_source) as link:
+        assert wait_until(lambda: state(link).heartbeat.mode == "POSCTL")
+        assert wait_until(lambda: state(link).altitude.reference == "first_fix")
+        v.arm()
+        v.alt_m += 3.5
+        assert wait_until(lambda: state(link).altitude.relative_alt_m == pytest.approx(3.5))
+        assert state(link).heartbeat.armed and state(link).altitude.reference == "arming"
+        assert not state(link).link.link_lost
+        # The station introduces itself as a GCS at ~1 Hz.
+        assert wait_until(lambda: v.received_types().count("HEARTBEAT") >= 2, timeout=3)
+        hb = next(m for m in v.received if m.get_type() == "HEARTBEAT")
+        assert hb.type == mavlink.MAV_TYPE_GCS and hb.get_srcSystem() == 255
+
+
+def test_message_intervals_requested_and_rates_measured():
+    with MavVehicle("udp") as v, running_link(v.station_source) as link:
+        assert wait_until(lambda: link.health().stream_request == "message_interval")
+        assert v.rates_hz["ATTITUDE"] == pytest.approx(50.0)  # asked via SET_MESSAGE_INTERVAL
+        assert v.rates_hz["GPS_RAW_INT"] == pytest.approx(5.0)
+        time.sleep(2.3)  # a full rate window at the new rates
+        rates = link.health().rates_hz
+        assert 35 < rates["ATTITUDE"] < 60, rates
+        assert 3.5 < rates["GPS_RAW_INT"] < 6.5, rates
+        assert 0.5 < rates["HEARTBEAT"] < 1.6, rates
+        assert link.health().bytes_per_s > 1000
+
+
+@pytest.mark.parametrize("reply", ["unsupported", "ignore"])
+def test_falls_back_to_request_data_stream(reply):
+    with MavVehicle("udp", interval_reply=reply) as v, running_link(v.station_source) as link:
+        assert wait_until(lambda: link.health().stream_request == "data_stream", timeout=4)
+        assert wait_until(lambda: "REQUEST_DATA_STREAM" in v.received_types())
+        streams = {m.req_stream_id: m.req_message_rate for m in v.received
+                   if m.get_type() == "REQUEST_DATA_STREAM"}  # fmt: skip
+        assert streams[mavlink.MAV_DATA_STREAM_EXTRA1] == 50  # ATTITUDE
+        assert streams[mavlink.MAV_DATA_STREAM_POSITION] == 25
+
+
+def test_loss_counted_from_sequence_numbers():
+    with MavVehicle("udp") as v, running_link(v.station_source) as link:
+        assert wait_until(lambda: link.health().packets > 20)
+        assert link.health().lost_packets == 0
+        v.skip_seq(5)
+        time.sleep(0.2)
+        v.skip_seq(3)
+        assert wait_until(lambda: link.health().lost_packets == 8)
+        h = link.health()
+        assert 0 < h.loss_ratio < 0.5
+
+
+def test_link_lost_and_recovered():
+    with MavVehicle("udp") as v, running_link(v.station_source) as link:
+        assert wait_until(lambda: not state(link).link.link_lost)
+        version = link.state.version
+        v.silent = True
+        assert wait_until(lambda: state(link).link.link_lost, timeout=3)
+        assert link.state.version > version  # a lost link is published as a change
+        assert link.health().link_lost and link.health().since_heartbeat_s >= 1.5
+        v.silent = False
+        assert wait_until(lambda: not state(link).link.link_lost, timeout=3)
+        # Regained: the rates are asked for again (the autopilot may have rebooted).
+        n = sum(1 for m in v.received if m.get_type() == "COMMAND_LONG")
+        assert n >= 2 * len(LinkSettings().message_rates_hz)
+
+
+def test_random_garbage_and_corrupt_packets_interleaved():
+    rng = random.Random(3)
+    with MavVehicle("udp", rates_hz={"HEARTBEAT": 5.0}) as v, running_link(v.station_source) as link:
+        assert wait_until(lambda: state(link).heartbeat.t_mono is not None)
+        for i in range(200):
+            v.inject(bytes(rng.randrange(256) for _ in range(rng.randrange(1, 60))))
+            v.roll_rad = i / 1000
+            pkt = v.send_now("ATTITUDE")
+            if i % 20 == 0:
+                bad = bytearray(pkt)
+                bad[-2] ^= 0x55
+                v.inject(bytes(bad))
+        v.inject(b"\x00" * 300)
+        assert wait_until(lambda: state(link).attitude.roll_rad == pytest.approx(0.199))
+        h = link.health()
+        assert h.garbage_bytes > 1000 and h.bad_crc >= 10
+        assert link.health().rates_hz or True
+        assert h.packets >= 200  # every good ATTITUDE got through
+
+
+def test_other_systems_on_the_link_are_ignored():
+    with MavVehicle("udp", sysid=3) as ap:
+        other = MavVehicle("udp", sysid=200, autopilot="invalid", station_port=ap.station_port)
+        other.roll_rad = 1.0
+        with other, running_link(ap.station_source) as link:
+            other.rates_hz["ATTITUDE"] = 20.0
+            assert wait_until(lambda: state(link).heartbeat.sysid == 3)
+            time.sleep(0.3)
+            assert state(link).attitude.roll_rad == 0.0
+            assert link.health().autopilot_sysid == 3
+
+
+def test_tcp_reconnects_when_the_peer_drops_and_returns():
+    port = free_port()
+    v = MavVehicle("tcp", port=port).start()
+    with running_link(f"tcp:127.0.0.1:{port}") as link:
+        assert wait_until(lambda: not state(link).link.link_lost)
+        v.stop()  # the vehicle goes away entirely
+        assert wait_until(lambda: state(link).link.link_lost, timeout=3)
+        assert wait_until(lambda: not link.health().connected)
+        with MavVehicle("tcp", port=port) as v2:  # and comes back on the same port
+            v2.set_mode("ALTCTL")
+            assert wait_until(lambda: state(link).heartbeat.mode == "ALTCTL", timeout=5)
+            assert not state(link).link.link_lost
+            assert link.health().reconnects >= 1
+
+
+def test_serial_port_over_a_pty():
+    master, slave = pty.openpty()
+    tty.setraw(master)
+    vehicle = MavVehicle("udp")  # used for its encoder and flight state only
+    vehicle._sock.close()
+    try:
+        with running_link(f"{os.ttyname(slave)}:921600") as link:
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline and state(link).heartbeat.mode != "POSCTL":
+                for name in ("HEARTBEAT", "ATTITUDE", "GLOBAL_POSITION_INT"):
+                    os.write(master, vehicle.build(name).pack(vehicle.mav))
+                time.sleep(0.05)
+            assert state(link).heartbeat.mode == "POSCTL"
+            assert link.health().connected
+            # The GCS heartbeat comes out of the serial port.
+            got = b""
+            deadline = time.monotonic() + 3
+            parser = mavlink.MAVLink(None)
+            types = []
+            while time.monotonic() < deadline and "HEARTBEAT" not in types:
+                got = os.read(master, 4096)
+                types += [m.get_type() for m in parser.parse_buffer(got) or []]
+            assert "HEARTBEAT" in types
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_missing_serial_port_is_reported_and_retried():
+    with running_link("/dev/does-not-exist:57600") as link:
+        assert wait_until(lambda: link.health().last_error is not None)
+        assert "does not exist" in link.health().last_error
+        assert wait_until(lambda: link.health().reconnects >= 2, timeout=3)
+        assert link.running
+
+
+def test_replay_of_a_written_tlog_in_order_with_truncated_tail(tmp_path):
+    v = MavVehicle("udp")
+    v._sock.close()
+    path = tmp_path / "flight.tlog"
+    sent = []
+    with open(path, "wb") as f:
+        t = 1_700_000_000.0
+        for i in range(60):
+            v.roll_rad = i / 100
+            for name in ("HEARTBEAT", "ATTITUDE") if i % 10 == 0 else ("ATTITUDE",):
+                pkt = bytes(v.build(name).pack(v.mav))
+                v.mav.seq = (v.mav.seq + 1) % 256
+                write_record(f, t, pkt)
+                sent.append(pkt)
+            t += 0.005
+        write_record(f, t, bytes(v.build("ATTITUDE").pack(v.mav))[:-7])  # cut by power loss
+    got = []
+    link = MavlinkLink(LinkSettings(source=f"replay:{path}?speed=4"))
+    link.add_packet_listener(lambda t_wall, pkt: got.append(pkt))
+    t0 = time.monotonic()
+    link.start()
+    try:
+        assert wait_until(lambda: link.health().replay_done, timeout=5)
+        elapsed = time.monotonic() - t0
+        assert got == sent  # every packet, in order
+        assert link.health().truncated_records == 1
+        assert state(link).attitude.roll_rad == pytest.approx(0.59)
+        assert 0.06 < elapsed < 1.5  # 0.3 s of log at 4x real time
+    finally:
+        link.stop()
+
+
+def test_forwarding_and_send_reach_both_ends():
+    qgc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    qgc.bind(("127.0.0.1", 0))
+    qgc.settimeout(2)
+    fwd = f"udpout:127.0.0.1:{qgc.getsockname()[1]}"
+    with MavVehicle("udp") as v, running_link(v.station_source, forward=[fwd]) as link:
+        data, addr = qgc.recvfrom(65535)  # raw copies of the vehicle's packets
+        parser = mavlink.MAVLink(None)
+        assert parser.parse_buffer(data)[0].get_srcSystem() == 1
+        # What QGroundControl sends goes to the vehicle.
+        qmav = mavlink.MAVLink(None, srcSystem=250)
+        qgc.sendto(qmav.param_request_list_encode(1, 1).pack(qmav), addr)
+        assert wait_until(lambda: "PARAM_REQUEST_LIST" in v.received_types())
+        # And link.send() from any thread.
+        link.send(link.mav.manual_control_encode(1, 100, -200, 500, 0, 0))
+        assert wait_until(lambda: "MANUAL_CONTROL" in v.received_types())
+        mc = next(m for m in v.received if m.get_type() == "MANUAL_CONTROL")
+        assert (mc.x, mc.y, mc.z) == (100, -200, 500)
+    qgc.close()
+
+
+def test_listener_errors_never_stop_the_link():
+    with MavVehicle("udp") as v, running_link(v.station_source) as link:
+        link.add_packet_listener(lambda t, p: 1 / 0)
+        seen = []
+        link.add_packet_listener(lambda t, p: seen.append(t))
+        assert wait_until(lambda: len(seen) > 20)
+        assert abs(seen[-1] - time.time()) < 2  # wall time labels
+        assert link.running

@@ -1,0 +1,51 @@
+"""The pilot page in real headless chromium against a real server and test vehicle."""
+
+import pytest
+from playwright.sync_api import expect, sync_playwright
+
+from server.app import create_app
+from server.settings import load_settings
+from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn
+from tests.mav_vehicle import MavVehicle
+
+
+@pytest.fixture
+def browser():
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True)
+        yield b
+        b.close()
+
+
+def test_page_shows_live_values_and_link_lost(browser):
+    with MavVehicle("udp") as vehicle:
+        settings = load_settings(
+            environ={}, overrides={"link.source": vehicle.station_source, "link.link_lost_s": 1.0}
+        )
+        with run_uvicorn(create_app(settings)) as base:
+            page = browser.new_page()
+            page.goto(base + "/")
+            for el in ("#front-view", "#bottom-view", "#toolbar", "#panel-3d"):
+                expect(page.locator(el)).to_have_count(1)
+            expect(page.locator("#panel-3d")).to_be_hidden()
+            expect(page.locator("#v-mode")).to_have_text("POSCTL", timeout=5000)
+            expect(page.locator("#link-banner")).to_be_hidden()
+            expect(page.locator("#v-armed")).to_have_text("disarmed")
+
+            vehicle.arm()
+            vehicle.alt_m += 4.2
+            vehicle.vx_mps, vehicle.vy_mps = 3.0, 4.0
+            vehicle.vz_mps = -1.5  # NED: climbing
+            expect(page.locator("#v-armed")).to_have_text("ARMED", timeout=5000)
+            expect(page.locator("#v-rel-alt")).to_have_text("4.2", timeout=5000)
+            expect(page.locator("#v-ground-speed")).to_have_text("5.0", timeout=5000)
+            expect(page.locator("#v-climb")).to_have_text("1.5", timeout=5000)
+            expect(page.locator("#v-rel-alt-ref")).to_have_text("from arming")
+            expect(page.locator("#v-gps")).to_have_text("3D, 12 sats")
+
+            vehicle.silent = True
+            expect(page.locator("#link-banner")).to_be_visible(timeout=5000)
+            expect(page.locator("#link-banner")).to_contain_text("LINK LOST")
+
+            vehicle.silent = False
+            expect(page.locator("#link-banner")).to_be_hidden(timeout=5000)

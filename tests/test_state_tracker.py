@@ -1,0 +1,167 @@
+"""The pure state tracker: real packets from pymavlink's encoder, decoded, merged."""
+
+import dataclasses
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.mav_framer import MavFramer
+from companion.state_tracker import StateTracker
+from tests.mav_vehicle import MavVehicle
+
+
+class Feed:
+    """Packs a vehicle's messages to bytes and feeds them through the framer."""
+
+    def __init__(self, tracker: StateTracker, vehicle: MavVehicle):
+        self.tracker, self.vehicle, self.framer, self.t = tracker, vehicle, MavFramer(), 100.0
+
+    def __call__(self, *names: str) -> bool:
+        changed = False
+        for name in names:
+            msg = self.vehicle.build(name)
+            buf = msg.pack(self.vehicle.mav, force_mavlink1=self.vehicle.mavlink1)
+            self.vehicle.mav.seq = (self.vehicle.mav.seq + 1) % 256
+            self.t += 0.1
+            for decoded in self.framer.feed(buf):
+                changed |= self.tracker.update(decoded, self.t)
+        return changed
+
+
+def make(autopilot="px4", sysid=1, mavlink1=False, pinned=None):
+    v = MavVehicle("udp", autopilot=autopilot, sysid=sysid, mavlink1=mavlink1)
+    v._sock.close()  # built only for its encoder and state here
+    tracker = StateTracker(pinned)
+    return tracker, v, Feed(tracker, v)
+
+
+@pytest.mark.parametrize(
+    "autopilot,modes",
+    [
+        ("px4", ["MANUAL", "ALTCTL", "POSCTL", "MISSION", "LOITER", "RTL", "LAND", "OFFBOARD"]),
+        ("ardupilot", ["STABILIZE", "ALT_HOLD", "LOITER", "AUTO", "RTL", "LAND", "GUIDED"]),
+    ],
+)
+@pytest.mark.parametrize("mavlink1", [False, True])
+def test_mode_names_both_families(autopilot, modes, mavlink1):
+    tracker, v, feed = make(autopilot, mavlink1=mavlink1)
+    for mode in modes:
+        v.mode = mode
+        assert feed("HEARTBEAT")
+        hb = tracker.state.heartbeat
+        assert hb.mode == mode
+        assert hb.autopilot == autopilot
+        assert hb.vehicle_type == "quadrotor"
+        assert hb.mavlink_version == (1 if mavlink1 else 2)
+
+
+def test_every_group_is_filled():
+    tracker, v, feed = make()
+    v.roll_rad, v.vx_mps, v.vz_mps = 0.25, 2.0, -0.5
+    feed("HEARTBEAT", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "VFR_HUD", "ATTITUDE",
+         "RC_CHANNELS", "SERVO_OUTPUT_RAW", "SYS_STATUS", "BATTERY_STATUS", "LOCAL_POSITION_NED")  # fmt: skip
+    s = tracker.state
+    assert s.gps.fix_type == 3 and s.gps.satellites == 12 and s.gps.eph_m == pytest.approx(0.8)
+    assert s.gps.lat_deg == pytest.approx(43.0021) and s.gps.alt_m == pytest.approx(180.0)
+    assert s.global_position.vx_mps == pytest.approx(2.0) and s.global_position.vz_mps == pytest.approx(-0.5)
+    assert s.vfr_hud.climb_mps == pytest.approx(0.5)
+    assert s.attitude.roll_rad == pytest.approx(0.25) and s.attitude.time_boot_ms is not None
+    assert s.rc.pwm_us[:8] == (1500,) * 8 and len(s.rc.pwm_us) == 18 and s.rc.rssi == 200
+    assert s.servo.pwm_us[:4] == (1100,) * 4 and len(s.servo.pwm_us) == 16
+    assert s.battery.voltage_v == pytest.approx(12.3, abs=0.01)
+    assert s.battery.remaining_pct == 87 and s.battery.current_a == pytest.approx(4.5)
+    assert s.local_position.z_m == pytest.approx(0.0) and s.local_position.x_m == pytest.approx(1.0)
+    for group in dataclasses.fields(s):
+        if group.name != "link":
+            assert getattr(s, group.name).t_mono is not None, group.name
+
+
+def test_pilot_altitude_first_fix_then_arming_and_rearming():
+    tracker, v, feed = make()
+    v.fix_type = 1
+    feed("HEARTBEAT", "GPS_RAW_INT")
+    assert tracker.state.altitude.reference == "none"
+    v.fix_type = 3
+    v.alt_m = 200.0
+    feed("GPS_RAW_INT")
+    alt = tracker.state.altitude
+    assert alt.reference == "first_fix" and alt.reference_alt_m == pytest.approx(200.0)
+    v.alt_m = 201.5
+    feed("GLOBAL_POSITION_INT")  # switch from GPS to fused altitude: no jump
+    assert tracker.state.altitude.relative_alt_m == pytest.approx(0.0)
+    v.alt_m = 203.0
+    feed("GLOBAL_POSITION_INT")
+    assert tracker.state.altitude.relative_alt_m == pytest.approx(1.5)
+    v.relative_alt_m = 7.0  # the autopilot's own, relative to its power-on home
+    v.arm()
+    feed("HEARTBEAT")
+    assert tracker.state.altitude.reference == "arming"
+    assert tracker.state.altitude.relative_alt_m == 0.0
+    v.alt_m = 207.0
+    feed("GLOBAL_POSITION_INT")
+    assert tracker.state.altitude.relative_alt_m == pytest.approx(4.0)
+    assert tracker.state.global_position.relative_alt_m == pytest.approx(7.0)  # both exposed
+    v.armed = False
+    feed("HEARTBEAT")
+    v.alt_m = 210.0
+    feed("GLOBAL_POSITION_INT")
+    assert tracker.state.altitude.relative_alt_m == pytest.approx(7.0)  # still from arming
+    v.armed = True
+    feed("HEARTBEAT", "GLOBAL_POSITION_INT")
+    assert tracker.state.altitude.relative_alt_m == pytest.approx(0.0)  # reset at each arming
+    assert tracker.state.altitude.reference_alt_m == pytest.approx(210.0)
+
+
+def test_armed_before_any_altitude_takes_reference_at_first_altitude():
+    tracker, v, feed = make()
+    v.armed = True
+    feed("HEARTBEAT")
+    assert tracker.state.altitude.reference == "pending_arming"
+    v.alt_m = 150.0
+    feed("GLOBAL_POSITION_INT")
+    assert tracker.state.altitude.reference == "arming"
+    assert tracker.state.altitude.reference_alt_m == pytest.approx(150.0)
+
+
+def test_follows_only_the_autopilot_auto_detected_or_pinned():
+    tracker, ap, feed_ap = make(sysid=42)
+    _, gcs, _ = make(autopilot="invalid", sysid=255)
+    _, other, _ = make(sysid=7)
+    feed_gcs, feed_other = Feed(tracker, gcs), Feed(tracker, other)
+    assert not feed_gcs("HEARTBEAT")  # a GCS heartbeat is never the autopilot
+    assert not feed_ap("ATTITUDE")  # nothing before the autopilot's heartbeat
+    assert feed_ap("HEARTBEAT") and tracker.sysid == 42
+    other.roll_rad = 1.0
+    assert not feed_other("HEARTBEAT", "ATTITUDE")  # a second vehicle is ignored
+    assert feed_ap("ATTITUDE") and tracker.state.attitude.roll_rad == 0.0
+
+    pinned, ap2, feed2 = make(sysid=42, pinned=7)
+    assert not feed2("HEARTBEAT")
+    assert Feed(pinned, other)("HEARTBEAT", "ATTITUDE")
+    assert pinned.state.heartbeat.sysid == 7 and pinned.state.attitude.roll_rad == 1.0
+
+
+def test_published_snapshots_never_change():
+    tracker, v, feed = make()
+    feed("HEARTBEAT", "ATTITUDE")
+    snapshot = tracker.state
+    before = dataclasses.asdict(snapshot)
+    v.roll_rad = 0.7
+    feed("ATTITUDE", "GLOBAL_POSITION_INT")
+    assert dataclasses.asdict(snapshot) == before
+    assert tracker.state is not snapshot and tracker.state.attitude.roll_rad == pytest.approx(0.7)
+    assert tracker.state.heartbeat is snapshot.heartbeat  # unchanged groups are shared
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        snapshot.attitude.roll_rad = 1.0  # type: ignore[misc]
+
+
+def test_unknown_sentinels_become_none():
+    tracker, v, feed = make()
+    feed("HEARTBEAT")
+    m = v.mav.gps_raw_int_encode(0, 3, 0, 0, 0, 65535, 65535, 65535, 65535, 255)
+    for d in MavFramer().feed(m.pack(v.mav)):
+        tracker.update(d, 1.0)
+    g = tracker.state.gps
+    assert g.eph_m is None and g.ground_speed_mps is None and g.course_deg is None
+    assert g.satellites is None
+    assert isinstance(mavlink.MAVLink_gps_raw_int_message, type)
