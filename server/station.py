@@ -59,11 +59,10 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
     from server.recording import open_recorder
 
-    state = station.state
-    cams = getattr(station, "cameras", None) or {}
+    cams = getattr(station, "cameras", None) or {}  # until the cameras land on main
     return await open_recorder(
-        station.settings, stack, station.tasks.spawn, state,
+        station.settings, stack, station.tasks.spawn, station.state,
         {name: cam.frames for name, cam in cams.items()},
-        {name: getattr(cam, "fps", None) for name, cam in cams.items()},
-        getattr(station, "link", None),
+        {name: getattr(getattr(cam, "config", None), "fps", None) for name, cam in cams.items()},
+        station.link,
     )
