@@ -52,7 +52,9 @@ class RowFormatter:
         # VehicleState field becomes a column without touching this module).
         self._getters: list[tuple[Any, int | None, bool]] = []
         for group, field, index in layout.state_fields():
-            self._getters.append((attrgetter(f"{group}.{field}"), index, field == "t_mono"))
+            self._getters.append(
+                (attrgetter(f"{group}.{field}"), index, field == "t_mono" or field.endswith("_mono"))
+            )
         self._empty_state = VehicleState()
 
     def row(self, s: Sample) -> list[Any]:
