@@ -40,6 +40,7 @@ class FakeCamera:
         self.jpegs = jpegs
         self.frames: Latest[Frame] = Latest()
         self.published: dict[int, bytes] = {}
+        self.published_mono: dict[int, float] = {}  # when publish() had returned
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"fake-cam-{name}", daemon=True)
 
@@ -66,6 +67,7 @@ class FakeCamera:
             self.frames.publish(
                 Frame(self.name, seq, jpeg, 320, 240, time.monotonic(), time.time())
             )
+            self.published_mono[seq] = time.monotonic()
             next_t += period
 
 
