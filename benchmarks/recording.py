@@ -115,9 +115,11 @@ def main() -> None:
     ap.add_argument("--dir", type=Path, default=None, help="where to write (default: a temp dir)")
     args = ap.parse_args()
     jpegs = scene_jpegs(30, args.width, args.height)
+    load_before = psutil.getloadavg()
     root = Path(tempfile.mkdtemp(prefix="fpv-bench-", dir=args.dir))
     try:
         r = asyncio.run(record(root, args.seconds, jpegs))
+        r["load_before"] = load_before
         png_cpu = paper_png_cpu_per_frame(root, jpegs, args.png_frames)
     finally:
         shutil.rmtree(root, ignore_errors=True)
@@ -125,12 +127,13 @@ def main() -> None:
     written = sum(c["frames_written"] for c in q["cameras"].values())
     dropped = sum(c["frames_dropped"] for c in q["cameras"].values())
     ours = r["cpu_s"] / written
+    print(f"load average before: {r['load_before']}, after: {psutil.getloadavg()}")
     print(f"recording: {args.seconds:.0f} s, 2 cameras x {FPS:.0f} fps {args.width}x{args.height} "
           f"JPEG (mean {np.mean([len(j) for j in jpegs]) / 1e3:.1f} kB), telemetry 100 Hz")
     print(f"  frames written        {written}  (published {sum(r['published'].values())})")
     print(f"  frames dropped        {dropped}")
     print(f"  telemetry rows        {q['telemetry_rows']}  ({q['telemetry_achieved_hz']} Hz achieved,"
-          f" {q['telemetry_rows_dropped']} dropped)")
+          f" {q['telemetry_rows_dropped']} dropped, {q['telemetry_ticks_late']} instants late)")
     print(f"  tlog packets          {q['tlog_packets']} of {r['packets_sent']} "
           f"({q['tlog_packets_dropped']} dropped)")
     for cam, c in q["cameras"].items():

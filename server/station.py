@@ -6,9 +6,11 @@ the settings, starts them in dependency order and stops them in reverse.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 from companion.latest import Latest
 from companion.link import MavlinkLink
@@ -17,6 +19,9 @@ from companion.vehicle_state import VehicleState
 from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
+
+if TYPE_CHECKING:
+    from server.trajectory3d.service import Trajectory3D
 
 
 @dataclass
@@ -29,6 +34,9 @@ class Station:
     state: Latest[VehicleState] = field(default_factory=Latest)
     telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
     recorder: Recorder | None = None
+    # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
+    cameras: dict[str, Any] = field(default_factory=dict)
+    trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
 
 
 @contextlib.asynccontextmanager
@@ -51,18 +59,57 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.link = link
             station.state = link.state
 
+        # -- cameras (after the twin, whose renderer the sim cameras use) ------------
+        await _open_cameras(station, stack)
+
         # -- recorder (after the link and cameras it records) -----------------------
         station.recorder = await _open_recorder(station, stack)
+
+        # -- 3D trajectory panel (after the link whose state it draws) ----------------
+        if settings.viser.enabled:
+            await _start_trajectory3d(station, stack)
         yield station
 
 
 async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
     from server.recording import open_recorder
 
-    cams = getattr(station, "cameras", None) or {}  # until the cameras land on main
+    cams = station.cameras
     return await open_recorder(
         station.settings, stack, station.tasks.spawn, station.state,
         {name: cam.frames for name, cam in cams.items()},
-        {name: getattr(getattr(cam, "config", None), "fps", None) for name, cam in cams.items()},
+        {name: cam.config.fps for name, cam in cams.items()},
         station.link,
     )
+
+
+async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> None:
+    """Front and bottom cameras; after the twin, whose renderer the sim cameras use."""
+    from companion.cameras.rig import CAMERA_NAMES, build_camera, start_cameras, stop_cameras
+
+    cams = station.settings.cameras
+    for name in CAMERA_NAMES:
+        station.cameras[name] = build_camera(
+            name,
+            getattr(cams, name),
+            link_source=station.settings.link.source,
+            renderer=lambda: getattr(station, "twin", None),
+            stall_s=cams.stall_s,
+            retry_min_s=cams.retry_min_s,
+            retry_max_s=cams.retry_max_s,
+        )
+    start_cameras(station.cameras.values())
+    stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
+
+
+async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
+    from server.trajectory3d.field import default_field
+    from server.trajectory3d.service import open_trajectory3d
+
+    s = station.settings
+    field = default_field() if s.link.source == "sim" else None
+    service = await open_trajectory3d(s.viser, station.state, s.server.host, field)
+    station.trajectory3d = service
+    # viser's stop joins its thread: keep that wait off the event loop.
+    stack.push_async_callback(asyncio.to_thread, service.stop)
+    station.tasks.spawn("trajectory3d", service.run())

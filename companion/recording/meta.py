@@ -46,6 +46,9 @@ class Quality(_Model):
     telemetry_rows: int = 0
     telemetry_achieved_hz: float | None = None
     telemetry_rows_dropped: int = 0
+    # Row instants skipped because the sampler thread was held up (CPU starved): the
+    # grid stays fixed, so a late sampler leaves gaps instead of bunching rows.
+    telemetry_ticks_late: int = 0
     tlog_packets: int = 0
     tlog_packets_dropped: int = 0
     cameras: dict[str, CameraQuality] = Field(default_factory=dict)

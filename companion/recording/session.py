@@ -281,6 +281,7 @@ class RecordingSession:
                 round((st.rows_written - 1) / span, 3) if span and st.rows_written > 1 else None
             ),
             telemetry_rows_dropped=st.rows_dropped,
+            telemetry_ticks_late=self.ticks_late,
             tlog_packets=st.packets_written,
             tlog_packets_dropped=st.packets_dropped,
             cameras=cams,
