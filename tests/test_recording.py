@@ -91,7 +91,8 @@ def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
         # Every frame is written or counted: the Latest slot can skip frames only when
         # both the consumer and the sampler were starved of CPU for a frame period.
         assert q["frames_written"] == len(frames) == len(set(seqs))
-        assert q["frames_written"] + q["frames_dropped"] == seqs[-1] - seqs[0] + 1
+        assert q["frames_written"] + q["frames_dropped"] == q["frames_captured"]
+        assert q["frames_captured"] >= seqs[-1] - seqs[0] + 1
         assert q["frames_dropped"] <= 0.1 * len(frames)
         assert abs(q["achieved_fps"] - FPS) < 1.5
         skews = np.array([float(r[f"{cam}.skew_s"]) for r in rows if r[f"{cam}.skew_s"]])
@@ -139,6 +140,7 @@ def test_missed_frames_are_counted_never_silent(tmp_path):
     assert q["frames_written"] == len(frames) < published
     assert q["frames_dropped"] == q["frames_missed"] > 0
     assert q["frames_written"] + q["frames_dropped"] == published - q["first_seq"] + 1
+    assert q["frames_captured"] == published - q["first_seq"] + 1
     rows = read_csv(folder / layout.TELEMETRY_CSV)
     assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])
 
@@ -218,4 +220,41 @@ def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):
     assert meta["status"] == "complete" and meta["stop_reason"] == st.last_stop.reason
     rows = read_csv(folder / layout.TELEMETRY_CSV)
     assert len(rows) == meta["quality"]["telemetry_rows"] > 20
+    assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])
+
+
+def test_disk_too_slow_drops_are_counted(tmp_path, monkeypatch):
+    """A disk that stalls for 1 s at every sync: small buffers overflow, drops are counted."""
+    import os
+    real_sync = os.fdatasync
+
+    def slow_sync(fd):
+        time.sleep(1.0)
+        real_sync(fd)
+
+    monkeypatch.setattr(os, "fdatasync", slow_sync)
+    cam = FakeCamera("front", FPS, make_jpegs(2)).start()
+    vehicle = FakeVehicle().start()
+    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames},
+                   options(auto_record_on_arm=False,
+                           limits=WriterLimits(frame_queue=4, row_queue=8, min_free_bytes=1)))
+
+    async def run():
+        await rec.open()
+        await rec.start("test")
+        await asyncio.sleep(2.5)
+        return await rec.stop()
+
+    st = asyncio.run(run())
+    cam.stop()
+    vehicle.stop()
+    folder = tmp_path / st.last_stop.id
+    q = json.loads((folder / layout.SESSION_JSON).read_text())["quality"]
+    fq = q["cameras"]["front"]
+    frames = read_csv(folder / layout.frames_csv_relpath("front"))
+    assert fq["frames_dropped_queue"] > 10 and fq["frames_written"] == len(frames)
+    assert fq["frames_written"] + fq["frames_dropped"] == fq["frames_captured"]
+    assert q["telemetry_rows_dropped"] > 5
+    rows = read_csv(folder / layout.TELEMETRY_CSV)
+    assert len(rows) == q["telemetry_rows"]
     assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])

@@ -24,6 +24,9 @@ class _Model(BaseModel):
 class CameraQuality(_Model):
     configured_fps: float | None = None
     achieved_fps: float | None = None  # frames written / time between first and last
+    # Frames the camera produced while recording (by sequence numbers, from the first one
+    # the recorder saw): always frames_written + frames_dropped.
+    frames_captured: int = 0
     frames_written: int = 0
     # Frames the camera captured that never reached the disk: skipped by the Latest slot
     # before the consumer saw them, or refused because the writer queue was full.
