@@ -7,6 +7,8 @@ analysis. Unknown keys are kept on read so that newer writers do not break older
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 from pathlib import Path
@@ -87,14 +89,30 @@ class SessionMeta(_Model):
 
 
 def write_meta(path: Path, meta: SessionMeta) -> None:
-    """Write session.json atomically (temp file, fsync, rename) so a crash never halves it."""
+    """Write session.json atomically (temp file, fsync, rename) so a crash never halves it.
+
+    On a full disk the temp file cannot be written; then the file is overwritten in place,
+    which needs no new blocks while it does not grow past the ones it holds (the reason
+    "disk full" must still reach session.json).
+    """
     tmp = path.with_name(path.name + ".tmp")
     data = json.dumps(meta.model_dump(mode="json"), indent=2).encode()
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT) or not path.exists():
+            raise
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        with open(path, "r+b") as f:
+            f.write(data)
+            f.truncate()
+            f.flush()
+            os.fsync(f.fileno())
 
 
 def read_meta(path: Path) -> SessionMeta:
