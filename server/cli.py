@@ -153,7 +153,10 @@ def run_serve(args: argparse.Namespace) -> int:
     sock = listening_socket(settings.server.host, settings.server.port)
     # No permessage-deflate: browsers ask for it, and it would compress every telemetry
     # message once per client, the per-client re-encoding the shared JSON body avoids.
-    config = uvicorn.Config(app, log_level="info", ws_per_message_deflate=False)
+    # MJPEG streams never end by themselves: give them 2 s at shutdown, then cancel them.
+    config = uvicorn.Config(
+        app, log_level="info", ws_per_message_deflate=False, timeout_graceful_shutdown=2
+    )
     uvicorn.Server(config).run(sockets=[sock])
     return 0
 
