@@ -276,3 +276,29 @@ def test_cli_writes_table_and_plots_and_reports_errors(flights, tmp_path):
     bad = subprocess.run(cmd[:5] + ["--task", "hover", "--no-scene"], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "never reached 4 m" in bad.stderr
+
+
+def test_tlog_with_other_messages_and_junk(flights, tmp_path):
+    """Real logs hold many other messages and may hold junk: only ours are decoded."""
+    from pymavlink.dialects.v20 import common as mav
+
+    flight, _, tlog = flights["a-to-b"]
+    link = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    noisy = bytearray()
+    data = tlog.read_bytes()
+    i = 0
+    while i < len(data):
+        length = data[i + 9] + 12  # v2 packets without signature
+        noisy += data[i : i + 8 + length]
+        noisy += data[i : i + 8] + link.attitude_encode(0, 0.1, 0.2, 0.3, 0, 0, 0).pack(link)
+        if i % 7 == 0:
+            noisy += b"\x00junk\xfd"
+        i += 8 + length
+    (tmp_path / "noisy.tlog").write_bytes(bytes(noisy))
+    ref = reference(flight)
+    clean = analyze_paths([tlog], "a-to-b", ref, scene=False).results[0]
+    dirty = analyze_paths([tmp_path / "noisy.tlog"], "a-to-b", ref, scene=False).results[0]
+    # A junk byte that looks like a record start can swallow the packet after it (the
+    # CRC then rejects the fake): a few samples may go, the answer must not move.
+    assert clean.samples * 0.95 <= dirty.samples <= clean.samples
+    assert rel(dirty.lateral_deviation_m, clean.lateral_deviation_m) < 0.01
