@@ -10,7 +10,11 @@ from fastapi.staticfiles import StaticFiles
 
 from server import __version__
 from server.errors import install_error_handlers
+<<<<<<< HEAD
 from server.routes import health, status, telemetry
+=======
+from server.routes import health, recording, sessions
+>>>>>>> recorder
 from server.settings import Settings
 from server.station import open_station
 from web import WEB_DIR
@@ -32,7 +36,12 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.settings = settings
     install_error_handlers(app)
     app.include_router(health.router)
+<<<<<<< HEAD
     app.include_router(status.router)
     app.include_router(telemetry.router)
+=======
+    app.include_router(recording.router)
+    app.include_router(sessions.router)
+>>>>>>> recorder
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from companion.latest import Latest
 from companion.link import MavlinkLink
+from companion.recording.recorder import Recorder
 from companion.vehicle_state import VehicleState
 from server.settings import Settings
 from server.tasks import TaskSupervisor
@@ -27,6 +28,7 @@ class Station:
     link: MavlinkLink | None = None
     state: Latest[VehicleState] = field(default_factory=Latest)
     telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
+    recorder: Recorder | None = None
 
 
 @contextlib.asynccontextmanager
@@ -49,4 +51,19 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.link = link
             station.state = link.state
 
+        # -- recorder (after the link and cameras it records) -----------------------
+        station.recorder = await _open_recorder(station, stack)
         yield station
+
+
+async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
+    from server.recording import open_recorder
+
+    state = station.state
+    cams = getattr(station, "cameras", None) or {}
+    return await open_recorder(
+        station.settings, stack, station.tasks.spawn, state,
+        {name: cam.frames for name, cam in cams.items()},
+        {name: getattr(cam, "fps", None) for name, cam in cams.items()},
+        getattr(station, "link", None),
+    )

@@ -1,0 +1,5 @@
+"""Synchronized flight recording: one session folder per flight (see `layout` for the format).
+
+Modules: `layout` (names and columns), `meta` (session.json), `store` (safe access to the
+sessions directory).
+"""

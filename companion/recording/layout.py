@@ -1,0 +1,157 @@
+"""The session format in one place: folder naming, file layout and CSV column names.
+
+Everything that writes or reads a session (the recorder, the REST routes, analysis, the
+3D trajectory) takes names from here; `docs/SESSION_FORMAT.md` describes the same
+layout for people. Bump `FORMAT_VERSION` when a reader would misread the old layout.
+
+    <sessions_dir>/<session id>/          id = "20261122T035500Z_sim" (UTC start + source tag)
+        session.json                      metadata and quality report (SESSION_JSON)
+        telemetry.csv                     fixed-rate rows (TELEMETRY_CSV, telemetry_columns())
+        mavlink.tlog                      every MAVLink packet received (MAVLINK_TLOG)
+        front/00000042.jpg                every frame's JPEG bytes as streamed (frame_relpath)
+        front/frames.csv                  one row per frame written (FRAME_COLUMNS)
+        bottom/...                        the same for the bottom camera
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import time
+import typing
+from datetime import datetime, timezone
+
+from companion.vehicle_state import VehicleState
+
+FORMAT_VERSION = 1
+
+SESSION_JSON = "session.json"
+TELEMETRY_CSV = "telemetry.csv"
+MAVLINK_TLOG = "mavlink.tlog"
+FRAMES_CSV = "frames.csv"  # inside each camera folder
+CAMERAS: tuple[str, ...] = ("front", "bottom")
+
+# Session ids: UTC start time in ISO 8601 basic format, "_", a short source tag; a "-N"
+# suffix on the tag when two sessions start in the same second.
+SESSION_TIME_FORMAT = "%Y%m%dT%H%M%SZ"
+SESSION_ID_RE = re.compile(r"^[0-9]{8}T[0-9]{6}Z_[a-z0-9]+(-[a-z0-9]+)*$")
+SESSION_ID_MAX_LEN = 64
+SOURCE_TAG_MAX_LEN = 16
+
+# Frame files: zero-padded sequence number so that a plain sort is capture order.
+FRAME_FILE_TEMPLATE = "{seq:08d}.jpg"
+FRAME_PATH_TEMPLATE = "{camera}/{seq:08d}.jpg"  # relative to the session folder
+
+# Session states recorded in session.json "status".
+STATUS_RECORDING = "recording"  # being written now (or cut off, until the next start)
+STATUS_COMPLETE = "complete"  # stopped cleanly
+STATUS_INTERRUPTED = "interrupted"  # the process died while recording (power cut, kill -9)
+
+# The session clock and wall clock columns, first in telemetry.csv.
+TIME_COLUMNS: tuple[str, ...] = ("t_s", "wall_time")
+# Per camera, after the state columns: newest frame at the row's instant.
+CAMERA_COLUMN_FIELDS: tuple[str, ...] = ("seq", "file", "t_wall", "skew_s")
+# front/frames.csv and bottom/frames.csv.
+FRAME_COLUMNS: tuple[str, ...] = ("seq", "file", "t_s", "t_wall", "width", "height", "bytes")
+
+# tlog: each packet is preceded by its receive time, big-endian uint64 microseconds.
+TLOG_TIMESTAMP_FORMAT = ">Q"
+
+
+def frame_file(seq: int) -> str:
+    """File name of frame `seq` inside its camera folder."""
+    return FRAME_FILE_TEMPLATE.format(seq=seq)
+
+
+def frame_relpath(camera: str, seq: int) -> str:
+    """Path of frame `seq` of `camera` relative to the session folder (as in the CSVs)."""
+    return FRAME_PATH_TEMPLATE.format(camera=camera, seq=seq)
+
+
+def frames_csv_relpath(camera: str) -> str:
+    return f"{camera}/{FRAMES_CSV}"
+
+
+def source_tag(source: str) -> str:
+    """A short folder-safe tag for a link source string ("sim", "serial", "udp", ...)."""
+    s = source.strip().lower()
+    if s.startswith(("udpin:", "udpout:", "udp:", "udpbcast:")):
+        return "udp"
+    if s.startswith(("tcp:", "tcpin:")):
+        return "tcp"
+    if s.startswith("replay:"):
+        return "replay"
+    if s.startswith(("/dev/", "com")):
+        return "serial"
+    tag = re.sub(r"[^a-z0-9]+", "-", s).strip("-")[:SOURCE_TAG_MAX_LEN].strip("-")
+    return tag or "unknown"
+
+
+def session_id_for(start_wall: float, source: str, suffix: int = 0) -> str:
+    """The id (folder name) of a session that started at `start_wall` (Unix s)."""
+    stamp = datetime.fromtimestamp(start_wall, tz=timezone.utc).strftime(SESSION_TIME_FORMAT)
+    tag = source_tag(source)
+    return f"{stamp}_{tag}" + (f"-{suffix}" if suffix else "")
+
+
+def session_start_from_id(session_id: str) -> float | None:
+    """The UTC start time (Unix s, whole seconds) encoded in a session id, or None."""
+    try:
+        stamp = datetime.strptime(session_id.split("_", 1)[0], SESSION_TIME_FORMAT)
+    except ValueError:
+        return None
+    return stamp.replace(tzinfo=timezone.utc).timestamp()
+
+
+def is_valid_session_id(session_id: str) -> bool:
+    return (
+        isinstance(session_id, str)
+        and len(session_id) <= SESSION_ID_MAX_LEN
+        and SESSION_ID_RE.fullmatch(session_id) is not None
+    )
+
+
+def _tuple_length(group_type: type, f: dataclasses.Field) -> int | None:
+    """Length of a tuple field from its default (the state fixes it), None if not a tuple."""
+    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+        default = f.default_factory()  # type: ignore[misc]
+    else:
+        default = f.default
+    return len(default) if isinstance(default, tuple) else None
+
+
+def state_fields() -> list[tuple[str, str, int | None]]:
+    """(group, field, tuple index or None) for every flattened VehicleState column."""
+    out: list[tuple[str, str, int | None]] = []
+    hints = typing.get_type_hints(VehicleState)
+    for group in dataclasses.fields(VehicleState):
+        group_type = hints[group.name]
+        for f in dataclasses.fields(group_type):
+            n = _tuple_length(group_type, f)
+            if n is None:
+                out.append((group.name, f.name, None))
+            else:
+                out.extend((group.name, f.name, i) for i in range(n))
+    return out
+
+
+def state_columns() -> tuple[str, ...]:
+    """VehicleState flattened generically: `group.field`, tuples as `group.field.N`."""
+    return tuple(
+        f"{g}.{f}" if i is None else f"{g}.{f}.{i}" for g, f, i in state_fields()
+    )
+
+
+def camera_columns(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
+    return tuple(f"{cam}.{field}" for cam in cameras for field in CAMERA_COLUMN_FIELDS)
+
+
+def telemetry_columns(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
+    """Every column of telemetry.csv, in order."""
+    return TIME_COLUMNS + state_columns() + camera_columns(cameras)
+
+
+def utc_label(t_wall: float | None = None) -> str:
+    """ISO 8601 UTC label for session.json (people read it; t_wall is kept alongside)."""
+    t = time.time() if t_wall is None else t_wall
+    return datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds")

@@ -1,0 +1,99 @@
+"""session.json: the typed metadata and quality report of one session.
+
+Written by the recorder at start (status "recording"), rewritten atomically every few
+seconds while recording and at stop; read by the session store, the REST routes and
+analysis. Unknown keys are kept on read so that newer writers do not break older readers.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from companion.recording.layout import FORMAT_VERSION, STATUS_RECORDING
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+
+class CameraQuality(_Model):
+    configured_fps: float | None = None
+    achieved_fps: float | None = None  # frames written / time between first and last
+    frames_written: int = 0
+    # Frames the camera captured that never reached the disk: skipped by the Latest slot
+    # before the consumer saw them, or refused because the writer queue was full.
+    frames_missed: int = 0
+    frames_dropped_queue: int = 0
+    frames_dropped: int = 0  # the sum of both
+    first_seq: int | None = None
+    last_seq: int | None = None
+    skew_max_s: float | None = None  # |row time - frame capture time| over the rows
+    skew_p99_s: float | None = None
+
+
+class LinkLoss(_Model):
+    start_s: float  # session clock
+    end_s: float | None = None  # None: the link was still lost when the session ended
+
+
+class Quality(_Model):
+    telemetry_rate_hz: float = 0.0  # configured
+    telemetry_rows: int = 0
+    telemetry_achieved_hz: float | None = None
+    telemetry_rows_dropped: int = 0
+    tlog_packets: int = 0
+    tlog_packets_dropped: int = 0
+    cameras: dict[str, CameraQuality] = Field(default_factory=dict)
+    link_loss: list[LinkLoss] = Field(default_factory=list)
+
+
+class Arming(_Model):
+    """Where and at which altitude the vehicle was armed (the pilot's altitude reference)."""
+
+    t_s: float | None = None
+    reference_alt_m: float | None = None
+    home_lat_deg: float | None = None
+    home_lon_deg: float | None = None
+
+
+class SessionMeta(_Model):
+    format_version: int = FORMAT_VERSION
+    id: str
+    status: str = STATUS_RECORDING
+    stop_reason: str | None = None
+    start_wall: float
+    start_utc: str
+    end_wall: float | None = None
+    end_utc: str | None = None
+    duration_s: float | None = None
+    source: str = "unknown"
+    cameras: list[str] = Field(default_factory=list)
+    software_version: str = "unknown"
+    settings: dict[str, Any] = Field(default_factory=dict)
+    trigger: str | None = None  # "rest", "arm", "api", ...
+    arming: Arming | None = None
+    quality: Quality = Field(default_factory=Quality)
+
+
+def write_meta(path: Path, meta: SessionMeta) -> None:
+    """Write session.json atomically (temp file, fsync, rename) so a crash never halves it."""
+    tmp = path.with_name(path.name + ".tmp")
+    data = json.dumps(meta.model_dump(mode="json"), indent=2).encode()
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_meta(path: Path) -> SessionMeta:
+    """Read session.json; raises ValueError (with the file name) if it is unreadable."""
+    try:
+        return SessionMeta.model_validate_json(path.read_bytes())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read session metadata: {exc}") from None

@@ -1,0 +1,230 @@
+"""The recording service: start and stop sessions, by request or on arm/disarm.
+
+    recorder = Recorder(sessions_dir, state, {"front": cam.frames, ...}, options)
+    link.add_packet_listener(recorder.on_packet)
+    await recorder.open(spawn)          # marks cut-off sessions, starts the arm watcher
+    await recorder.start("rest"); await recorder.stop("requested")
+    await recorder.aclose()
+
+One session at a time. A session stopped by the writer (disk full, write error) is
+finalized here with the writer's reason, which stays visible in `status().last_stop`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable, Coroutine, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from companion.frames import Frame
+from companion.latest import Latest
+from companion.recording.recovery import mark_interrupted
+from companion.recording.session import RecordingSession, SessionConfig
+from companion.recording.store import SessionStore
+from companion.vehicle_state import VehicleState
+
+log = logging.getLogger(__name__)
+
+Spawn = Callable[[str, Coroutine[Any, Any, Any]], Any]
+
+
+@dataclass(frozen=True)
+class RecorderOptions:
+    session: SessionConfig = field(default_factory=SessionConfig)
+    auto_record_on_arm: bool = True
+    post_disarm_tail_s: float = 5.0
+
+
+@dataclass(frozen=True)
+class LastStop:
+    id: str
+    reason: str
+    end_wall: float
+
+
+@dataclass(frozen=True)
+class RecordingStatus:
+    recording: bool
+    id: str | None = None
+    trigger: str | None = None
+    start_wall: float | None = None
+    elapsed_s: float | None = None
+    telemetry_rows: int = 0
+    frames_written: dict[str, int] = field(default_factory=dict)
+    frames_dropped: dict[str, int] = field(default_factory=dict)
+    auto_record_on_arm: bool = True
+    stopping_at_wall: float | None = None  # end of the post-disarm tail, when pending
+    last_stop: LastStop | None = None
+
+
+class RecorderError(Exception):
+    pass
+
+
+class Recorder:
+    def __init__(
+        self,
+        sessions_dir: Path,
+        state: Latest[VehicleState],
+        cameras: Mapping[str, Latest[Frame]],
+        options: RecorderOptions = RecorderOptions(),
+    ) -> None:
+        self.store = SessionStore(sessions_dir)
+        self.state = state
+        self.cameras = dict(cameras)
+        self.options = options
+        self.session: RecordingSession | None = None
+        self.last_stop: LastStop | None = None
+        self._lock = asyncio.Lock()
+        self._spawn: Spawn | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._tail: asyncio.TimerHandle | None = None
+        self._tail_deadline_wall: float | None = None
+
+    # -- service lifecycle ---------------------------------------------------------------
+
+    async def open(self, spawn: Spawn | None = None) -> list[str]:
+        """Mark cut-off sessions interrupted and watch arming; returns the marked ids."""
+        self._loop = asyncio.get_running_loop()
+        self._spawn = spawn or (lambda name, coro: asyncio.get_running_loop().create_task(coro))
+        marked = await asyncio.to_thread(mark_interrupted, self.store)
+        if self.options.auto_record_on_arm:
+            self._spawn("recorder-arm-watch", self._watch_arming())
+        return marked
+
+    async def aclose(self) -> None:
+        await self.stop("shutdown")
+
+    # -- control -------------------------------------------------------------------------
+
+    @property
+    def recording_id(self) -> str | None:
+        s = self.session
+        return s.id if s is not None else None
+
+    async def start(self, trigger: str = "api") -> RecordingStatus:
+        """Start a session unless one runs (then it keeps running); returns the status."""
+        async with self._lock:
+            self._cancel_tail()
+            if self.session is None:
+                session = await asyncio.to_thread(
+                    RecordingSession,
+                    self.store.root,
+                    self.state,
+                    self.cameras,
+                    self.options.session,
+                    trigger,
+                    self._on_writer_failure,
+                )
+                session.start()
+                self.session = session
+                log.info("recording session %s started (%s)", session.id, trigger)
+        return self.status()
+
+    async def stop(self, reason: str = "requested", only_id: str | None = None) -> RecordingStatus:
+        """Stop the running session (only if its id is `only_id`, when given); finalize it."""
+        async with self._lock:
+            if only_id is not None and self.recording_id != only_id:
+                return self.status()
+            self._cancel_tail()
+            session, self.session = self.session, None
+            if session is not None:
+                meta = await session.stop(reason)
+                self.last_stop = LastStop(
+                    session.id, meta.stop_reason or reason, meta.end_wall or time.time()
+                )
+                log.info("recording session %s stopped: %s", session.id, meta.stop_reason)
+        return self.status()
+
+    def on_packet(self, t_wall: float, packet: bytes) -> None:
+        """The link's packet listener (link thread); a no-op while not recording."""
+        session = self.session
+        if session is not None:
+            session.on_packet(t_wall, packet)
+
+    def status(self) -> RecordingStatus:
+        s = self.session
+        if s is None:
+            return RecordingStatus(
+                recording=False,
+                auto_record_on_arm=self.options.auto_record_on_arm,
+                last_stop=self.last_stop,
+            )
+        stats = s.writer.stats
+        dropped = {
+            c: s._tracks[c].missed + stats.frames_dropped_queue.get(c, 0) for c in s.cameras
+        }
+        return RecordingStatus(
+            recording=True,
+            id=s.id,
+            trigger=s.trigger,
+            start_wall=s.t0_wall,
+            elapsed_s=round(time.monotonic() - s.t0_mono, 3),
+            telemetry_rows=stats.rows_written,
+            frames_written=dict(stats.frames_written),
+            frames_dropped=dropped,
+            auto_record_on_arm=self.options.auto_record_on_arm,
+            stopping_at_wall=self._tail_deadline_wall,
+            last_stop=self.last_stop,
+        )
+
+    # -- automatic recording ---------------------------------------------------------------
+
+    async def _watch_arming(self) -> None:
+        version = 0
+        was_armed: bool | None = None
+        while True:
+            got = await self.state.wait_newer(version, timeout=1.0)
+            if got is None or got.version <= version:
+                if self.state.closed:
+                    return
+                continue
+            version = got.version
+            armed = bool(got.value.heartbeat.armed)
+            if armed and was_armed is not True:
+                await self.start("arm")
+            elif not armed and was_armed is True:
+                self._schedule_tail()
+            was_armed = armed
+
+    def _schedule_tail(self) -> None:
+        session = self.session
+        if session is None or session.trigger != "arm" or self._tail is not None:
+            return  # a session started by hand is stopped by hand
+        tail_s = self.options.post_disarm_tail_s
+        self._tail_deadline_wall = time.time() + tail_s
+        self._tail = asyncio.get_running_loop().call_later(
+            tail_s, self._spawn_stop, "disarmed", session.id
+        )
+
+    def _cancel_tail(self) -> None:
+        if self._tail is not None:
+            self._tail.cancel()
+            self._tail = None
+            self._tail_deadline_wall = None
+
+    def _spawn_stop(self, reason: str, session_id: str) -> None:
+        assert self._spawn is not None
+        try:
+            self._spawn(f"recorder-stop-{session_id}", self.stop(reason, only_id=session_id))
+        except RuntimeError:
+            log.exception("cannot schedule the recording stop")
+
+    def _on_writer_failure(self, session_id: str, reason: str) -> None:
+        """From the writer thread: finalize the session on the event loop."""
+        loop = self._loop
+        if loop is None:
+            return
+        try:
+            loop.call_soon_threadsafe(self._spawn_stop, reason, session_id)
+        except RuntimeError:  # the loop is closed: shutdown finalizes
+            pass
+
+
+def with_session_config(options: RecorderOptions, **changes: Any) -> RecorderOptions:
+    """A copy of `options` with some SessionConfig fields changed."""
+    return replace(options, session=replace(options.session, **changes))

@@ -1,0 +1,309 @@
+"""One recording session: a sampler thread, a frame consumer per camera, one writer thread.
+
+Inputs are exactly the station's objects: the vehicle state `Latest[VehicleState]`, each
+camera's `Latest[Frame]`, and raw packets pushed into `on_packet(t_wall, packet)` by the
+link's thread. Every frame a camera publishes reaches the writer through `_offer_frame`,
+called by the camera's consumer (which awaits each new version) and by the sampler (so a
+row can name the newest frame at its instant even before the consumer woke up); a frame
+is queued once, and gaps in sequence numbers are counted as missed frames.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from companion.frames import Frame
+from companion.latest import Latest
+from companion.recording import layout
+from companion.recording.meta import Arming, CameraQuality, Quality, SessionMeta, write_meta
+from companion.recording.quality import LinkLossTracker, SkewStats
+from companion.recording.rows import FrameRef, RowFormatter, Sample
+from companion.recording.store import create_session_dir
+from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
+from companion.vehicle_state import VehicleState
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    rate_hz: float = 30.0
+    limits: WriterLimits = WriterLimits()
+    link_lost_s: float = 2.0
+    source: str = "unknown"
+    software_version: str = "unknown"
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    camera_fps: Mapping[str, float | None] = field(default_factory=dict)
+    meta_interval_s: float = 2.0
+
+
+class _CameraTrack:
+    """What the session knows about one camera's frames (guarded by its lock)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.last_seq: int | None = None
+        self.ref: FrameRef | None = None  # newest frame accepted by the writer
+        self.missed = 0
+        self.skew = SkewStats()
+
+
+class RecordingSession:
+    def __init__(
+        self,
+        root: Path,
+        state: Latest[VehicleState],
+        cameras: Mapping[str, Latest[Frame]],
+        config: SessionConfig,
+        trigger: str = "api",
+        on_failure: Callable[[str, str], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.trigger = trigger
+        self._state = state
+        self._camera_slots = dict(cameras)
+        self.cameras: tuple[str, ...] = tuple(cameras)
+        self.t0_wall = time.time()
+        self.t0_mono = time.monotonic()
+        self.id, self.folder = create_session_dir(root, self.t0_wall, config.source)
+        self._tracks = {c: _CameraTrack() for c in self.cameras}
+        self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
+        self._last_packet_mono: float | None = None
+        self._arming: Arming | None = None
+        self._was_armed: bool | None = None
+        self.ticks_late = 0  # sample instants skipped because the sampler ran late
+        self.stop_reason: str | None = None
+        self.end_wall: float | None = None
+        self._on_failure = on_failure
+        self._meta_lock = threading.Lock()
+        self._next_meta_mono = 0.0
+        self._stop = threading.Event()
+        self._consumers: list[asyncio.Task[None]] = []
+        formatter = RowFormatter(self.cameras, self.t0_mono)
+        self.writer = SessionWriter(
+            self.folder, formatter, config.limits, on_flush=self._on_flush,
+            on_failure=self._writer_failed,
+        )
+        self._write_meta(layout.STATUS_RECORDING)
+        self._sampler = threading.Thread(target=self._sample_loop, name="recorder-sampler",
+                                         daemon=True)
+
+    # -- lifecycle -----------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the threads and the frame consumers (call on the event loop)."""
+        self.writer.start()
+        self._sampler.start()
+        for cam, slot in self._camera_slots.items():
+            task = asyncio.get_running_loop().create_task(
+                self._consume(cam, slot), name=f"recorder-frames-{cam}"
+            )
+            task.add_done_callback(self._consumer_done)
+            self._consumers.append(task)
+
+    async def stop(self, reason: str) -> SessionMeta:
+        """Stop sampling, write what is buffered, close the files, finalize session.json."""
+        if self.stop_reason is None:
+            self.stop_reason = reason
+        self._stop.set()
+        for task in self._consumers:
+            task.cancel()
+        await asyncio.gather(*self._consumers, return_exceptions=True)
+        await asyncio.to_thread(self._finish)
+        return self.meta(layout.STATUS_COMPLETE)
+
+    def _finish(self) -> None:
+        self._sampler.join(5.0)
+        self.writer.close()
+        self.end_wall = self.writer.stats.last_row_wall or time.time()
+        self._write_meta(layout.STATUS_COMPLETE)
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    # -- inputs ----------------------------------------------------------------------------
+
+    def on_packet(self, t_wall: float, packet: bytes) -> None:
+        """The link's packet listener (link thread): never blocks."""
+        self._last_packet_mono = time.monotonic()
+        self.writer.put_packet(t_wall, packet)
+
+    def _offer_frame(self, cam: str, frame: Frame) -> FrameRef | None:
+        """Queue `frame` if it is new; returns the camera's newest accepted frame."""
+        track = self._tracks[cam]
+        with track.lock:
+            if not frame.signal or (track.last_seq is not None and frame.seq <= track.last_seq):
+                return track.ref  # a placeholder, or a frame already offered
+            if track.last_seq is not None:
+                track.missed += frame.seq - track.last_seq - 1
+            track.last_seq = frame.seq
+            if self.writer.put_frame(cam, frame):
+                track.ref = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
+            return track.ref
+
+    async def _consume(self, cam: str, slot: Latest[Frame]) -> None:
+        # Start from the frame shown now: it is part of what the pilot saw at the start.
+        version = max(slot.version - 1, 0)
+        while not self._stop.is_set():
+            got = await slot.wait_newer(version, timeout=0.5)
+            if got is None or got.version <= version:
+                if slot.closed:
+                    return
+                continue
+            version = got.version
+            self._offer_frame(cam, got.value)
+
+    def _consumer_done(self, task: asyncio.Task[None]) -> None:
+        if not task.cancelled() and task.exception() is not None:
+            log.error("frame consumer %s died", task.get_name(), exc_info=task.exception())
+
+    # -- the sampler thread ------------------------------------------------------------------
+
+    def _sample_loop(self) -> None:
+        period = 1.0 / self.config.rate_hz
+        next_t = self.t0_mono
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now < next_t:
+                self._stop.wait(next_t - now)
+                continue
+            late = int((now - next_t) / period)
+            if late:  # the thread was held up: keep the grid, count the skipped instants
+                self.ticks_late += late
+                next_t += late * period
+            try:
+                self._sample(now)
+            except Exception:  # one bad sample must not end the recording
+                log.exception("telemetry sample failed")
+            next_t += period
+
+    def _sample(self, now_mono: float) -> None:
+        versioned = self._state.get()
+        state = versioned.value if versioned is not None else None
+        refs: list[FrameRef | None] = []
+        for cam in self.cameras:
+            current = self._camera_slots[cam].get()
+            ref = (
+                self._offer_frame(cam, current.value)
+                if current is not None
+                else self._tracks[cam].ref
+            )
+            refs.append(ref)
+            if ref is not None:
+                self._tracks[cam].skew.add(now_mono - ref.t_mono)
+        self.writer.put_row(Sample(now_mono, time.time(), state, tuple(refs)))
+        last_seen = self._last_packet_mono
+        if state is not None and state.heartbeat.t_mono is not None:
+            last_seen = max(last_seen or 0.0, state.heartbeat.t_mono)
+        self._links.update(now_mono, last_seen)
+        if state is not None:
+            self._note_arming(state, now_mono)
+
+    def _note_arming(self, state: VehicleState, now_mono: float) -> None:
+        armed = state.heartbeat.armed
+        alt = state.altitude
+        if armed and alt.reference == "arming" and alt.reference_alt_m is not None:
+            if (
+                self._arming is None
+                or self._was_armed is False
+                or self._arming.reference_alt_m != alt.reference_alt_m
+            ):
+                self._arming = Arming(
+                    t_s=round(now_mono - self.t0_mono, 3),
+                    reference_alt_m=alt.reference_alt_m,
+                    home_lat_deg=alt.home_lat_deg,
+                    home_lon_deg=alt.home_lon_deg,
+                )
+        self._was_armed = armed
+
+    # -- metadata ------------------------------------------------------------------------------
+
+    def _writer_failed(self, reason: str) -> None:
+        if self.stop_reason is None:
+            self.stop_reason = reason
+        self._stop.set()  # stop sampling now; the owner finalizes through stop()
+        if self._on_failure is not None:
+            self._on_failure(self.id, reason)
+
+    def _on_flush(self, stats: WriterStats) -> None:
+        now = time.monotonic()
+        if now >= self._next_meta_mono and not self.writer.failure:
+            self._next_meta_mono = now + self.config.meta_interval_s
+            self._write_meta(layout.STATUS_RECORDING)
+
+    def _write_meta(self, status: str) -> None:
+        with self._meta_lock:
+            try:
+                write_meta(self.folder / layout.SESSION_JSON, self.meta(status))
+            except OSError as exc:
+                log.warning("cannot write %s: %s", self.folder / layout.SESSION_JSON, exc)
+
+    def meta(self, status: str) -> SessionMeta:
+        st = self.writer.stats
+        end_wall = self.end_wall if status == layout.STATUS_COMPLETE else st.last_row_wall
+        duration = None if end_wall is None else round(end_wall - self.t0_wall, 3)
+        cams: dict[str, CameraQuality] = {}
+        for cam in self.cameras:
+            track = self._tracks[cam]
+            written = st.frames_written.get(cam, 0)
+            first, last = st.first_frame_mono.get(cam), st.last_frame_mono.get(cam)
+            achieved = (
+                round((written - 1) / (last - first), 3)
+                if written > 1 and first is not None and last is not None and last > first
+                else None
+            )
+            dropped_q = st.frames_dropped_queue.get(cam, 0)
+            cams[cam] = CameraQuality(
+                configured_fps=self.config.camera_fps.get(cam),
+                achieved_fps=achieved,
+                frames_written=written,
+                frames_missed=track.missed,
+                frames_dropped_queue=dropped_q,
+                frames_dropped=track.missed + dropped_q,
+                first_seq=st.first_seq.get(cam),
+                last_seq=st.last_seq.get(cam),
+                skew_max_s=_round(track.skew.max_s()),
+                skew_p99_s=_round(track.skew.p99_s()),
+            )
+        span = (st.last_row_mono - self.t0_mono) if st.last_row_mono is not None else None
+        quality = Quality(
+            telemetry_rate_hz=self.config.rate_hz,
+            telemetry_rows=st.rows_written,
+            telemetry_achieved_hz=(
+                round((st.rows_written - 1) / span, 3) if span and st.rows_written > 1 else None
+            ),
+            telemetry_rows_dropped=st.rows_dropped,
+            tlog_packets=st.packets_written,
+            tlog_packets_dropped=st.packets_dropped,
+            cameras=cams,
+            link_loss=[iv.model_copy() for iv in self._links.intervals],
+        )
+        return SessionMeta(
+            id=self.id,
+            status=status,
+            stop_reason=self.stop_reason if status != layout.STATUS_RECORDING else None,
+            start_wall=round(self.t0_wall, 6),
+            start_utc=layout.utc_label(self.t0_wall),
+            end_wall=None if end_wall is None else round(end_wall, 6),
+            end_utc=None if end_wall is None else layout.utc_label(end_wall),
+            duration_s=duration,
+            source=self.config.source,
+            cameras=list(self.cameras),
+            software_version=self.config.software_version,
+            settings=dict(self.config.settings),
+            trigger=self.trigger,
+            arming=self._arming,
+            quality=quality,
+        )
+
+
+def _round(v: float | None, nd: int = 6) -> float | None:
+    return None if v is None else round(v, nd)

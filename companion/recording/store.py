@@ -1,0 +1,233 @@
+"""The sessions directory: list sessions, and turn untrusted ids and paths into safe paths.
+
+Every id and relative path that comes from a request goes through `resolve` or `file`;
+they never return a path outside the sessions directory (traversal, absolute paths, NUL
+bytes, symlinks that point out are refused with a typed error).
+
+    SessionStoreError          (base)
+    ├── InvalidSessionId       not a session id by its syntax         -> 400
+    ├── InvalidPath            a file path that could leave the session -> 400
+    ├── SessionNotFound        a well-formed id with no such session  -> 404
+    └── SessionFileNotFound    a safe path to a file that does not exist -> 404
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+from companion.recording import layout
+from companion.recording.meta import SessionMeta, read_meta
+
+
+class SessionStoreError(Exception):
+    """Base of the store's errors; the message says what was wrong."""
+
+
+class InvalidSessionId(SessionStoreError):
+    pass
+
+
+class InvalidPath(SessionStoreError):
+    pass
+
+
+class SessionNotFound(SessionStoreError):
+    pass
+
+
+class SessionFileNotFound(SessionStoreError):
+    pass
+
+
+@dataclass(frozen=True, slots=True)
+class SessionSummary:
+    """One line of the session list."""
+
+    id: str
+    start_wall: float | None
+    end_wall: float | None
+    duration_s: float | None
+    source: str
+    status: str  # layout.STATUS_*, or "unreadable" when session.json is missing or broken
+    stop_reason: str | None
+    size_bytes: int
+    telemetry_rows: int | None
+    frames_written: dict[str, int]
+    frames_dropped: dict[str, int]
+    meta: SessionMeta | None  # None when session.json is missing or unreadable
+
+
+class SessionStore:
+    """Read access to `root`, the configurable sessions directory (created if missing)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._real_root = Path(os.path.realpath(self.root))
+
+    # -- untrusted input -> safe paths -----------------------------------------------
+
+    def resolve(self, session_id: str) -> Path:
+        """The folder of session `session_id`; raises InvalidSessionId or SessionNotFound."""
+        if not isinstance(session_id, str) or "\x00" in session_id:
+            raise InvalidSessionId("A session id must be a string without NUL bytes.")
+        if not layout.is_valid_session_id(session_id):
+            raise InvalidSessionId(
+                f"'{session_id[:80]}' is not a session id (expected e.g. "
+                f"'20261122T035500Z_sim')."
+            )
+        path = self._real_root / session_id
+        try:
+            st = os.lstat(path)
+        except FileNotFoundError:
+            raise SessionNotFound(f"No session '{session_id}'.") from None
+        if not stat.S_ISDIR(st.st_mode):  # a symlink or a stray file is not a session
+            raise SessionNotFound(f"No session '{session_id}'.")
+        return path
+
+    def file(self, session_id: str, relpath: str) -> Path:
+        """A regular file inside a session; raises InvalidPath or SessionFileNotFound."""
+        folder = self.resolve(session_id)
+        parts = _safe_parts(relpath)
+        candidate = folder.joinpath(*parts)
+        # Symlinks anywhere on the way are resolved and must stay inside the session.
+        real = Path(os.path.realpath(candidate))
+        if not real.is_relative_to(folder):
+            raise InvalidPath(f"'{relpath[:200]}' leads outside the session.")
+        try:
+            st = os.stat(real)
+        except (FileNotFoundError, NotADirectoryError):
+            raise SessionFileNotFound(f"Session '{session_id}' has no file '{relpath}'.") from None
+        if not stat.S_ISREG(st.st_mode):
+            raise SessionFileNotFound(f"'{relpath}' in session '{session_id}' is not a file.")
+        return real
+
+    # -- listing -------------------------------------------------------------------------
+
+    def ids(self) -> list[str]:
+        """Ids of every session folder, oldest first (ids sort by start time)."""
+        out = []
+        with os.scandir(self._real_root) as it:
+            for entry in it:
+                if layout.is_valid_session_id(entry.name) and entry.is_dir(follow_symlinks=False):
+                    out.append(entry.name)
+        return sorted(out)
+
+    def list(self) -> list[SessionSummary]:
+        """A summary of every session, newest first."""
+        return [self.summary(sid) for sid in reversed(self.ids())]
+
+    def summary(self, session_id: str) -> SessionSummary:
+        folder = self.resolve(session_id)
+        meta = self.meta_or_none(session_id)
+        size = folder_size(folder)
+        if meta is None:
+            return SessionSummary(
+                id=session_id,
+                start_wall=layout.session_start_from_id(session_id),
+                end_wall=None,
+                duration_s=None,
+                source="unknown",
+                status="unreadable",
+                stop_reason=None,
+                size_bytes=size,
+                telemetry_rows=None,
+                frames_written={},
+                frames_dropped={},
+                meta=None,
+            )
+        q = meta.quality
+        return SessionSummary(
+            id=session_id,
+            start_wall=meta.start_wall,
+            end_wall=meta.end_wall,
+            duration_s=meta.duration_s,
+            source=meta.source,
+            status=meta.status,
+            stop_reason=meta.stop_reason,
+            size_bytes=size,
+            telemetry_rows=q.telemetry_rows,
+            frames_written={c: cq.frames_written for c, cq in q.cameras.items()},
+            frames_dropped={c: cq.frames_dropped for c, cq in q.cameras.items()},
+            meta=meta,
+        )
+
+    def meta(self, session_id: str) -> SessionMeta:
+        """session.json of a session; raises SessionFileNotFound if missing or unreadable."""
+        path = self.resolve(session_id) / layout.SESSION_JSON
+        try:
+            return read_meta(path)
+        except ValueError as exc:
+            raise SessionFileNotFound(str(exc)) from None
+
+    def meta_or_none(self, session_id: str) -> SessionMeta | None:
+        try:
+            return self.meta(session_id)
+        except SessionFileNotFound:
+            return None
+
+    def delete(self, session_id: str) -> None:
+        """Remove a session folder (the caller refuses while it is being recorded)."""
+        folder = self.resolve(session_id)
+        shutil.rmtree(folder)
+
+    def files(self, session_id: str) -> list[tuple[str, Path]]:
+        """(relative posix path, absolute path) of every regular file, sorted; no symlinks."""
+        folder = self.resolve(session_id)
+        out: list[tuple[str, Path]] = []
+        for dirpath, dirnames, filenames in os.walk(folder, followlinks=False):
+            dirnames.sort()
+            for name in sorted(filenames):
+                p = Path(dirpath) / name
+                if p.is_file() and not p.is_symlink() and not name.endswith(".tmp"):
+                    out.append((p.relative_to(folder).as_posix(), p))
+        return sorted(out)
+
+
+def _safe_parts(relpath: str) -> list[str]:
+    """Split a request path into plain names; refuse anything that could climb out."""
+    if not isinstance(relpath, str) or not relpath:
+        raise InvalidPath("A file path is required.")
+    if "\x00" in relpath:
+        raise InvalidPath("A file path must not contain NUL bytes.")
+    if "\\" in relpath:
+        raise InvalidPath("Use '/' to separate folders in a file path.")
+    if relpath.startswith("/") or PurePosixPath(relpath).is_absolute() or ":" in relpath:
+        raise InvalidPath(f"'{relpath[:200]}' is absolute; give a path inside the session.")
+    parts = relpath.split("/")
+    for part in parts:
+        if part in ("", ".", ".."):
+            raise InvalidPath(f"'{relpath[:200]}' is not a plain relative path.")
+    return parts
+
+
+def folder_size(folder: Path) -> int:
+    """Bytes of regular files under `folder` (symlinks are not followed)."""
+    total = 0
+    stack = [str(folder)]
+    while stack:
+        with os.scandir(stack.pop()) as it:
+            for entry in it:
+                if entry.is_dir(follow_symlinks=False):
+                    stack.append(entry.path)
+                elif entry.is_file(follow_symlinks=False):
+                    total += entry.stat(follow_symlinks=False).st_size
+    return total
+
+
+def create_session_dir(root: Path, start_wall: float, source: str) -> tuple[str, Path]:
+    """Create a new session folder under `root`; returns (id, path). Never reuses a folder."""
+    root.mkdir(parents=True, exist_ok=True)
+    for suffix in range(0, 1000):
+        sid = layout.session_id_for(start_wall, source, suffix)
+        path = root / sid
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        return sid, path
+    raise OSError(f"Cannot create a session folder under {root}: too many at one second.")

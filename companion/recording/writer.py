@@ -1,0 +1,291 @@
+"""The session's one writer thread: bounded buffers in, files out, flushed every half second.
+
+Producers (the sampler thread, the frame consumers on the event loop, the link thread's
+packet listener) only append to bounded deques and never wait; when a buffer is full the
+item is refused and counted, never silently lost. The thread writes frames before rows,
+so a row on disk never names a frame that is not on disk yet, flushes (and fdatasyncs)
+the CSVs and the tlog at least every `flush_interval_s`, and stops the session with a
+reason when free space falls under `min_free_bytes` or a write fails.
+"""
+
+from __future__ import annotations
+
+import csv
+import errno
+import logging
+import os
+import struct
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from companion.frames import Frame
+from companion.recording import diskspace, layout
+from companion.recording.rows import RowFormatter, Sample
+
+log = logging.getLogger(__name__)
+
+_TLOG_TS = struct.Struct(layout.TLOG_TIMESTAMP_FORMAT)
+
+
+@dataclass
+class WriterStats:
+    rows_written: int = 0
+    rows_dropped: int = 0
+    packets_written: int = 0
+    packets_dropped: int = 0
+    frames_written: dict[str, int] = field(default_factory=dict)
+    frames_dropped_queue: dict[str, int] = field(default_factory=dict)
+    first_seq: dict[str, int] = field(default_factory=dict)
+    last_seq: dict[str, int] = field(default_factory=dict)
+    first_frame_mono: dict[str, float] = field(default_factory=dict)
+    last_frame_mono: dict[str, float] = field(default_factory=dict)
+    last_row_mono: float | None = None
+    last_row_wall: float | None = None
+    bytes_written: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class WriterLimits:
+    row_queue: int = 2000
+    frame_queue: int = 90  # per camera: 3 s at 30 fps
+    packet_queue: int = 20000
+    flush_interval_s: float = 0.5
+    min_free_bytes: int = 200 * 1024 * 1024
+
+
+class SessionWriter:
+    def __init__(
+        self,
+        folder: Path,
+        formatter: RowFormatter,
+        limits: WriterLimits = WriterLimits(),
+        on_flush: Callable[[WriterStats], None] | None = None,
+        on_failure: Callable[[str], None] | None = None,
+    ) -> None:
+        self.folder = folder
+        self.cameras = formatter.cameras
+        self.formatter = formatter
+        self.limits = limits
+        self.stats = WriterStats(
+            frames_written={c: 0 for c in self.cameras},
+            frames_dropped_queue={c: 0 for c in self.cameras},
+        )
+        self.failure: str | None = None  # why writing stopped early, if it did
+        self._on_flush = on_flush
+        self._on_failure = on_failure
+        self._cond = threading.Condition()
+        self._rows: deque[Sample] = deque()
+        self._packets: deque[tuple[float, bytes]] = deque()
+        self._frames: dict[str, deque[Frame]] = {c: deque() for c in self.cameras}
+        self._closing = False
+        self._thread = threading.Thread(target=self._run, name="recorder-writer", daemon=True)
+        self._open_files()
+
+    # -- producers (any thread; never block) ---------------------------------------------
+
+    def put_row(self, sample: Sample) -> bool:
+        with self._cond:
+            if self.failure is not None or len(self._rows) >= self.limits.row_queue:
+                self.stats.rows_dropped += 1
+                return False
+            self._rows.append(sample)
+            self._cond.notify()
+        return True
+
+    def put_frame(self, camera: str, frame: Frame) -> bool:
+        with self._cond:
+            q = self._frames[camera]
+            if self.failure is not None or len(q) >= self.limits.frame_queue:
+                self.stats.frames_dropped_queue[camera] += 1
+                return False
+            q.append(frame)
+            self._cond.notify()
+        return True
+
+    def put_packet(self, t_wall: float, packet: bytes) -> bool:
+        with self._cond:
+            if self.failure is not None or len(self._packets) >= self.limits.packet_queue:
+                self.stats.packets_dropped += 1
+                return False
+            self._packets.append((t_wall, packet))
+            # No notify: packets are many and small; the thread takes them at its next
+            # wake-up (a frame, a row, or the flush timer), which bounds their delay.
+        return True
+
+    # -- lifecycle -----------------------------------------------------------------------
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Write what is buffered, flush, close the files; returns when the thread is done."""
+        with self._cond:
+            self._closing = True
+            self._cond.notify()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        self._close_files()
+
+    # -- the thread ------------------------------------------------------------------------
+
+    def _open_files(self) -> None:
+        f = self.folder
+        self._csv_file = open(f / layout.TELEMETRY_CSV, "w", newline="", buffering=1 << 16)
+        self._csv = csv.writer(self._csv_file)
+        self._csv.writerow(self.formatter.header)
+        self._tlog = open(f / layout.MAVLINK_TLOG, "wb", buffering=1 << 16)
+        self._frames_csv_files = {}
+        self._frames_csv = {}
+        for cam in self.cameras:
+            (f / cam).mkdir(exist_ok=True)
+            fc = open(f / layout.frames_csv_relpath(cam), "w", newline="", buffering=1 << 14)
+            self._frames_csv_files[cam] = fc
+            self._frames_csv[cam] = csv.writer(fc)
+            self._frames_csv[cam].writerow(layout.FRAME_COLUMNS)
+        self._files = [self._csv_file, self._tlog, *self._frames_csv_files.values()]
+        self._flush_files()
+
+    def _run(self) -> None:
+        interval = self.limits.flush_interval_s
+        next_flush = time.monotonic() + interval
+        while True:
+            with self._cond:
+                while not self._closing and not self._rows and not any(self._frames.values()):
+                    wait_s = next_flush - time.monotonic()
+                    if wait_s <= 0:
+                        break
+                    self._cond.wait(wait_s)
+                rows, self._rows = self._rows, deque()
+                packets, self._packets = self._packets, deque()
+                frames = {c: q for c, q in self._frames.items() if q}
+                for c in frames:
+                    self._frames[c] = deque()
+                closing = self._closing
+            if self.failure is None:
+                try:
+                    self._write(frames, rows, packets)
+                except OSError as exc:
+                    self._fail(_describe_os_error(exc))
+                    self._count_lost(frames, rows, packets)  # what the failed write left
+            else:
+                self._count_lost(frames, rows, packets)
+            now = time.monotonic()
+            if closing or now >= next_flush:
+                next_flush = now + interval
+                self._flush_and_check()
+            if closing:
+                with self._cond:
+                    if not self._rows and not self._packets and not any(self._frames.values()):
+                        return
+
+    def _write(
+        self, frames: dict[str, deque[Frame]], rows: deque[Sample], packets: deque[tuple[float, bytes]]
+    ) -> None:
+        st = self.stats
+        t0 = self.formatter.t0_mono
+        for cam, q in frames.items():
+            writer = self._frames_csv[cam]
+            while q:
+                frame = q[0]
+                rel = layout.frame_relpath(cam, frame.seq)
+                with open(self.folder / rel, "wb") as out:
+                    out.write(frame.jpeg)
+                q.popleft()
+                writer.writerow(
+                    (frame.seq, rel, round(frame.t_mono - t0, 6), round(frame.t_wall, 6),
+                     frame.width, frame.height, len(frame.jpeg))
+                )
+                st.frames_written[cam] += 1
+                st.bytes_written += len(frame.jpeg)
+                st.first_seq.setdefault(cam, frame.seq)
+                st.first_frame_mono.setdefault(cam, frame.t_mono)
+                st.last_seq[cam] = frame.seq
+                st.last_frame_mono[cam] = frame.t_mono
+        if packets:
+            chunks = []
+            for t_wall, packet in packets:
+                chunks.append(_TLOG_TS.pack(int(t_wall * 1e6)))
+                chunks.append(packet)
+            data = b"".join(chunks)
+            self._tlog.write(data)
+            st.packets_written += len(packets)
+            st.bytes_written += len(data)
+            packets.clear()
+        while rows:
+            sample = rows[0]
+            self._csv.writerow(self.formatter.row(sample))
+            rows.popleft()
+            st.rows_written += 1
+            st.last_row_mono = sample.t_mono
+            st.last_row_wall = sample.t_wall
+
+    def _count_lost(self, frames, rows, packets) -> None:
+        with self._cond:
+            for cam, q in frames.items():
+                self.stats.frames_dropped_queue[cam] += len(q)
+            self.stats.rows_dropped += len(rows)
+            self.stats.packets_dropped += len(packets)
+        for q in frames.values():
+            q.clear()
+        rows.clear()
+        packets.clear()
+
+    def _flush_and_check(self) -> None:
+        if self.failure is None:
+            try:
+                self._flush_files()
+            except OSError as exc:
+                self._fail(_describe_os_error(exc))
+        if self.failure is None:
+            try:
+                free = diskspace.free_bytes(self.folder)
+            except OSError as exc:
+                free = None
+                log.warning("cannot probe free space of %s: %s", self.folder, exc)
+            if free is not None and free < self.limits.min_free_bytes:
+                self._fail(
+                    f"disk full: {free / 1e6:.1f} MB free, under the "
+                    f"{self.limits.min_free_bytes / 1e6:.0f} MB minimum"
+                )
+        if self._on_flush is not None:
+            try:
+                self._on_flush(self.stats)
+            except Exception:  # a metadata write must not kill the writer
+                log.exception("session metadata update failed")
+
+    def _flush_files(self) -> None:
+        for f in self._files:
+            if not f.closed:
+                f.flush()
+        # fdatasync the append-only logs so a power cut keeps them to the last flush.
+        for f in (self._csv_file, self._tlog):
+            if not f.closed:
+                os.fdatasync(f.fileno())
+
+    def _fail(self, reason: str) -> None:
+        if self.failure is not None:
+            return
+        self.failure = reason
+        log.error("recording stopped: %s", reason)
+        if self._on_failure is not None:
+            try:
+                self._on_failure(reason)
+            except Exception:
+                log.exception("recording failure callback failed")
+
+    def _close_files(self) -> None:
+        for f in self._files:
+            try:
+                f.close()
+            except OSError as exc:  # the last flush of a full disk
+                log.warning("closing %s: %s", getattr(f, "name", f), exc)
+
+
+def _describe_os_error(exc: OSError) -> str:
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"disk full: {exc.strerror}"
+    return f"write error: {exc}"

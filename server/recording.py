@@ -1,0 +1,65 @@
+"""Builds the recorder from the settings and the station's own objects.
+
+The recorder's inputs are exactly the station's: the vehicle state `Latest`, each
+camera's `frames` Latest, and the link's packet listener hook.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Mapping
+from typing import Any
+
+from companion.frames import Frame
+from companion.latest import Latest
+from companion.recording.recorder import Recorder, RecorderOptions
+from companion.recording.session import SessionConfig
+from companion.recording.writer import WriterLimits
+from companion.vehicle_state import VehicleState
+from server import __version__
+from server.settings import Settings
+
+
+def recorder_options(settings: Settings, camera_fps: Mapping[str, float | None]) -> RecorderOptions:
+    r = settings.recording
+    limits = WriterLimits(
+        row_queue=r.row_queue,
+        frame_queue=r.frame_queue,
+        packet_queue=r.packet_queue,
+        flush_interval_s=r.flush_interval_s,
+        min_free_bytes=int(r.min_free_mb * 1024 * 1024),
+    )
+    session = SessionConfig(
+        rate_hz=r.rate_hz,
+        limits=limits,
+        link_lost_s=settings.link.link_lost_s,
+        source=settings.link.source,
+        software_version=__version__,
+        settings={"recording": r.model_dump(mode="json"), "link": {"source": settings.link.source}},
+        camera_fps=dict(camera_fps),
+    )
+    return RecorderOptions(
+        session=session,
+        auto_record_on_arm=r.auto_record_on_arm,
+        post_disarm_tail_s=r.post_disarm_tail_s,
+    )
+
+
+async def open_recorder(
+    settings: Settings,
+    stack: contextlib.AsyncExitStack,
+    spawn: Any,
+    state: Latest[VehicleState],
+    cameras: Mapping[str, Latest[Frame]],
+    camera_fps: Mapping[str, float | None],
+    link: Any | None,
+) -> Recorder:
+    """Build the recorder, hook it to the link, mark cut-off sessions; stops with `stack`."""
+    recorder = Recorder(
+        settings.recording.sessions_dir, state, cameras, recorder_options(settings, camera_fps)
+    )
+    if link is not None:
+        link.add_packet_listener(recorder.on_packet)
+    await recorder.open(spawn)
+    stack.push_async_callback(recorder.aclose)
+    return recorder

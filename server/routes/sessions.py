@@ -1,0 +1,135 @@
+"""Recorded sessions: list, metadata, zip download, single files, delete.
+
+Every id and path goes through `SessionStore`, which refuses anything that could leave
+the sessions directory; its typed errors map onto the one error shape here.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Iterator
+from typing import Any
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import FileResponse, StreamingResponse
+from pydantic import BaseModel
+
+from companion.recording import layout
+from companion.recording.meta import SessionMeta
+from companion.recording.recorder import Recorder
+from companion.recording.store import (
+    InvalidPath,
+    InvalidSessionId,
+    SessionFileNotFound,
+    SessionNotFound,
+    SessionStoreError,
+    SessionSummary,
+)
+from server.auth import require_control_token
+from server.errors import BadRequest, Conflict, NotFound
+from server.routes.recording import get_recorder
+from server.zipstream import stream_zip
+
+router = APIRouter(tags=["sessions"])
+
+
+class SessionSummaryModel(BaseModel):
+    id: str
+    start_wall: float | None
+    start_utc: str | None
+    end_wall: float | None
+    duration_s: float | None
+    source: str
+    status: str  # recording, complete, interrupted, unreadable
+    stop_reason: str | None
+    size_bytes: int
+    telemetry_rows: int | None
+    frames_written: dict[str, int]
+    frames_dropped: dict[str, int]
+    recording_now: bool
+
+
+class SessionDetailModel(BaseModel):
+    summary: SessionSummaryModel
+    meta: SessionMeta | None
+    files: list[str]  # every file but the frames (see the frames.csv of each camera)
+    frame_files: dict[str, int]  # camera -> JPEG files on disk
+
+
+@contextlib.contextmanager
+def _store_errors() -> Iterator[None]:
+    try:
+        yield
+    except (InvalidSessionId, InvalidPath) as exc:
+        raise BadRequest(str(exc)) from None
+    except (SessionNotFound, SessionFileNotFound) as exc:
+        raise NotFound(str(exc)) from None
+    except SessionStoreError as exc:  # pragma: no cover - every subclass is mapped above
+        raise BadRequest(str(exc)) from None
+
+
+def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummaryModel:
+    data: dict[str, Any] = {k: getattr(s, k) for k in SessionSummaryModel.model_fields
+                            if hasattr(s, k)}
+    data["start_utc"] = layout.utc_label(s.start_wall) if s.start_wall is not None else None
+    data["recording_now"] = s.id == recording_id
+    return SessionSummaryModel.model_validate(data)
+
+
+@router.get("/api/sessions", response_model=list[SessionSummaryModel], summary="Sessions, newest first")
+async def list_sessions(recorder: Recorder = Depends(get_recorder)) -> list[SessionSummaryModel]:
+    summaries = await asyncio.to_thread(recorder.store.list)
+    return [_summary_model(s, recorder.recording_id) for s in summaries]
+
+
+@router.get("/api/sessions/{session_id}", response_model=SessionDetailModel,
+            summary="A session's metadata and quality report")
+async def get_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> SessionDetailModel:
+    def load() -> SessionDetailModel:
+        summary = recorder.store.summary(session_id)
+        files, frames = [], {}
+        for rel, _ in recorder.store.files(session_id):
+            top, _, rest = rel.partition("/")
+            if rest and rel.endswith(".jpg"):
+                frames[top] = frames.get(top, 0) + 1
+            else:
+                files.append(rel)
+        return SessionDetailModel(summary=_summary_model(summary, recorder.recording_id),
+                                  meta=summary.meta, files=files, frame_files=frames)
+
+    with _store_errors():
+        return await asyncio.to_thread(load)
+
+
+@router.get("/api/sessions/{session_id}/download", summary="The whole session as a zip (streamed)",
+            response_class=StreamingResponse)
+async def download_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> StreamingResponse:
+    with _store_errors():
+        files = await asyncio.to_thread(recorder.store.files, session_id)
+    entries = [(f"{session_id}/{rel}", path) for rel, path in files]
+    return StreamingResponse(
+        stream_zip(entries),
+        media_type="application/zip",
+        headers={"Content-Disposition": f'attachment; filename="{session_id}.zip"'},
+    )
+
+
+@router.get("/api/sessions/{session_id}/files/{path:path}", summary="One file of a session",
+            response_class=FileResponse)
+async def session_file(session_id: str, path: str, request: Request,
+                       recorder: Recorder = Depends(get_recorder)) -> FileResponse:
+    with _store_errors():
+        real = recorder.store.file(session_id, path)
+    return FileResponse(real, filename=real.name, content_disposition_type="inline")
+
+
+@router.delete("/api/sessions/{session_id}", dependencies=[Depends(require_control_token)],
+               summary="Delete a session (refused while it is recorded)")
+async def delete_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> dict[str, str]:
+    with _store_errors():
+        recorder.store.resolve(session_id)
+        if recorder.recording_id == session_id:
+            raise Conflict(f"Session '{session_id}' is being recorded; stop it first.")
+        await asyncio.to_thread(recorder.store.delete, session_id)
+    return {"deleted": session_id}

@@ -1,0 +1,125 @@
+"""Inputs for recorder tests: the station's own objects, fed by threads.
+
+Cameras publish real JPEGs (OpenCV) into `Latest[Frame]` at a paced rate from their own
+thread, as a capture thread does; the vehicle state is published as fresh snapshots;
+MAVLink packets are real pymavlink-encoded bytes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+
+import cv2
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.frames import Frame
+from companion.latest import Latest
+from companion.vehicle_state import Heartbeat, PilotAltitude, RcChannels, VehicleState
+
+
+def make_jpegs(n: int = 8, width: int = 320, height: int = 240) -> list[bytes]:
+    rng = np.random.default_rng(1)
+    out = []
+    for i in range(n):
+        img = rng.integers(0, 255, (height, width, 3), dtype=np.uint8)
+        cv2.putText(img, str(i), (20, 100), cv2.FONT_HERSHEY_SIMPLEX, 3, (255, 255, 255), 5)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        assert ok
+        out.append(buf.tobytes())
+    return out
+
+
+class FakeCamera:
+    """A capture thread: publishes frame `seq` every 1/fps s, stamped at capture time."""
+
+    def __init__(self, name: str, fps: float, jpegs: list[bytes]) -> None:
+        self.name = name
+        self.fps = fps
+        self.jpegs = jpegs
+        self.frames: Latest[Frame] = Latest()
+        self.published: dict[int, bytes] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"fake-cam-{name}", daemon=True)
+
+    def start(self) -> "FakeCamera":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    def _run(self) -> None:
+        period = 1.0 / self.fps
+        next_t = time.monotonic()
+        seq = 0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now < next_t:
+                self._stop.wait(next_t - now)
+                continue
+            seq += 1
+            jpeg = self.jpegs[seq % len(self.jpegs)]
+            self.published[seq] = jpeg
+            self.frames.publish(
+                Frame(self.name, seq, jpeg, 320, 240, time.monotonic(), time.time())
+            )
+            next_t += period
+
+
+class FakeVehicle:
+    """Publishes VehicleState snapshots at `rate_hz` and real MAVLink packets to listeners."""
+
+    def __init__(self, rate_hz: float = 50.0) -> None:
+        self.rate_hz = rate_hz
+        self.state: Latest[VehicleState] = Latest(VehicleState())
+        self.listeners: list = []
+        self.packets_sent = 0
+        self.armed = False
+        self.alt_m = 0.0
+        self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="fake-vehicle", daemon=True)
+
+    def start(self) -> "FakeVehicle":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    def publish_now(self) -> None:
+        now = time.monotonic()
+        s = VehicleState()
+        s.heartbeat = Heartbeat(t_mono=now, sysid=1, compid=1, autopilot="px4", armed=self.armed,
+                                mode="POSCTL")
+        s.rc = RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14)
+        s.altitude = PilotAltitude(
+            t_mono=now, relative_alt_m=self.alt_m, reference_alt_m=180.0,
+            reference="arming" if self.armed else "first_fix", home_lat_deg=43.0021,
+            home_lon_deg=-78.7875,
+        )
+        self.state.publish(s)
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        k = 0
+        while not self._stop.wait(period):
+            self.publish_now()
+            k += 1
+            msgs = [self.mav.attitude_encode(k * 20, 0.01, -0.02, 1.5, 0.0, 0.0, 0.0)]
+            if k % int(self.rate_hz) == 0:
+                msgs.append(self.mav.heartbeat_encode(2, 12, 128 if self.armed else 0, 0, 4, 3))
+            for msg in msgs:
+                packet = msg.pack(self.mav)
+                self.packets_sent += 1
+                for cb in self.listeners:
+                    cb(time.time(), packet)
+
+
+def replace_state(state: VehicleState, **groups) -> VehicleState:
+    return dataclasses.replace(state, **groups)

@@ -1,0 +1,204 @@
+import asyncio
+import csv
+import json
+import shutil
+import time
+from collections import namedtuple
+from pathlib import Path
+
+import numpy as np
+from pymavlink import mavutil
+
+from companion.frames import Frame
+from companion.recording import layout
+from companion.recording.recorder import Recorder, RecorderOptions
+from companion.recording.session import SessionConfig
+from companion.recording.writer import WriterLimits
+from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+
+FPS = 30.0
+
+
+def options(rate_hz=30.0, **kw) -> RecorderOptions:
+    session = SessionConfig(rate_hz=rate_hz, source="sim", camera_fps={"front": FPS, "bottom": FPS},
+                            limits=kw.pop("limits", WriterLimits(min_free_bytes=1)))
+    return RecorderOptions(session=session, **kw)
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
+    jpegs = make_jpegs()
+    cams = {n: FakeCamera(n, FPS, jpegs).start() for n in layout.CAMERAS}
+    vehicle = FakeVehicle().start()
+    rec = Recorder(tmp_path, vehicle.state, {n: c.frames for n, c in cams.items()},
+                   options(rate_hz=30.0, auto_record_on_arm=False))
+    vehicle.listeners.append(rec.on_packet)
+
+    async def run():
+        await rec.open()
+        status = await rec.start("test")
+        assert status.recording and status.id
+        await asyncio.sleep(3.0)
+        return await rec.stop("requested")
+
+    status = asyncio.run(run())
+    vehicle.stop()
+    for c in cams.values():
+        c.stop()
+    sid = status.last_stop.id
+    folder = tmp_path / sid
+    meta = json.loads((folder / layout.SESSION_JSON).read_text())
+    assert meta["status"] == "complete" and meta["stop_reason"] == "requested"
+
+    rows = read_csv(folder / layout.TELEMETRY_CSV)
+    with open(folder / layout.TELEMETRY_CSV) as f:
+        assert tuple(next(csv.reader(f))) == layout.telemetry_columns()
+    t = np.array([float(r["t_s"]) for r in rows])
+    assert 80 <= len(rows) <= 95, len(rows)  # 3 s at 30 Hz
+    assert abs(np.median(np.diff(t)) - 1 / 30) < 0.002
+    assert meta["quality"]["telemetry_rows"] == len(rows)
+    assert rows[-1]["rc.pwm_us.2"] == "1100" and rows[-1]["heartbeat.mode"] == "POSCTL"
+    assert rows[-1]["heartbeat.armed"] == "0"
+    assert float(rows[-1]["heartbeat.t_mono"]) <= float(rows[-1]["t_s"])  # session clock
+
+    for cam in layout.CAMERAS:
+        referenced = {r[f"{cam}.file"] for r in rows if r[f"{cam}.file"]}
+        assert len(referenced) > 60
+        for rel in referenced:
+            seq = int(Path(rel).stem)
+            assert (folder / rel).read_bytes() == cams[cam].published[seq]
+        frames = read_csv(folder / layout.frames_csv_relpath(cam))
+        seqs = [int(r["seq"]) for r in frames]
+        assert seqs == list(range(seqs[0], seqs[-1] + 1))  # no gap: every frame written
+        assert all((folder / r["file"]).exists() for r in frames)
+        q = meta["quality"]["cameras"][cam]
+        assert q["frames_dropped"] == 0 and q["frames_written"] == len(frames)
+        assert abs(q["achieved_fps"] - FPS) < 1.5
+        skews = np.array([float(r[f"{cam}.skew_s"]) for r in rows if r[f"{cam}.skew_s"]])
+        assert skews.min() >= 0
+        # Under one frame period (p99); the max allows scheduler jitter of a loaded box.
+        assert q["skew_p99_s"] < 1 / FPS and np.percentile(skews, 99) < 1 / FPS
+        assert q["skew_max_s"] < 1.5 / FPS
+
+    # The tlog holds every packet, readable by pymavlink.
+    mlog = mavutil.mavlink_connection(str(folder / layout.MAVLINK_TLOG))
+    n = 0
+    while (m := mlog.recv_match()) is not None:
+        assert m.get_type() in ("ATTITUDE", "HEARTBEAT")
+        assert abs(m._timestamp - meta["start_wall"]) < 10
+        n += 1
+    assert n == meta["quality"]["tlog_packets"] > 100
+    assert meta["quality"]["tlog_packets_dropped"] == 0
+
+
+def test_missed_frames_are_counted_never_silent(tmp_path):
+    """A burst faster than the consumer: Latest skips frames; they are counted as dropped."""
+    front: "Latest[Frame]"
+    vehicle = FakeVehicle()
+    cam = FakeCamera("front", FPS, make_jpegs(2))
+    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames},
+                   options(auto_record_on_arm=False))
+
+    async def run():
+        await rec.open()
+        await rec.start("test")
+        jpeg = cam.jpegs[0]
+        seq = 0
+        for burst in range(5):
+            for _ in range(10):  # ten frames with no await in between: the consumer sees one
+                seq += 1
+                cam.frames.publish(Frame("front", seq, jpeg, 320, 240, time.monotonic(), time.time()))
+            await asyncio.sleep(0.1)
+        return seq, await rec.stop()
+
+    published, status = asyncio.run(run())
+    folder = tmp_path / status.last_stop.id
+    q = json.loads((folder / layout.SESSION_JSON).read_text())["quality"]["cameras"]["front"]
+    frames = read_csv(folder / layout.frames_csv_relpath("front"))
+    assert q["frames_written"] == len(frames) < published
+    assert q["frames_dropped"] == q["frames_missed"] > 0
+    assert q["frames_written"] + q["frames_dropped"] == published - q["first_seq"] + 1
+    rows = read_csv(folder / layout.TELEMETRY_CSV)
+    assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])
+
+
+def test_auto_record_on_arm_with_post_disarm_tail(tmp_path):
+    vehicle = FakeVehicle(rate_hz=20).start()
+    rec = Recorder(tmp_path, vehicle.state, {}, options(post_disarm_tail_s=0.5))
+
+    async def run():
+        await rec.open()
+        await asyncio.sleep(0.3)
+        assert not rec.status().recording
+        vehicle.armed = True
+        vehicle.alt_m = 1.0
+        for _ in range(50):
+            await asyncio.sleep(0.05)
+            if rec.status().recording:
+                break
+        st = rec.status()
+        assert st.recording and st.trigger == "arm"
+        await asyncio.sleep(0.5)
+        vehicle.armed = False
+        await asyncio.sleep(0.3)
+        assert rec.status().recording and rec.status().stopping_at_wall is not None  # tail
+        for _ in range(40):
+            await asyncio.sleep(0.05)
+            if not rec.status().recording:
+                break
+        st = rec.status()
+        await rec.aclose()
+        return st
+
+    st = asyncio.run(run())
+    vehicle.stop()
+    assert not st.recording and st.last_stop.reason == "disarmed"
+    meta = json.loads((tmp_path / st.last_stop.id / layout.SESSION_JSON).read_text())
+    assert meta["trigger"] == "arm"
+    assert meta["arming"]["reference_alt_m"] == 180.0
+    assert meta["arming"]["home_lat_deg"] == 43.0021
+    rows = read_csv(tmp_path / st.last_stop.id / layout.TELEMETRY_CSV)
+    assert rows[-1]["heartbeat.armed"] == "0" and rows[0]["heartbeat.armed"] == "1"
+    assert float(rows[-1]["t_s"]) - float(rows[0]["t_s"]) > 0.9  # kept the tail
+
+
+DiskUsage = namedtuple("usage", "total used free")
+
+
+def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):
+    real = shutil.disk_usage
+    free = {"bytes": 10**9}
+    monkeypatch.setattr(shutil, "disk_usage",
+                        lambda p: DiskUsage(real(p).total, real(p).used, free["bytes"]))
+    cam = FakeCamera("front", FPS, make_jpegs(2)).start()
+    vehicle = FakeVehicle().start()
+    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames},
+                   options(auto_record_on_arm=False,
+                           limits=WriterLimits(min_free_bytes=50 * 10**6)))
+
+    async def run():
+        await rec.open()
+        await rec.start("test")
+        await asyncio.sleep(1.0)
+        free["bytes"] = 20 * 10**6  # the disk fills up
+        for _ in range(60):
+            await asyncio.sleep(0.05)
+            if not rec.status().recording:
+                break
+        return rec.status()
+
+    st = asyncio.run(run())
+    cam.stop()
+    vehicle.stop()
+    assert not st.recording
+    assert st.last_stop.reason.startswith("disk full") and "50 MB" in st.last_stop.reason
+    folder = tmp_path / st.last_stop.id
+    meta = json.loads((folder / layout.SESSION_JSON).read_text())
+    assert meta["status"] == "complete" and meta["stop_reason"] == st.last_stop.reason
+    rows = read_csv(folder / layout.TELEMETRY_CSV)
+    assert len(rows) == meta["quality"]["telemetry_rows"] > 20
+    assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])

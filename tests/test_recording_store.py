@@ -1,0 +1,128 @@
+import os
+from pathlib import Path
+
+import pytest
+
+from companion.recording import layout
+from companion.recording.meta import SessionMeta, write_meta
+from companion.recording.store import (
+    InvalidPath,
+    InvalidSessionId,
+    SessionFileNotFound,
+    SessionNotFound,
+    SessionStore,
+    create_session_dir,
+)
+
+START = 1795000000.0  # 2026-11-18T11:06:40Z
+
+
+def make_session(root: Path, start: float = START, source: str = "sim") -> tuple[str, Path]:
+    sid, path = create_session_dir(root, start, source)
+    (path / "front").mkdir()
+    (path / "front" / "00000001.jpg").write_bytes(b"\xff\xd8jpeg\xff\xd9")
+    (path / layout.TELEMETRY_CSV).write_text("t_s,wall_time\n0.0,1.0\n")
+    write_meta(
+        path / layout.SESSION_JSON,
+        SessionMeta(id=sid, start_wall=start, start_utc=layout.utc_label(start), source=source),
+    )
+    return sid, path
+
+
+def test_session_ids_from_time_and_source():
+    assert layout.session_id_for(START, "sim") == "20261118T110640Z_sim"
+    assert layout.session_id_for(START, "/dev/serial0:921600") .endswith("_serial")
+    assert layout.session_id_for(START, "udpin:0.0.0.0:14550").endswith("_udp")
+    assert layout.session_id_for(START, "replay:/x/y.tlog", 2).endswith("_replay-2")
+    assert layout.session_start_from_id("20261118T110640Z_sim") == START
+    for sid in (layout.session_id_for(START, s) for s in ("sim", "tcp:1.2.3.4:5", "Weird Src!")):
+        assert layout.is_valid_session_id(sid), sid
+
+
+def test_create_session_dir_never_reuses(tmp_path):
+    a, _ = create_session_dir(tmp_path, START, "sim")
+    b, _ = create_session_dir(tmp_path, START, "sim")
+    assert a != b and b == a + "-1"
+
+
+def test_columns_flatten_vehicle_state_generically():
+    cols = layout.telemetry_columns()
+    assert cols[:2] == ("t_s", "wall_time")
+    for c in ("gps.lat_deg", "altitude.relative_alt_m", "rc.pwm_us.0", "rc.pwm_us.17",
+              "servo.pwm_us.15", "heartbeat.armed", "heartbeat.mode", "attitude.roll_rad",
+              "front.seq", "front.file", "front.t_wall", "front.skew_s", "bottom.skew_s"):
+        assert c in cols, c
+    assert "rc.pwm_us.18" not in cols and "rc.pwm_us" not in cols
+    assert len(set(cols)) == len(cols)
+
+
+def test_list_and_meta(tmp_path):
+    store = SessionStore(tmp_path)
+    sid, _ = make_session(tmp_path)
+    sid2, p2 = make_session(tmp_path, START + 60)
+    (p2 / layout.SESSION_JSON).write_text("{broken")
+    (tmp_path / "not-a-session").mkdir()
+    listed = store.list()
+    assert [s.id for s in listed] == [sid2, sid]  # newest first
+    assert listed[0].status == "unreadable" and listed[0].start_wall == START + 60
+    assert listed[1].status == layout.STATUS_RECORDING and listed[1].size_bytes > 0
+    assert store.meta(sid).id == sid
+
+
+@pytest.mark.parametrize("bad", ["../etc", "..", ".", "", "a/b", "x\x00y", "/etc",
+                                 "20261118T110640Z_sim/..", "20261118T021320Z_SIM", "a" * 300])
+def test_bad_ids_rejected(tmp_path, bad):
+    store = SessionStore(tmp_path)
+    make_session(tmp_path)
+    with pytest.raises(InvalidSessionId):
+        store.resolve(bad)
+
+
+def test_unknown_id_not_found(tmp_path):
+    with pytest.raises(SessionNotFound):
+        SessionStore(tmp_path).resolve("20200101T000000Z_sim")
+
+
+@pytest.mark.parametrize("bad", ["../../etc/passwd", "../20261118T110640Z_sim/telemetry.csv",
+                                 "/etc/passwd", "front/../../x", "front//x", "a\x00b",
+                                 "..\\..\\etc\\passwd", "C:/x", "./telemetry.csv", ""])
+def test_traversal_rejected(tmp_path, bad):
+    store = SessionStore(tmp_path)
+    sid, _ = make_session(tmp_path)
+    with pytest.raises(InvalidPath):
+        store.file(sid, bad)
+
+
+def test_symlinks_pointing_out_rejected(tmp_path):
+    root = tmp_path / "sessions"
+    store = SessionStore(root)
+    sid, path = make_session(root)
+    secret = tmp_path / "secret.txt"
+    secret.write_text("secret")
+    os.symlink(secret, path / "link.txt")
+    os.symlink(tmp_path, path / "front" / "up")
+    with pytest.raises(InvalidPath):
+        store.file(sid, "link.txt")
+    with pytest.raises(InvalidPath):
+        store.file(sid, "front/up/secret.txt")
+    # A session folder that is itself a symlink is not a session.
+    other = tmp_path / "elsewhere"
+    other.mkdir()
+    os.symlink(other, root / "20300101T000000Z_sim")
+    with pytest.raises(SessionNotFound):
+        store.resolve("20300101T000000Z_sim")
+    assert "link.txt" not in [rel for rel, _ in store.files(sid)]
+
+
+def test_file_inside_session(tmp_path):
+    store = SessionStore(tmp_path)
+    sid, path = make_session(tmp_path)
+    assert store.file(sid, "front/00000001.jpg").read_bytes() == b"\xff\xd8jpeg\xff\xd9"
+    with pytest.raises(SessionFileNotFound):
+        store.file(sid, "front/00000002.jpg")
+    with pytest.raises(SessionFileNotFound):
+        store.file(sid, "front")  # a folder is not a file
+    rels = [rel for rel, _ in store.files(sid)]
+    assert rels == ["front/00000001.jpg", "session.json", "telemetry.csv"]
+    store.delete(sid)
+    assert not path.exists()

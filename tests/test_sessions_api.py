@@ -1,0 +1,135 @@
+import io
+import zipfile
+
+import httpx
+import pytest
+
+from server.app import create_app
+from server.settings import load_settings
+from tests.helpers import run_uvicorn
+
+
+def make_app(tmp_path, token=None):
+    overrides = {"link.source": "none", "recording.sessions_dir": str(tmp_path / "sessions"),
+                 "recording.auto_record_on_arm": False, "recording.min_free_mb": 0}
+    if token:
+        overrides["server.token"] = token
+    return create_app(load_settings(environ={}, overrides=overrides))
+
+
+@pytest.fixture
+def server(tmp_path):
+    with run_uvicorn(make_app(tmp_path)) as base:
+        yield base, tmp_path / "sessions"
+
+
+def record_session(base: str, seconds: float = 0.5) -> str:
+    import time
+    r = httpx.post(f"{base}/api/recording/start")
+    assert r.status_code == 200 and r.json()["recording"] is True
+    sid = r.json()["id"]
+    time.sleep(seconds)
+    r = httpx.post(f"{base}/api/recording/stop")
+    assert r.status_code == 200 and r.json()["recording"] is False
+    assert r.json()["last_stop"]["id"] == sid
+    return sid
+
+
+def test_record_list_meta_and_files(server):
+    base, root = server
+    assert httpx.get(f"{base}/api/recording").json()["recording"] is False
+    sid = record_session(base)
+    listed = httpx.get(f"{base}/api/sessions").json()
+    assert [s["id"] for s in listed] == [sid]
+    assert listed[0]["status"] == "complete" and listed[0]["size_bytes"] > 0
+    assert listed[0]["telemetry_rows"] >= 10
+    detail = httpx.get(f"{base}/api/sessions/{sid}").json()
+    assert detail["meta"]["quality"]["telemetry_rate_hz"] == 30.0
+    assert set(detail["files"]) == {"session.json", "telemetry.csv", "mavlink.tlog"}
+    r = httpx.get(f"{base}/api/sessions/{sid}/files/telemetry.csv")
+    assert r.status_code == 200 and r.content == (root / sid / "telemetry.csv").read_bytes()
+    assert r.content.startswith(b"t_s,wall_time,heartbeat.t_mono")
+
+
+def test_streamed_zip_unzips_to_the_same_bytes(server):
+    base, root = server
+    sid = record_session(base)
+    # Frames as written by the recorder (the test app has no camera): add real files.
+    (root / sid / "front").mkdir()
+    payloads = {f"front/{i:08d}.jpg": bytes([i % 256]) * (50_000 + i) for i in range(1, 40)}
+    for rel, data in payloads.items():
+        (root / sid / rel).write_bytes(data)
+    with httpx.stream("GET", f"{base}/api/sessions/{sid}/download") as r:
+        assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
+        assert "content-length" not in r.headers  # streamed, not built first
+        chunks = [c for c in r.iter_bytes()]
+    assert len(chunks) > 1
+    zf = zipfile.ZipFile(io.BytesIO(b"".join(chunks)))
+    assert zf.testzip() is None
+    names = set(zf.namelist())
+    on_disk = {p.relative_to(root).as_posix() for p in (root / sid).rglob("*") if p.is_file()}
+    assert names == on_disk
+    for name in names:
+        assert zf.read(name) == (root / name).read_bytes(), name
+
+
+def test_delete_and_refused_while_recording(server):
+    base, root = server
+    sid = record_session(base)
+    r = httpx.post(f"{base}/api/recording/start")
+    live = r.json()["id"]
+    r = httpx.delete(f"{base}/api/sessions/{live}")
+    assert r.status_code == 409 and r.json()["error"] == "Conflict"
+    listed = {s["id"]: s for s in httpx.get(f"{base}/api/sessions").json()}
+    assert listed[live]["recording_now"] is True and listed[live]["status"] == "recording"
+    httpx.post(f"{base}/api/recording/stop")
+    assert httpx.delete(f"{base}/api/sessions/{sid}").json() == {"deleted": sid}
+    assert not (root / sid).exists()
+    assert httpx.get(f"{base}/api/sessions/{sid}").status_code == 404
+
+
+@pytest.mark.parametrize("path,status", [
+    ("/api/sessions/..%2F..%2Fetc", 404),  # a slash never matches the id: no route
+    ("/api/sessions/nope", 400),
+    ("/api/sessions/20200101T000000Z_sim", 404),
+    ("/api/sessions/20200101T000000Z_sim/download", 404),
+    ("/api/sessions/%00", 400),
+])
+def test_bad_ids_rejected(server, path, status):
+    base, _ = server
+    r = httpx.get(base + path)
+    assert r.status_code == status and r.json()["error"] in ("BadRequest", "NotFound", "HTTPError")
+
+
+def test_traversal_rejected(server, tmp_path):
+    base, root = server
+    sid = record_session(base, 0.2)
+    (tmp_path / "secret.txt").write_text("TOPSECRET")
+    for path in ("..%2F..%2Fsecret.txt", "%2E%2E/%2E%2E/secret.txt", "%2Fetc%2Fpasswd",
+                 "a%00b", "front/..%2F..%2F..%2Fsecret.txt", "..%5C..%5Csecret.txt"):
+        r = httpx.get(f"{base}/api/sessions/{sid}/files/{path}")
+        assert r.status_code == 400, (path, r.status_code)
+        assert b"TOPSECRET" not in r.content
+    assert httpx.get(f"{base}/api/sessions/{sid}/files/front/0001.jpg").status_code == 404
+    r = httpx.delete(f"{base}/api/sessions/..%2F..")
+    assert 400 <= r.status_code < 500
+    assert root.exists() and (tmp_path / "secret.txt").exists()
+
+
+def test_token_guards_control_and_leaves_reading_open(tmp_path):
+    with run_uvicorn(make_app(tmp_path, token="s3cret")) as base:
+        assert httpx.get(f"{base}/api/recording").status_code == 200
+        assert httpx.get(f"{base}/api/sessions").status_code == 200
+        r = httpx.post(f"{base}/api/recording/start")
+        assert r.status_code == 401 and r.json()["error"] == "Unauthorized"
+        r = httpx.post(f"{base}/api/recording/start", headers={"Authorization": "Bearer nope"})
+        assert r.status_code == 401
+        good = {"Authorization": "Bearer s3cret"}
+        r = httpx.post(f"{base}/api/recording/start", headers=good)
+        assert r.status_code == 200 and r.json()["recording"]
+        sid = r.json()["id"]
+        assert httpx.post(f"{base}/api/recording/stop").status_code == 401
+        assert httpx.post(f"{base}/api/recording/stop?token=s3cret").status_code == 200
+        assert httpx.delete(f"{base}/api/sessions/{sid}").status_code == 401
+        assert httpx.get(f"{base}/api/sessions/{sid}").status_code == 200
+        assert httpx.delete(f"{base}/api/sessions/{sid}", headers=good).status_code == 200
