@@ -10,11 +10,7 @@ from fastapi.staticfiles import StaticFiles
 
 from server import __version__
 from server.errors import install_error_handlers
-<<<<<<< HEAD
-from server.routes import health, status, telemetry
-=======
-from server.routes import health, recording, sessions
->>>>>>> recorder
+from server.routes import analysis, health, recording, sessions, status, telemetry, video
 from server.settings import Settings
 from server.station import open_station
 from web import WEB_DIR
@@ -36,12 +32,11 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.settings = settings
     install_error_handlers(app)
     app.include_router(health.router)
-<<<<<<< HEAD
     app.include_router(status.router)
     app.include_router(telemetry.router)
-=======
     app.include_router(recording.router)
     app.include_router(sessions.router)
->>>>>>> recorder
+    app.include_router(analysis.router)
+    app.include_router(video.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

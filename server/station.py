@@ -6,9 +6,11 @@ the settings, starts them in dependency order and stops them in reverse.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
+from typing import Any
 
 from companion.latest import Latest
 from companion.link import MavlinkLink
@@ -29,6 +31,8 @@ class Station:
     state: Latest[VehicleState] = field(default_factory=Latest)
     telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
     recorder: Recorder | None = None
+    # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
+    cameras: dict[str, Any] = field(default_factory=dict)
 
 
 @contextlib.asynccontextmanager
@@ -51,6 +55,9 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.link = link
             station.state = link.state
 
+        # -- cameras (after the twin, whose renderer the sim cameras use) ------------
+        await _open_cameras(station, stack)
+
         # -- recorder (after the link and cameras it records) -----------------------
         station.recorder = await _open_recorder(station, stack)
         yield station
@@ -60,10 +67,29 @@ async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> 
     from server.recording import open_recorder
 
     state = station.state
-    cams = getattr(station, "cameras", None) or {}
+    cams = station.cameras
     return await open_recorder(
         station.settings, stack, station.tasks.spawn, state,
         {name: cam.frames for name, cam in cams.items()},
         {name: getattr(cam, "fps", None) for name, cam in cams.items()},
         getattr(station, "link", None),
     )
+
+
+async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> None:
+    """Front and bottom cameras; after the twin, whose renderer the sim cameras use."""
+    from companion.cameras.rig import CAMERA_NAMES, build_camera, start_cameras, stop_cameras
+
+    cams = station.settings.cameras
+    for name in CAMERA_NAMES:
+        station.cameras[name] = build_camera(
+            name,
+            getattr(cams, name),
+            link_source=station.settings.link.source,
+            renderer=lambda: getattr(station, "twin", None),
+            stall_s=cams.stall_s,
+            retry_min_s=cams.retry_min_s,
+            retry_max_s=cams.retry_max_s,
+        )
+    start_cameras(station.cameras.values())
+    stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
