@@ -302,3 +302,35 @@ def test_tlog_with_other_messages_and_junk(flights, tmp_path):
     # CRC then rejects the fake): a few samples may go, the answer must not move.
     assert clean.samples * 0.95 <= dirty.samples <= clean.samples
     assert rel(dirty.lateral_deviation_m, clean.lateral_deviation_m) < 0.01
+
+
+def test_session_written_by_the_real_recorder(tmp_path):
+    """The recorder's own RowFormatter and SessionWriter (CRLF rows, booleans as 1/0,
+    t_mono on the session clock, camera columns) feed the analysis unchanged."""
+    from companion.recording.rows import RowFormatter, Sample
+    from companion.recording.writer import SessionWriter, WriterLimits
+    from companion.vehicle_state import GpsRaw, Heartbeat, PilotAltitude, VehicleState
+
+    flight = syn.hover_flight(radius_m=0.4, bob_m=0.1, dt=1 / 30, heading_deg=HEADING)
+    llh = flight.llh()
+    t0_mono = 5000.0
+    fmt = RowFormatter(("front", "bottom"), t0_mono)
+    writer = SessionWriter(tmp_path, fmt, WriterLimits(row_queue=10**6, min_free_bytes=0))
+    gps_tick = np.floor(flight.t_s * 10) / 10  # GPS at 10 Hz, held between updates
+    gi = np.searchsorted(flight.t_s, gps_tick - 1e-9)
+    for k, t in enumerate(flight.t_s):
+        i = gi[k]
+        state = VehicleState(
+            heartbeat=Heartbeat(t_mono=t0_mono + t, armed=bool(flight.armed[k]), mode="POSCTL"),
+            gps=GpsRaw(t_mono=t0_mono + flight.t_s[i], fix_type=3, satellites=12,
+                       lat_deg=llh[i, 0], lon_deg=llh[i, 1], alt_m=llh[i, 2]),
+            altitude=PilotAltitude(t_mono=t0_mono + t, relative_alt_m=flight.xyz_m[k, 2]),
+        )  # fmt: skip
+        assert writer.put_row(Sample(t0_mono + t, 1.7e9 + t, state, (None, None)))
+    writer.start()
+    writer.close()
+    assert (tmp_path / "telemetry.csv").read_bytes().count(b"\r\n") > 100
+    r = analyze_paths([tmp_path], "hover", scene=False).results[0]
+    assert rel(r.hover_distance_m, 0.4) < 0.01
+    assert rel(r.height_deviation_m, 0.1 / np.sqrt(2)) < 0.01
+    assert r.window_samples == 101
