@@ -334,3 +334,35 @@ def test_session_written_by_the_real_recorder(tmp_path):
     assert rel(r.hover_distance_m, 0.4) < 0.01
     assert rel(r.height_deviation_m, 0.1 / np.sqrt(2)) < 0.01
     assert r.window_samples == 101
+
+
+def test_gps_altitude_blip_on_the_pad_is_not_a_take_off(flights, tmp_path):
+    flight, folder, _ = flights["a-to-b"]
+    xyz = flight.xyz_m.copy()
+    on_pad = (flight.t_s >= 1.5) & (flight.t_s < 2.1)  # armed, 0.8 m "up" for 0.6 s
+    xyz[on_pad, 2] = 0.8
+    blip = syn.write_session(dataclasses.replace(flight, xyz_m=xyz), tmp_path / "blip")
+    clean = analyze_paths([folder], "a-to-b", reference(flight), scene=False).results[0]
+    noisy = analyze_paths([blip], "a-to-b", reference(flight), scene=False).results[0]
+    assert noisy.trial_time_s == pytest.approx(clean.trial_time_s)
+    assert noisy.takeoff_s == pytest.approx(clean.takeoff_s)
+
+
+def test_obstacle_task_uses_the_longitudinal_window(flights):
+    flight, folder, _ = flights["a-to-b"]
+    a = analyze_paths([folder], "a-to-b", reference(flight), scene=False).results[0]
+    o = analyze_paths([folder], "obstacle", reference(flight), scene=False).results[0]
+    assert o.task == "obstacle" and o.lateral_deviation_m == a.lateral_deviation_m
+
+
+def test_quoted_csv_cells_take_the_careful_path(flights, tmp_path):
+    """csv.writer quotes a cell holding a comma (a mode name, say): still read right."""
+    flight, folder, _ = flights["a-to-b"]
+    d = tmp_path / "quoted"
+    shutil.copytree(folder, d)
+    text = (d / "telemetry.csv").read_text().replace(",POSCTL,", ',"POS,CTL",')
+    (d / "telemetry.csv").write_text(text)
+    good = analyze_paths([folder], "a-to-b", reference(flight), scene=False).results[0]
+    quoted = analyze_paths([d], "a-to-b", reference(flight), scene=False).results[0]
+    same = {"source": "", "label": ""}
+    assert quoted.to_dict() | same == good.to_dict() | same
