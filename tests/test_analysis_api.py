@@ -118,3 +118,20 @@ def test_thresholds_are_parameters(server):
                   params={"task": "hover", "hover_height_m": 2.5, "hover_window_s": 5}, timeout=30)  # fmt: skip
     assert r.status_code == 200, r.text
     assert r.json()["results"][0]["time_in_window_s"] == pytest.approx(5.0, abs=0.11)
+
+
+def test_parallel_requests_all_answer_and_the_station_stays_up(server):
+    """Analyses queue behind one another in worker threads; health still answers."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    base, _, ref = server
+    urls = [f"{base}/api/sessions/{sid}/analysis/{plot}.png"
+            for sid in (PHYSICAL, TWIN) for plot in ("trajectory3d", "birdseye")]  # fmt: skip
+    with ThreadPoolExecutor(4) as pool:
+        pending = [pool.submit(httpx.get, u, params={"task": "a-to-b", "reference": ref},
+                               timeout=60) for u in urls]  # fmt: skip
+        health = httpx.get(f"{base}/api/health", timeout=10)
+        replies = [p.result() for p in pending]
+    assert health.status_code == 200
+    assert [r.status_code for r in replies] == [200] * 4
+    assert all(_png_size(r.content) == SIZE_PX for r in replies)
