@@ -76,7 +76,7 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
     except OSError as exc:
         raise TrackLoadError(f"'{path}' cannot be read: {exc}") from None
 
-    rows = np.array(gps if gps else glob, dtype=np.float64).reshape(-1, 6)
+    rows = _by_time(np.array(gps if gps else glob, dtype=np.float64).reshape(-1, 6))
     if rows.shape[0] == 0:
         raise NoGpsFixError(f"'{path}' holds no GPS_RAW_INT or GLOBAL_POSITION_INT message.")
     t, lat, lon, alt, fix, speed = rows.T
@@ -87,7 +87,7 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
         )
     t, lat, lon, alt, fix, speed = (a[ok] for a in (t, lat, lon, alt, fix, speed))
     t0 = t[0]
-    hud_a = np.array(hud, dtype=np.float64).reshape(-1, 3)
+    hud_a = _by_time(np.array(hud, dtype=np.float64).reshape(-1, 3))
     if np.isnan(speed).all() and hud_a.shape[0]:
         speed = _latest(hud_a[:, 0], hud_a[:, 1], t)
     return Track(
@@ -106,9 +106,16 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
     )
 
 
+def _by_time(a: np.ndarray) -> np.ndarray:
+    """Rows sorted by their receive time (column 0). A tlog stamps packets with the wall
+    clock, which can step back (NTP on a Pi without a real-time clock)."""
+    if a.shape[0] > 1 and np.any(np.diff(a[:, 0]) < 0):
+        return a[np.argsort(a[:, 0], kind="stable")]
+    return a
+
+
 def _cols(rows: list[tuple[float, float]], n: int) -> tuple[np.ndarray, ...]:
-    a = np.array(rows, dtype=np.float64).reshape(-1, n)
-    return tuple(a.T)
+    return tuple(_by_time(np.array(rows, dtype=np.float64).reshape(-1, n)).T)
 
 
 def _latest(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -124,6 +131,6 @@ def _latest(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _latest_bool(rows: list[tuple[float, bool]], t: np.ndarray) -> np.ndarray:
     if not rows:
         return np.zeros(t.size, bool)
-    a = np.array(rows, dtype=np.float64)
+    a = _by_time(np.array(rows, dtype=np.float64))
     v = _latest(a[:, 0], a[:, 1], t)
     return np.nan_to_num(v, nan=0.0) > 0.5
