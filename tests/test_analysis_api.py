@@ -135,3 +135,38 @@ def test_parallel_requests_all_answer_and_the_station_stays_up(server):
     assert health.status_code == 200
     assert [r.status_code for r in replies] == [200] * 4
     assert all(_png_size(r.content) == SIZE_PX for r in replies)
+
+
+def test_analysis_page_in_chromium(server):
+    """The page lists the sessions, shows the paper's table and the three figures, and
+    shows the API's error text for a task whose window never happens."""
+    from urllib.parse import urlencode
+
+    from playwright.sync_api import expect, sync_playwright
+
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+
+    base, _, ref = server
+    q = urlencode([("task", "a-to-b"), ("sessions", PHYSICAL), ("sessions", TWIN),
+                   ("reference", ref)])  # fmt: skip
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page()
+            page.goto(f"{base}/analysis.html?{q}")
+            rows = page.locator("#table tbody tr")
+            expect(rows).to_have_count(2, timeout=30_000)
+            expect(rows.nth(0)).to_contain_text("Physical quadcopter")
+            expect(rows.nth(1)).to_contain_text("Digital twin")
+            expect(rows.nth(1)).to_contain_text("0.707")
+            page.wait_for_function(
+                "[...document.querySelectorAll('#figures img')].length === 3 && "
+                "[...document.querySelectorAll('#figures img')].every(i => i.complete && "
+                f"i.naturalWidth === {SIZE_PX[0]})",
+                timeout=60_000,
+            )
+            page.select_option("#task", "hover")
+            page.click("button[type=submit]")
+            expect(page.locator("#error")).to_contain_text("NoTaskWindow", timeout=30_000)
+        finally:
+            browser.close()
