@@ -37,6 +37,8 @@ class Station:
     # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
     cameras: dict[str, Any] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
+    # The digital twin (twin.runner.Twin) when link.source is "sim", else None.
+    twin: Any = None
 
 
 @contextlib.asynccontextmanager
@@ -48,10 +50,11 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
         # -- vehicle link ----------------------------------------------------------
         source = settings.link.source.strip()
         if source == "sim":
-            # The twin section starts an embedded twin vehicle here, then points a
-            # MavlinkLink at it over a loopback socket and sets station.link/state,
-            # exactly as for a real vehicle below.
-            pass
+            # The embedded twin vehicle, reached by a MavlinkLink over a loopback socket,
+            # exactly as a real vehicle below (server/sim.py).
+            from server.sim import open_sim
+
+            open_sim(station, stack)
         elif source != "none":
             link = MavlinkLink(settings.link)
             link.start()
