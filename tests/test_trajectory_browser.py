@@ -96,8 +96,14 @@ def test_pilot_page_3d_panel_and_replay_page_draw_paths(station, tmp_path):
         path_px = saturated(with_path) & ~saturated(without_path)
         assert path_px.sum() > 300, f"only {path_px.sum()} path pixels in the 3D panel"
 
-        # Replay: picked with a second session overlaid in the paper's frame.
-        page.goto(f"{base}/replay.html?session={SESSION_A}&compare={SESSION_B}&align=1")
+        # Replay: picked from the sessions page, a second session overlaid in the paper's frame.
+        page.goto(f"{base}/sessions.html")
+        page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
+        page.wait_for_url(f"**/replay.html?session={SESSION_A}*")
+        page.wait_for_function(
+            "document.getElementById('replay-status').textContent.includes('fixes')",
+            timeout=10_000)
+        page.locator("#replay-compare").select_option(SESSION_B)  # also turns alignment on
         page.wait_for_function(
             "document.getElementById('replay-status').textContent.includes('overlay')",
             timeout=10_000)
