@@ -96,6 +96,21 @@ def test_pilot_page_3d_panel_and_replay_page_draw_paths(station, tmp_path):
         path_px = saturated(with_path) & ~saturated(without_path)
         assert path_px.sum() > 300, f"only {path_px.sum()} path pixels in the 3D panel"
 
+        # Follow: the viewer's camera is moved onto the vehicle as it flies.
+        frame.get_by_text("Follow vehicle").click()
+        service = app.state.station.trajectory3d
+        assert wait_until(lambda: service.controls.follow.value, 5.0)
+        for i in range(400, 420):
+            slot.publish(state_at(i * 0.1))
+            time.sleep(0.03)
+        vehicle = np.asarray(service.scene.vehicle.position)
+
+        def cameras_on_vehicle() -> bool:  # as the browser reports its camera back
+            cams = [np.asarray(c.camera.look_at) for c in service.server.get_clients().values()]
+            return bool(cams) and all(np.allclose(c, vehicle, atol=0.5) for c in cams)
+
+        assert wait_until(cameras_on_vehicle, 10.0)
+
         # Replay: picked from the sessions page, a second session overlaid in the paper's frame.
         page.goto(f"{base}/sessions.html")
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
@@ -116,6 +131,12 @@ def test_pilot_page_3d_panel_and_replay_page_draw_paths(station, tmp_path):
             timeout=10_000)
         front_src = page.locator("#replay-front").get_attribute("src")
         assert front_src.endswith("/files/front/00000150.jpg")  # frame of t = 30 s at 5 fps
+        page.locator("#replay-speed").select_option("8")
+        page.locator("#replay-play").click()
+        page.wait_for_timeout(1000)
+        page.locator("#replay-play").click()  # pause
+        t_played = float(page.locator("#replay-time").text_content().split("/")[0])
+        assert 33.0 < t_played < 42.0  # about 8 s of flight in 1 s at 8x
         png = page.locator("#replay-top").screenshot(path=str(tmp_path / "replay.png"))
         img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).astype(int)
         b, g, r = img[..., 0], img[..., 1], img[..., 2]
