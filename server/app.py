@@ -10,7 +10,17 @@ from fastapi.staticfiles import StaticFiles
 
 from server import __version__
 from server.errors import install_error_handlers
-from server.routes import health, recording, sessions, status, telemetry, trajectory, viser_panel
+from server.routes import (
+    analysis,
+    health,
+    recording,
+    sessions,
+    status,
+    telemetry,
+    trajectory,
+    video,
+    viser_panel,
+)
 from server.settings import Settings
 from server.station import open_station
 from web import WEB_DIR
@@ -36,6 +46,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(telemetry.router)
     app.include_router(recording.router)
     app.include_router(sessions.router)
+    app.include_router(analysis.router)
+    app.include_router(video.router)
     app.include_router(viser_panel.router)
     app.include_router(trajectory.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")

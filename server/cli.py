@@ -37,6 +37,7 @@ def add_serve_parser(sub: Any) -> None:
         help="also copy raw MAVLink to this connection (udpout:HOST:PORT), repeatable",
     )
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
+    add_camera_flags(p)
     add_viser_flags(p)
     p.set_defaults(func=run_serve)
 
@@ -59,6 +60,23 @@ def add_analyze_parser(sub: Any) -> None:
     )
     analysis_cli.add_arguments(p)
     p.set_defaults(func=analysis_cli.run)
+def add_camera_flags(p: Any) -> None:
+    specs = "v4l2:/dev/video0[?width=640&height=480&fps=30&fourcc=MJPG], v4l2:0, file:X.mp4, "
+    specs += "folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none"
+    p.add_argument("--front", dest="cameras.front.spec", help=f"front camera: {specs}")
+    p.add_argument("--bottom", dest="cameras.bottom.spec", help="bottom camera (same specs)")
+
+
+def add_cameras_parser(sub: Any) -> None:
+    p = sub.add_parser("cameras", help="list V4L2 video devices and their formats")
+    p.set_defaults(func=run_cameras)
+
+
+def run_cameras(args: argparse.Namespace) -> int:
+    from companion.cameras.devices import format_devices, list_devices
+
+    print(format_devices(list_devices()))
+    return 0
 
 
 def settings_from_args(args: argparse.Namespace) -> Settings:
@@ -75,7 +93,11 @@ def run_serve(args: argparse.Namespace) -> int:
     check_link_settings(settings)
     app = create_app(settings)
     print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
-    uvicorn.run(app, host=settings.server.host, port=settings.server.port, log_level="info")
+    # Our own listening socket: it caps unsent bytes per connection (see server/listen.py).
+    from server.listen import listening_socket
+
+    sock = listening_socket(settings.server.host, settings.server.port)
+    uvicorn.Server(uvicorn.Config(app, log_level="info")).run(sockets=[sock])
     return 0
 
 
@@ -107,6 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     add_serve_parser(sub)
     add_analyze_parser(sub)
+    add_cameras_parser(sub)
     return parser
 
 

@@ -13,7 +13,9 @@ import tomllib
 from pathlib import Path
 from typing import Any, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from companion.cameras.spec import parse_spec
 
 
 class _Section(BaseModel):
@@ -70,6 +72,30 @@ class RecordingSettings(_Section):
     flush_interval_s: float = Field(0.5, gt=0, le=1.0)  # at most 1 s: kill -9 keeps all but it
 
 
+class CameraConfig(_Section):
+    # A camera spec (see companion/cameras/spec.py): v4l2:/dev/video0, v4l2:0, file:X.mp4,
+    # folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none. None = sim:<name> when
+    # link.source is "sim", else none. Spec options (?width=..&fps=..) override the rest.
+    spec: str | None = None
+    width: int = Field(640, ge=16, le=8192)
+    height: int = Field(480, ge=16, le=8192)
+    fps: float = Field(30.0, gt=0, le=240)
+    jpeg_quality: int = Field(80, ge=1, le=100)
+
+    @field_validator("spec")
+    @classmethod
+    def _spec_is_usable(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_spec(value)  # CameraSpecError (a ValueError) says what is wrong
+        return value
+
+
+class CameraSettings(_Section):
+    front: CameraConfig = Field(default_factory=CameraConfig)
+    bottom: CameraConfig = Field(default_factory=CameraConfig)
+    stall_s: float = Field(2.0, gt=0)  # no frame for this long = NO SIGNAL (stalled)
+    retry_min_s: float = Field(0.5, gt=0)  # reopen back-off, doubling up to retry_max_s
+    retry_max_s: float = Field(5.0, gt=0)
 class ViserSettings(_Section):
     """The 3D trajectory panel (a viser server on its own port)."""
 
@@ -92,6 +118,7 @@ class Settings(_Section):
     server: ServerSettings = Field(default_factory=ServerSettings)
     link: LinkSettings = Field(default_factory=LinkSettings)
     recording: RecordingSettings = Field(default_factory=RecordingSettings)
+    cameras: CameraSettings = Field(default_factory=CameraSettings)
     viser: ViserSettings = Field(default_factory=ViserSettings)
 
 

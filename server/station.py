@@ -10,7 +10,7 @@ import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from companion.latest import Latest
 from companion.link import MavlinkLink
@@ -34,6 +34,8 @@ class Station:
     state: Latest[VehicleState] = field(default_factory=Latest)
     telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
     recorder: Recorder | None = None
+    # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
+    cameras: dict[str, Any] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
 
 
@@ -57,6 +59,9 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.link = link
             station.state = link.state
 
+        # -- cameras (after the twin, whose renderer the sim cameras use) ------------
+        await _open_cameras(station, stack)
+
         # -- recorder (after the link and cameras it records) -----------------------
         station.recorder = await _open_recorder(station, stack)
 
@@ -70,7 +75,7 @@ async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> 
     from server.recording import open_recorder
 
     state = station.state
-    cams = getattr(station, "cameras", None) or {}
+    cams = station.cameras
     return await open_recorder(
         station.settings, stack, station.tasks.spawn, state,
         {name: cam.frames for name, cam in cams.items()},
@@ -79,6 +84,23 @@ async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> 
     )
 
 
+async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> None:
+    """Front and bottom cameras; after the twin, whose renderer the sim cameras use."""
+    from companion.cameras.rig import CAMERA_NAMES, build_camera, start_cameras, stop_cameras
+
+    cams = station.settings.cameras
+    for name in CAMERA_NAMES:
+        station.cameras[name] = build_camera(
+            name,
+            getattr(cams, name),
+            link_source=station.settings.link.source,
+            renderer=lambda: getattr(station, "twin", None),
+            stall_s=cams.stall_s,
+            retry_min_s=cams.retry_min_s,
+            retry_max_s=cams.retry_max_s,
+        )
+    start_cameras(station.cameras.values())
+    stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
 async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
     from server.trajectory3d.field import default_field
     from server.trajectory3d.service import open_trajectory3d

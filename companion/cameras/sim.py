@@ -1,0 +1,53 @@
+"""The digital twin's rendered cameras as a camera source.
+
+Codes against a protocol, not the twin's module: any object with
+`render(camera: str) -> np.ndarray` (HxWx3 uint8 BGR) will do; `twin.runner.Twin` is one.
+The twin may start after the cameras or restart, so the source asks a getter for the
+renderer at every open.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError, as_bgr
+
+
+class Renderer(Protocol):
+    def render(self, camera: str) -> np.ndarray: ...
+
+
+class SimSource(FrameSource):
+    paced = True
+
+    def __init__(
+        self, config: SourceConfig, camera: str, renderer: Callable[[], Renderer | None]
+    ) -> None:
+        super().__init__(config)
+        self.camera = camera
+        self._get_renderer = renderer
+        self._renderer: Renderer | None = None
+
+    def describe(self) -> str:
+        return f"digital twin camera '{self.camera}'"
+
+    def open(self) -> None:
+        renderer = self._get_renderer()
+        if renderer is None:
+            raise SourceError("the digital twin is not running")
+        self._renderer = renderer
+
+    def read(self) -> Captured | None:
+        assert self._renderer is not None, "read() before open()"
+        try:
+            image = self._renderer.render(self.camera)
+        except Exception as exc:  # the twin's fault must not kill the capture thread
+            raise SourceError(f"twin camera '{self.camera}' failed: {exc}") from exc
+        image = as_bgr(image, f"twin camera '{self.camera}'")
+        return Captured(image=image, width=image.shape[1], height=image.shape[0])
+
+    def close(self) -> None:
+        self._renderer = None

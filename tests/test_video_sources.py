@@ -1,0 +1,236 @@
+"""Camera sources and the capture thread: rates, passthrough, NO SIGNAL, recovery."""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from companion.cameras.jpeg import jpeg_size
+from companion.cameras.rig import build_camera, effective_spec
+from companion.cameras.spec import CameraSpecError, parse_spec
+from server.settings import CameraConfig, SettingsError, load_settings
+from tests.helpers import wait_until
+from tests.video_fixtures import CountingRenderer, write_images
+
+
+def _decode(jpeg: bytes) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    assert image is not None, "frame is not a decodable JPEG"
+    return image
+
+
+def _rate(camera, seconds: float) -> tuple[float, list]:
+    """Frames per second published by `camera` over `seconds` (signal frames only)."""
+    seen = []
+    first = camera.frames.get()
+    start_version = first.version if first else 0
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        item = camera.frames.get()
+        if item and item.version > start_version and (not seen or seen[-1].seq != item.value.seq):
+            seen.append(item.value)
+        time.sleep(0.002)
+    good = [f for f in seen if f.signal]
+    # Frames made in the window over its length: robust to the jitter of single frames.
+    return (good[-1].seq - good[0].seq + 1) / seconds if good else 0.0, good
+
+
+def test_specs_parse_and_bad_specs_are_clear(tmp_path):
+    spec = parse_spec("v4l2:/dev/video0?width=640&height=480&fps=30&fourcc=MJPG")
+    assert (spec.kind, spec.device, spec.width, spec.fps, spec.fourcc) == (
+        "v4l2", "/dev/video0", 640, 30.0, "MJPG")
+    assert parse_spec("v4l2:1").device == 1
+    assert parse_spec("airsim:10.0.0.5:41452/front_center").airsim_address == (
+        "10.0.0.5", 41452, "front_center")
+    assert parse_spec("airsim:bottom_center").airsim_address == ("127.0.0.1", 41451, "bottom_center")
+    assert parse_spec("none").kind == "none"
+    for bad, words in [
+        ("webcam", "no known source kind"),
+        ("v4l2:/dev/video0?fps=abc", "fps='abc' is not a number"),
+        ("v4l2:/dev/video0?colour=1", "unknown option(s) colour"),
+        ("v4l2:camera", "device path"),
+        ("file:/no/such/file.mp4", "does not exist"),
+        (f"folder:{tmp_path}", "holds no images"),
+        ("airsim:host:99999/front", "not a TCP port"),
+        ("sim:", "name the twin camera"),
+        ("folder:/tmp?width=5", "outside 16..8192"),
+    ]:
+        with pytest.raises(CameraSpecError, match=words.replace("(", r"\(").replace(")", r"\)")):
+            parse_spec(bad)
+    # ... and at start, through the settings: one clear line naming the setting.
+    with pytest.raises(SettingsError, match=r"cameras\.front\.spec.*webcam"):
+        load_settings(environ={}, overrides={"cameras.front.spec": "webcam"})
+
+
+def test_default_specs_follow_the_link_source():
+    s = load_settings(environ={}, overrides={"link.source": "sim"})
+    assert effective_spec("front", s.cameras.front.spec, s.link.source) == "sim:front"
+    assert effective_spec("bottom", s.cameras.bottom.spec, "udpin:0.0.0.0:14550") == "none"
+    s = load_settings(environ={"FPV_CAMERAS__BOTTOM__SPEC": "v4l2:2"}, overrides={})
+    assert effective_spec("bottom", s.cameras.bottom.spec, "sim") == "v4l2:2"
+
+
+def test_folder_source_loops_at_configured_rate_and_encodes_once(tmp_path):
+    folder = write_images(tmp_path / "png", 4, (320, 240))  # PNG at the wrong size: scaled
+    camera = build_camera("front", CameraConfig(spec=f"folder:{folder}", fps=20, width=160, height=120))
+    camera.start()
+    try:
+        fps, frames = _rate(camera, 1.5)
+    finally:
+        camera.stop()
+    assert 17.0 <= fps <= 21.0, fps  # 20 configured
+    assert [b - a for a, b in zip([f.seq for f in frames], [f.seq for f in frames[1:]])] == [1] * (len(frames) - 1)
+    assert _decode(frames[-1].jpeg).shape == (120, 160, 3)
+    assert frames[-1].t_wall == pytest.approx(time.time(), abs=2.0)
+    stats = camera.stats()
+    assert stats.encodes == stats.frames and stats.passthrough_frames == 0
+    assert stats.description.startswith("image folder")
+
+
+def test_folder_of_jpegs_at_camera_size_is_passed_through(tmp_path):
+    folder = write_images(tmp_path / "jpg", 3, (160, 120), suffix=".jpg")
+    originals = {p.read_bytes() for p in folder.iterdir()}
+    camera = build_camera("bottom", CameraConfig(spec=f"folder:{folder}", fps=30, width=160, height=120))
+    camera.start()
+    try:
+        assert wait_until(lambda: camera.stats().frames >= 5, 3.0)
+        frame = camera.frames.get().value
+    finally:
+        camera.stop()
+    assert frame.jpeg in originals  # the very bytes of the file: no decode, no re-encode
+    assert camera.stats().encodes == 0 and jpeg_size(frame.jpeg) == (160, 120)
+
+
+def test_video_file_source_loops(tmp_path):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), 30, (160, 120))
+    assert writer.isOpened()
+    for i in range(5):
+        writer.write(np.full((120, 160, 3), i * 40, np.uint8))
+    writer.release()
+    camera = build_camera("front", CameraConfig(spec=f"file:{path}", fps=25, width=160, height=120))
+    camera.start()
+    try:
+        fps, frames = _rate(camera, 1.2)  # 5 frames of file, so it must have looped
+    finally:
+        camera.stop()
+    assert len(frames) >= 20 and 21.0 <= fps <= 26.5, (len(frames), fps)  # 25 configured
+    assert camera.stats().opens == 1 and camera.stats().signal
+
+
+def test_sim_source_at_configured_rate_and_recovers_from_a_failing_twin():
+    renderer = CountingRenderer(320, 240)
+    camera = build_camera(
+        "bottom", CameraConfig(fps=30), link_source="sim", renderer=lambda: renderer,
+        retry_min_s=0.1, retry_max_s=0.2,
+    )
+    camera.start()
+    try:
+        fps, frames = _rate(camera, 1.5)
+        assert 26.0 <= fps <= 31.5, fps  # 30 configured
+        assert renderer.calls["bottom"] >= len(frames) and "front" not in renderer.calls
+        assert _decode(frames[-1].jpeg).shape == (480, 640, 3)  # scaled to the configured size
+        renderer.fail.set()
+        assert wait_until(lambda: not camera.frames.get().value.signal, 2.0)
+        reason = camera.stats().reason
+        assert "renderer is down" in reason and "retry" in reason
+        renderer.fail.clear()
+        assert wait_until(lambda: camera.frames.get().value.signal, 3.0)  # by itself
+    finally:
+        camera.stop()
+    assert camera.stats().opens >= 2
+
+
+def test_sim_without_twin_shows_no_signal():
+    camera = build_camera("front", CameraConfig(), link_source="sim", retry_min_s=0.1)
+    camera.start()
+    try:
+        assert wait_until(lambda: camera.frames.get() is not None, 2.0)
+        frame = camera.frames.get().value
+    finally:
+        camera.stop()
+    assert not frame.signal and frame.camera == "front"
+    assert "twin is not running" in camera.stats().reason
+    assert _decode(frame.jpeg).shape == (480, 640, 3)
+
+
+def test_v4l2_device_that_does_not_exist_gives_no_signal_and_retries():
+    camera = build_camera(
+        "bottom", CameraConfig(spec="v4l2:/dev/video-nonexistent-42?fourcc=MJPG", width=320, height=240),
+        retry_min_s=0.1, retry_max_s=0.2,
+    )
+    other = build_camera("front", CameraConfig(spec="none"))
+    camera.start()
+    other.start()
+    try:
+        assert wait_until(lambda: camera.frames.get() is not None, 2.0)
+        first = camera.frames.get()
+        # Retried: newer NO SIGNAL frames keep coming, each saying what is wrong.
+        assert wait_until(lambda: camera.frames.version >= first.version + 3, 3.0)
+        frame = camera.frames.get().value
+        stats = camera.stats()
+    finally:
+        camera.stop()
+        other.stop()
+    assert not frame.signal and frame.camera == "bottom" and frame.seq > first.value.seq
+    assert "/dev/video-nonexistent-42 does not exist" in stats.reason
+    assert stats.opens == 0 and stats.delivered_fps == 0.0
+    assert _decode(frame.jpeg).shape == (240, 320, 3)
+    assert "no camera configured" in other.stats().reason
+
+
+def test_a_stalled_source_shows_no_signal_then_recovers():
+    class StallingRenderer(CountingRenderer):
+        def __init__(self):
+            super().__init__(160, 120)
+            self.stall_s = 0.0
+
+        def render(self, camera):
+            if self.stall_s:
+                time.sleep(self.stall_s)
+                self.stall_s = 0.0
+            return super().render(camera)
+
+    renderer = StallingRenderer()
+    camera = build_camera("front", CameraConfig(fps=30, width=160, height=120), link_source="sim",
+                          renderer=lambda: renderer, stall_s=0.4)
+    camera.start()
+    try:
+        assert wait_until(lambda: camera.stats().frames >= 3, 2.0)
+        renderer.stall_s = 1.2
+        assert wait_until(lambda: not camera.frames.get().value.signal, 2.0)
+        assert camera.stats().reason.startswith("stalled")
+        assert wait_until(lambda: camera.frames.get().value.signal, 3.0)
+    finally:
+        camera.stop()
+
+
+def test_device_listing_reads_sysfs_and_says_when_there_are_none(tmp_path):
+    from companion.cameras.devices import format_devices, list_devices
+
+    assert "No V4L2 video devices found" in format_devices(list_devices(tmp_path / "absent"))
+    sysfs = tmp_path / "video4linux"
+    for name, label in (("video10", "Grabber B"), ("video2", "USB2.0 PC CAMERA")):
+        (sysfs / name).mkdir(parents=True)
+        (sysfs / name / "name").write_text(label + "\n")
+    devices = list_devices(sysfs, dev=tmp_path / "dev")
+    assert [d.path for d in devices] == [str(tmp_path / "dev/video2"), str(tmp_path / "dev/video10")]
+    assert devices[0].name == "USB2.0 PC CAMERA" and "missing in /dev" in devices[0].note
+    # A /dev node that is no V4L2 device (a plain file): the query fails with a clear note.
+    (tmp_path / "dev").mkdir()
+    (tmp_path / "dev/video2").write_bytes(b"")
+    device = list_devices(sysfs, dev=tmp_path / "dev")[0]
+    assert "V4L2 query failed" in device.note and "OpenCV says" in device.note
+
+
+def test_cameras_command_runs_here():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "server", "cameras"], capture_output=True,
+                         text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert "/dev/video" in out.stdout or "No V4L2 video devices found" in out.stdout
