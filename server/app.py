@@ -10,8 +10,18 @@ from fastapi.staticfiles import StaticFiles
 
 from server import __version__
 from server.errors import install_error_handlers
-from server.routes import (analysis, control, health, recording, sessions, status, telemetry,
-                           video)
+from server.routes import (
+    analysis,
+    control,
+    health,
+    recording,
+    sessions,
+    status,
+    telemetry,
+    trajectory,
+    video,
+    viser_panel,
+)
 from server.settings import Settings
 from server.station import open_station
 from web import WEB_DIR
@@ -40,5 +50,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(analysis.router)
     app.include_router(video.router)
     app.include_router(control.router)
+    app.include_router(viser_panel.router)
+    app.include_router(trajectory.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

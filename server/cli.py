@@ -38,6 +38,7 @@ def add_serve_parser(sub: Any) -> None:
     )
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
     add_camera_flags(p)
+    add_viser_flags(p)
     p.set_defaults(func=run_serve)
 
 
@@ -84,6 +85,13 @@ def run_sim(args: argparse.Namespace) -> int:
     finally:
         twin.stop()
     return 0
+
+
+def add_viser_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--viser-port", dest="viser.port", type=int,
+                   help="port of the 3D trajectory panel (viser; default 8080)")
+    p.add_argument("--no-3d", dest="viser.enabled", action="store_const", const=False,
+                   help="do not start the 3D trajectory panel")
 
 
 def add_analyze_parser(sub: Any) -> None:

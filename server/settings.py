@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import tomllib
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -96,6 +96,22 @@ class CameraSettings(_Section):
     stall_s: float = Field(2.0, gt=0)  # no frame for this long = NO SIGNAL (stalled)
     retry_min_s: float = Field(0.5, gt=0)  # reopen back-off, doubling up to retry_max_s
     retry_max_s: float = Field(5.0, gt=0)
+class ViserSettings(_Section):
+    """The 3D trajectory panel (a viser server on its own port)."""
+
+    enabled: bool = True
+    host: str | None = None  # None = the same address as the web server
+    port: int = Field(8080, ge=0, le=65535)  # 0 = any free port (tests)
+    update_hz: float = Field(15.0, ge=1.0, le=60.0)  # scene refresh cap
+    chunk_segments: int = Field(50, ge=2, le=1000)  # trail segments per scene handle
+    gap_s: float = Field(1.0, gt=0)  # a fix older than this breaks the trail
+    max_points: int = Field(200_000, ge=100)  # oldest chunks are dropped beyond this
+    color_by: Literal["height", "speed"] = "height"
+    height_range_m: tuple[float, float] = (0.0, 10.0)
+    speed_range_mps: tuple[float, float] = (0.0, 5.0)
+    bottom_hfov_deg: float = Field(90.0, gt=1, lt=179)  # bottom camera's footprint
+    bottom_vfov_deg: float = Field(70.0, gt=1, lt=179)
+    field_file: Path | None = None  # a twin scene TOML; None = the twin's default field
 
 
 class TwinSettings(_Section):
@@ -121,6 +137,7 @@ class Settings(_Section):
     recording: RecordingSettings = Field(default_factory=RecordingSettings)
     cameras: CameraSettings = Field(default_factory=CameraSettings)
     twin: TwinSettings = Field(default_factory=TwinSettings)
+    viser: ViserSettings = Field(default_factory=ViserSettings)
 
 
 class SettingsError(ValueError):

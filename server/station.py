@@ -10,7 +10,7 @@ import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from companion.latest import Latest
 from companion.link import MavlinkLink
@@ -19,6 +19,9 @@ from companion.vehicle_state import VehicleState
 from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
+
+if TYPE_CHECKING:
+    from server.trajectory3d.service import Trajectory3D
 
 
 @dataclass
@@ -35,6 +38,7 @@ class Station:
     cameras: dict[str, Any] = field(default_factory=dict)
     # The digital twin (twin.runner.Twin) when link.source is "sim", else None.
     twin: Any = None
+    trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
 
 
 @contextlib.asynccontextmanager
@@ -63,6 +67,10 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
         # -- recorder (after the link and cameras it records) -----------------------
         station.recorder = await _open_recorder(station, stack)
+
+        # -- 3D trajectory panel (after the link whose state it draws) ----------------
+        if settings.viser.enabled:
+            await _start_trajectory3d(station, stack)
         yield station
 
 
@@ -96,3 +104,14 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
         )
     start_cameras(station.cameras.values())
     stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
+async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
+    from server.trajectory3d.field import default_field
+    from server.trajectory3d.service import open_trajectory3d
+
+    s = station.settings
+    field = default_field() if s.link.source == "sim" else None
+    service = await open_trajectory3d(s.viser, station.state, s.server.host, field)
+    station.trajectory3d = service
+    # viser's stop joins its thread: keep that wait off the event loop.
+    stack.push_async_callback(asyncio.to_thread, service.stop)
+    station.tasks.spawn("trajectory3d", service.run())

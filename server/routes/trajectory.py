@@ -1,0 +1,98 @@
+"""A recorded session's trajectory for the replay view: ENU arrays with times and frames.
+
+Sessions are resolved only through the recorder's `SessionStore` (which refuses
+traversal and bad ids) and loaded through `analysis.track`, so the replay draws exactly
+what the analysis measures.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+from fastapi import APIRouter, Query, Request
+
+from analysis.errors import NoGpsFixError, TrackLoadError
+from analysis.track import load_session_dir
+from companion.recording import layout
+from companion.recording.store import (
+    InvalidPath,
+    InvalidSessionId,
+    SessionFileNotFound,
+    SessionNotFound,
+    SessionStore,
+)
+from server.errors import BadRequest, NotFound
+from server.trajectory3d.replay import (
+    Align,
+    CameraFrames,
+    TrajectoryReply,
+    build_trajectory,
+    parse_frames_csv,
+)
+
+router = APIRouter(tags=["trajectory"])
+
+
+def _parse_reference(text: str | None) -> tuple[float, float] | None:
+    if text is None or not text.strip():
+        return None
+    try:
+        lat_s, lon_s = text.split(",")
+        lat, lon = float(lat_s), float(lon_s)
+    except ValueError:
+        raise BadRequest(f"reference '{text[:60]}' is not LAT,LON in degrees.") from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise BadRequest(f"reference '{text[:60]}' is outside -90..90, -180..180.")
+    return lat, lon
+
+
+def load_trajectory(
+    store: SessionStore, session_id: str, align: Align, reference: tuple[float, float] | None,
+    gap_s: float,
+) -> TrajectoryReply:
+    """Blocking: reads the session's files (run it in a thread)."""
+    try:
+        folder: Path = store.resolve(session_id)
+    except InvalidSessionId as exc:
+        raise BadRequest(str(exc)) from None
+    except SessionNotFound as exc:
+        raise NotFound(str(exc)) from None
+    try:
+        track = load_session_dir(folder)
+    except (TrackLoadError, NoGpsFixError) as exc:
+        raise BadRequest(f"Session '{session_id}' has no trajectory to draw: {exc}") from None
+    cameras: list[CameraFrames] = []
+    for camera in layout.CAMERAS:
+        try:
+            frames_csv = store.file(session_id, layout.frames_csv_relpath(camera))
+        except (SessionFileNotFound, InvalidPath):
+            continue  # a session without this camera
+        cameras.append(parse_frames_csv(camera, frames_csv.read_bytes()))
+    try:
+        return build_trajectory(
+            session_id, track.t_s, track.lat_deg, track.lon_deg, track.alt_m,
+            armed=track.armed, speed_mps=track.ground_speed_mps, cameras=cameras,
+            gap_s=gap_s, align=align, reference_latlon=reference,
+        )
+    except ValueError as exc:
+        raise BadRequest(f"Session '{session_id}': {exc}") from None
+
+
+@router.get(
+    "/api/sessions/{session_id}/trajectory",
+    response_model=TrajectoryReply,
+    summary="A session's path in ENU metres with times and the frame of each instant",
+)
+async def get_trajectory(
+    request: Request,
+    session_id: str,
+    align: Align = Query("none", description="'end': rotate so that start-to-last-point is +x"),
+    reference: str | None = Query(None, description="LAT,LON put on +x (the paper's alignment)"),
+) -> TrajectoryReply:
+    settings = request.app.state.settings
+    store = SessionStore(settings.recording.sessions_dir)
+    ref = _parse_reference(reference)
+    return await asyncio.to_thread(
+        load_trajectory, store, session_id, align, ref, settings.viser.gap_s
+    )

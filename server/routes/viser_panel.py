@@ -1,0 +1,28 @@
+"""Where the browser finds the 3D panel: the viser server's port (it serves its own client)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+from pydantic import BaseModel
+
+router = APIRouter(tags=["trajectory"])
+
+
+class ViserPanel(BaseModel):
+    enabled: bool
+    port: int | None  # the port actually bound (viser moves on when the asked one is taken)
+    points: int  # trail points drawn so far
+    chunks: int  # trail chunks (scene handles) drawn so far
+
+
+@router.get("/api/viser", response_model=ViserPanel, summary="The 3D trajectory panel")
+async def get_viser_panel(request: Request) -> ViserPanel:
+    service = request.app.state.station.trajectory3d
+    if service is None or service.server is None:
+        return ViserPanel(enabled=False, port=None, points=0, chunks=0)
+    return ViserPanel(
+        enabled=True,
+        port=service.port,
+        points=service.trail.n_points,
+        chunks=len(service.scene.chunk_handles) if service.scene else 0,
+    )

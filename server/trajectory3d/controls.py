@@ -1,0 +1,69 @@
+"""The GUI in the viser panel: follow the vehicle or fly a free camera, clear the trail,
+pick the colour-coding, show or hide the field.
+
+viser runs GUI callbacks on its own worker threads. They never touch the scene's trail
+state; they record a request that the update loop applies on its next tick (at most one
+update period later), so the scene has one writer.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import viser
+
+from server.trajectory3d.colors import COLOR_BY_CHOICES, ColorBy
+
+
+@dataclass(slots=True)
+class Requests:
+    """What the GUI asked for since the last tick."""
+
+    clear: bool = False
+    color_by: ColorBy | None = None
+    field_visible: bool | None = None
+
+    @property
+    def any(self) -> bool:
+        return self.clear or self.color_by is not None or self.field_visible is not None
+
+
+class Controls:
+    def __init__(self, server: viser.ViserServer, color_by: ColorBy, follow: bool = False) -> None:
+        self._lock = threading.Lock()
+        self._requests = Requests()
+        gui = server.gui
+        with gui.add_folder("Trajectory"):
+            self.follow = gui.add_checkbox("Follow vehicle", initial_value=follow,
+                                           hint="Keep the camera on the vehicle; off = free camera")
+            self.color_by = gui.add_dropdown("Colour by", options=COLOR_BY_CHOICES,
+                                             initial_value=color_by)
+            self.show_field = gui.add_checkbox("Show field", initial_value=True)
+            self.clear = gui.add_button("Clear trail")
+            self.status = gui.add_markdown("waiting for a position fix")
+
+        @self.clear.on_click
+        def _(_: viser.GuiEvent) -> None:
+            with self._lock:
+                self._requests.clear = True
+
+        @self.color_by.on_update
+        def _(_: viser.GuiEvent) -> None:
+            with self._lock:
+                self._requests.color_by = self.color_by.value  # type: ignore[assignment]
+
+        @self.show_field.on_update
+        def _(_: viser.GuiEvent) -> None:
+            with self._lock:
+                self._requests.field_visible = bool(self.show_field.value)
+
+    def take_requests(self) -> Requests:
+        """The pending requests, reset to none."""
+        with self._lock:
+            out, self._requests = self._requests, Requests()
+        return out
+
+    def set_status(self, text: str) -> None:
+        if self.status.content != text:  # skip the message when nothing changed
+            self.status.content = text

@@ -1,0 +1,139 @@
+"""A recorded flight as the replay view draws it: ENU arrays with times, gaps, and the
+front and bottom frame of each instant.
+
+Pure numpy over the columns of an `analysis.track.Track` and the cameras' `frames.csv`;
+the route does the file access. Origin: the arming point (the first armed sample), else
+the first fix. Optional alignment as in the paper: rotated about the vertical so that the
+line from the origin to a reference point (by default the last point) lies along +x.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel
+
+from analysis.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
+
+Align = Literal["none", "end"]
+
+
+class GeoPoint(BaseModel):
+    lat_deg: float
+    lon_deg: float
+    alt_m: float | None = None
+
+
+class TrajectoryReply(BaseModel):
+    """ENU metres about `origin` (x east, y north, z up), or the paper's aligned frame."""
+
+    id: str
+    origin: GeoPoint
+    reference: GeoPoint | None  # the point put on +x when aligned
+    align_rad: float  # rotation applied about the vertical (0 when not aligned)
+    t_s: list[float]  # session clock
+    x_m: list[float]
+    y_m: list[float]
+    z_m: list[float]
+    speed_mps: list[float | None]
+    starts_run: list[bool]  # True where a gap (no fix, or silence > gap_s) ends
+    frames: dict[str, list[str | None]]  # camera -> file (relative to the session) per time
+
+
+@dataclass(frozen=True, slots=True)
+class CameraFrames:
+    """One camera's frames.csv: capture time on the session clock and relative path."""
+
+    camera: str
+    t_s: NDArray[np.float64]
+    relpath: list[str]
+
+
+def parse_frames_csv(camera: str, raw: bytes) -> CameraFrames:
+    """Read `<camera>/frames.csv` (columns seq, file, t_s, ...); bad rows are skipped."""
+    times: list[float] = []
+    paths: list[str] = []
+    reader = csv.DictReader(io.StringIO(raw.decode("utf-8", "replace")))
+    for row in reader:
+        try:
+            t = float(row["t_s"])
+            name = row["file"].strip()
+        except (KeyError, TypeError, ValueError, AttributeError):
+            continue
+        if not name or not math.isfinite(t):
+            continue
+        # The CSV may name the file alone or with its folder.
+        paths.append(name if "/" in name else f"{camera}/{name}")
+        times.append(t)
+    order = np.argsort(np.asarray(times), kind="stable")
+    return CameraFrames(camera, np.asarray(times, float)[order], [paths[i] for i in order])
+
+
+def frames_at(times_s: NDArray[np.float64], frames: CameraFrames) -> list[str | None]:
+    """The newest frame captured at or before each time (None before the first frame)."""
+    if frames.t_s.size == 0:
+        return [None] * len(times_s)
+    idx = np.searchsorted(frames.t_s, np.asarray(times_s, float), side="right") - 1
+    return [frames.relpath[i] if i >= 0 else None for i in idx]
+
+
+def build_trajectory(
+    session_id: str,
+    t_s: NDArray[np.float64],
+    lat_deg: NDArray[np.float64],
+    lon_deg: NDArray[np.float64],
+    alt_m: NDArray[np.float64],
+    armed: NDArray[np.bool_] | None = None,
+    speed_mps: NDArray[np.float64] | None = None,
+    cameras: list[CameraFrames] | None = None,
+    gap_s: float = 1.0,
+    align: Align = "none",
+    reference_latlon: tuple[float, float] | None = None,
+) -> TrajectoryReply:
+    """The reply for one session's fixes (rows without a fix already dropped)."""
+    t = np.asarray(t_s, float)
+    lat, lon, alt = (np.asarray(a, float) for a in (lat_deg, lon_deg, alt_m))
+    if t.size == 0:
+        raise ValueError("The session has no GPS fix to draw.")
+    armed_idx = np.nonzero(np.asarray(armed, bool))[0] if armed is not None else []
+    i0 = int(armed_idx[0]) if len(armed_idx) else 0
+    origin = (float(lat[i0]), float(lon[i0]), float(alt[i0]))
+    enu = geodetic_to_enu(lat, lon, alt, *origin)
+    reference: GeoPoint | None = None
+    angle = 0.0
+    if reference_latlon is not None or align == "end":
+        ref_lat, ref_lon = reference_latlon or (float(lat[-1]), float(lon[-1]))
+        reference = GeoPoint(lat_deg=ref_lat, lon_deg=ref_lon)
+        ref_enu = geodetic_to_enu(ref_lat, ref_lon, origin[2], *origin)
+        try:
+            angle = heading_alignment_rad((0.0, 0.0), ref_enu)
+        except ValueError:
+            angle = 0.0  # the reference is the origin (a pure hover): nothing to align
+        enu = rotate_about_up(enu, angle)
+    starts = np.ones(t.size, bool)
+    starts[1:] = (np.diff(t) > gap_s) | (np.diff(t) < 0)
+    speed = np.full(t.size, np.nan) if speed_mps is None else np.asarray(speed_mps, float)
+    return TrajectoryReply(
+        id=session_id,
+        origin=GeoPoint(lat_deg=origin[0], lon_deg=origin[1], alt_m=origin[2]),
+        reference=reference,
+        align_rad=angle,
+        t_s=_rounded(t, 3),
+        x_m=_rounded(enu[:, 0], 3),
+        y_m=_rounded(enu[:, 1], 3),
+        z_m=_rounded(enu[:, 2], 3),
+        speed_mps=[None if not math.isfinite(v) else round(v, 3) for v in speed.tolist()],
+        starts_run=starts.tolist(),
+        frames={c.camera: frames_at(t, c) for c in (cameras or [])},
+    )
+
+
+def _rounded(a: NDArray[np.float64], digits: int) -> list[float]:
+    """Millimetres are plenty for GPS tracks and keep the JSON small."""
+    return np.round(a, digits).tolist()

@@ -1,0 +1,231 @@
+"""The 3D panel's service: a viser server on its own port, fed from the vehicle state.
+
+`run()` awaits newer states from the station's `Latest[VehicleState]` and applies at most
+`update_hz` of them per second (the newest wins; a 50 Hz GLOBAL_POSITION_INT stream costs
+no more than a 10 Hz one). `step()` is the whole per-update work and is synchronous, so
+tests drive it directly with a sequence of states.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+
+import numpy as np
+import viser
+
+from analysis.geodesy import geodetic_to_enu
+from companion.latest import Latest
+from companion.vehicle_state import VehicleState
+from server.settings import ViserSettings
+from server.trajectory3d.controls import Controls
+from server.trajectory3d.field import FieldScene
+from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
+from server.trajectory3d.scene import LiveScene
+from server.trajectory3d.trail import Origin, Trail, TrailSample
+
+log = logging.getLogger(__name__)
+
+MIN_FIX_TYPE = 3  # a 2D fix has no usable altitude: drawn as a gap
+
+
+def sample_from_state(state: VehicleState) -> TrailSample | None:
+    """The position to draw: the autopilot's fused GLOBAL_POSITION_INT, else the raw GPS.
+    None when there is no 3D fix (the trail then shows a gap)."""
+    gps, gp = state.gps, state.global_position
+    if gps.t_mono is not None and gps.fix_type < MIN_FIX_TYPE:
+        return None
+    if gp.t_mono is not None and None not in (gp.lat_deg, gp.lon_deg, gp.alt_m):
+        speed = (
+            math.hypot(gp.vx_mps, gp.vy_mps)
+            if gp.vx_mps is not None and gp.vy_mps is not None
+            else math.nan
+        )
+        return TrailSample(gp.t_mono, gp.lat_deg, gp.lon_deg, gp.alt_m, speed)  # type: ignore[arg-type]
+    if gps.t_mono is not None and None not in (gps.lat_deg, gps.lon_deg, gps.alt_m):
+        speed = gps.ground_speed_mps if gps.ground_speed_mps is not None else math.nan
+        return TrailSample(gps.t_mono, gps.lat_deg, gps.lon_deg, gps.alt_m, speed)  # type: ignore[arg-type]
+    return None
+
+
+def origin_from_state(state: VehicleState) -> Origin | None:
+    """The arming point (or the first fix before any arming), as the link measured it."""
+    a = state.altitude
+    if a.reference == "none" or None in (a.home_lat_deg, a.home_lon_deg, a.reference_alt_m):
+        return None
+    return (a.home_lat_deg, a.home_lon_deg, a.reference_alt_m)  # type: ignore[return-value]
+
+
+class Trajectory3D:
+    """Owns the viser server, the live scene and the trail."""
+
+    def __init__(
+        self,
+        settings: ViserSettings,
+        state: Latest[VehicleState],
+        host: str = "0.0.0.0",
+        field: FieldScene | None = None,
+    ) -> None:
+        self.settings = settings
+        self.state = state
+        self.host = settings.host or host
+        self.field = field
+        self.trail = Trail(settings.chunk_segments, settings.gap_s, settings.max_points)
+        self.server: viser.ViserServer | None = None
+        self.scene: LiveScene | None = None
+        self.controls: Controls | None = None
+        self.steps = 0
+        self._last_sample_t: float | None = None
+        self._status_due = 0.0
+        self._ground_for: Origin | None = None
+        self._ground_up = 0.0
+
+    # -- lifecycle ----------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the viser server (its own thread and event loop). Blocks briefly."""
+        s = self.settings
+        self.server = viser.ViserServer(host=self.host, port=s.port, label="fpv-station 3D",
+                                        verbose=False)
+        self.server.scene.set_up_direction("+z")
+        self.server.initial_camera.position = (-25.0, -30.0, 20.0)
+        self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
+        self.scene = LiveScene(
+            self.server, height_range_m=s.height_range_m, speed_range_mps=s.speed_range_mps,
+            color_by=s.color_by, field=self.field,
+        )
+        self.controls = Controls(self.server, s.color_by)
+        if self.field is not None:
+            # Before any fix, show the field about its own anchor.
+            self.scene.set_origin((self.field.anchor_lat_deg, self.field.anchor_lon_deg,
+                                   self.field.anchor_alt_m))
+        log.info("3D panel (viser) on port %d", self.port)
+
+    @property
+    def port(self) -> int:
+        if self.server is None:
+            raise RuntimeError("The 3D panel is not started.")
+        return self.server.get_port()
+
+    def stop(self) -> None:
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    async def run(self) -> None:
+        """Apply the newest state at most `update_hz` times a second until the slot closes."""
+        period_s = 1.0 / self.settings.update_hz
+        version = 0
+        next_step = time.monotonic()
+        while not self.state.closed:
+            delay = next_step - time.monotonic()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            current = await self.state.wait_newer(version, timeout=0.25)
+            if current is not None and current.version > version:
+                version = current.version
+                self.step(current.value)
+                next_step = time.monotonic() + period_s
+            else:
+                self.apply_requests()  # GUI actions while no telemetry flows
+
+    # -- one update ----------------------------------------------------------------
+
+    def apply_requests(self) -> None:
+        assert self.scene is not None and self.controls is not None
+        req = self.controls.take_requests()
+        if req.field_visible is not None:
+            self.scene.set_field_visible(req.field_visible)
+        if req.clear:
+            self.scene.drop_chunks(self.trail.clear())
+        if req.color_by is not None and req.color_by != self.scene.color_by:
+            self.scene.color_by = req.color_by
+            self.scene.redraw_trail(self.trail)
+
+    def step(self, state: VehicleState) -> None:
+        """Bring the scene up to `state`: origin, trail, vehicle, footprint, camera."""
+        assert self.server is not None
+        self.steps += 1
+        # One atomic batch per update: viewers apply it as a whole, and viser wakes its
+        # sender once per step instead of once per message.
+        with self.server.atomic():
+            self._step(state)
+
+    def _step(self, state: VehicleState) -> None:
+        assert self.scene is not None and self.controls is not None
+        self.apply_requests()
+        origin = origin_from_state(state)
+        if origin is not None and self.trail.set_origin(origin):
+            self.scene.set_origin(origin)
+            self.scene.redraw_trail(self.trail)
+        sample = sample_from_state(state)
+        if sample is None:
+            self.trail.mark_gap()
+            self.scene.set_footprint(None)
+            self._status(state, "no position fix: the trail pauses")
+            return
+        if self._last_sample_t is None or sample.t_s > self._last_sample_t:
+            self._last_sample_t = sample.t_s
+            new_origin = self.trail.origin is None
+            chunk, dropped = self.trail.append(sample)
+            if new_origin:
+                self.scene.set_origin(self.trail.origin)  # type: ignore[arg-type]
+            self.scene.drop_chunks(dropped)
+            self.scene.sync_chunk(chunk)
+        assert self.trail.origin is not None
+        pos = self.trail.last_enu_m
+        if pos is None:  # the trail was just cleared and this fix is not new
+            pos = geodetic_to_enu(sample.lat_deg, sample.lon_deg, sample.alt_m, *self.trail.origin)
+        R = self._attitude(state)
+        self.scene.set_vehicle_pose(pos, wxyz_from_matrix(R))
+        s = self.settings
+        self.scene.set_footprint(bottom_footprint_enu(
+            pos, R, math.radians(s.bottom_hfov_deg), math.radians(s.bottom_vfov_deg),
+            ground_up_m=self._ground_up_m()))
+        if self.controls.follow.value:
+            self._follow(pos)
+        self._status(state, f"{self.trail.n_points} points, {len(self.scene.chunk_handles)} "
+                            f"chunks; height {pos[2]:.1f} m")
+
+    def _attitude(self, state: VehicleState) -> np.ndarray:
+        a = state.attitude
+        if None not in (a.roll_rad, a.pitch_rad, a.yaw_rad):
+            return R_enu_flu_from_euler(a.roll_rad, a.pitch_rad, a.yaw_rad)  # type: ignore[arg-type]
+        heading = state.global_position.heading_deg
+        return R_enu_flu_from_euler(0.0, 0.0, math.radians(heading or 0.0))
+
+    def _ground_up_m(self) -> float:
+        """The ground's height in the flight frame: the field's if known, else the origin's."""
+        if self.field is None or self.trail.origin is None:
+            return 0.0
+        if self._ground_for != self.trail.origin:
+            self._ground_for = self.trail.origin
+            self._ground_up = float(self.field.anchor_in_enu(self.trail.origin)[2])
+        return self._ground_up
+
+    def _follow(self, pos: np.ndarray) -> None:
+        """Keep each viewer's camera offset, moved along with the vehicle."""
+        assert self.server is not None
+        for client in self.server.get_clients().values():
+            cam = client.camera
+            offset = np.asarray(cam.position) - np.asarray(cam.look_at)
+            with client.atomic():
+                cam.look_at = pos
+                cam.position = pos + offset
+
+    def _status(self, state: VehicleState, text: str) -> None:
+        now = time.monotonic()
+        if now >= self._status_due and self.controls is not None:
+            self._status_due = now + 1.0  # a readout for people: once a second is plenty
+            self.controls.set_status(text)
+
+
+async def open_trajectory3d(
+    settings: ViserSettings, state: Latest[VehicleState], host: str, field: FieldScene | None
+) -> Trajectory3D:
+    """Build and start the service off the event loop (viser binds and spawns a thread)."""
+    service = Trajectory3D(settings, state, host=host, field=field)
+    await asyncio.to_thread(service.start)
+    return service

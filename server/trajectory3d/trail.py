@@ -1,0 +1,147 @@
+"""The flown path as a list of chunks, so that the scene appends instead of resending.
+
+Each chunk holds up to `chunk_segments` segments and becomes one scene handle. Only the
+newest (open) chunk changes while the vehicle flies; a full chunk is frozen and a new one
+starts at its last point, so the line stays continuous across chunks. The cost of one
+update is therefore bounded by the chunk size, whatever the length of the flight.
+
+Gaps: a sample flagged `starts_run` (after a lost fix or a silence longer than the gap
+threshold) is not joined to the point before it, so a dropout is drawn as a gap, never as
+a straight jump. Samples are kept geodetic, so that a new origin (the arming point)
+re-projects the whole path exactly.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from analysis.geodesy import geodetic_to_enu
+
+Origin = tuple[float, float, float]  # lat_deg, lon_deg, alt_m (MSL)
+
+
+@dataclass(frozen=True, slots=True)
+class TrailSample:
+    t_s: float  # station monotonic time of the fix
+    lat_deg: float
+    lon_deg: float
+    alt_m: float  # MSL
+    speed_mps: float  # NaN when unknown
+
+
+@dataclass(slots=True)
+class TrailChunk:
+    """Consecutive samples; point i is joined to point i-1 unless `starts_run[i]`."""
+
+    id: int
+    geo: list[tuple[float, float, float]] = field(default_factory=list)
+    speed_mps: list[float] = field(default_factory=list)
+    starts_run: list[bool] = field(default_factory=list)
+    enu_m: list[NDArray[np.float64]] = field(default_factory=list)
+
+    @property
+    def n_segments(self) -> int:
+        return sum(1 for s in self.starts_run[1:] if not s)
+
+    def segments(self) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]:
+        """(N, 2, 3) segment end points in ENU, (N, 2) heights, (N, 2) speeds."""
+        if len(self.enu_m) < 2:
+            empty = np.zeros((0, 2))
+            return np.zeros((0, 2, 3), np.float32), empty, empty
+        p = np.asarray(self.enu_m)
+        v = np.asarray(self.speed_mps)
+        joined = ~np.asarray(self.starts_run[1:], bool)
+        idx = np.nonzero(joined)[0] + 1
+        pts = np.stack([p[idx - 1], p[idx]], axis=1)
+        return (
+            pts.astype(np.float32),
+            pts[:, :, 2],
+            np.stack([v[idx - 1], v[idx]], axis=1),
+        )
+
+
+class Trail:
+    """Samples in chunks, with gap detection and an origin that may move."""
+
+    def __init__(self, chunk_segments: int = 50, gap_s: float = 1.0, max_points: int = 200_000):
+        if chunk_segments < 1:
+            raise ValueError("chunk_segments must be at least 1.")
+        self.chunk_segments = chunk_segments
+        self.gap_s = gap_s
+        self.max_points = max_points
+        self.origin: Origin | None = None
+        self.chunks: list[TrailChunk] = []
+        self.n_points = 0
+        self._ids = itertools.count()
+        self._last_t_s: float | None = None
+        self._gap_pending = True  # the first point starts a run
+
+    def clear(self) -> list[TrailChunk]:
+        """Forget the path (the origin stays); returns the chunks that were dropped."""
+        dropped, self.chunks = self.chunks, []
+        self.n_points = 0
+        self._last_t_s = None
+        self._gap_pending = True
+        return dropped
+
+    def mark_gap(self) -> None:
+        """The fix is lost: the next sample starts a new run."""
+        self._gap_pending = True
+
+    def set_origin(self, origin: Origin) -> bool:
+        """Move the ENU origin; re-projects every point. True if it moved."""
+        if self.origin is not None and np.allclose(origin, self.origin, rtol=0, atol=1e-9):
+            return False
+        self.origin = origin
+        for chunk in self.chunks:
+            if chunk.geo:
+                g = np.asarray(chunk.geo)
+                enu = geodetic_to_enu(g[:, 0], g[:, 1], g[:, 2], *origin)
+                chunk.enu_m = list(enu)
+        return True
+
+    def append(self, s: TrailSample) -> tuple[TrailChunk, list[TrailChunk]]:
+        """Add one sample. Returns the chunk that changed (possibly a new one) and the old
+        chunks dropped to stay under `max_points`."""
+        if self.origin is None:
+            self.origin = (s.lat_deg, s.lon_deg, s.alt_m)
+        starts_run = (
+            self._gap_pending
+            or self._last_t_s is None
+            or s.t_s - self._last_t_s > self.gap_s
+            or s.t_s < self._last_t_s
+        )
+        self._gap_pending = False
+        self._last_t_s = s.t_s
+        chunk = self.chunks[-1] if self.chunks else None
+        if chunk is None or chunk.n_segments >= self.chunk_segments:
+            new = TrailChunk(next(self._ids))
+            if chunk is not None and chunk.enu_m and not starts_run:
+                # Repeat the last point so the line is continuous across chunks.
+                new.geo.append(chunk.geo[-1])
+                new.speed_mps.append(chunk.speed_mps[-1])
+                new.starts_run.append(True)
+                new.enu_m.append(chunk.enu_m[-1])
+            self.chunks.append(new)
+            chunk = new
+        chunk.geo.append((s.lat_deg, s.lon_deg, s.alt_m))
+        chunk.speed_mps.append(s.speed_mps)
+        chunk.starts_run.append(starts_run)
+        chunk.enu_m.append(geodetic_to_enu(s.lat_deg, s.lon_deg, s.alt_m, *self.origin))
+        self.n_points += 1
+        dropped = []
+        while self.n_points > self.max_points and len(self.chunks) > 1:
+            old = self.chunks.pop(0)
+            self.n_points -= len(old.geo)
+            dropped.append(old)
+        return chunk, dropped
+
+    @property
+    def last_enu_m(self) -> NDArray[np.float64] | None:
+        if not self.chunks or not self.chunks[-1].enu_m:
+            return None
+        return self.chunks[-1].enu_m[-1]

@@ -1,0 +1,279 @@
+"""The live 3D trajectory: pose math, the chunked trail, and a real viser server fed with
+vehicle states through a `Latest`, as the station feeds it."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+import time
+
+import httpx
+import numpy as np
+import pytest
+import viser.transforms as vtf
+
+from analysis.geodesy import enu_to_geodetic
+from companion.latest import Latest
+from companion.vehicle_state import (
+    Attitude,
+    GlobalPosition,
+    GpsRaw,
+    PilotAltitude,
+    VehicleState,
+)
+from server.app import create_app
+from server.settings import ViserSettings, load_settings
+from server.trajectory3d.colors import ramp_rgb
+from server.trajectory3d.field import default_field
+from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
+from server.trajectory3d.service import Trajectory3D
+from server.trajectory3d.trail import Trail, TrailSample
+from tests.helpers import run_uvicorn
+
+FIELD = default_field()
+ORIGIN = (FIELD.anchor_lat_deg, FIELD.anchor_lon_deg, FIELD.anchor_alt_m)
+
+
+def make_state(t_s: float, enu: tuple[float, float, float], fix_type: int = 3,
+               yaw_rad: float = 0.0, armed_origin: tuple | None = None) -> VehicleState:
+    """A vehicle state at ENU position `enu` about the field's anchor."""
+    lat, lon, alt = (float(v) for v in enu_to_geodetic(enu, *ORIGIN))
+    altitude = PilotAltitude()
+    if armed_origin is not None:
+        altitude = PilotAltitude(t_mono=t_s, reference="arming", home_lat_deg=armed_origin[0],
+                                 home_lon_deg=armed_origin[1], reference_alt_m=armed_origin[2])
+    return VehicleState(
+        gps=GpsRaw(t_mono=t_s, fix_type=fix_type, lat_deg=lat, lon_deg=lon, alt_m=alt),
+        global_position=GlobalPosition(t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt,
+                                       vx_mps=1.0, vy_mps=0.5, vz_mps=0.0),
+        attitude=Attitude(t_mono=t_s, roll_rad=0.0, pitch_rad=0.0, yaw_rad=yaw_rad),
+        altitude=altitude,
+    )
+
+
+@pytest.fixture
+def service():
+    svc = Trajectory3D(ViserSettings(port=0, chunk_segments=20), Latest(), host="127.0.0.1",
+                       field=FIELD)
+    svc.start()
+    try:
+        yield svc
+    finally:
+        svc.stop()
+
+
+# -- pose ------------------------------------------------------------------------------
+
+
+def test_attitude_maps_ned_frd_onto_enu_flu():
+    fwd = np.array([1.0, 0.0, 0.0])
+    # yaw 0 = nose north, yaw 90 deg = nose east (NED convention)
+    np.testing.assert_allclose(R_enu_flu_from_euler(0, 0, 0) @ fwd, [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(R_enu_flu_from_euler(0, 0, math.pi / 2) @ fwd, [1, 0, 0],
+                               atol=1e-12)
+    # nose up (positive pitch) raises the forward axis
+    assert (R_enu_flu_from_euler(0, 0.3, 0) @ fwd)[2] > 0.29
+    # right wing down (positive roll) raises the left axis (+y of FLU)
+    assert (R_enu_flu_from_euler(0.3, 0, 0) @ np.array([0, 1.0, 0]))[2] > 0.29
+    R = R_enu_flu_from_euler(0.2, -0.4, 2.5)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    q = wxyz_from_matrix(R)
+    np.testing.assert_allclose(vtf.SO3(q).as_matrix(), R, atol=1e-9)
+
+
+def test_bottom_footprint_on_the_ground():
+    R = R_enu_flu_from_euler(0, 0, math.pi / 2)  # nose east
+    c = bottom_footprint_enu(np.array([5.0, 0.0, 4.0]), R, math.radians(90), math.radians(60))
+    assert c is not None
+    np.testing.assert_allclose(c[:, 2], 0.0)
+    # along the nose (east) the half-extent is 4 tan(30 deg), across it 4 tan(45 deg)
+    np.testing.assert_allclose(np.ptp(c[:, 0]), 2 * 4 * math.tan(math.radians(30)), atol=1e-9)
+    np.testing.assert_allclose(np.ptp(c[:, 1]), 2 * 4.0, atol=1e-9)
+    np.testing.assert_allclose(c[:, :2].mean(axis=0), [5.0, 0.0], atol=1e-9)
+    # tilted towards the horizon, or on the ground: no footprint
+    assert bottom_footprint_enu(np.array([0, 0, 4.0]), R_enu_flu_from_euler(1.4, 0, 0),
+                                math.radians(90), math.radians(60)) is None
+    assert bottom_footprint_enu(np.array([0, 0, 0.0]), R, 1.0, 1.0) is None
+
+
+def test_colour_ramp_is_fixed_and_clipped():
+    rgb = ramp_rgb([-5.0, 0.0, 10.0, 50.0, np.nan], 0.0, 10.0)
+    assert rgb.dtype == np.uint8 and rgb.shape == (5, 3)
+    assert (rgb[0] == rgb[1]).all() and (rgb[2] == rgb[3]).all() and (rgb[1] != rgb[2]).any()
+    assert tuple(rgb[4]) == (128, 128, 128)
+
+
+# -- trail -----------------------------------------------------------------------------
+
+
+def _sample(t, e, n=0.0, u=3.0):
+    lat, lon, alt = enu_to_geodetic([e, n, u], *ORIGIN)
+    return TrailSample(t, float(lat), float(lon), float(alt), 1.0)
+
+
+def test_trail_chunks_are_continuous_and_bounded():
+    trail = Trail(chunk_segments=10, gap_s=1.0)
+    for i in range(101):
+        trail.append(_sample(i * 0.1, i * 0.1))
+    assert all(c.n_segments <= 10 for c in trail.chunks)
+    assert sum(c.n_segments for c in trail.chunks) == 100  # no segment lost at chunk joins
+    for a, b in zip(trail.chunks, trail.chunks[1:]):
+        np.testing.assert_allclose(a.enu_m[-1], b.enu_m[0])
+
+
+def test_trail_gaps_are_gaps_not_jumps():
+    trail = Trail(chunk_segments=100, gap_s=1.0)
+    for i in range(10):
+        trail.append(_sample(i * 0.1, i * 0.1))
+    trail.append(_sample(3.0, 20.0))  # 2 s of silence, 19 m further: a gap
+    trail.mark_gap()  # the fix is lost
+    trail.append(_sample(3.1, 30.0))
+    trail.append(_sample(3.2, 30.1))
+    pts = np.concatenate([c.segments()[0] for c in trail.chunks])
+    lengths = np.linalg.norm(pts[:, 1] - pts[:, 0], axis=1)
+    assert len(pts) == 10 and lengths.max() < 0.2
+
+
+def test_trail_reprojects_on_a_new_origin_and_drops_old_chunks():
+    trail = Trail(chunk_segments=10, gap_s=1.0, max_points=50)
+    for i in range(200):
+        trail.append(_sample(i * 0.1, i * 0.1))
+    assert trail.n_points <= 50 and trail.chunks[0].enu_m[0][0] > 14.0
+    lat, lon, alt = enu_to_geodetic([10.0, 0.0, 0.0], *ORIGIN)
+    assert trail.set_origin((float(lat), float(lon), float(alt)))
+    np.testing.assert_allclose(trail.last_enu_m, [19.9 - 10.0, 0.0, 3.0], atol=1e-3)
+
+
+# -- the scene on a real viser server ----------------------------------------------------
+
+
+def test_scene_gains_segments_while_the_vehicle_moves(service):
+    state: Latest[VehicleState] = Latest()
+    service.state = state
+
+    async def fly() -> list[int]:
+        task = asyncio.create_task(service.run())
+        seen = []
+        for i in range(150):
+            state.publish(make_state(i * 0.1, (i * 0.2, 0.0, 3.0)))
+            await asyncio.sleep(0.012)
+            seen.append(len(service.scene.chunk_handles))
+        state.close()
+        await asyncio.wait_for(task, 2.0)
+        return seen
+
+    t0 = time.monotonic()
+    seen = asyncio.run(fly())
+    elapsed_s = time.monotonic() - t0
+    # 150 states at about 80 Hz, drawn at the 15 Hz cap: rate-limited, not per packet
+    assert 10 <= service.steps <= elapsed_s * 15 + 3
+    assert seen[-1] >= 2 and seen == sorted(seen)  # chunks only ever get added
+    handles = service.scene.chunk_handles
+    pts = np.concatenate([h.points for h in handles.values()])
+    assert len(pts) == service.steps - 1
+    # what the scene holds is the flown line, about the first fix: y = 0, z = 0, x growing
+    np.testing.assert_allclose(pts[:, :, 1], 0.0, atol=0.05)
+    np.testing.assert_allclose(pts[:, :, 2], 0.0, atol=0.05)
+    assert (np.diff(pts[:, 1, 0]) > 0).all()
+    np.testing.assert_allclose(service.scene.vehicle.position[0], pts[:, :, 0].max(), atol=0.3)
+    # the scene's own node tree holds them too
+    assert all(h.name.startswith("/trail/c") for h in handles.values())
+
+
+def test_origin_moves_to_the_arming_point(service):
+    service.step(make_state(0.0, (0.0, 0.0, 0.0)))
+    service.step(make_state(0.1, (0.5, 0.0, 1.0)))
+    assert np.allclose(service.scene.vehicle.position, (0.5, 0.0, 1.0), atol=1e-3)
+    lat, lon, alt = enu_to_geodetic([-20.0, 0.0, 0.0], *ORIGIN)  # armed on the start pad
+    armed = (float(lat), float(lon), float(alt))
+    service.step(make_state(0.2, (1.0, 0.0, 2.0), armed_origin=armed))
+    assert np.allclose(service.scene.vehicle.position, (21.0, 0.0, 2.0), atol=1e-3)
+    handle = next(iter(service.scene.chunk_handles.values()))
+    assert np.allclose(handle.points[0, 0], (20.0, 0.0, 0.0), atol=1e-3)  # re-projected
+    assert np.allclose(service.scene._field_frame.position, (20.0, 0.0, 0.0), atol=1e-3)
+
+
+def test_gui_requests_clear_and_recolour(service):
+    for i in range(30):
+        service.step(make_state(i * 0.1, (i * 0.1, 0.0, i * 0.2)))
+    chunk = next(iter(service.scene.chunk_handles.values()))
+    by_height = chunk.colors.copy()
+    service.controls.color_by.value = "speed"  # as a viewer picking it in the panel
+    service.step(make_state(3.0, (3.0, 0.0, 6.0)))
+    assert not np.array_equal(chunk.colors, by_height)
+    service.controls.show_field.value = False
+    service.controls.clear.value  # noqa: B018 (the button has no value to set)
+    service.controls._requests.clear = True  # what the button's click callback records
+    service.step(make_state(3.1, (3.1, 0.0, 6.0)))
+    assert not service.scene._field_frame.visible
+    assert service.trail.n_points == 1 and len(service.scene.chunk_handles) == 0
+
+
+def _array_bytes(obj) -> int:
+    """Bytes of the numpy payloads in a viser message (its dataclass fields, recursively)."""
+    if isinstance(obj, np.ndarray):
+        return obj.nbytes
+    if dataclasses.is_dataclass(obj):
+        return sum(_array_bytes(getattr(obj, f.name)) for f in dataclasses.fields(obj))
+    if isinstance(obj, dict):
+        return sum(_array_bytes(v) for v in obj.values())
+    return 0
+
+
+def test_update_cost_stays_flat_over_a_30_minute_flight(service):
+    """18,000 states (30 min at 10 Hz, with GPS dropouts): the messages and array bytes
+    queued for viewers per step must not grow with the length of the flight."""
+    buffer = service.server._websock_server.get_message_buffer()  # what viewers receive
+    counts, sizes = [], []
+    rng = np.random.default_rng(1)
+    t = np.arange(18_000) * 0.1
+    enu = np.stack([10 * np.sin(t / 30), 6 * np.sin(t / 15), 3 + rng.normal(0, 0.3, t.size)], 1)
+    geo = enu_to_geodetic(enu, *ORIGIN)
+    for i in range(t.size):
+        fix = 1 if (i % 3000) < 20 else 3  # a 2 s dropout every 5 minutes
+        ti, (lat, lon, alt) = float(t[i]), (float(v) for v in geo[i])
+        state = VehicleState(
+            gps=GpsRaw(t_mono=ti, fix_type=fix, lat_deg=lat, lon_deg=lon, alt_m=alt),
+            global_position=GlobalPosition(t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt,
+                                           vx_mps=1.0, vy_mps=0.0),
+            attitude=Attitude(t_mono=ti, roll_rad=0.0, pitch_rad=0.0, yaw_rad=ti / 10),
+        )
+        first_id = buffer.message_counter
+        service.step(state)
+        new_ids = range(first_id, buffer.message_counter)
+        counts.append(len(new_ids))
+        sizes.append(sum(_array_bytes(buffer.message_from_id.get(m)) for m in new_ids))
+    counts, sizes = np.array(counts), np.array(sizes)
+    first, last = slice(100, 3100), slice(15_000, 18_000)  # minute 0-5 vs. minute 25-30
+    assert counts.max() <= 8
+    assert counts[last].mean() <= counts[first].mean() * 1.05
+    assert sizes[last].mean() <= sizes[first].mean() * 1.05
+    assert 0 < sizes.max() < 4_000  # one open chunk of 20 segments, never the whole path
+    assert len(service.scene.chunk_handles) > 18_000 // 20 * 0.9
+
+
+# -- the panel in the app ----------------------------------------------------------------
+
+
+def test_panel_starts_and_stops_with_the_station():
+    settings = load_settings(environ={}, overrides={"link.source": "none", "viser.port": 0})
+    with run_uvicorn(create_app(settings)) as base:
+        info = httpx.get(f"{base}/api/viser").json()
+        assert info["enabled"] is True and info["port"] > 0
+        page = httpx.get(f"http://127.0.0.1:{info['port']}/")
+        assert page.status_code == 200 and "<html" in page.text.lower()
+    with pytest.raises(httpx.ConnectError):  # the viser server is gone with the station
+        httpx.get(f"http://127.0.0.1:{info['port']}/", timeout=2.0)
+
+
+def test_no_3d_flag():
+    from server.cli import build_parser, settings_from_args
+
+    args = build_parser().parse_args(["serve", "--no-3d", "--viser-port", "8090"])
+    settings = settings_from_args(args)
+    assert settings.viser.enabled is False and settings.viser.port == 8090
+    settings = load_settings(environ={}, overrides={"link.source": "none", "viser.enabled": False})
+    with run_uvicorn(create_app(settings)) as base:
+        assert httpx.get(f"{base}/api/viser").json() == {
+            "enabled": False, "port": None, "points": 0, "chunks": 0}

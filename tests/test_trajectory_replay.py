@@ -1,0 +1,133 @@
+"""Replay: GET /api/sessions/{id}/trajectory on real session folders (written in the
+recorder's format by analysis.synthetic, with real JPEG frames), through real uvicorn."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+
+from analysis.synthetic import a_to_b_flight, figure8_flight, write_session
+from companion.recording import layout
+from server.app import create_app
+from server.settings import load_settings
+from server.trajectory3d.replay import CameraFrames, build_trajectory, frames_at
+from tests.helpers import run_uvicorn
+
+SESSION_A = "20261122T040000Z_sim"
+SESSION_B = "20261122T041000Z_serial"
+
+
+def write_frames(folder, camera: str, n: int, fps: float = 5.0) -> None:
+    """A camera folder as the recorder writes it: JPEGs named by seq, and frames.csv."""
+    (folder / camera).mkdir(parents=True, exist_ok=True)
+    with open(folder / layout.frames_csv_relpath(camera), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(layout.FRAME_COLUMNS)
+        for seq in range(n):
+            img = np.full((48, 64, 3), (seq * 7) % 255, np.uint8)
+            ok, jpeg = cv2.imencode(".jpg", img)
+            rel = layout.frame_relpath(camera, seq)
+            (folder / rel).write_bytes(jpeg.tobytes())
+            w.writerow((seq, rel, round(seq / fps, 6), 1.7e9 + seq / fps, 64, 48, len(jpeg)))
+
+
+def drop_fix(folder, t0_s: float, t1_s: float) -> None:
+    """Turn the GPS fix off between t0 and t1 (a real dropout: rows stay, fix goes)."""
+    path = folder / "telemetry.csv"
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    i_t, i_fix = header.index("t_s"), header.index("gps.fix_type")
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        if t0_s <= float(cells[i_t]) < t1_s:
+            cells[i_fix] = "0"
+        out.append(",".join(cells))
+    path.write_text("\n".join(out) + "\n")
+
+
+@pytest.fixture
+def sessions_dir(tmp_path):
+    root = tmp_path / "sessions"
+    a = write_session(a_to_b_flight(heading_deg=30.0), root / SESSION_A)
+    drop_fix(a, 20.0, 23.0)
+    write_frames(a, "front", 250)
+    write_frames(a, "bottom", 250)
+    write_session(figure8_flight(heading_deg=120.0), root / SESSION_B)
+    return root
+
+
+@pytest.fixture
+def base(sessions_dir):
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.port": 0, "recording.sessions_dir": str(sessions_dir),
+        "recording.auto_record_on_arm": False,
+    })
+    with run_uvicorn(create_app(settings)) as url:
+        yield url
+
+
+def test_frames_at_picks_the_newest_frame_at_or_before():
+    cam = CameraFrames("front", np.array([0.0, 0.2, 0.4]), ["a", "b", "c"])
+    assert frames_at(np.array([-1.0, 0.0, 0.1, 0.2, 5.0]), cam) == [None, "a", "a", "b", "c"]
+
+
+def test_build_trajectory_origin_gaps_and_alignment():
+    from analysis.geodesy import enu_to_geodetic
+
+    t = np.arange(0.0, 10.0, 0.5)
+    enu = np.column_stack([t, 2 * t, np.full(t.size, 3.0)])  # along a 63 deg bearing from east
+    lat, lon, alt = enu_to_geodetic(enu, 43.0, -78.8, 180.0).T
+    t[10:] += 5.0  # a 5 s silence
+    armed = t >= 1.0
+    r = build_trajectory("x", t, lat, lon, alt, armed=armed, gap_s=1.0)
+    np.testing.assert_allclose([r.x_m[2], r.y_m[2], r.z_m[2]], [0, 0, 0], atol=1e-3)  # armed at i=2
+    assert r.starts_run[0] and r.starts_run[10] and sum(r.starts_run) == 2
+    a = build_trajectory("x", t, lat, lon, alt, armed=armed, align="end")
+    np.testing.assert_allclose(a.y_m[-1], 0.0, atol=0.01)  # start-to-end on +x
+    assert a.x_m[-1] == pytest.approx(math.hypot(r.x_m[-1], r.y_m[-1]), abs=0.01)
+    assert a.align_rad == pytest.approx(-math.atan2(2, 1), abs=1e-3)
+    with pytest.raises(ValueError):
+        build_trajectory("x", t[:0], lat[:0], lon[:0], alt[:0])
+
+
+def test_trajectory_endpoint_matches_the_flown_path(base):
+    r = httpx.get(f"{base}/api/sessions/{SESSION_A}/trajectory", timeout=10)
+    assert r.status_code == 200, r.text
+    j = r.json()
+    flight = a_to_b_flight(heading_deg=30.0)
+    # known truth: the flight's ENU about its arming point, at the reply's times
+    enu_true = flight.enu_m() - flight.enu_m()[np.argmax(flight.armed)]
+    t = np.asarray(j["t_s"])
+    truth = np.column_stack([np.interp(t, flight.t_s, enu_true[:, k]) for k in range(3)])
+    got = np.column_stack([j["x_m"], j["y_m"], j["z_m"]])
+    assert np.abs(got - truth).max() < 0.15  # GPS sample-and-hold at 10 Hz, 1.2 m/s
+    # the dropout (20-23 s) is a gap, and no jump is drawn across it
+    gap_i = [i for i, s in enumerate(j["starts_run"]) if s]
+    assert len(gap_i) == 2 and 22.9 <= t[gap_i[1]] <= 23.2
+    # frames: the newest frame at or before each time, served by the recorder's route
+    i = len(t) // 2
+    front = j["frames"]["front"][i]
+    assert front == layout.frame_relpath("front", int(math.floor(t[i] * 5.0 + 1e-9)))
+    img = httpx.get(f"{base}/api/sessions/{SESSION_A}/files/{front}")
+    assert img.status_code == 200 and img.content[:2] == b"\xff\xd8"
+    # aligned as in the paper: start-to-end on +x, whatever the compass heading flown
+    al = httpx.get(f"{base}/api/sessions/{SESSION_A}/trajectory?align=end").json()
+    assert abs(al["y_m"][-1]) < 0.05 and al["x_m"][-1] > 35
+
+
+def test_trajectory_endpoint_rejects_bad_ids(base):
+    for bad, status in [("..%2F..%2Fetc", 400), ("20991122T040000Z_sim", 404),
+                        ("not-a-session", 400)]:
+        r = httpx.get(f"{base}/api/sessions/{bad}/trajectory")
+        assert r.status_code in (status, 404), (bad, r.status_code)
+        assert "error" in r.json()
+    r = httpx.get(f"{base}/api/sessions/{SESSION_A}/trajectory?reference=abc")
+    assert r.status_code == 400 and r.json()["error"] == "BadRequest"
+    r = httpx.get(f"{base}/api/sessions/{SESSION_A}/trajectory?align=sideways")
+    assert r.status_code == 422
