@@ -92,3 +92,13 @@ def test_refused_arming_is_acked_denied_with_a_reason(twin_and_gcs) -> None:
     twin.step_for(1.0)
     hb = drain(gcs, "HEARTBEAT")[-1]
     assert hb.system_status == mavutil.mavlink.MAV_STATE_EMERGENCY
+
+
+def test_true_geodetic_matches_the_gps_without_noise(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    twin.step_for(0.5)
+    lat, lon, alt = twin.true_geodetic()
+    gps = drain(gcs, "GPS_RAW_INT")[-1]
+    assert gps.lat / 1e7 == pytest.approx(lat, abs=2e-7)
+    assert gps.lon / 1e7 == pytest.approx(lon, abs=2e-7)
+    assert alt == pytest.approx(twin.scene.home.alt_m, abs=0.01)  # on the start pad

@@ -131,6 +131,16 @@ class Twin:
     def local_position_enu_m(self) -> np.ndarray:
         return self.pose().pos_enu_m
 
+    def true_geodetic(self) -> tuple[float, float, float]:
+        """The true position as (lat_deg, lon_deg, alt_m MSL), georeferenced at the scene's
+        home: compare recorded GPS tracks with it through the same geodesy."""
+        from analysis.geodesy import enu_to_geodetic
+
+        home = self.scene.home
+        lat, lon, alt = enu_to_geodetic(self.pose().pos_enu_m, home.lat_deg, home.lon_deg,
+                                        home.alt_m)
+        return float(lat), float(lon), float(alt)
+
     def set_sticks(self, roll: float, pitch: float, yaw: float, throttle: float) -> None:
         with self.lock:
             self.sim.set_sticks(roll, pitch, yaw, throttle)
