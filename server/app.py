@@ -49,8 +49,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(sessions.router)
     app.include_router(analysis.router)
     app.include_router(video.router)
-    app.include_router(control.router)
     app.include_router(viser_panel.router)
     app.include_router(trajectory.router)
+    app.include_router(control.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

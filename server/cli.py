@@ -39,9 +39,25 @@ def add_serve_parser(sub: Any) -> None:
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
     add_camera_flags(p)
     add_viser_flags(p)
+    add_recording_flags(p)
     p.set_defaults(func=run_serve)
 
 
+def add_recording_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sessions-dir", dest="recording.sessions_dir", type=Path,
+                   help="where recorded sessions go (default ./sessions)")
+    p.add_argument("--record-rate", dest="recording.rate_hz", type=float,
+                   help="telemetry.csv rows per second (1-100, default 30)")
+    p.add_argument("--no-auto-record", dest="recording.auto_record_on_arm",
+                   action="store_const", const=False,
+                   help="do not start recording when the vehicle arms")
+
+
+def add_viser_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--viser-port", dest="viser.port", type=int,
+                   help="port of the 3D trajectory panel (viser; default 8080)")
+    p.add_argument("--no-3d", dest="viser.enabled", action="store_const", const=False,
+                   help="do not start the 3D trajectory panel")
 def add_sim_parser(sub: Any) -> None:
     p = sub.add_parser("sim", help="run the digital twin alone, as a MAVLink vehicle")
     p.add_argument("--config", type=Path, help="TOML settings file")
@@ -85,13 +101,6 @@ def run_sim(args: argparse.Namespace) -> int:
     finally:
         twin.stop()
     return 0
-
-
-def add_viser_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--viser-port", dest="viser.port", type=int,
-                   help="port of the 3D trajectory panel (viser; default 8080)")
-    p.add_argument("--no-3d", dest="viser.enabled", action="store_const", const=False,
-                   help="do not start the 3D trajectory panel")
 
 
 def add_analyze_parser(sub: Any) -> None:
@@ -142,7 +151,13 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.listen import listening_socket
 
     sock = listening_socket(settings.server.host, settings.server.port)
-    uvicorn.Server(uvicorn.Config(app, log_level="info")).run(sockets=[sock])
+    # No permessage-deflate: browsers ask for it, and it would compress every telemetry
+    # message once per client, the per-client re-encoding the shared JSON body avoids.
+    # MJPEG streams never end by themselves: give them 2 s at shutdown, then cancel them.
+    config = uvicorn.Config(
+        app, log_level="info", ws_per_message_deflate=False, timeout_graceful_shutdown=2
+    )
+    uvicorn.Server(config).run(sockets=[sock])
     return 0
 
 

@@ -136,8 +136,8 @@ class Settings(_Section):
     link: LinkSettings = Field(default_factory=LinkSettings)
     recording: RecordingSettings = Field(default_factory=RecordingSettings)
     cameras: CameraSettings = Field(default_factory=CameraSettings)
-    twin: TwinSettings = Field(default_factory=TwinSettings)
     viser: ViserSettings = Field(default_factory=ViserSettings)
+    twin: TwinSettings = Field(default_factory=TwinSettings)
 
 
 class SettingsError(ValueError):
