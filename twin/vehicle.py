@@ -18,6 +18,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from twin.control import AUTO_LOITER, STABILIZED
 from twin.sim import Sim
+from twin.params import ParamServer, px4_params
 from twin.telemetry import PX4_MODES, Telemetry
 
 log = logging.getLogger(__name__)
@@ -60,6 +61,7 @@ class MavlinkVehicle:
         self._next_s: dict[str, float] = {k: 0.0 for k in self.interval_s}
         self.stats = VehicleStats()
         self.telemetry = Telemetry(self.mav)
+        self.params: ParamServer | None = None  # built from the sim's config on first use
         self._pending_once: list[str] = []
 
     @staticmethod
@@ -157,6 +159,14 @@ class MavlinkVehicle:
                                       msg.get_srcComponent())
             if text:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
+        elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
+            if getattr(msg, "target_system", 0) not in (0, self.sysid):
+                return
+            if self.params is None:
+                self.params = ParamServer(self.mav, px4_params(sim.config, self.sysid))
+            note = self.params.handle(msg)
+            if note:
+                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, note.encode()[:50])
         elif kind == "SET_MODE":
             if msg.target_system not in (0, self.sysid):
                 return
