@@ -63,3 +63,44 @@ def test_crash_terminates_with_penalty() -> None:
         if terminated:
             break
     assert terminated and info["crash"] == "obstacle" and rewards[-1] < -9
+
+
+def test_vector_env_with_one_env_reproduces_the_single_env() -> None:
+    from twin.gym_vector import TwinVectorEnv
+
+    single, vector = TwinEnv(task=2), TwinVectorEnv(num_envs=1, task=2)
+    o1, _ = single.reset(seed=5)
+    ov, _ = vector.reset(seed=5)
+    np.testing.assert_allclose(ov[0], o1, atol=1e-6)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        a = rng.uniform(-1, 1, 4).astype(np.float32)
+        o1, r1, *_ = single.step(a)
+        ov, rv, *_ = vector.step(a[None])
+        np.testing.assert_allclose(ov[0], o1, atol=1e-5)
+        assert rv[0] == np.float64(r1) or abs(rv[0] - r1) < 1e-9
+
+
+def test_vector_env_autoresets_one_crashed_vehicle_and_not_the_others() -> None:
+    from twin.gym_vector import TwinVectorEnv
+
+    env = TwinVectorEnv(num_envs=8, task=2)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (8, 18) and env.observation_space.contains(obs)
+    climb = np.tile([0.0, 0.0, 0.0, 0.5], (8, 1)).astype(np.float32)
+    for _ in range(20):
+        env.step(climb)  # ~2 m: below the obstacles
+    go = climb.copy()
+    go[0] = [0.0, 0.6, 0.0, 0.0]  # vehicle 0 flies east into obstacle 1, the rest hover
+    go[1:, 3] = 0.0
+    for _ in range(300):
+        obs, reward, terminated, truncated, info = env.step(go)
+        if terminated[0]:
+            break
+    assert terminated[0] and info["crash"][0] == 2 and reward[0] < -9
+    assert not terminated[1:].any() and (obs[1:, 2] > 1.0).all()  # the others still fly
+    obs, reward, terminated, truncated, _ = env.step(go)
+    assert reward[0] == 0.0 and not terminated[0]
+    start = env.scene.pad("start")
+    assert obs[0, 0] == np.float32(start.x_m - env.target_m[0])  # back on the start pad
+    assert env.sim.commander.armed[0]

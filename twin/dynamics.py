@@ -219,6 +219,12 @@ class Dynamics:
         if self._grounded or (s.pos_m[:, 2] <= 0.0).any():
             self._ground(s)
 
+    def revive(self, s: BodyState) -> None:
+        """Recompute the motors' power after vehicles were reset in place."""
+        alive = (s.crash == 0) & (s.charge_c > 0)
+        self._w_max_alive = (self.airframe.kv_rad_s_per_v * s.voltage_v * alive)[:, None]
+        self._grounded = bool(s.on_ground.any() or (s.pos_m[:, 2] <= 0).any())
+
     def slow_update(self, s: BodyState, dt: float) -> None:
         """Battery and gusts, which change slowly (~10 Hz is plenty)."""
         self._battery(s, s.rotor_thrust_n, dt)
