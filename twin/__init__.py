@@ -7,9 +7,11 @@
     sensors.py    GPS, barometer, the autopilot's estimate
     sim.py        all of the above on a sim clock: `Sim`, faster than real time
     telemetry.py  MAVLink messages from the sim's state, as PX4 sends them
+    params.py     PX4-named parameters (read-only mirror of the configuration)
     vehicle.py    the MAVLink vehicle on a UDP socket: `MavlinkVehicle`
     runner.py     `Twin`: real-time thread, vehicle, `render()`, `pose()`
     render.py     front and bottom cameras (numpy/OpenCV)
     pilot.py      a scripted stick pilot for the paper's tasks
     gym_env.py    `TwinEnv`, the Gymnasium environment
+    gym_vector.py `TwinVectorEnv`, N of them in one batched Sim
 """
