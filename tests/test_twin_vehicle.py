@@ -122,3 +122,17 @@ def test_parameters_load_like_px4_and_are_read_only(twin_and_gcs) -> None:
     assert replies == {"MIS_TAKEOFF_ALT": pytest.approx(2.5), "MPC_XY_VEL_MAX": pytest.approx(5.0)}
     assert any("read-only" in m.text for m in got if m.get_type() == "STATUSTEXT")
     assert twin.sim.config.gains.max_vel_xy_mps == 5.0
+
+
+def test_home_position_is_where_it_armed(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    twin.sim.arm()
+    got = []
+    for _ in range(25):  # small steps: a burst of seconds would overflow the UDP buffer
+        twin.step_for(0.1)
+        got += drain(gcs, timeout=0.02)
+    home = [m for m in got if m.get_type() == "HOME_POSITION"][-1]
+    lat, lon, alt = twin.true_geodetic()
+    assert home.latitude / 1e7 == pytest.approx(lat, abs=2e-7)
+    assert home.longitude / 1e7 == pytest.approx(lon, abs=2e-7)
+    assert home.altitude / 1000 == pytest.approx(alt, abs=0.05)

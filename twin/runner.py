@@ -112,7 +112,11 @@ class Twin:
             log.exception("twin loop died")
 
     def step_for(self, seconds: float) -> None:
-        """Advance sim time by `seconds` as fast as possible, polling MAVLink every tick."""
+        """Advance sim time by `seconds` as fast as possible, polling MAVLink every tick.
+
+        Telemetry goes out at sim-time rates, so a long call bursts many packets at once:
+        a peer reading UDP slower than that loses the excess in its socket buffer.
+        """
         if self.mavlink_url and self.vehicle is None:
             self.vehicle = MavlinkVehicle(self.mavlink_url, self.rates_hz)
         per_tick = max(1, int(round(self.tick_s / self.sim.dt_s)))

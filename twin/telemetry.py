@@ -34,6 +34,7 @@ class Telemetry:
     def __init__(self, mav: mavlink.MAVLink) -> None:
         self.mav = mav
         self.home_alt_m: float | None = None  # PX4's home: set on the ground while armed
+        self.home_geo: np.ndarray | None = None  # (lat_deg, lon_deg, alt_m) of that home
 
     def send(self, name: str, sim: Sim, t_ms: int) -> None:
         getattr(self, "_send_" + name.lower())(sim, t_ms)
@@ -95,6 +96,7 @@ class Telemetry:
         geo, v = self._fused(sim)
         if self.home_alt_m is None or (sim.commander.armed[0] and sim.commander.landed[0]):
             self.home_alt_m = float(geo[2])  # PX4 sets home at arming, on the ground
+            self.home_geo = geo
         yaw = sim.pose().euler_ned_rad[2]
         self.mav.global_position_int_send(
             t_ms, int(geo[0] * 1e7), int(geo[1] * 1e7), int(geo[2] * 1000),
@@ -144,3 +146,10 @@ class Telemetry:
     def _send_extended_sys_state(self, sim: Sim, t_ms: int) -> None:
         self.mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED,
                                          sim.commander.landed_state(0))
+
+    def _send_home_position(self, sim: Sim, t_ms: int) -> None:
+        if self.home_geo is None:
+            return  # no fix yet: PX4 has no home either
+        lat, lon, alt = self.home_geo
+        self.mav.home_position_send(int(lat * 1e7), int(lon * 1e7), int(alt * 1000), 0.0, 0.0,
+                                    0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
