@@ -6,7 +6,6 @@ sticks a person gives; recording starts on arming and stops after the post-disar
 
 import csv
 import json
-import threading
 import time
 
 import numpy as np
@@ -17,32 +16,19 @@ from companion.recording import layout
 from server.app import create_app
 from server.settings import LinkSettings, load_settings
 from tests.helpers import run_uvicorn, wait_until
-
-# The twin and its scripted pilot come from the twin branch; until it is on main the
-# test is skipped (it passed in a scratch merge of main + twin + recorder).
-pilot_mod = pytest.importorskip("twin.pilot")
-Leg, Observation, Pilot, task_plan = (pilot_mod.Leg, pilot_mod.Observation, pilot_mod.Pilot,
-                                      pilot_mod.task_plan)
+from twin.pilot import Leg, Pilot, fly_twin, task_plan
 
 RATE_HZ = 30.0
 
 
-def fly_task(twin, task_id: int, stop: threading.Event, rate_hz: float = 50.0) -> Pilot:
-    legs = task_plan(twin.scene, task_id)
+def hover_pilot(twin) -> Pilot:
+    legs = task_plan(twin.scene, 1)
     # A pilot waits on the pad a moment after arming before throttling up. It matters
     # here: the station takes the arming altitude when it sees the armed HEARTBEAT (1 Hz),
     # so a take-off within that second would move the pilot's altitude reference.
     assert legs[0].kind == "arm"
     legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
-    pilot = Pilot(legs)
-    while not pilot.done and not stop.is_set():
-        pose = twin.pose()
-        yaw = float(np.arctan2(pose.R_world_body[1, 0], pose.R_world_body[0, 0]))
-        armed = bool(twin.sim.commander.armed[0])
-        twin.set_sticks(*pilot.update(Observation(pose.t_s, pose.pos_enu_m, pose.vel_enu_mps,
-                                                  yaw, armed)))
-        stop.wait(1.0 / rate_hz)
-    return pilot
+    return Pilot(legs)
 
 
 def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
@@ -56,9 +42,9 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
         state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
         assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 15)
         fps = {n: cam.config.fps for n, cam in station.cameras.items()}
-        stop = threading.Event()
         t0 = time.monotonic()
-        pilot = fly_task(station.twin, 1, stop)
+        pilot = hover_pilot(station.twin)
+        fly_twin(station.twin, pilot, timeout_s=60)
         assert pilot.done, pilot.log
         assert time.monotonic() - t0 < 60
         # Landed: the commander disarms 2 s later, then the 1 s tail ends the session.
