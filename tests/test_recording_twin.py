@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 
+from analysis.track import load_session_dir
 from companion.link import MavlinkLink
 from companion.recording import layout
 from server.app import create_app
@@ -104,6 +105,10 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
         assert np.median(skews) < period, (cam, q)
         print(f"{cam}: skew median {np.median(skews) * 1e3:.1f} ms, p99 "
               f"{q['skew_p99_s'] * 1e3:.1f} ms, frame period {period * 1e3:.1f} ms")
+
+    # Analysis reads the session as recorded.
+    track = load_session_dir(folder)
+    assert len(track) > 50 and np.nanmax(track.relative_alt_m) == pytest.approx(4.0, abs=0.4)
 
     # The tlog replays through the station's replay: source to the same flight.
     link = MavlinkLink(LinkSettings(source=f"replay:{folder / layout.MAVLINK_TLOG}?speed=0"))
