@@ -47,6 +47,7 @@ class SessionSummaryModel(BaseModel):
     telemetry_rows: int | None
     frames_written: dict[str, int]
     frames_dropped: dict[str, int]
+    skew_p99_s: dict[str, float | None]  # camera -> p99 of row-to-frame skew
     recording_now: bool
 
 
@@ -74,6 +75,8 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
                             if hasattr(s, k)}
     data["start_utc"] = layout.utc_label(s.start_wall) if s.start_wall is not None else None
     data["recording_now"] = s.id == recording_id
+    cams = s.meta.quality.cameras if s.meta is not None else {}
+    data["skew_p99_s"] = {c: q.skew_p99_s for c, q in cams.items()}
     return SessionSummaryModel.model_validate(data)
 
 
