@@ -85,6 +85,9 @@ def test_delete_and_refused_while_recording(server):
     assert r.status_code == 409 and r.json()["error"] == "Conflict"
     listed = {s["id"]: s for s in httpx.get(f"{base}/api/sessions").json()}
     assert listed[live]["recording_now"] is True and listed[live]["status"] == "recording"
+    # A session being written downloads as a valid zip of what is on disk now.
+    zf = zipfile.ZipFile(io.BytesIO(httpx.get(f"{base}/api/sessions/{live}/download").content))
+    assert zf.testzip() is None and f"{live}/telemetry.csv" in zf.namelist()
     httpx.post(f"{base}/api/recording/stop")
     assert httpx.delete(f"{base}/api/sessions/{sid}").json() == {"deleted": sid}
     assert not (root / sid).exists()
