@@ -162,6 +162,7 @@ def test_start_refused_with_a_clear_error_on_a_full_disk(tmp_path, monkeypatch):
 def test_start_refused_when_the_sessions_dir_is_unusable(tmp_path):
     app = make_app(tmp_path)
     with run_uvicorn(app) as base:
+        (tmp_path / "sessions").mkdir()
         (tmp_path / "sessions").chmod(0o500)  # read-only: root ignores modes, so also
         import os
         if os.geteuid() == 0:  # make it a file behind the store's back

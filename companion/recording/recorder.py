@@ -132,6 +132,7 @@ class Recorder:
         root = self.store.root
         need = self.options.session.limits.min_free_bytes
         try:
+            root.mkdir(parents=True, exist_ok=True)
             free = diskspace.free_bytes(root)
         except OSError as exc:
             raise RecorderError(f"Cannot record in '{root}': {exc.strerror or exc}.") from None
