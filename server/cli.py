@@ -151,7 +151,13 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.listen import listening_socket
 
     sock = listening_socket(settings.server.host, settings.server.port)
-    uvicorn.Server(uvicorn.Config(app, log_level="info")).run(sockets=[sock])
+    # No permessage-deflate: browsers ask for it, and it would compress every telemetry
+    # message once per client, the per-client re-encoding the shared JSON body avoids.
+    # MJPEG streams never end by themselves: give them 2 s at shutdown, then cancel them.
+    config = uvicorn.Config(
+        app, log_level="info", ws_per_message_deflate=False, timeout_graceful_shutdown=2
+    )
+    uvicorn.Server(config).run(sockets=[sock])
     return 0
 
 
