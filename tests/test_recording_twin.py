@@ -57,6 +57,7 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
     assert meta["status"] == "complete" and meta["trigger"] == "arm"
     assert meta["source"] == "sim" and meta["arming"]["reference_alt_m"] is not None
+    assert meta["settings"]["twin"]["seed"] == 0  # how the flight was made, for datasets
 
     with open(folder / layout.TELEMETRY_CSV, newline="") as f:
         rows = list(csv.DictReader(f))

@@ -10,7 +10,8 @@ from tests.helpers import run_uvicorn
 
 
 def make_app(tmp_path, token=None):
-    overrides = {"link.source": "none", "recording.sessions_dir": str(tmp_path / "sessions"),
+    overrides = {"link.source": "none", "viser.enabled": False,
+                 "recording.sessions_dir": str(tmp_path / "sessions"),
                  "recording.auto_record_on_arm": False, "recording.min_free_mb": 0}
     if token:
         overrides["server.token"] = token
@@ -149,7 +150,8 @@ def test_start_refused_with_a_clear_error_on_a_full_disk(tmp_path, monkeypatch):
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10**6, 10**6))
     settings = load_settings(environ={}, overrides={
         "link.source": "none", "recording.sessions_dir": str(tmp_path / "sessions"),
-        "recording.auto_record_on_arm": False, "recording.min_free_mb": 100})
+        "recording.auto_record_on_arm": False, "recording.min_free_mb": 100,
+        "viser.enabled": False})
     with run_uvicorn(create_app(settings)) as base:
         r = httpx.post(f"{base}/api/recording/start")
         assert r.status_code == 503 and r.json()["error"] == "Unavailable"
