@@ -77,13 +77,12 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
     from server.recording import open_recorder
 
-    state = station.state
     cams = station.cameras
     return await open_recorder(
-        station.settings, stack, station.tasks.spawn, state,
+        station.settings, stack, station.tasks.spawn, station.state,
         {name: cam.frames for name, cam in cams.items()},
-        {name: getattr(cam, "fps", None) for name, cam in cams.items()},
-        getattr(station, "link", None),
+        {name: cam.config.fps for name, cam in cams.items()},
+        station.link,
     )
 
 
@@ -104,6 +103,8 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
         )
     start_cameras(station.cameras.values())
     stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
+
+
 async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
     from server.trajectory3d.field import default_field
     from server.trajectory3d.service import open_trajectory3d

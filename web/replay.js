@@ -40,7 +40,7 @@
   }
 
   function trajUrl(id) {
-    const align = $("replay-align").checked ? "?align=end" : "";
+    const align = $("replay-align").checked ? "?align=farthest" : "";
     return `/api/sessions/${encodeURIComponent(id)}/trajectory${align}`;
   }
 
@@ -151,7 +151,7 @@
     for (let gx = Math.ceil(x0 / 5) * 5; gx <= x1; gx += 5) { ctx.beginPath(); ctx.moveTo(X(gx), 0); ctx.lineTo(X(gx), h); ctx.stroke(); }
     for (let gy = Math.ceil(y0 / 5) * 5; gy <= y1; gy += 5) { ctx.beginPath(); ctx.moveTo(0, Y(gy)); ctx.lineTo(w, Y(gy)); ctx.stroke(); }
     ctx.fillStyle = "#555"; ctx.font = `${11 * dpr}px system-ui`;
-    ctx.fillText(`grid 5 m; ${$("replay-align").checked ? "x = start to end" : "x east, y north"}`, 6 * dpr, 14 * dpr);
+    ctx.fillText(`grid 5 m; ${$("replay-align").checked ? "x = start to farthest point" : "x east, y north"}`, 6 * dpr, 14 * dpr);
     const px = (tr, i) => X(tr.x_m[i]), py = (tr, i) => Y(tr.y_m[i]);
     if (view.b) strokePath(ctx, view.b, px, py, () => "rgba(150, 60, 200, 0.55)", 3 * dpr);
     strokePath(ctx, view.a, px, py, (i) => ramp(view.a.z_m[i], 0, 10), 3 * dpr);

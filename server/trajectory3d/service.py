@@ -210,10 +210,9 @@ class Trajectory3D:
         assert self.server is not None
         for client in self.server.get_clients().values():
             cam = client.camera
-            offset = np.asarray(cam.position) - np.asarray(cam.look_at)
-            with client.atomic():
-                cam.look_at = pos
-                cam.position = pos + offset
+            # viser's position setter moves look_at along by the same offset, so one
+            # assignment translates the whole view onto the vehicle.
+            cam.position = np.asarray(cam.position) + (pos - np.asarray(cam.look_at))
 
     def _status(self, state: VehicleState, text: str) -> None:
         now = time.monotonic()
