@@ -230,7 +230,3 @@ def _max_speed(t: np.ndarray, xyz: np.ndarray, span_s: float) -> float:
     i = np.flatnonzero(ok)
     d = np.linalg.norm(xyz[j[ok]] - xyz[i], axis=1)
     return float(np.max(d / (t[j[ok]] - t[i])))
-
-
-def window_of(result: TaskResult) -> tuple[float, float]:
-    return result.window_start_s, result.window_end_s
