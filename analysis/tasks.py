@@ -1,8 +1,8 @@
 """The paper's four flight tasks: trial detection, analysis windows and metrics.
 
 - Trial: from take-off to landing, detected from the armed state and the height z (the
-  vehicle is airborne while armed and more than `airborne_height_m` above the start),
-  not from the file's length.
+  vehicle is airborne while armed and more than `airborne_height_m` above the start,
+  for at least `min_airborne_s`), not from the file's length.
 - Hover window: from the first time z reaches `hover_height_m` (4 m) to
   `hover_window_s` (10 s) later.
 - Other tasks' window: from the first time x is `margin_m` (2 m) past the take-off x to
@@ -46,6 +46,7 @@ class TaskParams:
     hover_window_s: float = 10.0
     margin_m: float = 2.0
     airborne_height_m: float = 0.5
+    min_airborne_s: float = 1.0  # shorter excursions (GPS altitude noise on the pad) ignored
     min_points: int = 10
     min_window_points: int = 3
     speed_span_s: float = 1.0
@@ -105,13 +106,19 @@ def trial_span(a: AlignedTrack, p: TaskParams) -> tuple[int, int]:
     airborne = a.xyz_m[:, 2] > p.airborne_height_m
     if a.track.armed.any():  # without a heartbeat in the log, height alone decides
         airborne &= a.track.armed
-    idx = np.flatnonzero(airborne)
-    if idx.size < 2:
+    # Runs of consecutive airborne samples; a run must last `min_airborne_s` to count, so
+    # GPS altitude wander while armed on the pad is not taken for a take-off.
+    edges = np.diff(np.concatenate([[0], airborne.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    t = a.t_s
+    keep = (t[ends] - t[starts]) >= p.min_airborne_s
+    if not keep.any():
         raise TaskWindowError(
-            f"'{a.track.source}': the vehicle never flew (never armed and "
-            f"{p.airborne_height_m} m above the start), so there is no trial to analyse."
+            f"'{a.track.source}': the vehicle never flew (never armed and more than "
+            f"{p.airborne_height_m:g} m above the start for {p.min_airborne_s:g} s), so "
+            "there is no trial to analyse."
         )
-    return int(idx[0]), int(idx[-1])
+    return int(starts[keep][0]), int(ends[keep][-1])
 
 
 def task_window(a: AlignedTrack, task: str, p: TaskParams, trial: tuple[int, int]) -> Window:

@@ -12,6 +12,7 @@ from server import __version__
 from server.errors import install_error_handlers
 from server.routes import (
     analysis,
+    control,
     health,
     recording,
     sessions,
@@ -50,5 +51,6 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(video.router)
     app.include_router(viser_panel.router)
     app.include_router(trajectory.router)
+    app.include_router(control.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

@@ -39,7 +39,18 @@ def add_serve_parser(sub: Any) -> None:
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
     add_camera_flags(p)
     add_viser_flags(p)
+    add_recording_flags(p)
     p.set_defaults(func=run_serve)
+
+
+def add_recording_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sessions-dir", dest="recording.sessions_dir", type=Path,
+                   help="where recorded sessions go (default ./sessions)")
+    p.add_argument("--record-rate", dest="recording.rate_hz", type=float,
+                   help="telemetry.csv rows per second (1-100, default 30)")
+    p.add_argument("--no-auto-record", dest="recording.auto_record_on_arm",
+                   action="store_const", const=False,
+                   help="do not start recording when the vehicle arms")
 
 
 def add_viser_flags(p: argparse.ArgumentParser) -> None:
@@ -47,6 +58,49 @@ def add_viser_flags(p: argparse.ArgumentParser) -> None:
                    help="port of the 3D trajectory panel (viser; default 8080)")
     p.add_argument("--no-3d", dest="viser.enabled", action="store_const", const=False,
                    help="do not start the 3D trajectory panel")
+def add_sim_parser(sub: Any) -> None:
+    p = sub.add_parser("sim", help="run the digital twin alone, as a MAVLink vehicle")
+    p.add_argument("--config", type=Path, help="TOML settings file")
+    p.add_argument(
+        "--mavlink",
+        default="udpout:127.0.0.1:14550",
+        help="where the twin talks MAVLink: udpout:HOST:PORT (to a ground station, default "
+        "udpout:127.0.0.1:14550) or udpin:HOST:PORT (wait for one)",
+    )
+    p.add_argument("--scene", dest="twin.scene", type=Path, help="scene TOML (default: the field)")
+    p.add_argument("--seed", dest="twin.seed", type=int)
+    p.add_argument("--speed", dest="twin.realtime_factor", type=float, help="real-time factor")
+    p.add_argument("--wind", dest="twin.wind_east_mps", type=float, help="east wind (m/s)")
+    p.add_argument("--gusts", dest="twin.gust_std_mps", type=float, help="gust std (m/s)")
+    p.set_defaults(func=run_sim)
+
+
+def run_sim(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from twin.runner import twin_from_settings
+    from twin.scene import SceneError
+
+    settings = settings_from_args(args)
+    try:
+        twin = twin_from_settings(settings.twin, args.mavlink)
+        twin.start()
+    except (SceneError, ValueError, OSError) as exc:
+        print(f"fpv-station sim: {exc}", file=sys.stderr)
+        return 2
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    print(f"fpv-station sim: twin '{twin.scene.name}' talking MAVLink on {args.mavlink}", flush=True)
+    try:
+        while not done.wait(1.0):
+            if twin.error:
+                print(f"fpv-station sim: twin died: {twin.error}", file=sys.stderr)
+                return 1
+    finally:
+        twin.stop()
+    return 0
 
 
 def add_analyze_parser(sub: Any) -> None:
@@ -97,7 +151,13 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.listen import listening_socket
 
     sock = listening_socket(settings.server.host, settings.server.port)
-    uvicorn.Server(uvicorn.Config(app, log_level="info")).run(sockets=[sock])
+    # No permessage-deflate: browsers ask for it, and it would compress every telemetry
+    # message once per client, the per-client re-encoding the shared JSON body avoids.
+    # MJPEG streams never end by themselves: give them 2 s at shutdown, then cancel them.
+    config = uvicorn.Config(
+        app, log_level="info", ws_per_message_deflate=False, timeout_graceful_shutdown=2
+    )
+    uvicorn.Server(config).run(sockets=[sock])
     return 0
 
 
@@ -128,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     add_serve_parser(sub)
+    add_sim_parser(sub)
     add_analyze_parser(sub)
     add_cameras_parser(sub)
     return parser

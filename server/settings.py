@@ -114,12 +114,30 @@ class ViserSettings(_Section):
     field_file: Path | None = None  # a twin scene TOML; None = the twin's default field
 
 
+class TwinSettings(_Section):
+    """The embedded digital twin (`--source sim` and `fpv-station sim`)."""
+
+    scene: Path | None = None  # scene TOML; None = the built-in field of the paper
+    seed: int = 0
+    physics_hz: float = Field(250.0, ge=250.0, le=2000.0)
+    realtime_factor: float = Field(1.0, gt=0, le=100.0)
+    wind_east_mps: float = 0.0
+    wind_north_mps: float = 0.0
+    gust_std_mps: float = Field(0.0, ge=0)
+    sensor_noise: bool = True
+    gps_rate_hz: float = Field(5.0, ge=1.0, le=20.0)
+    max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
+    rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
+    fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
+
+
 class Settings(_Section):
     server: ServerSettings = Field(default_factory=ServerSettings)
     link: LinkSettings = Field(default_factory=LinkSettings)
     recording: RecordingSettings = Field(default_factory=RecordingSettings)
     cameras: CameraSettings = Field(default_factory=CameraSettings)
     viser: ViserSettings = Field(default_factory=ViserSettings)
+    twin: TwinSettings = Field(default_factory=TwinSettings)
 
 
 class SettingsError(ValueError):

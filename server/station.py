@@ -37,6 +37,8 @@ class Station:
     # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
     cameras: dict[str, Any] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
+    # The digital twin (twin.runner.Twin) when link.source is "sim", else None.
+    twin: Any = None
 
 
 @contextlib.asynccontextmanager
@@ -48,10 +50,11 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
         # -- vehicle link ----------------------------------------------------------
         source = settings.link.source.strip()
         if source == "sim":
-            # The twin section starts an embedded twin vehicle here, then points a
-            # MavlinkLink at it over a loopback socket and sets station.link/state,
-            # exactly as for a real vehicle below.
-            pass
+            # The embedded twin vehicle, reached by a MavlinkLink over a loopback socket,
+            # exactly as a real vehicle below (server/sim.py).
+            from server.sim import open_sim
+
+            open_sim(station, stack)
         elif source != "none":
             link = MavlinkLink(settings.link)
             link.start()
@@ -74,13 +77,12 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
     from server.recording import open_recorder
 
-    state = station.state
     cams = station.cameras
     return await open_recorder(
-        station.settings, stack, station.tasks.spawn, state,
+        station.settings, stack, station.tasks.spawn, station.state,
         {name: cam.frames for name, cam in cams.items()},
-        {name: getattr(cam, "fps", None) for name, cam in cams.items()},
-        getattr(station, "link", None),
+        {name: cam.config.fps for name, cam in cams.items()},
+        station.link,
     )
 
 
@@ -101,6 +103,8 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
         )
     start_cameras(station.cameras.values())
     stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
+
+
 async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
     from server.trajectory3d.field import default_field
     from server.trajectory3d.service import open_trajectory3d

@@ -98,8 +98,8 @@ def test_link_lost_and_recovered():
         v.silent = False
         assert wait_until(lambda: not state(link).link.link_lost, timeout=3)
         # Regained: the rates are asked for again (the autopilot may have rebooted).
-        n = sum(1 for m in v.received if m.get_type() == "COMMAND_LONG")
-        assert n >= 2 * len(LinkSettings().message_rates_hz)
+        n_rates = len(LinkSettings().message_rates_hz)
+        assert wait_until(lambda: v.received_types().count("COMMAND_LONG") >= 2 * n_rates)
 
 
 def test_random_garbage_and_corrupt_packets_interleaved():
@@ -118,7 +118,6 @@ def test_random_garbage_and_corrupt_packets_interleaved():
         assert wait_until(lambda: state(link).attitude.roll_rad == pytest.approx(0.199))
         h = link.health()
         assert h.garbage_bytes > 1000 and h.bad_crc >= 10
-        assert link.health().rates_hz or True
         assert h.packets >= 200  # every good ATTITUDE got through
 
 

@@ -45,7 +45,10 @@ def test_record_list_meta_and_files(server):
     assert listed[0]["telemetry_rows"] >= 10
     detail = httpx.get(f"{base}/api/sessions/{sid}").json()
     assert detail["meta"]["quality"]["telemetry_rate_hz"] == 30.0
-    assert set(detail["files"]) == {"session.json", "telemetry.csv", "mavlink.tlog"}
+    # The test app's cameras show NO SIGNAL (no source): no frame, but their frames.csv.
+    assert set(detail["files"]) == {"session.json", "telemetry.csv", "mavlink.tlog",
+                                    "front/frames.csv", "bottom/frames.csv"}
+    assert detail["frame_files"] == {}
     r = httpx.get(f"{base}/api/sessions/{sid}/files/telemetry.csv")
     assert r.status_code == 200 and r.content == (root / sid / "telemetry.csv").read_bytes()
     assert r.content.startswith(b"t_s,wall_time,heartbeat.t_mono")
@@ -55,7 +58,7 @@ def test_streamed_zip_unzips_to_the_same_bytes(server):
     base, root = server
     sid = record_session(base)
     # Frames as written by the recorder (the test app has no camera): add real files.
-    (root / sid / "front").mkdir()
+    (root / sid / "front").mkdir(exist_ok=True)
     payloads = {f"front/{i:08d}.jpg": bytes([i % 256]) * (50_000 + i) for i in range(1, 40)}
     for rel, data in payloads.items():
         (root / sid / rel).write_bytes(data)

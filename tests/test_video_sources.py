@@ -234,3 +234,108 @@ def test_cameras_command_runs_here():
                          text=True, timeout=30)
     assert out.returncode == 0, out.stderr
     assert "/dev/video" in out.stdout or "No V4L2 video devices found" in out.stdout
+
+
+class FakeUvcCapture:
+    """Stands in for cv2.VideoCapture on a USB device (none exists here): what OpenCV's
+    V4L2 backend returns with CAP_PROP_CONVERT_RGB off is the driver's raw buffer."""
+
+    def __init__(self, fourcc: str, frames: list):
+        self.props = {cv2.CAP_PROP_FOURCC: float(cv2.VideoWriter.fourcc(*fourcc))}
+        self.frames = list(frames)
+        self.released = False
+
+    def isOpened(self):
+        return True
+
+    def set(self, prop, value):
+        if prop == cv2.CAP_PROP_FOURCC:
+            return True  # the device keeps its own format (props[FOURCC])
+        self.props[prop] = value
+        return True
+
+    def get(self, prop):
+        return self.props.get(prop, 0.0)
+
+    def read(self):
+        if not self.frames:
+            return False, None  # unplugged: OpenCV's read fails
+        return True, self.frames.pop(0)
+
+    def release(self):
+        self.released = True
+
+
+def test_v4l2_mjpeg_is_passed_through_untouched_and_a_lost_device_reopens():
+    from companion.cameras.capture import Camera
+    from companion.cameras.source import SourceConfig
+    from companion.cameras.v4l2 import V4l2Source
+
+    jpegs = [cv2.imencode(".jpg", np.full((240, 320, 3), 40 * i, np.uint8))[1].tobytes() for i in range(3)]
+    raw = [np.frombuffer(j + b"\0" * 64, np.uint8).reshape(1, -1) for j in jpegs]  # driver padding
+    truncated = np.frombuffer(jpegs[0][:500], np.uint8).reshape(1, -1)
+    devices = []
+
+    def factory(device, api):
+        assert (device, api) == (0, cv2.CAP_V4L2)
+        cap = FakeUvcCapture("MJPG", [raw[0], truncated, raw[1], raw[2]] if not devices else raw)
+        devices.append(cap)
+        return cap
+
+    config = SourceConfig("front", 640, 480, 30.0, 80, stall_s=1.0)
+    source = V4l2Source(config, 0, "MJPG", capture_factory=factory)
+    camera = Camera(parse_spec("v4l2:0"), config, source, retry_min_s=0.1)
+    seen = []
+    camera.start()
+    try:
+        assert wait_until(lambda: len(devices) >= 2 and camera.stats().frames >= 4, 3.0)
+        seen = [camera.frames.get().value]
+    finally:
+        camera.stop()
+    stats = camera.stats()
+    assert devices[0].props[cv2.CAP_PROP_CONVERT_RGB] == 0 and devices[0].released
+    assert stats.encodes == 0 and stats.passthrough_frames == stats.frames
+    assert stats.frames_dropped >= 1  # the truncated buffer was skipped, not shown
+    assert seen[0].jpeg in jpegs and (seen[0].width, seen[0].height) == (320, 240)
+    assert "MJPEG passthrough" in stats.description
+
+
+def test_v4l2_raw_format_device_is_encoded_once_per_frame():
+    from companion.cameras.capture import Camera
+    from companion.cameras.source import SourceConfig
+    from companion.cameras.v4l2 import V4l2Source
+
+    frames = [np.full((120, 160, 3), i, np.uint8) for i in range(5)]
+    config = SourceConfig("bottom", 160, 120, 30.0, 80)
+    source = V4l2Source(config, 1, None, capture_factory=lambda d, a: FakeUvcCapture("YUYV", frames))
+    camera = Camera(parse_spec("v4l2:1"), config, source, retry_min_s=5.0)
+    camera.start()
+    try:
+        assert wait_until(lambda: camera.stats().frames == 5, 3.0)
+        assert wait_until(lambda: not camera.stats().signal, 2.0)  # then the device is gone
+    finally:
+        camera.stop()
+    stats = camera.stats()
+    assert stats.encodes == 5 and stats.passthrough_frames == 0
+    assert "delivered no frame" in stats.reason and "YUYV" in stats.description
+
+
+def test_sim_cameras_render_the_real_twin():
+    from twin.runner import twin_from_settings
+
+    twin = twin_from_settings(load_settings(environ={}).twin, None)
+    cams = [build_camera(name, CameraConfig(fps=10), link_source="sim", renderer=lambda: twin)
+            for name in ("front", "bottom")]
+    for cam in cams:
+        cam.start()
+    try:
+        assert wait_until(lambda: all(c.stats().frames >= 3 for c in cams), 10.0)
+        front, bottom = (_decode(c.frames.get().value.jpeg) for c in cams)
+    finally:
+        for cam in cams:
+            cam.stop()
+    assert front.shape == bottom.shape == (480, 640, 3)
+    assert all(c.stats().description == f"digital twin camera '{c.name}'" for c in cams)
+    # On the start pad the front camera sees sky above the horizon, the bottom one the pad:
+    # two different views, not one picture twice.
+    assert np.abs(front.astype(int) - bottom.astype(int)).mean() > 20

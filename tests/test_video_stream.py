@@ -91,7 +91,12 @@ def test_a_viewer_that_stops_reading_does_not_delay_the_others(server):
         made = _cameras(server)["front"]["frames"] - before
         assert _cameras(server)["front"]["clients"] == 1  # the stuck one is still there
         assert _increasing(healthy.seqs)
-        assert len(healthy.parts) >= 0.85 * made, (len(healthy.parts), made)
+        # Had the stuck viewer held the camera or the loop, the healthy one would have got
+        # nothing for as long as it is stuck. (How many of the frames it gets depends
+        # on this machine's load, so only a loose share is asked for.)
+        arrivals = [p.arrived for p in healthy.parts]
+        assert len(arrivals) >= 0.5 * made, (len(arrivals), made)
+        assert max(b - a for a, b in zip(arrivals, arrivals[1:])) < 0.5
         # The stuck viewer resumes: it skips to new frames instead of draining a backlog.
         stuck.settimeout(2.0)
         data = b""
@@ -124,3 +129,16 @@ def test_snapshot_stats_and_errors(server):
     assert (front["width"], front["height"], front["configured_fps"]) == (320, 240, 30.0)
     assert 25 <= front["delivered_fps"] <= 31 and front["encode_ms"] > 0
     assert front["last_frame_age_s"] < 1.0
+
+
+def test_viewer_of_a_silent_camera_is_cleaned_up_after_disconnect():
+    """A `none` camera publishes one NO SIGNAL frame and then nothing: no write reveals
+    the disconnect, so the stream must notice it by itself."""
+    app = create_app(load_settings(environ={}, overrides={"link.source": "none"}))
+    with run_uvicorn_tuned(app) as base:
+        viewer = Viewer("127.0.0.1", _port(base), "/video/bottom.mjpg")
+        asyncio.run(viewer.run(1.0))
+        assert [p.signal for p in viewer.parts] == [False]
+        assert viewer.parts[0].seq == 1
+        assert wait_until(lambda: _cameras(base)["bottom"]["clients"] == 0, 4.0)
+        assert _cameras(base)["bottom"]["reason"].startswith("no camera configured")

@@ -98,6 +98,10 @@ class Camera:
             self._threads.append(thread)
             thread.start()
 
+    def request_stop(self) -> None:
+        """Ask the threads to end without waiting (to stop several cameras at once)."""
+        self._stop.set()
+
     def stop(self, timeout_s: float = 3.0) -> None:
         self._stop.set()
         for thread in self._threads:
@@ -106,6 +110,11 @@ class Camera:
                 log.warning("camera %s: thread %s did not stop in time", self.name, thread.name)
         self._threads.clear()
         self.frames.close()
+
+    @property
+    def fps(self) -> float:
+        """The configured frame rate (the recorder sizes its buffers by it)."""
+        return self.config.fps
 
     @contextlib.contextmanager
     def watching(self) -> Iterator[None]:

@@ -92,6 +92,6 @@ def start_cameras(cameras: Iterable[Camera]) -> None:
 def stop_cameras(cameras: Iterable[Camera]) -> None:
     cameras = list(cameras)
     for camera in cameras:
-        camera._stop.set()  # ask all at once so their shutdowns overlap
+        camera.request_stop()  # all at once, so that their shutdowns overlap
     for camera in cameras:
         camera.stop()

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -30,9 +32,16 @@ class V4l2Source(FrameSource):
     paced = False  # the device sets the rate; read() blocks until it delivers
     resize_to_config = False
 
-    def __init__(self, config: SourceConfig, device: str | int, fourcc: str | None) -> None:
+    def __init__(
+        self,
+        config: SourceConfig,
+        device: str | int,
+        fourcc: str | None,
+        capture_factory: Callable[..., Any] = cv2.VideoCapture,
+    ) -> None:
         super().__init__(config)
         self.device = device
+        self._capture_factory = capture_factory  # tests stand in for the USB device here
         self.fourcc_wanted = (fourcc or "MJPG").upper()
         self.fourcc = "?"
         self.passthrough = False
@@ -45,7 +54,7 @@ class V4l2Source(FrameSource):
     def open(self) -> None:
         if isinstance(self.device, str) and not os.path.exists(self.device):
             raise SourceError(f"{self.device} does not exist (unplugged?)")
-        cap = cv2.VideoCapture(self.device, cv2.CAP_V4L2)
+        cap = self._capture_factory(self.device, cv2.CAP_V4L2)
         if not cap.isOpened():
             cap.release()
             raise SourceError(f"cannot open {self.device} (busy, not a capture device, or no permission)")

@@ -78,6 +78,7 @@ class Recorder:
         self.cameras = dict(cameras)
         self.options = options
         self.session: RecordingSession | None = None
+        self._finalizing: RecordingSession | None = None  # stopped, files being closed
         self.last_stop: LastStop | None = None
         self._lock = asyncio.Lock()
         self._spawn: Spawn | None = None
@@ -103,7 +104,8 @@ class Recorder:
 
     @property
     def recording_id(self) -> str | None:
-        s = self.session
+        """The session being written (also while its files are being closed)."""
+        s = self.session or self._finalizing
         return s.id if s is not None else None
 
     async def start(self, trigger: str = "api") -> RecordingStatus:
@@ -133,7 +135,14 @@ class Recorder:
             self._cancel_tail()
             session, self.session = self.session, None
             if session is not None:
-                meta = await session.stop(reason)
+                # Visible at once (the status never shows "stopped" without a reason);
+                # the end time is refined once the files are closed.
+                self.last_stop = LastStop(session.id, session.stop_reason or reason, time.time())
+                self._finalizing = session
+                try:
+                    meta = await session.stop(reason)
+                finally:
+                    self._finalizing = None
                 self.last_stop = LastStop(
                     session.id, meta.stop_reason or reason, meta.end_wall or time.time()
                 )

@@ -14,21 +14,18 @@ from __future__ import annotations
 
 import time
 import weakref
-from collections.abc import AsyncIterator
 
 from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
 from pydantic import BaseModel
 
-from companion.frames import Frame
-from companion.latest import Versioned
 from server.errors import NotFound, Unavailable
+from server.video_fanout import BOUNDARY, FrameFanout, frame_time_header
 
 router = APIRouter(tags=["video"])
 
-BOUNDARY = "fpvframe"
 _NO_CACHE = {"Cache-Control": "no-store, no-cache, must-revalidate", "Pragma": "no-cache"}
-_IDLE_WAIT_S = 5.0  # wake up now and then to notice a closed camera
+_fanouts: weakref.WeakKeyDictionary[object, FrameFanout] = weakref.WeakKeyDictionary()
 
 
 class CameraInfo(BaseModel):
@@ -57,35 +54,6 @@ class CamerasReply(BaseModel):
     cameras: list[CameraInfo]
 
 
-def frame_time_header(frame: Frame) -> str:
-    return f"{frame.t_wall:.6f}"
-
-
-class _PartCache:
-    """The multipart part of a camera's newest frame, built once for every viewer."""
-
-    __slots__ = ("version", "part")
-
-    def __init__(self) -> None:
-        self.version = 0
-        self.part = b""
-
-    def get(self, item: Versioned[Frame]) -> bytes:
-        if item.version != self.version:
-            frame = item.value
-            head = (
-                f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
-                f"Content-Length: {len(frame.jpeg)}\r\n"
-                f"X-Frame-Seq: {frame.seq}\r\nX-Frame-Time: {frame_time_header(frame)}\r\n"
-                f"X-Frame-Signal: {int(frame.signal)}\r\n\r\n"
-            ).encode("ascii")
-            self.part, self.version = head + frame.jpeg + b"\r\n", item.version
-        return self.part
-
-
-_parts: weakref.WeakKeyDictionary[object, _PartCache] = weakref.WeakKeyDictionary()
-
-
 def _camera(request: Request, name: str):
     cameras = request.app.state.station.cameras
     camera = cameras.get(name)
@@ -93,18 +61,6 @@ def _camera(request: Request, name: str):
         known = ", ".join(sorted(cameras)) or "none"
         raise NotFound(f"No camera '{name}'; cameras: {known}.")
     return camera
-
-
-async def _mjpeg(camera, cache: _PartCache) -> AsyncIterator[bytes]:
-    frames = camera.frames
-    with camera.watching():  # leaves on disconnect too: the generator is closed or cancelled
-        version = 0
-        while not frames.closed:
-            item = await frames.wait_newer(version, timeout=_IDLE_WAIT_S)
-            if item is None or item.version <= version:
-                continue
-            version = item.version
-            yield cache.get(item)
 
 
 @router.get(
@@ -115,9 +71,11 @@ async def _mjpeg(camera, cache: _PartCache) -> AsyncIterator[bytes]:
 )
 async def get_stream(camera: str, request: Request) -> StreamingResponse:
     cam = _camera(request, camera)
-    cache = _parts.setdefault(cam, _PartCache())
+    fanout = _fanouts.get(cam)
+    if fanout is None:
+        fanout = _fanouts[cam] = FrameFanout(cam.name, cam.frames)
     return StreamingResponse(
-        _mjpeg(cam, cache),
+        fanout.stream(request.app.state.station.tasks, cam.watching(), request.is_disconnected),
         media_type=f"multipart/x-mixed-replace; boundary={BOUNDARY}",
         headers={**_NO_CACHE, "X-Accel-Buffering": "no"},
     )

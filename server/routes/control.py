@@ -1,0 +1,158 @@
+"""`WS /ws/control`: the pilot's sticks from the browser (gamepad or keyboard) to the twin.
+
+The browser sends its sticks at ~50 Hz; the station sends MANUAL_CONTROL to the twin
+through its ordinary MAVLink link at a steady 50 Hz from the newest sticks. Dead-man:
+no message for 0.5 s = sticks centred (Position mode then holds position and altitude).
+One pilot at a time. Refused unless the station runs the digital twin: the station never
+sends stick inputs to a real vehicle.
+
+Client -> station, JSON:
+    {"type": "sticks", "roll": r, "pitch": p, "yaw": y, "throttle": t}  r/p/y in [-1, 1],
+                                                          throttle in [0, 1], 0.5 = centred
+    {"type": "arm"} | {"type": "disarm"} | {"type": "mode", "mode": "POSCTL"}
+    {"type": "takeoff", "alt_m": 4} | {"type": "land"} | {"type": "reset"}
+Station -> client: {"type": "hello", ...}, {"type": "ack", "cmd": ..., "ok": ...} and the
+error shape {"error": Name, "error_msg": text} for anything refused.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import time
+from typing import Literal
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from pydantic import BaseModel, Field, ValidationError
+
+from server.auth import require_control_token
+from server.errors import ApiError, BadRequest
+
+router = APIRouter(tags=["control"])
+
+RATE_HZ = 50.0
+DEADMAN_S = 0.5
+CENTRED = (0.0, 0.0, 0.0, 0.5)
+PX4_MAIN_MODES = {"STABILIZED": 7, "MANUAL": 7, "ALTCTL": 2, "POSCTL": 3}
+
+
+class Sticks(BaseModel):
+    type: Literal["sticks"]
+    roll: float = Field(0.0, ge=-1, le=1)
+    pitch: float = Field(0.0, ge=-1, le=1)
+    yaw: float = Field(0.0, ge=-1, le=1)
+    throttle: float = Field(0.5, ge=0, le=1)
+
+
+class Command(BaseModel):
+    type: Literal["arm", "disarm", "mode", "takeoff", "land", "reset"]
+    mode: str | None = None
+    alt_m: float | None = Field(None, gt=0, le=100)
+
+
+def _error(name: str, message: str) -> str:
+    return json.dumps({"error": name, "error_msg": message})
+
+
+class _Pilot:
+    """The newest sticks of one connection and when they arrived."""
+
+    def __init__(self) -> None:
+        self.sticks = CENTRED
+        self.at = -math.inf
+
+    def current(self, now: float) -> tuple[float, float, float, float]:
+        return self.sticks if now - self.at <= DEADMAN_S else CENTRED
+
+
+async def _send_sticks(link, pilot: _Pilot, target: int) -> None:
+    """MANUAL_CONTROL at a steady rate from the newest sticks (never queues up)."""
+    period = 1.0 / RATE_HZ
+    next_t = time.monotonic()
+    while True:
+        roll, pitch, yaw, thr = pilot.current(time.monotonic())
+        link.send(link.mav.manual_control_encode(
+            target, int(pitch * 1000), int(roll * 1000), int(thr * 1000), int(yaw * 1000), 0))
+        next_t += period
+        await asyncio.sleep(max(0.0, next_t - time.monotonic()))
+
+
+def _command(station, cmd: Command) -> None:
+    """Arm, mode, take-off and land go through the link as for any vehicle."""
+    link, mav = station.link, station.link.mav
+    if cmd.type == "reset":
+        station.twin.reset()
+        return
+    if cmd.type in ("arm", "disarm"):
+        msg = mav.command_long_encode(1, 1, 400, 0, 1.0 if cmd.type == "arm" else 0.0,
+                                      0, 0, 0, 0, 0, 0)
+    elif cmd.type == "mode":
+        main = PX4_MAIN_MODES.get((cmd.mode or "").upper())
+        if main is None:
+            raise BadRequest(f"Mode '{cmd.mode}' is not one the pilot can choose: "
+                           f"{', '.join(PX4_MAIN_MODES)}.")
+        msg = mav.command_long_encode(1, 1, 176, 0, 1, main, 0, 0, 0, 0, 0)
+    elif cmd.type == "takeoff":
+        home = station.twin.scene.home.alt_m
+        alt = home + (cmd.alt_m or 2.5)
+        msg = mav.command_long_encode(1, 1, 22, 0, 0, 0, 0, math.nan, math.nan, math.nan, alt)
+    else:
+        msg = mav.command_long_encode(1, 1, 21, 0, 0, 0, 0, math.nan, math.nan, math.nan, 0)
+    link.send(msg)
+
+
+@router.websocket("/ws/control")
+async def ws_control(ws: WebSocket) -> None:
+    station = ws.app.state.station
+    await ws.accept()
+    try:
+        require_control_token(ws)
+    except ApiError as exc:
+        await ws.send_text(_error(type(exc).__name__, exc.message))
+        await ws.close(code=4401)
+        return
+    if getattr(station, "twin", None) is None or station.link is None:
+        await ws.send_text(_error(
+            "Conflict", "Stick control exists only for the digital twin (--source sim); "
+            "the station never sends stick inputs to a real vehicle."))
+        await ws.close(code=4409)
+        return
+    if getattr(ws.app.state, "control_pilot", None) is not None:
+        await ws.send_text(_error("Conflict", "Another pilot has the sticks; one at a time."))
+        await ws.close(code=4409)
+        return
+    pilot = _Pilot()
+    ws.app.state.control_pilot = pilot
+    sender = asyncio.ensure_future(_send_sticks(station.link, pilot, 1))
+    try:
+        await ws.send_text(json.dumps({"type": "hello", "rate_hz": RATE_HZ,
+                                       "deadman_s": DEADMAN_S}))
+        while True:
+            text = await ws.receive_text()
+            try:
+                data = json.loads(text)
+                if not isinstance(data, dict):
+                    raise ValueError("a message is a JSON object")
+                if data.get("type") == "sticks":
+                    s = Sticks.model_validate(data)
+                    pilot.sticks, pilot.at = (s.roll, s.pitch, s.yaw, s.throttle), time.monotonic()
+                    continue
+                cmd = Command.model_validate(data)
+                _command(station, cmd)
+                await ws.send_text(json.dumps({"type": "ack", "cmd": cmd.type, "ok": True}))
+            except (ValueError, ValidationError) as exc:
+                await ws.send_text(_error("BadRequest", f"Bad control message: {exc}"[:500]))
+            except ApiError as exc:
+                await ws.send_text(_error("BadRequest", exc.message))
+    except (WebSocketDisconnect, RuntimeError, ConnectionError):
+        pass
+    finally:
+        sender.cancel()
+        with contextlib.suppress(asyncio.CancelledError, Exception):
+            await sender
+        # The pilot left: centre the sticks now rather than wait for the twin's timeout.
+        with contextlib.suppress(Exception):
+            station.link.send(station.link.mav.manual_control_encode(1, 0, 0, 500, 0, 0))
+        ws.app.state.control_pilot = None

@@ -1,0 +1,154 @@
+"""The station on the twin (`serve --source sim`): the real link over loopback UDP, and the
+browser's sticks over `WS /ws/control` turned into MANUAL_CONTROL."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+from websockets.sync.client import connect
+
+from server.app import create_app
+from server.settings import load_settings
+from tests.helpers import run_uvicorn, wait_until
+
+
+def sim_app(**overrides):
+    settings = load_settings(None, {"link.source": "sim", "twin.realtime_factor": 2.0,
+                                    "recording.auto_record_on_arm": False, **overrides},
+                             environ={})
+    return create_app(settings)
+
+
+@pytest.fixture()
+def station_url(tmp_path):
+    app = sim_app(**{"recording.sessions_dir": str(tmp_path)})
+    with run_uvicorn(app) as url:
+        yield app, url.replace("http", "ws")
+
+
+def state(app):
+    latest = app.state.station.state.get()
+    return latest.value if latest else None
+
+
+def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None:
+    app, ws_url = station_url
+    twin = app.state.station.twin
+    assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
+    assert state(app).heartbeat.autopilot == "px4" and state(app).heartbeat.mode == "POSCTL"
+    with connect(ws_url + "/ws/control") as ws:
+        hello = json.loads(ws.recv(timeout=5))
+        assert hello["type"] == "hello" and hello["deadman_s"] == 0.5
+        ws.send(json.dumps({"type": "arm"}))
+        assert json.loads(ws.recv(timeout=5)) == {"type": "ack", "cmd": "arm", "ok": True}
+        assert wait_until(lambda: state(app).heartbeat.armed, timeout=5)
+        deadline = time.monotonic() + 10
+        while twin.pose().pos_enu_m[2] < 2.0:  # full climb stick, as a gamepad sends it
+            ws.send(json.dumps({"type": "sticks", "roll": 0, "pitch": 0, "yaw": 0,
+                                "throttle": 1.0}))
+            time.sleep(0.02)
+            assert time.monotonic() < deadline, "the twin did not climb"
+        assert state(app).rc.pwm_us[2] > 1900  # the station sees the stick as RC PWM
+        assert max(state(app).servo.pwm_us[:4]) > 1300
+        # Dead-man: the browser goes silent; after 0.5 s the sticks are centred and
+        # Position mode holds the altitude.
+        time.sleep(1.5)
+        z0 = twin.pose().pos_enu_m[2]
+        time.sleep(1.0)
+        assert abs(twin.pose().pos_enu_m[2] - z0) < 0.3
+        assert abs(twin.pose().vel_enu_mps[2]) < 0.3
+        assert state(app).rc.pwm_us[2] == 1500
+        # Bad input gets the error shape and the connection stays.
+        ws.send("not json")
+        assert json.loads(ws.recv(timeout=5))["error"] == "BadRequest"
+        ws.send(json.dumps({"type": "sticks", "roll": 7}))
+        assert json.loads(ws.recv(timeout=5))["error"] == "BadRequest"
+        ws.send(json.dumps({"type": "mode", "mode": "ACRO"}))
+        assert "ACRO" in json.loads(ws.recv(timeout=5))["error_msg"]
+        # A second pilot is refused while the first has the sticks.
+        with connect(ws_url + "/ws/control") as other:
+            assert json.loads(other.recv(timeout=5))["error"] == "Conflict"
+        ws.send(json.dumps({"type": "land"}))
+        assert json.loads(ws.recv(timeout=5))["ok"] is True
+        assert wait_until(lambda: state(app).heartbeat.mode == "LAND", timeout=5)
+
+
+def test_control_is_refused_without_the_twin(tmp_path) -> None:
+    app = create_app(load_settings(None, {"link.source": "none",
+                                          "recording.sessions_dir": str(tmp_path)}, environ={}))
+    with run_uvicorn(app) as url, connect(url.replace("http", "ws") + "/ws/control") as ws:
+        reply = json.loads(ws.recv(timeout=5))
+        assert reply["error"] == "Conflict" and "real vehicle" in reply["error_msg"]
+
+
+def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+
+    app = sim_app(**{"recording.sessions_dir": str(tmp_path)})
+    with run_uvicorn(app) as url, sync_playwright() as p:
+        twin = app.state.station.twin
+        assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
+        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        page = browser.new_page()
+        page.goto(url + "/")
+        page.wait_for_selector("#control-widget:not([hidden])", timeout=5000)
+        page.click("#ctl-toggle")
+        page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
+        page.click("#ctl-arm")
+        assert wait_until(lambda: state(app).heartbeat.armed, timeout=5)
+        page.keyboard.down("ArrowUp")
+        assert wait_until(lambda: twin.pose().pos_enu_m[2] > 1.5, timeout=8)
+        page.keyboard.up("ArrowUp")
+        sticks = page.evaluate("window.fpv.control.sticks")
+        assert sticks == {"roll": 0, "pitch": 0, "yaw": 0, "throttle": 0.5}
+        page.keyboard.down("KeyW")  # forward: east
+        x0 = twin.pose().pos_enu_m[0]
+        assert wait_until(lambda: twin.pose().pos_enu_m[0] > x0 + 1.0, timeout=8)
+        page.keyboard.up("KeyW")
+        # Mapping edits persist in the browser.
+        page.click("#ctl-pad summary")
+        page.fill("input[data-f='roll'][data-k='index']", "5")
+        page.dispatch_event("input[data-f='roll'][data-k='index']", "change")
+        saved = page.evaluate("JSON.parse(localStorage.getItem('fpv.control.gamepad'))")
+        assert saved["map"]["roll"]["index"] == 5
+        browser.close()
+
+
+def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
+    """What `make run` does: the station on the twin, from the command line."""
+    import subprocess
+    import sys
+
+    import httpx
+
+    from tests.helpers import free_port
+
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "server", "serve", "--source", "sim", "--host", "127.0.0.1",
+         "--port", str(port)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
+        env={**__import__("os").environ, "PYTHONPATH": str(__import__("pathlib").Path(
+            __file__).resolve().parents[1])})
+    try:
+        first = proc.stdout.readline()
+        assert f"http://127.0.0.1:{port}/" in first
+
+        def status():
+            try:
+                return httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=2).json()
+            except httpx.HTTPError:
+                return None
+
+        assert wait_until(lambda: (s := status()) and s.get("state", {}).get("heartbeat", {})
+                          .get("autopilot") == "px4", timeout=20), status()
+        assert status()["source"] == "sim"
+        page = httpx.get(f"http://127.0.0.1:{port}/", timeout=5).text
+        assert "/control.js" in page and 'id="control-widget"' in page
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)

@@ -1,0 +1,94 @@
+"""The twin's MAVLink vehicle in-process, stepped faster than real time, against a
+pymavlink ground station on a real loopback UDP socket."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+from pymavlink import mavutil
+
+from tests.helpers import free_port
+from twin.runner import Twin
+from twin.sensors import SensorParams
+from twin.sim import SimConfig
+
+
+@pytest.fixture()
+def twin_and_gcs():
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    twin = Twin(config=SimConfig(sensors=SensorParams(enabled=False)),
+                mavlink=f"udpout:127.0.0.1:{port}")
+    twin.step_for(2.5)  # GPS fix; the vehicle's first packets make the GCS learn its address
+    assert gcs.wait_heartbeat(timeout=5) is not None
+    yield twin, gcs
+    twin.stop()
+    gcs.close()
+
+
+def drain(gcs, kind: str | None = None, timeout: float = 0.3) -> list:
+    out, deadline = [], time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(blocking=True, timeout=0.05)
+        if msg is not None and (kind is None or msg.get_type() == kind):
+            out.append(msg)
+    return out
+
+
+def test_rc_override_moves_the_sticks_and_shows_in_rc_channels(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    gcs.mav.rc_channels_override_send(1, 1, 1700, 1400, 1000, 2000, 0, 0, 0, 0)
+    twin.step_for(0.2)
+    roll, pitch, yaw, thr = twin.sim.sticks[0]
+    assert (roll, pitch, yaw, thr) == pytest.approx((0.4, -0.2, 1.0, 0.0))
+    rc = drain(gcs, "RC_CHANNELS")[-1]
+    assert (rc.chan1_raw, rc.chan2_raw, rc.chan3_raw, rc.chan4_raw) == (1700, 1400, 1000, 2000)
+    # Throttle down + yaw right held for a second: the arming gesture, through a radio
+    # that keeps sending, as radios do.
+    for _ in range(13):
+        gcs.mav.rc_channels_override_send(1, 1, 1500, 1500, 1000, 2000, 0, 0, 0, 0)
+        twin.step_for(0.1)
+    assert twin.sim.commander.armed[0]
+    # The radio goes silent: after 1 s the twin centres the sticks (hold).
+    twin.step_for(1.5)
+    assert tuple(twin.sim.sticks[0]) == (0.0, 0.0, 0.0, 0.5)
+
+
+def test_interval_disable_request_message_and_version(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                              mavutil.mavlink.MAVLINK_MSG_ID_VFR_HUD, -1, 0, 0, 0, 0, 0)
+    twin.step_for(0.1)
+    drain(gcs, timeout=0.2)
+    twin.step_for(2.0)
+    got = {m.get_type() for m in drain(gcs)}
+    assert "VFR_HUD" not in got and "ATTITUDE" in got
+    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                              mavutil.mavlink.MAVLINK_MSG_ID_VFR_HUD, 0, 0, 0, 0, 0, 0)
+    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                              mavutil.mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0)
+    twin.step_for(0.1)
+    got = drain(gcs)
+    assert sum(m.get_type() == "VFR_HUD" for m in got) == 1  # once, not re-enabled
+    version = [m for m in got if m.get_type() == "AUTOPILOT_VERSION"]
+    assert version and version[0].flight_sw_version >> 24 == 1
+    acks = [m for m in got if m.get_type() == "COMMAND_ACK"]
+    assert [a.result for a in acks] == [0, 0]
+
+
+def test_refused_arming_is_acked_denied_with_a_reason(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    twin.sim.state.crash[0] = 2  # as after hitting an obstacle
+    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0,
+                              0, 0, 0)
+    twin.step_for(0.1)
+    got = drain(gcs)
+    ack = [m for m in got if m.get_type() == "COMMAND_ACK"][0]
+    assert ack.result == mavutil.mavlink.MAV_RESULT_DENIED
+    texts = [m.text for m in got if m.get_type() == "STATUSTEXT"]
+    assert any("crashed" in t for t in texts)
+    twin.step_for(1.0)
+    hb = drain(gcs, "HEARTBEAT")[-1]
+    assert hb.system_status == mavutil.mavlink.MAV_STATE_EMERGENCY

@@ -1,0 +1,200 @@
+"""PX4-like commander for N vehicles: arming, modes, land detection, auto-disarm, failsafes.
+
+Arming: by command (MAV_CMD_COMPONENT_ARM_DISARM) or the stick gesture (throttle down and
+yaw right for 1 s; throttle down and yaw left for 1 s disarms on the ground). Arming is
+refused after a crash, with an empty battery, or in Position mode without a GPS fix.
+Land detector: ground contact with no climb demand for 0.5 s. Auto-disarm 2 s after
+landing (COM_DISARM_LAND) and 10 s after arming without a take-off (COM_DISARM_PRFLT).
+Battery below 10 % in the air switches to LAND; a crash disarms. Messages for people
+(STATUSTEXT) collect in `events`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.control import (ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_TAKEOFF, MODE_NAMES, POSCTL,
+                          STABILIZED)
+from twin.dynamics import CRASH_REASONS
+
+LANDED_STATE_ON_GROUND, LANDED_STATE_IN_AIR, LANDED_STATE_TAKEOFF, LANDED_STATE_LANDING = (
+    1, 2, 3, 4)  # MAV_LANDED_STATE
+
+
+@dataclass(frozen=True)
+class CommanderParams:
+    gesture_s: float = 1.0
+    land_detect_s: float = 0.5
+    disarm_land_s: float = 2.0
+    disarm_preflight_s: float = 10.0
+    battery_land_pct: float = 10.0
+    default_takeoff_alt_m: float = 2.5  # MIS_TAKEOFF_ALT
+
+
+@dataclass
+class Event:
+    vehicle: int
+    severity: int  # MAV_SEVERITY: 2 critical, 4 warning, 6 info
+    text: str
+
+
+class Commander:
+    def __init__(self, n: int, params: CommanderParams | None = None,
+                 initial_mode: int = POSCTL) -> None:
+        self.p = params or CommanderParams()
+        self.n = n
+        self.armed = np.zeros(n, bool)
+        self.mode = np.full(n, initial_mode, int)
+        self.landed = np.ones(n, bool)
+        self.target_m = np.zeros((n, 3))  # AUTO modes' position setpoint (ENU)
+        self._gesture_s = np.zeros(n)
+        self._land_s = np.zeros(n)
+        self._since_arm_s = np.zeros(n)
+        self._ever_flew = np.zeros(n, bool)
+        self._crash_reported = np.zeros(n, bool)
+        self._battery_failsafe = np.zeros(n, bool)
+        self.events: list[Event] = []
+
+    def mode_name(self, i: int = 0) -> str:
+        return MODE_NAMES[int(self.mode[i])]
+
+    def landed_state(self, i: int = 0) -> int:
+        if self.landed[i]:
+            return LANDED_STATE_ON_GROUND
+        if self.mode[i] == AUTO_TAKEOFF:
+            return LANDED_STATE_TAKEOFF
+        if self.mode[i] == AUTO_LAND:
+            return LANDED_STATE_LANDING
+        return LANDED_STATE_IN_AIR
+
+    # ---- requests (from MAVLink commands or the API); each returns (accepted, reason) ----
+    def request_arm(self, i: int, arm: bool, crashed: bool, battery_pct: float,
+                    gps_fix: bool, force: bool = False) -> tuple[bool, str]:
+        if not arm:
+            if not self.armed[i]:
+                return True, "already disarmed"
+            if not self.landed[i] and not force:
+                return False, "disarm refused: in the air (use force)"
+            self._set_armed(i, False, "disarmed by command")
+            return True, ""
+        if self.armed[i]:
+            return True, "already armed"
+        if crashed:
+            return False, "arming refused: the vehicle has crashed (reset the twin)"
+        if battery_pct <= self.p.battery_land_pct:
+            return False, "arming refused: battery low"
+        if self.mode[i] == POSCTL and not gps_fix:
+            return False, "arming refused: Position mode needs a GPS fix"
+        if not self.landed[i]:
+            return False, "arming refused: not on the ground"
+        self._set_armed(i, True, "armed")
+        return True, ""
+
+    def request_mode(self, i: int, mode: int, pos_m: np.ndarray, gps_fix: bool) -> tuple[bool, str]:
+        if mode not in MODE_NAMES:
+            return False, f"unsupported mode {mode}"
+        if mode in (POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND) and not gps_fix:
+            return False, f"{MODE_NAMES[mode]} refused: no GPS fix"
+        if mode == AUTO_TAKEOFF:
+            return self.request_takeoff(i, pos_m, None)
+        if mode in (AUTO_LOITER, AUTO_LAND):
+            self.target_m[i] = pos_m
+        self._switch(i, mode)
+        return True, ""
+
+    def request_takeoff(self, i: int, pos_m: np.ndarray, alt_m: float | None) -> tuple[bool, str]:
+        """Climb to `alt_m` above the ground (PX4 takes AMSL in the command; the vehicle
+        converts) and loiter. Needs the vehicle armed or arms it if landed."""
+        if not self.armed[i]:
+            return False, "takeoff refused: disarmed"
+        alt = self.p.default_takeoff_alt_m if alt_m is None or not np.isfinite(alt_m) else alt_m
+        self.target_m[i] = [pos_m[0], pos_m[1], max(alt, 0.5)]
+        self._switch(i, AUTO_TAKEOFF)
+        return True, ""
+
+    def request_land(self, i: int, pos_m: np.ndarray) -> tuple[bool, str]:
+        self.target_m[i] = pos_m
+        self._switch(i, AUTO_LAND)
+        return True, ""
+
+    # ---- periodic update (outer-loop rate) ----
+    def update(self, dt: float, sticks: np.ndarray, on_ground: np.ndarray, crash: np.ndarray,
+               pos_m: np.ndarray, vel_sp_z: np.ndarray, battery_pct: np.ndarray,
+               gps_fix: np.ndarray) -> None:
+        p = self.p
+        low = sticks[:, 3] < 0.1
+        gesture = low & ((sticks[:, 2] > 0.9) & ~self.armed | (sticks[:, 2] < -0.9) & self.armed)
+        self._gesture_s = np.where(gesture, self._gesture_s + dt, 0.0)
+        for i in np.nonzero(self._gesture_s >= p.gesture_s)[0]:
+            self._gesture_s[i] = -1e9  # one action per gesture: wait for the sticks to move
+            if self.armed[i]:
+                if self.landed[i]:
+                    self._set_armed(int(i), False, "disarmed by stick gesture")
+            else:
+                ok, why = self.request_arm(int(i), True, bool(crash[i]), float(battery_pct[i]),
+                                           bool(gps_fix[i]))
+                if not ok:
+                    self.events.append(Event(int(i), 4, why))
+
+        # Land detector: contact and no climb demand; take-off: leaving the ground.
+        wants_up = vel_sp_z > 0.2
+        stab = self.mode == STABILIZED
+        wants_up = np.where(stab, sticks[:, 3] > 0.15, wants_up)
+        calm = on_ground & ~wants_up
+        self._land_s = np.where(calm, self._land_s + dt, 0.0)
+        took_off = self.landed & self.armed & ~on_ground
+        self._ever_flew |= took_off
+        self.landed = np.where(took_off, False, self.landed)
+        touched = ~self.landed & (self._land_s >= p.land_detect_s)
+        for i in np.nonzero(touched)[0]:
+            self.events.append(Event(int(i), 6, "landing detected"))
+        self.landed |= touched
+        self.landed |= ~self.armed & on_ground
+
+        # AUTO transitions.
+        reached = (self.mode == AUTO_TAKEOFF) & (pos_m[:, 2] > self.target_m[:, 2] - 0.2)
+        for i in np.nonzero(reached)[0]:
+            self.target_m[i] = pos_m[i]
+            self.target_m[i, 2] = self.target_m[i, 2]
+            self._switch(int(i), AUTO_LOITER)
+
+        # Auto-disarm and failsafes.
+        self._since_arm_s = np.where(self.armed, self._since_arm_s + dt, 0.0)
+        landed_long = self.armed & self.landed & (self._land_s >= p.disarm_land_s) & self._ever_flew
+        never_flew = (self.armed & self.landed & ~self._ever_flew
+                      & (self._since_arm_s >= p.disarm_preflight_s))
+        for i in np.nonzero(landed_long | never_flew)[0]:
+            self._set_armed(int(i), False, "auto-disarmed after landing" if landed_long[i]
+                            else "auto-disarmed: no take-off")
+        low_batt = self.armed & ~self.landed & (battery_pct < p.battery_land_pct) & ~self._battery_failsafe
+        for i in np.nonzero(low_batt)[0]:
+            self._battery_failsafe[i] = True
+            self.events.append(Event(int(i), 2, "battery critical: landing"))
+            self.request_land(int(i), pos_m[i])
+        crashed = (crash != 0) & ~self._crash_reported
+        for i in np.nonzero(crashed)[0]:
+            self._crash_reported[i] = True
+            self.events.append(Event(int(i), 2, f"CRASH: {CRASH_REASONS[int(crash[i])]}"))
+            if self.armed[i]:
+                self._set_armed(int(i), False, "disarmed after crash")
+
+    def _set_armed(self, i: int, armed: bool, text: str) -> None:
+        self.armed[i] = armed
+        self._since_arm_s[i] = 0.0
+        self._land_s[i] = 0.0
+        if armed:
+            self._ever_flew[i] = False
+        elif self.mode[i] in (AUTO_TAKEOFF, AUTO_LOITER):
+            self.mode[i] = POSCTL  # PX4 drops out of AUTO hold when disarmed on the ground
+        self.events.append(Event(i, 6 if armed or "auto" in text else 4, text))
+
+    def _switch(self, i: int, mode: int) -> None:
+        if self.mode[i] != mode:
+            self.mode[i] = mode
+            self.events.append(Event(i, 6, f"mode {MODE_NAMES[mode]}"))
+
+
+__all__ = ["Commander", "CommanderParams", "Event", "ALTCTL", "POSCTL", "STABILIZED",
+           "AUTO_TAKEOFF", "AUTO_LOITER", "AUTO_LAND"]

@@ -1,0 +1,207 @@
+"""A PX4-like multicopter controller, vectorized over N vehicles.
+
+Cascade as in PX4: position -> velocity -> acceleration/thrust vector (outer loop, called
+at the outer rate, ~50 Hz) and attitude -> body rate -> torque -> mixer (inner loop, every
+physics step). Modes follow PX4's behaviour for the pilot:
+
+- Position (POSCTL): sticks command horizontal velocity (up to `max_vel_xy_mps`) in the
+  heading frame, climb rate and yaw rate; centred sticks brake, then hold position and
+  altitude. The paper flew every task in this mode.
+- Altitude (ALTCTL): horizontal sticks command tilt angles, throttle commands climb rate;
+  centred throttle holds altitude.
+- Stabilized (MANUAL/STABILIZED): sticks command tilt angles, throttle is collective thrust.
+- AUTO takeoff / loiter / land: position setpoints from the commander; sticks ignored.
+
+Sticks are (N, 4) of roll (right +), pitch (forward +), yaw (clockwise +) in [-1, 1] and
+throttle in [0, 1], the normalized form of MANUAL_CONTROL / RC PWM.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.dynamics import GRAVITY_MPS2, Airframe
+
+STABILIZED, ALTCTL, POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND = range(6)
+MODE_NAMES = {STABILIZED: "STABILIZED", ALTCTL: "ALTCTL", POSCTL: "POSCTL",
+              AUTO_TAKEOFF: "TAKEOFF", AUTO_LOITER: "LOITER", AUTO_LAND: "LAND"}
+
+
+@dataclass(frozen=True)
+class ControlGains:
+    max_vel_xy_mps: float = 5.0  # PX4 MPC_VEL_MANUAL (lowered for a field with a net)
+    max_climb_mps: float = 3.0  # MPC_Z_VEL_MAX_UP
+    max_descent_mps: float = 1.5  # MPC_Z_VEL_MAX_DN
+    land_speed_mps: float = 0.7  # MPC_LAND_SPEED
+    takeoff_speed_mps: float = 1.5  # MPC_TKO_SPEED
+    max_yaw_rate_rad_s: float = np.radians(150)  # MPC_MAN_Y_MAX
+    max_tilt_rad: float = np.radians(35)  # MPC_MAN_TILT_MAX
+    stick_deadband: float = 0.1
+    pos_p: float = 0.95  # MPC_XY_P
+    z_pos_p: float = 1.0  # MPC_Z_P
+    vel_p: float = 1.8  # MPC_XY_VEL_P_ACC
+    vel_i: float = 0.4
+    z_vel_p: float = 4.0
+    z_vel_i: float = 2.0
+    max_acc_xy_mps2: float = 5.0
+    brake_speed_mps: float = 0.3  # below this the position is latched for holding
+    att_p: tuple[float, float, float] = (6.5, 6.5, 2.8)  # MC_ROLL_P, MC_PITCH_P, MC_YAW_P
+    rate_p: tuple[float, float, float] = (20.0, 20.0, 8.0)  # rad/s^2 per rad/s of error
+    max_rate_rad_s: tuple[float, float, float] = tuple(np.radians([220.0, 220.0, 200.0]))
+
+
+def _stick_with_deadband(x: np.ndarray, deadband: float) -> np.ndarray:
+    """Rescale so that the deadband maps to 0 and the end stays at +-1."""
+    return np.sign(x) * np.clip((np.abs(x) - deadband) / (1.0 - deadband), 0.0, 1.0)
+
+
+def yaw_of(R: np.ndarray) -> np.ndarray:
+    return np.arctan2(R[:, 1, 0], R[:, 0, 0])
+
+
+class Controller:
+    """Setpoints and integrators of N vehicles; `outer()` at ~50 Hz, `inner()` every step."""
+
+    def __init__(self, n: int, airframe: Airframe, gains: ControlGains | None = None) -> None:
+        self.af, self.g = airframe, gains or ControlGains()
+        self.n = n
+        self.hold_pos_m = np.zeros((n, 3))
+        self.hold_xy_valid = np.zeros(n, bool)
+        self.hold_z_valid = np.zeros(n, bool)
+        self.yaw_sp_rad = np.zeros(n)
+        self.vel_sp_mps = np.zeros((n, 3))
+        self.vel_int = np.zeros((n, 3))
+        self.thrust_sp_n = np.zeros(n)
+        self.R_sp = np.tile(np.eye(3), (n, 1, 1))
+        self._A_inv = np.linalg.inv(airframe.mixer())
+        self._J = np.asarray(airframe.inertia_kg_m2, float)
+        self._att_p = np.asarray(self.g.att_p)
+        self._rate_p = np.asarray(self.g.rate_p)
+        self._max_rate = np.asarray(self.g.max_rate_rad_s)
+        self._J_rate_p = self._J * self._rate_p
+        self._A_inv_T = self._A_inv.T.copy()
+        vee = np.zeros((9, 3))  # E.flat @ vee = vee(E - E^T)
+        vee[7, 0], vee[5, 0], vee[2, 1], vee[6, 1], vee[3, 2], vee[1, 2] = 1, -1, 1, -1, 1, -1
+        self._vee = vee
+        self._R_sp_T = np.swapaxes(self.R_sp, 1, 2).copy()
+        self._z_sp = self.R_sp[:, :, 2].copy()
+
+    def reset(self, mask: np.ndarray, pos_m: np.ndarray, R: np.ndarray) -> None:
+        """On the ground: forget integrators, latch position and heading."""
+        self.vel_int[mask] = 0.0
+        self.hold_pos_m[mask] = pos_m[mask]
+        self.hold_xy_valid[mask] = True
+        self.hold_z_valid[mask] = True
+        self.yaw_sp_rad[mask] = yaw_of(R)[mask]
+        self.vel_sp_mps[mask] = 0.0
+
+    def outer(self, dt: float, mode: np.ndarray, sticks: np.ndarray, pos_m: np.ndarray,
+              vel_mps: np.ndarray, R: np.ndarray, target_m: np.ndarray) -> None:
+        """Velocity and thrust-vector setpoints. `target_m` (N, 3) serves the AUTO modes."""
+        g = self.g
+        centred = sticks.copy()
+        centred[:, 3] = 2.0 * sticks[:, 3] - 1.0
+        db = _stick_with_deadband(centred, g.stick_deadband)
+        roll, pitch, yaw, climb = db[:, 0], db[:, 1], db[:, 2], db[:, 3]
+        auto = mode >= AUTO_TAKEOFF
+        self.yaw_sp_rad = np.where(auto, self.yaw_sp_rad,
+                                   self.yaw_sp_rad + yaw * g.max_yaw_rate_rad_s * dt)
+        self.yaw_sp_rad = (self.yaw_sp_rad + np.pi) % (2 * np.pi) - np.pi
+
+        # Horizontal: stick velocity, or brake then hold the latched position.
+        c, s = np.cos(self.yaw_sp_rad), np.sin(self.yaw_sp_rad)
+        stick_v = g.max_vel_xy_mps * np.column_stack([pitch * c + roll * s, pitch * s - roll * c])
+        stick_active = (mode == POSCTL) & ((roll != 0) | (pitch != 0))
+        self.hold_xy_valid &= ~stick_active
+        speed_xy = np.hypot(vel_mps[:, 0], vel_mps[:, 1])
+        latch = ~self.hold_xy_valid & ~stick_active & (speed_xy < g.brake_speed_mps)
+        self.hold_pos_m[latch, :2] = pos_m[latch, :2]
+        self.hold_xy_valid |= latch
+        hold_xy = np.where(auto[:, None], target_m[:, :2], self.hold_pos_m[:, :2])
+        pos_v = np.clip(g.pos_p * (hold_xy - pos_m[:, :2]), -g.max_vel_xy_mps, g.max_vel_xy_mps)
+        holding = self.hold_xy_valid | auto
+        v_xy = np.where(stick_active[:, None], stick_v, np.where(holding[:, None], pos_v, 0.0))
+
+        # Vertical: climb-rate stick, or hold the latched altitude; AUTO has its own targets.
+        climb_v = np.where(climb > 0, climb * g.max_climb_mps, climb * g.max_descent_mps)
+        climb_active = ((mode == POSCTL) | (mode == ALTCTL)) & (climb != 0)
+        self.hold_z_valid &= ~climb_active
+        latch_z = ~self.hold_z_valid & ~climb_active & (np.abs(vel_mps[:, 2]) < g.brake_speed_mps)
+        self.hold_pos_m[latch_z, 2] = pos_m[latch_z, 2]
+        self.hold_z_valid |= latch_z
+        hold_z = np.where(auto, target_m[:, 2], self.hold_pos_m[:, 2])
+        pos_vz = np.clip(g.z_pos_p * (hold_z - pos_m[:, 2]), -g.max_descent_mps, g.max_climb_mps)
+        pos_vz = np.where(mode == AUTO_TAKEOFF, np.minimum(pos_vz, g.takeoff_speed_mps), pos_vz)
+        pos_vz = np.where(mode == AUTO_LAND, -g.land_speed_mps, pos_vz)
+        v_z = np.where(climb_active, climb_v,
+                       np.where(self.hold_z_valid | auto, pos_vz, 0.0))
+        self.vel_sp_mps = np.column_stack([v_xy, v_z])
+
+        # Velocity -> acceleration (PI) -> thrust vector with a tilt limit.
+        err = self.vel_sp_mps - vel_mps
+        self.vel_int += err * dt
+        self.vel_int[:, :2] = np.clip(self.vel_int[:, :2], -2.0, 2.0)
+        self.vel_int[:, 2] = np.clip(self.vel_int[:, 2], -3.0, 3.0)
+        acc = np.empty((self.n, 3))
+        acc[:, :2] = g.vel_p * err[:, :2] + g.vel_i * self.vel_int[:, :2]
+        acc_xy = np.hypot(acc[:, 0], acc[:, 1])[:, None]
+        acc[:, :2] *= np.minimum(1.0, g.max_acc_xy_mps2 / np.maximum(acc_xy, 1e-9))
+        acc[:, 2] = g.z_vel_p * err[:, 2] + g.z_vel_i * self.vel_int[:, 2] + GRAVITY_MPS2
+        acc[:, 2] = np.maximum(acc[:, 2], 0.1 * GRAVITY_MPS2)
+        tan_max = np.tan(g.max_tilt_rad)
+        acc_xy = np.hypot(acc[:, 0], acc[:, 1])[:, None]
+        acc[:, :2] *= np.minimum(1.0, tan_max * acc[:, 2:3] / np.maximum(acc_xy, 1e-9))
+
+        # Manual tilt modes: sticks are angles (pitch forward = nose down).
+        manual_tilt = (mode == STABILIZED) | (mode == ALTCTL)
+        if manual_tilt.any():
+            roll_a, pitch_a = roll * g.max_tilt_rad, pitch * g.max_tilt_rad
+            # Body z tilted: forward tilt moves thrust towards the heading.
+            tilt_dir = np.column_stack([np.tan(pitch_a) * c + np.tan(roll_a) * s,
+                                        np.tan(pitch_a) * s - np.tan(roll_a) * c])
+            acc[manual_tilt, :2] = tilt_dir[manual_tilt] * acc[manual_tilt, 2:3]
+            self.vel_int[manual_tilt, :2] = 0.0
+        acc_norm = np.sqrt((acc * acc).sum(axis=1))
+        z_d = acc / acc_norm[:, None]
+        thrust = self.af.mass_kg * acc_norm
+        stab = mode == STABILIZED
+        if stab.any():
+            max_thrust = 4 * self.af.thrust_coeff_n_per_rad2 * (self.af.kv_rad_s_per_v * 12.0) ** 2
+            thrust[stab] = sticks[stab, 3] * max_thrust / np.maximum(z_d[stab, 2], 0.5)
+        self.thrust_sp_n = thrust
+        # R_sp = [x_d, y_d, z_d] with y_d = z_d x (cos yaw, sin yaw, 0), x_d = y_d x z_d.
+        zx, zy, zz = z_d[:, 0], z_d[:, 1], z_d[:, 2]
+        R_sp = np.empty((self.n, 3, 3))
+        y_d = R_sp[:, :, 1]
+        y_d[:, 0], y_d[:, 1], y_d[:, 2] = -zz * s, zz * c, zx * s - zy * c
+        y_d /= np.sqrt((y_d * y_d).sum(axis=1))[:, None]
+        yx, yy, yz = y_d[:, 0], y_d[:, 1], y_d[:, 2]
+        R_sp[:, 0, 0], R_sp[:, 1, 0], R_sp[:, 2, 0] = yy * zz - yz * zy, yz * zx - yx * zz, \
+            yx * zy - yy * zx
+        R_sp[:, :, 2] = z_d
+        self.R_sp = R_sp
+        self._R_sp_T = np.swapaxes(R_sp, 1, 2).copy()
+        self._z_sp = z_d
+
+    def inner(self, R: np.ndarray, omega: np.ndarray, max_rotor_rad_s: np.ndarray,
+              armed: np.ndarray, idle: np.ndarray) -> np.ndarray:
+        """Rotor throttles (N, 4) in [0, 1]: attitude P -> rate P -> torque -> mixer."""
+        af = self.af
+        E = self._R_sp_T @ R
+        # vee(E - E^T) / 2: the rotation error (body frame) for small and large errors alike.
+        e_R = 0.5 * (E.reshape(-1, 9) @ self._vee)
+        rate_sp = np.minimum(np.maximum(-self._att_p * e_R, -self._max_rate), self._max_rate)
+        wrench = np.empty((R.shape[0], 4))
+        wrench[:, 1:] = self._J_rate_p * (rate_sp - omega)
+        # Collective along the current body z, as PX4 projects the thrust vector.
+        along = (self._z_sp * R[:, :, 2]).sum(axis=1)
+        wrench[:, 0] = self.thrust_sp_n * np.maximum(along, 0.0)
+        f = wrench @ self._A_inv_T
+        w_max = max_rotor_rad_s[:, None]
+        w = np.sqrt(np.maximum(f, 0.0) * (1.0 / af.thrust_coeff_n_per_rad2))
+        u = np.minimum(np.maximum(w / w_max, af.idle_throttle), 1.0)
+        if idle.any():
+            u[idle] = af.idle_throttle
+        return u * armed[:, None]

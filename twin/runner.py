@@ -1,0 +1,182 @@
+"""The twin running in real time: the sim paced in its own thread, its MAVLink vehicle, and
+its cameras rendered on demand from the latest true pose.
+
+    twin = Twin(mavlink="udpout:127.0.0.1:14550")
+    twin.start()
+    frame = twin.render("front")   # (480, 640, 3) BGR uint8, any thread
+    pose = twin.pose()             # true pose (ENU world), any thread
+    twin.stop()
+
+`step_for(seconds)` runs the same loop faster than real time without a thread (tests).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from companion.latest import Latest
+from twin.scene import Scene, load_scene
+from twin.sim import Pose, Sim, SimConfig
+from twin.vehicle import MavlinkVehicle
+
+log = logging.getLogger(__name__)
+
+
+class Twin:
+    def __init__(self, scene: Scene | None = None, config: SimConfig | None = None,
+                 mavlink: str | None = None, rates_hz: dict[str, float] | None = None,
+                 realtime_factor: float = 1.0, tick_hz: float = 100.0,
+                 render_options: dict[str, Any] | None = None) -> None:
+        if realtime_factor <= 0:
+            raise ValueError("realtime_factor must be > 0")
+        self.scene = scene or load_scene()
+        self.sim = Sim(self.scene, config)
+        self.mavlink_url = mavlink
+        self.rates_hz = rates_hz
+        self.realtime_factor = realtime_factor
+        self.tick_s = 1.0 / tick_hz
+        self.vehicle: MavlinkVehicle | None = None
+        self.lock = threading.RLock()  # guards `sim` between the loop and callers
+        self.poses: Latest[Pose] = Latest(self.sim.pose())
+        self.slips = 0  # ticks where the loop fell behind and dropped sim time
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._render_options = render_options or {}
+        self._renderer = None
+        self._render_lock = threading.Lock()
+        self.error: str | None = None
+
+    # ---- lifecycle ----
+    def start(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError("The twin is already running.")
+        if self.mavlink_url and self.vehicle is None:
+            self.vehicle = MavlinkVehicle(self.mavlink_url, self.rates_hz)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="twin", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+            self._thread = None
+        if self.vehicle is not None:
+            self.vehicle.close()
+            self.vehicle = None
+        self.poses.close()
+
+    def __enter__(self) -> Twin:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _run(self) -> None:
+        try:
+            t0 = time.monotonic()
+            sim_t0 = self.sim.t_s
+            next_tick = t0
+            while not self._stop.is_set():
+                now = time.monotonic()
+                target = sim_t0 + (now - t0) * self.realtime_factor
+                with self.lock:
+                    behind = int((target - self.sim.t_s) / self.sim.dt_s)
+                    limit = int(0.25 / self.sim.dt_s)  # never try to catch up more than 0.25 s
+                    if behind > limit:
+                        self.slips += 1
+                        sim_t0 -= (behind - limit) * self.sim.dt_s
+                        behind = limit
+                    if behind > 0:
+                        self.sim.step(behind)
+                    if self.vehicle is not None:
+                        self.vehicle.poll(self.sim, self.sim.t_s)
+                    self.poses.publish(self.sim.pose())
+                next_tick += self.tick_s
+                delay = next_tick - time.monotonic()
+                if delay < -1.0:
+                    next_tick = time.monotonic()
+                self._stop.wait(max(delay, 0.0))
+        except Exception as exc:  # a dead twin must say so, not vanish
+            self.error = f"{type(exc).__name__}: {exc}"
+            log.exception("twin loop died")
+
+    def step_for(self, seconds: float) -> None:
+        """Advance sim time by `seconds` as fast as possible, polling MAVLink every tick."""
+        if self.mavlink_url and self.vehicle is None:
+            self.vehicle = MavlinkVehicle(self.mavlink_url, self.rates_hz)
+        per_tick = max(1, int(round(self.tick_s / self.sim.dt_s)))
+        for _ in range(int(round(seconds / (per_tick * self.sim.dt_s)))):
+            with self.lock:
+                self.sim.step(per_tick)
+                if self.vehicle is not None:
+                    self.vehicle.poll(self.sim, self.sim.t_s)
+        self.poses.publish(self.sim.pose())
+
+    # ---- state and commands (any thread) ----
+    def pose(self) -> Pose:
+        """The latest true pose: position/velocity ENU (m, m/s) in the scene's world frame."""
+        return self.poses.get().value
+
+    def local_position_enu_m(self) -> np.ndarray:
+        return self.pose().pos_enu_m
+
+    def set_sticks(self, roll: float, pitch: float, yaw: float, throttle: float) -> None:
+        with self.lock:
+            self.sim.set_sticks(roll, pitch, yaw, throttle)
+
+    def arm(self, arm: bool = True) -> tuple[bool, str]:
+        with self.lock:
+            return self.sim.arm(arm)
+
+    def set_mode(self, name: str) -> tuple[bool, str]:
+        with self.lock:
+            return self.sim.set_mode(name)
+
+    def reset(self) -> None:
+        """Back on the start pad, disarmed, battery full (after a crash, for another try)."""
+        with self.lock:
+            self.sim.reset()
+            self.poses.publish(self.sim.pose())
+
+    # ---- cameras ----
+    def render(self, camera: str) -> np.ndarray:
+        """(480, 640, 3) BGR uint8 of camera "front" or "bottom" at the latest true pose."""
+        renderer = self._get_renderer()
+        return renderer.render(camera, self.pose())
+
+    def _get_renderer(self):
+        with self._render_lock:
+            if self._renderer is None:
+                from twin.render import Renderer  # textures are built on first use only
+
+                self._renderer = Renderer(self.scene, **self._render_options)
+            return self._renderer
+
+
+def twin_from_settings(ts: Any, mavlink: str | None) -> Twin:
+    """Build a Twin from `server.settings.TwinSettings` (duck-typed: twin/ needs no server)."""
+    from twin.control import ControlGains
+    from twin.dynamics import Wind
+    from twin.sensors import SensorParams
+
+    config = SimConfig(
+        physics_hz=ts.physics_hz, seed=ts.seed,
+        wind=Wind(mean_enu_mps=(ts.wind_east_mps, ts.wind_north_mps, 0.0),
+                  gust_std_mps=ts.gust_std_mps),
+        sensors=SensorParams(enabled=ts.sensor_noise, gps_rate_hz=ts.gps_rate_hz),
+        gains=ControlGains(max_vel_xy_mps=ts.max_vel_xy_mps),
+    )
+    return Twin(load_scene(ts.scene), config, mavlink=mavlink, rates_hz=dict(ts.rates_hz),
+                realtime_factor=ts.realtime_factor,
+                render_options={"fpv_noise": ts.fpv_noise, "seed": ts.seed})

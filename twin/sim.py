@@ -1,0 +1,171 @@
+"""One simulated world on a sim clock: N vehicles (dynamics + controller + commander +
+sensors) in a scene, stepped at a fixed rate, as fast as the CPU allows.
+
+This is the faster-than-real-time API (learning, tests, benchmarks); `twin.runner.Twin`
+paces it in real time and puts a MAVLink vehicle and cameras around it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twin.commander import Commander, CommanderParams, Event
+from twin.control import MODE_NAMES, POSCTL, STABILIZED, ControlGains, Controller
+from twin.dynamics import CRASH_REASONS, Airframe, BodyState, Dynamics, Wind
+from twin.scene import Scene, load_scene
+from twin.sensors import Sensors, SensorParams
+
+MODE_BY_NAME = {name: code for code, name in MODE_NAMES.items()}
+MODE_BY_NAME.update({"MANUAL": STABILIZED, "POSITION": POSCTL, "ALTITUDE": MODE_BY_NAME["ALTCTL"],
+                     "AUTO.TAKEOFF": MODE_BY_NAME["TAKEOFF"], "AUTO.LOITER": MODE_BY_NAME["LOITER"],
+                     "AUTO.LAND": MODE_BY_NAME["LAND"]})
+
+# FLU body / ENU world -> FRD body / NED world, for MAVLink's conventions.
+_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_FRD_TO_FLU = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    physics_hz: float = 250.0
+    outer_every: int = 5  # position/velocity loop at physics_hz / 5 = 50 Hz
+    slow_every: int = 5  # commander, battery, sensor drifts every 5 outer loops = 10 Hz
+    seed: int = 0
+    wind: Wind = field(default_factory=Wind)
+    sensors: SensorParams = field(default_factory=SensorParams)
+    gains: ControlGains = field(default_factory=ControlGains)
+    commander: CommanderParams = field(default_factory=CommanderParams)
+    airframe: Airframe = field(default_factory=Airframe)
+    net_crashes: bool = True
+
+
+@dataclass(frozen=True)
+class Pose:
+    """The true pose of one vehicle at sim time `t_s` (ENU world, FLU body)."""
+
+    t_s: float
+    pos_enu_m: np.ndarray
+    vel_enu_mps: np.ndarray
+    R_world_body: np.ndarray
+    omega_body_rad_s: np.ndarray
+
+    @property
+    def yaw_enu_rad(self) -> float:
+        """Heading counter-clockwise from east (0 = facing east, the field's start heading)."""
+        return float(np.arctan2(self.R_world_body[1, 0], self.R_world_body[0, 0]))
+
+    @property
+    def R_ned_frd(self) -> np.ndarray:
+        return _ENU_TO_NED @ self.R_world_body @ _FRD_TO_FLU
+
+    @property
+    def euler_ned_rad(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) as MAVLink ATTITUDE reports them; yaw clockwise from north."""
+        R = self.R_ned_frd
+        return (float(np.arctan2(R[2, 1], R[2, 2])), float(-np.arcsin(np.clip(R[2, 0], -1, 1))),
+                float(np.arctan2(R[1, 0], R[0, 0])))
+
+
+class Sim:
+    def __init__(self, scene: Scene | None = None, config: SimConfig | None = None, n: int = 1):
+        self.scene = scene or load_scene()
+        self.config = cfg = config or SimConfig()
+        self.n = n
+        self.dt_s = 1.0 / cfg.physics_hz
+        half = (self.scene.field.size_x_m / 2, self.scene.field.size_y_m / 2)
+        self.dynamics = Dynamics(
+            airframe=cfg.airframe, dt_s=self.dt_s, wind=cfg.wind,
+            obstacle_boxes_m=self.scene.obstacle_boxes_m(),
+            net_half_extent_m=half if cfg.net_crashes else None,
+            net_height_m=self.scene.field.net_height_m, seed=cfg.seed)
+        self.rng = np.random.default_rng(cfg.seed + 1)
+        self.reset()
+
+    def reset(self) -> None:
+        cfg = self.config
+        self.t_s = 0.0
+        self.steps = 0
+        self.state: BodyState = self.dynamics.initial_state(self.n, self.scene.start_xy_m)
+        self.controller = Controller(self.n, cfg.airframe, cfg.gains)
+        self.commander = Commander(self.n, cfg.commander)
+        self.sensors = Sensors(self.n, self.scene.home, cfg.sensors, self.rng)
+        self.sticks = np.tile([0.0, 0.0, 0.0, 0.5], (self.n, 1))  # centred, throttle mid
+        self.throttle = np.zeros((self.n, 4))
+        self.est_pos_m, self.est_vel_mps = self.sensors.estimate(self.state.pos_m, self.state.vel_mps)
+        self.controller.reset(np.ones(self.n, bool), self.est_pos_m, self.state.R_world_body)
+
+    # ---- inputs ----
+    def set_sticks(self, roll: float, pitch: float, yaw: float, throttle: float, i: int = 0) -> None:
+        """Normalized sticks: roll/pitch/yaw in [-1, 1], throttle in [0, 1] (0.5 = centred)."""
+        self.sticks[i] = np.clip([roll, pitch, yaw, throttle], [-1, -1, -1, 0], [1, 1, 1, 1])
+
+    def arm(self, arm: bool = True, i: int = 0, force: bool = False) -> tuple[bool, str]:
+        return self.commander.request_arm(i, arm, bool(self.state.crash[i]), self.battery_pct(i),
+                                          self.sensors.has_fix(self.t_s), force)
+
+    def set_mode(self, name: str, i: int = 0) -> tuple[bool, str]:
+        code = MODE_BY_NAME.get(name.upper())
+        if code is None:
+            return False, f"unknown mode '{name}'; known: {', '.join(sorted(MODE_BY_NAME))}"
+        return self.commander.request_mode(i, code, self.est_pos_m[i], self.sensors.has_fix(self.t_s))
+
+    def takeoff(self, alt_m: float | None = None, i: int = 0) -> tuple[bool, str]:
+        return self.commander.request_takeoff(i, self.est_pos_m[i], alt_m)
+
+    def land(self, i: int = 0) -> tuple[bool, str]:
+        return self.commander.request_land(i, self.est_pos_m[i])
+
+    # ---- stepping ----
+    def step(self, n_steps: int = 1) -> None:
+        cfg, s = self.config, self.state
+        com, ctl = self.commander, self.controller
+        slow_every = cfg.outer_every * cfg.slow_every
+        dt_outer, dt_slow = self.dt_s * cfg.outer_every, self.dt_s * slow_every
+        for _ in range(n_steps):
+            if self.steps % slow_every == 0:  # 10 Hz: battery, drifts, commander
+                self.dynamics.slow_update(s, dt_slow)
+                self.sensors.update(dt_slow)
+                fix = np.full(self.n, self.sensors.has_fix(self.t_s))
+                com.update(dt_slow, self.sticks, s.on_ground, s.crash, self.est_pos_m,
+                           ctl.vel_sp_mps[:, 2], self.battery_pct_all(), fix)
+            if self.steps % cfg.outer_every == 0:  # 50 Hz: collisions, estimate, outer loop
+                self.dynamics.collisions(s)
+                self.sensors.poll_gps(self.t_s, s.pos_m, s.vel_mps)
+                self.est_pos_m, self.est_vel_mps = self.sensors.estimate(s.pos_m, s.vel_mps)
+                stab = com.mode == STABILIZED
+                grounded = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
+                                                 ctl.vel_sp_mps[:, 2] <= 0.2)
+                ctl.reset(grounded, self.est_pos_m, s.R_world_body)
+                ctl.outer(dt_outer, com.mode, self.sticks, self.est_pos_m, self.est_vel_mps,
+                          s.R_world_body, com.target_m)
+                self._idle = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
+                                                   ctl.vel_sp_mps[:, 2] <= 0.2)
+            self.throttle = ctl.inner(s.R_world_body, s.omega_rad_s,
+                                      self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
+            self.dynamics.step(s, self.throttle)
+            self.steps += 1
+            self.t_s = self.steps * self.dt_s
+
+    def run_for(self, seconds: float) -> None:
+        self.step(int(round(seconds / self.dt_s)))
+
+    # ---- outputs ----
+    def pose(self, i: int = 0) -> Pose:
+        s = self.state
+        return Pose(self.t_s, s.pos_m[i].copy(), s.vel_mps[i].copy(), s.R_world_body[i].copy(),
+                    s.omega_rad_s[i].copy())
+
+    def battery_pct_all(self) -> np.ndarray:
+        return 100.0 * self.state.charge_c / (self.config.airframe.capacity_ah * 3600.0)
+
+    def battery_pct(self, i: int = 0) -> float:
+        return float(self.battery_pct_all()[i])
+
+    def crash_reason(self, i: int = 0) -> str:
+        return CRASH_REASONS[int(self.state.crash[i])]
+
+    def drain_events(self) -> list[Event]:
+        events, self.commander.events = self.commander.events, []
+        return events

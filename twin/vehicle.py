@@ -1,0 +1,343 @@
+"""The twin as a MAVLink vehicle: PX4 identity and mode encoding, Pixhawk-like telemetry
+rates, and the commands a ground station or a pilot's radio sends.
+
+It owns one UDP socket (`udpout:HOST:PORT` sends to a ground station as PX4 SITL does;
+`udpin:HOST:PORT` listens and answers whoever spoke last) and pymavlink's MAVLink 2
+encoder/parser. It is driven by `poll(sim)` from the twin's thread, never blocks, and
+counts what it cannot parse instead of failing.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from analysis.geodesy import enu_to_geodetic
+from twin.control import ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_TAKEOFF, POSCTL, STABILIZED
+from twin.sim import Sim
+
+log = logging.getLogger(__name__)
+
+# PX4 custom mode = main << 16 | sub << 24 (px4_custom_mode.h).
+PX4_MODES = {  # our mode -> (main, sub)
+    STABILIZED: (7, 0), ALTCTL: (2, 0), POSCTL: (3, 0),
+    AUTO_TAKEOFF: (4, 2), AUTO_LOITER: (4, 3), AUTO_LAND: (4, 6),
+}
+PX4_MODE_FROM_MAIN_SUB = {v: k for k, v in PX4_MODES.items()}
+PX4_MODE_FROM_MAIN_SUB[(1, 0)] = STABILIZED  # MANUAL: a multicopter flies it stabilized
+PX4_MODE_FROM_MAIN_SUB[(4, 0)] = AUTO_LOITER
+
+# Telemetry rates (Hz), close to PX4's defaults on a companion (onboard) link.
+DEFAULT_RATES_HZ = {
+    "HEARTBEAT": 1.0, "SYS_STATUS": 2.0, "BATTERY_STATUS": 1.0, "GPS_RAW_INT": 5.0,
+    "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 10.0, "ATTITUDE": 20.0,
+    "VFR_HUD": 10.0, "RC_CHANNELS": 10.0, "SERVO_OUTPUT_RAW": 10.0, "EXTENDED_SYS_STATE": 1.0,
+}
+STICK_TIMEOUT_S = 1.0  # no MANUAL_CONTROL/override for this long = sticks centred
+
+
+def px4_custom_mode(mode: int) -> int:
+    main, sub = PX4_MODES[mode]
+    return (main << 16) | (sub << 24)
+
+
+def stick_to_pwm(x: float) -> int:
+    return int(round(1500 + 500 * np.clip(x, -1, 1)))
+
+
+@dataclass
+class VehicleStats:
+    sent: int = 0
+    received: int = 0
+    bad: int = 0
+    send_errors: int = 0
+    last_input_s: float = -1e9
+    peers: set = field(default_factory=set)
+
+
+class MavlinkVehicle:
+    def __init__(self, connection: str, rates_hz: dict[str, float] | None = None,
+                 sysid: int = 1, compid: int = 1) -> None:
+        self.sysid, self.compid = sysid, compid
+        self.sock, self._peer = self._open(connection)
+        self._listening = self._peer is None  # udpin: answer whoever spoke last
+        self.mav = mavlink.MAVLink(self, srcSystem=sysid, srcComponent=compid)
+        self.mav.robust_parsing = True
+        self.defaults_hz = dict(DEFAULT_RATES_HZ)
+        self.defaults_hz.update(rates_hz or {})
+        self.interval_s = {k: (1.0 / v if v > 0 else None) for k, v in self.defaults_hz.items()}
+        self._next_s: dict[str, float] = {k: 0.0 for k in self.interval_s}
+        self.stats = VehicleStats()
+        self._home_alt_m: float | None = None
+        self._pending_once: list[str] = []
+
+    @staticmethod
+    def _open(connection: str) -> tuple[socket.socket, tuple[str, int] | None]:
+        kind, _, rest = connection.partition(":")
+        host, _, port = rest.rpartition(":")
+        if kind not in ("udpout", "udpin") or not port.isdigit():
+            raise ValueError(f"MAVLink connection '{connection}' is not udpout:HOST:PORT or "
+                             "udpin:HOST:PORT.")
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setblocking(False)
+        if kind == "udpin":
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host or "0.0.0.0", int(port)))
+            return sock, None
+        return sock, (host or "127.0.0.1", int(port))
+
+    def close(self) -> None:
+        self.sock.close()
+
+    # pymavlink's encoder writes through this file-like method.
+    def write(self, data: bytes) -> None:
+        if self._peer is None:
+            return
+        try:
+            self.sock.sendto(data, self._peer)
+            self.stats.sent += 1
+        except OSError as exc:  # no listener yet (ICMP refused), network down: keep flying
+            self.stats.send_errors += 1
+            log.debug("twin MAVLink send failed: %s", exc)
+
+    # ---- the loop body ----
+    def poll(self, sim: Sim, now_s: float) -> None:
+        """Handle what arrived, then send whatever telemetry is due at sim time `now_s`."""
+        for _ in range(200):  # bounded per tick; the rest waits in the socket buffer
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # e.g. ICMP port unreachable surfacing on Linux
+                continue
+            if self._listening:
+                self._peer = addr
+            self.stats.peers.add(addr)
+            for msg in self.mav.parse_buffer(data) or []:
+                if msg.get_type() == "BAD_DATA":
+                    self.stats.bad += 1
+                    continue
+                self.stats.received += 1
+                self._handle(sim, msg, now_s)
+            if self.mav.buf_len():
+                # A datagram holds whole packets: a truncated or bogus header must not
+                # swallow the next datagram's packet.
+                self.stats.bad += 1
+                self.mav.buf, self.mav.buf_index = bytearray(), 0
+                self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+        if now_s - self.stats.last_input_s > STICK_TIMEOUT_S and self.stats.last_input_s > -1e8:
+            sim.set_sticks(0.0, 0.0, 0.0, 0.5)
+            self.stats.last_input_s = -1e9
+        for event in sim.drain_events():
+            self.mav.statustext_send(event.severity, event.text.encode()[:50])
+        for name in self._pending_once:
+            self._send(sim, name, now_s)
+        self._pending_once.clear()
+        for name, interval in self.interval_s.items():
+            if interval is not None and now_s >= self._next_s[name]:
+                self._next_s[name] = max(self._next_s[name] + interval, now_s)
+                self._send(sim, name, now_s)
+
+    # ---- inputs ----
+    def _handle(self, sim: Sim, msg, now_s: float) -> None:
+        kind = msg.get_type()
+        if kind == "MANUAL_CONTROL":
+            if msg.target not in (0, self.sysid):
+                return
+            # PX4: x pitch (forward +), y roll (right +), z throttle 0..1000, r yaw.
+            sim.set_sticks(msg.y / 1000.0, msg.x / 1000.0, msg.r / 1000.0, msg.z / 1000.0)
+            self.stats.last_input_s = now_s
+        elif kind == "RC_CHANNELS_OVERRIDE":
+            if msg.target_system not in (0, self.sysid):
+                return
+            ch = [msg.chan1_raw, msg.chan2_raw, msg.chan3_raw, msg.chan4_raw]
+            cur = sim.sticks[0]
+            vals = [cur[0], cur[1], cur[3], cur[2]]  # AETR order: roll, pitch, throttle, yaw
+            for k, pwm in enumerate(ch):
+                if 800 <= pwm <= 2200:
+                    vals[k] = (pwm - 1500) / 500.0 if k != 2 else (pwm - 1000) / 1000.0
+            sim.set_sticks(vals[0], vals[1], vals[3], vals[2])
+            self.stats.last_input_s = now_s
+        elif kind == "COMMAND_LONG":
+            if msg.target_system not in (0, self.sysid):
+                return
+            result, text = self._command(sim, msg)
+            self.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(),
+                                      msg.get_srcComponent())
+            if text:
+                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
+        elif kind == "SET_MODE":
+            if msg.target_system not in (0, self.sysid):
+                return
+            main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
+            mode = PX4_MODE_FROM_MAIN_SUB.get((main, sub))
+            ok, why = (False, f"unsupported mode {main}/{sub}") if mode is None else \
+                sim.commander.request_mode(0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s))
+            if not ok:
+                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, why.encode()[:50])
+
+    def _command(self, sim: Sim, msg) -> tuple[int, str]:
+        c = msg.command
+        ok_, fail = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED
+        if c == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            ok, why = sim.arm(msg.param1 > 0.5, force=int(msg.param2) == 21196)
+        elif c == mavlink.MAV_CMD_NAV_TAKEOFF:
+            alt = msg.param7
+            rel = None if not math.isfinite(alt) else alt - (self._home_alt_m or sim.scene.home.alt_m)
+            ok, why = sim.takeoff(rel)
+        elif c == mavlink.MAV_CMD_NAV_LAND:
+            ok, why = sim.land()
+        elif c == mavlink.MAV_CMD_DO_SET_MODE:
+            mode = PX4_MODE_FROM_MAIN_SUB.get((int(msg.param2), int(msg.param3)))
+            if mode is None:
+                return fail, f"unsupported mode {int(msg.param2)}/{int(msg.param3)}"
+            ok, why = sim.commander.request_mode(0, mode, sim.est_pos_m[0],
+                                                 sim.sensors.has_fix(sim.t_s))
+        elif c == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return self._set_interval(int(msg.param1), msg.param2)
+        elif c == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            self._pending_once.append("AUTOPILOT_VERSION")
+            return ok_, ""
+        elif c == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            name = _msg_name(int(msg.param1))
+            if name not in self.interval_s and name != "AUTOPILOT_VERSION":
+                return fail, f"message {int(msg.param1)} not supported"
+            self._pending_once.append(name)
+            return ok_, ""
+        else:
+            return mavlink.MAV_RESULT_UNSUPPORTED, ""
+        return (ok_ if ok else fail), ("" if ok else why)
+
+    def _set_interval(self, msg_id: int, interval_us: float) -> tuple[int, str]:
+        name = _msg_name(msg_id)
+        if name not in self.interval_s:
+            return mavlink.MAV_RESULT_DENIED, f"message {msg_id} not streamed"
+        if interval_us < 0:
+            self.interval_s[name] = None
+        elif interval_us == 0:
+            hz = self.defaults_hz.get(name, 0)
+            self.interval_s[name] = 1.0 / hz if hz > 0 else None
+        else:
+            self.interval_s[name] = max(interval_us * 1e-6, 0.002)  # at most 500 Hz
+        return mavlink.MAV_RESULT_ACCEPTED, ""
+
+    # ---- outputs ----
+    def _send(self, sim: Sim, name: str, now_s: float) -> None:
+        getattr(self, "_send_" + name.lower())(sim, int(now_s * 1000) & 0xFFFFFFFF)
+
+    def _send_heartbeat(self, sim: Sim, t_ms: int) -> None:
+        com = sim.commander
+        mode = int(com.mode[0])
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if mode >= AUTO_TAKEOFF:
+            base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        else:
+            base |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+        if com.armed[0]:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        if sim.state.crash[0]:
+            status = mavlink.MAV_STATE_EMERGENCY
+        else:
+            status = mavlink.MAV_STATE_ACTIVE if com.armed[0] else mavlink.MAV_STATE_STANDBY
+        self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base,
+                                px4_custom_mode(mode), status)
+
+    def _send_sys_status(self, sim: Sim, t_ms: int) -> None:
+        sensors = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                   | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+                   | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+                   | mavlink.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY)
+        health = sensors if sim.sensors.has_fix(sim.t_s) else sensors & ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        s = sim.state
+        self.mav.sys_status_send(sensors, sensors, health, 250, int(s.voltage_v[0] * 1000),
+                                 int(s.current_a[0] * 100), int(sim.battery_pct()), 0, 0, 0, 0, 0, 0)
+
+    def _send_battery_status(self, sim: Sim, t_ms: int) -> None:
+        s, af = sim.state, sim.config.airframe
+        cell_mv = int(s.voltage_v[0] / af.cells * 1000)
+        cells = [cell_mv] * af.cells + [65535] * (10 - af.cells)
+        used_mah = int((af.capacity_ah * 3600 - s.charge_c[0]) / 3.6)
+        self.mav.battery_status_send(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
+                                     32767, cells, int(s.current_a[0] * 100), used_mah, -1,
+                                     int(sim.battery_pct()))
+
+    def _send_gps_raw_int(self, sim: Sim, t_ms: int) -> None:
+        fix = sim.sensors.last_fix[0]
+        if fix is None:
+            return
+        self.mav.gps_raw_int_send(int(fix.t_s * 1e6), fix.fix_type, int(fix.lat_deg * 1e7),
+                                  int(fix.lon_deg * 1e7), int(fix.alt_m * 1000),
+                                  min(int(fix.eph_m * 100), 65535), min(int(fix.epv_m * 100), 65535),
+                                  int(fix.ground_speed_mps * 100), int(fix.course_deg * 100),
+                                  fix.satellites)
+
+    def _fused(self, sim: Sim) -> tuple[np.ndarray, np.ndarray]:
+        home = sim.scene.home
+        geo = enu_to_geodetic(sim.est_pos_m[0], home.lat_deg, home.lon_deg, home.alt_m)
+        return geo, sim.est_vel_mps[0]
+
+    def _send_global_position_int(self, sim: Sim, t_ms: int) -> None:
+        if not sim.sensors.has_fix(sim.t_s):
+            return
+        geo, v = self._fused(sim)
+        if self._home_alt_m is None or (sim.commander.armed[0] and sim.commander.landed[0]):
+            self._home_alt_m = float(geo[2])  # PX4 sets home at arming, on the ground
+        yaw = sim.pose().euler_ned_rad[2]
+        self.mav.global_position_int_send(
+            t_ms, int(geo[0] * 1e7), int(geo[1] * 1e7), int(geo[2] * 1000),
+            int((geo[2] - self._home_alt_m) * 1000), int(v[1] * 100), int(v[0] * 100),
+            int(-v[2] * 100), int(np.degrees(yaw) % 360 * 100))
+
+    def _send_local_position_ned(self, sim: Sim, t_ms: int) -> None:
+        p = sim.est_pos_m[0] - np.append(sim.scene.start_xy_m, 0.0)  # EKF origin: power-on spot
+        v = sim.est_vel_mps[0]
+        self.mav.local_position_ned_send(t_ms, p[1], p[0], -p[2], v[1], v[0], -v[2])
+
+    def _send_attitude(self, sim: Sim, t_ms: int) -> None:
+        pose = sim.pose()
+        roll, pitch, yaw = np.array(pose.euler_ned_rad) + sim.sensors.attitude_noise()[0]
+        w = pose.omega_body_rad_s * [1, -1, -1]  # FLU -> FRD
+        self.mav.attitude_send(t_ms, roll, pitch, (yaw + np.pi) % (2 * np.pi) - np.pi, *w)
+
+    def _send_vfr_hud(self, sim: Sim, t_ms: int) -> None:
+        v = sim.est_vel_mps[0]
+        air = v - sim.state.wind_mps[0]
+        yaw = sim.pose().euler_ned_rad[2]
+        thr = int(100 * sim.throttle[0].mean())
+        alt = float(sim.sensors.baro_alt_m(sim.state.pos_m)[0])
+        self.mav.vfr_hud_send(float(np.linalg.norm(air[:2])), float(np.hypot(v[0], v[1])),
+                              int(np.degrees(yaw) % 360), thr, alt, float(v[2]))
+
+    def _send_rc_channels(self, sim: Sim, t_ms: int) -> None:
+        roll, pitch, yaw, thr = sim.sticks[0]
+        mode_pwm = {STABILIZED: 1100, ALTCTL: 1500, POSCTL: 1900}.get(int(sim.commander.mode[0]), 1500)
+        ch = [stick_to_pwm(roll), stick_to_pwm(pitch), int(round(1000 + 1000 * thr)),
+              stick_to_pwm(yaw), mode_pwm, 1000, 1000, 1000] + [65535] * 10
+        self.mav.rc_channels_send(t_ms, 8, *ch, 254)
+
+    def _send_servo_output_raw(self, sim: Sim, t_ms: int) -> None:
+        armed = bool(sim.commander.armed[0])
+        motors = [int(1000 + 1000 * u) if armed else 900 for u in sim.throttle[0]]
+        self.mav.servo_output_raw_send((t_ms * 1000) & 0xFFFFFFFF, 0, *motors, 0, 0, 0, 0)
+
+    def _send_autopilot_version(self, sim: Sim, t_ms: int) -> None:
+        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
+        # flight_sw_version 1.14.0 release (0xFF), as PX4 packs it: major.minor.patch.type
+        self.mav.autopilot_version_send(caps, (1 << 24) | (14 << 16) | (0 << 8) | 0xFF, 0, 0, 0,
+                                        [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x7717)
+
+    def _send_extended_sys_state(self, sim: Sim, t_ms: int) -> None:
+        self.mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED,
+                                         sim.commander.landed_state(0))
+
+
+def _msg_name(msg_id: int) -> str:
+    cls = mavlink.mavlink_map.get(msg_id)
+    return cls.msgname if cls is not None else f"#{msg_id}"
