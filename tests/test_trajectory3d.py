@@ -277,3 +277,35 @@ def test_no_3d_flag():
     with run_uvicorn(create_app(settings)) as base:
         assert httpx.get(f"{base}/api/viser").json() == {
             "enabled": False, "port": None, "points": 0, "chunks": 0}
+
+
+def test_field_comes_from_the_twin_scene():
+    f = default_field()  # twin/scenes/field.toml
+    assert (f.size_x_m, f.size_y_m) == (60.0, 37.0)
+    assert {p.name: p.x_m for p in f.pads} == {"start": -20.0, "landing": 20.0}
+    assert sorted(o.x_m for o in f.obstacles) == [-7.0, 7.0]
+    assert all(o.height_m == 3.0 for o in f.obstacles)
+
+
+def test_station_draws_a_field_file_and_survives_a_bad_one(tmp_path):
+    scene = tmp_path / "field.toml"
+    scene.write_text(
+        '[home]\nlat_deg = 43.0\nlon_deg = -78.8\nalt_m = 200.0\n'
+        '[field]\nsize_x_m = 30.0\nsize_y_m = 20.0\n'
+        '[[pads]]\nname = "start"\nx_m = -10.0\ny_m = 0.0\n'
+        '[[obstacles]]\nname = "pole a"\nx_m = 2.0\ny_m = 3.0\nheight_m = 5.0\n'
+    )
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.port": 0, "viser.field_file": str(scene)})
+    app = create_app(settings)
+    with run_uvicorn(app) as base:
+        assert httpx.get(f"{base}/api/viser").json()["enabled"]
+        handles = app.state.station.trajectory3d.scene.field_handles
+        assert set(handles) == {"pad:start", "obstacle:pole a"}
+        assert np.allclose(handles["obstacle:pole a"].position, (2.0, 3.0, 2.5))
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.port": 0, "viser.field_file": str(tmp_path / "nope.toml")})
+    app = create_app(settings)
+    with run_uvicorn(app) as base:  # no field, but the panel runs
+        assert httpx.get(f"{base}/api/viser").json()["enabled"]
+        assert app.state.station.trajectory3d.scene.field_handles == {}

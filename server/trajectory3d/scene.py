@@ -42,6 +42,7 @@ class LiveScene:
         self.color_by: ColorBy = color_by
         self.field = field
         self.chunk_handles: dict[int, viser.LineSegmentsHandle] = {}
+        self.field_handles: dict[str, viser.SceneNodeHandle] = {}
         self._footprint: viser.LineSegmentsHandle | None = None
         self._field_frame = self._add_field(field)
         self._home = self.scene.add_icosphere(
@@ -63,13 +64,13 @@ class LiveScene:
             section_size=5.0, plane_color=(215, 235, 205), plane_opacity=0.6,
         )
         for pad in f.pads:
-            self.scene.add_box(
-                f"/field/pads/{pad.name}", color=pad.rgb, dimensions=(pad.size_m, pad.size_m, 0.04),
+            self.field_handles[f"pad:{pad.name}"] = self.scene.add_box(
+                f"/field/pads/{_node(pad.name)}", color=pad.rgb, dimensions=(pad.size_m, pad.size_m, 0.04),
                 position=(pad.x_m, pad.y_m, 0.02),
             )
         for ob in f.obstacles:
-            self.scene.add_box(
-                f"/field/obstacles/{ob.name}", color=ob.rgb,
+            self.field_handles[f"obstacle:{ob.name}"] = self.scene.add_box(
+                f"/field/obstacles/{_node(ob.name)}", color=ob.rgb,
                 dimensions=(ob.width_m, ob.depth_m, ob.height_m),
                 position=(ob.x_m, ob.y_m, ob.height_m / 2.0),
             )
@@ -153,3 +154,8 @@ class LiveScene:
         """Resend every chunk (after a new origin or colour-coding): a one-off cost."""
         for chunk in trail.chunks:
             self.sync_chunk(chunk)
+
+
+def _node(name: str) -> str:
+    """A scene-tree-safe node name ("obstacle 1" -> "obstacle_1"; no "/" nesting)."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name) or "unnamed"
