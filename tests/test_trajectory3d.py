@@ -345,3 +345,19 @@ def test_cli_serves_the_panel_on_its_port_and_stops_it(tmp_path):
             proc.kill()
     with pytest.raises(httpx.ConnectError):
         httpx.get(f"http://127.0.0.1:{viser_port}/", timeout=2)
+
+
+def test_positions_without_a_fix_are_not_drawn():
+    from server.trajectory3d.service import sample_from_state
+
+    good = make_state(1.0, (1.0, 2.0, 3.0))
+    assert sample_from_state(good) is not None
+    assert sample_from_state(make_state(1.0, (1.0, 2.0, 3.0), fix_type=2)) is None  # 2D fix
+    zero = GlobalPosition(t_mono=1.0, lat_deg=0.0, lon_deg=0.0, alt_m=0.0)  # before a fix
+    assert sample_from_state(VehicleState(global_position=zero)) is None
+    nan = GlobalPosition(t_mono=1.0, lat_deg=float("nan"), lon_deg=1.0, alt_m=0.0)
+    assert sample_from_state(VehicleState(global_position=nan)) is None
+    # only the raw GPS: used when it has a 3D fix
+    raw = make_state(1.0, (1.0, 2.0, 3.0)).gps
+    s = sample_from_state(VehicleState(gps=raw))
+    assert s is not None and s.lat_deg == raw.lat_deg
