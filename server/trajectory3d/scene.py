@@ -138,7 +138,7 @@ class LiveScene:
         handle = self.chunk_handles.get(chunk.id)
         if handle is None:
             self.chunk_handles[chunk.id] = self.scene.add_line_segments(
-                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=3.0, thickness_units="screen"
+                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=4.0, thickness_units="screen"
             )
         else:
             handle.points = pts
