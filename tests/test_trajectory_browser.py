@@ -150,7 +150,8 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         slider.evaluate("el => { el.value = 300; el.dispatchEvent(new Event('input')); }")
         assert page.locator("#replay-time").text_content().startswith("30.0")
         page.wait_for_function(
-            "['replay-front', 'replay-bottom'].every(id => document.getElementById(id).naturalWidth > 0)",
+            "['replay-front', 'replay-bottom']"
+            ".every(id => document.getElementById(id).naturalWidth > 0)",
             timeout=10_000)
         front_src = page.locator("#replay-front").get_attribute("src")
         assert front_src.endswith("/files/front/00000150.jpg")  # frame of t = 30 s at 5 fps

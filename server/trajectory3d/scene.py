@@ -65,7 +65,8 @@ class LiveScene:
         )
         for pad in f.pads:
             self.field_handles[f"pad:{pad.name}"] = self.scene.add_box(
-                f"/field/pads/{_node(pad.name)}", color=pad.rgb, dimensions=(pad.size_m, pad.size_m, 0.04),
+                f"/field/pads/{_node(pad.name)}", color=pad.rgb,
+                dimensions=(pad.size_m, pad.size_m, 0.04),
                 position=(pad.x_m, pad.y_m, 0.02),
             )
         for ob in f.obstacles:
@@ -102,7 +103,9 @@ class LiveScene:
 
     # -- moving parts -------------------------------------------------------------
 
-    def set_vehicle_pose(self, position_enu_m: NDArray[np.float64], wxyz: NDArray[np.float64]) -> None:
+    def set_vehicle_pose(
+        self, position_enu_m: NDArray[np.float64], wxyz: NDArray[np.float64]
+    ) -> None:
         self.vehicle.position = tuple(float(v) for v in position_enu_m)
         self.vehicle.wxyz = tuple(float(v) for v in wxyz)
 
@@ -115,7 +118,8 @@ class LiveScene:
         pts = np.stack([lifted, np.roll(lifted, -1, axis=0)], axis=1)
         if self._footprint is None:
             self._footprint = self.scene.add_line_segments(
-                "/footprint", points=pts, colors=_FOOTPRINT_RGB, thickness=2.0, thickness_units="screen"
+                "/footprint", points=pts, colors=_FOOTPRINT_RGB, thickness=2.0,
+                thickness_units="screen",
             )
         else:
             self._footprint.points = pts
@@ -138,7 +142,8 @@ class LiveScene:
         handle = self.chunk_handles.get(chunk.id)
         if handle is None:
             self.chunk_handles[chunk.id] = self.scene.add_line_segments(
-                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=4.0, thickness_units="screen"
+                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=4.0,
+                thickness_units="screen",
             )
         else:
             handle.points = pts

@@ -53,10 +53,12 @@ def sample_from_state(state: VehicleState) -> TrailSample | None:
             if gp.vx_mps is not None and gp.vy_mps is not None
             else math.nan
         )
-        return TrailSample(gp.t_mono, gp.lat_deg, gp.lon_deg, gp.alt_m, speed)  # type: ignore[arg-type]
+        return TrailSample(gp.t_mono, gp.lat_deg, gp.lon_deg, gp.alt_m,  # type: ignore[arg-type]
+                           speed)
     if gps.t_mono is not None and _valid_fix(gps.lat_deg, gps.lon_deg, gps.alt_m):
         speed = gps.ground_speed_mps if gps.ground_speed_mps is not None else math.nan
-        return TrailSample(gps.t_mono, gps.lat_deg, gps.lon_deg, gps.alt_m, speed)  # type: ignore[arg-type]
+        return TrailSample(gps.t_mono, gps.lat_deg, gps.lon_deg,  # type: ignore[arg-type]
+                           gps.alt_m, speed)
     return None
 
 
@@ -202,7 +204,8 @@ class Trajectory3D:
     def _attitude(self, state: VehicleState) -> np.ndarray:
         a = state.attitude
         if None not in (a.roll_rad, a.pitch_rad, a.yaw_rad):
-            return R_enu_flu_from_euler(a.roll_rad, a.pitch_rad, a.yaw_rad)  # type: ignore[arg-type]
+            return R_enu_flu_from_euler(a.roll_rad, a.pitch_rad,  # type: ignore[arg-type]
+                                        a.yaw_rad)
         heading = state.global_position.heading_deg
         return R_enu_flu_from_euler(0.0, 0.0, math.radians(heading or 0.0))
 
