@@ -61,6 +61,13 @@ def _at(x: float, y: float, z: float):
     return lambda tau: np.tile([x, y, z], (tau.size, 1)).astype(float)
 
 
+def _vertical(x: float, y: float, z0: float, rate_mps: float):
+    """Straight up (rate > 0) or down from height z0 over the point (x, y)."""
+    return lambda tau: np.column_stack(
+        [np.full(tau.size, x), np.full(tau.size, y), z0 + rate_mps * tau]
+    )
+
+
 def _with_ground(
     dt: float, climb_to: tuple[float, float, float], flight, land_at: tuple[float, float],
     climb_mps: float = 1.0, descent_mps: float = 0.5, pre_s: float = 2.0, post_s: float = 2.0,
@@ -73,9 +80,9 @@ def _with_ground(
         dt,
         (1.0, _at(x0, y0, 0.0)),
         (pre_s, _at(x0, y0, 0.0)),
-        (zc / climb_mps, lambda tau: np.column_stack([np.full(tau.size, x0), np.full(tau.size, y0), climb_mps * tau])),
+        (zc / climb_mps, _vertical(x0, y0, 0.0, climb_mps)),
         (fly_s, fly),
-        (end[2] / descent_mps, lambda tau: np.column_stack([np.full(tau.size, land_at[0]), np.full(tau.size, land_at[1]), end[2] - descent_mps * tau])),
+        (end[2] / descent_mps, _vertical(land_at[0], land_at[1], end[2], -descent_mps)),
         (post_s, _at(land_at[0], land_at[1], 0.0)),
     )  # fmt: skip
     armed = (t >= 1.0) & (t < t[-1] - post_s / 2)
@@ -108,7 +115,7 @@ def hover_flight(
         (2.0, _at(0, 0, 0)),
         (climb, climb_f),
         (hover_s, hover_f),
-        (height_m / 0.5, lambda tau: np.column_stack([np.full(tau.size, radius_m), np.zeros_like(tau), height_m - 0.5 * tau])),
+        (height_m / 0.5, _vertical(radius_m, 0.0, height_m, -0.5)),
         (2.0, _at(radius_m, 0, 0)),
     )  # fmt: skip
     return Flight(t_s=t, xyz_m=p, armed=(t >= 1.0) & (t < t[-1] - 1.0), heading_deg=heading_deg)
@@ -153,7 +160,8 @@ def figure8_flight(
         ])  # fmt: skip
 
     def back(tau: Array) -> Array:
-        return np.column_stack([centre_x_m - 1.2 * tau, np.zeros_like(tau), np.full(tau.size, height_m)])
+        x = centre_x_m - 1.2 * tau
+        return np.column_stack([x, np.zeros_like(tau), np.full(tau.size, height_m)])
 
     total = 2 * leg_s + lap_s
 
@@ -256,11 +264,13 @@ def write_tlog(flight: Flight, path: Path, gps_hz: float = 10.0, wall_t0: float 
     events: list[tuple[float, bytes]] = []
     for k in range(int(t[-1]) + 1):
         i = min(np.searchsorted(t, float(k)), t.size - 1)
-        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed[i] else 0)
+        armed = mav.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed[i] else 0
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | armed
         msg = link.heartbeat_encode(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, 0, 4)
         events.append((float(k), msg.pack(link)))
     for tk, i in zip(gps_t, gi):
-        lat, lon, alt = (int(round(llh[i, 0] * 1e7)), int(round(llh[i, 1] * 1e7)), int(round(llh[i, 2] * 1000)))
+        lat, lon = int(round(llh[i, 0] * 1e7)), int(round(llh[i, 1] * 1e7))
+        alt = int(round(llh[i, 2] * 1000))
         speed = int(round(100 * np.hypot(vel[i, 0], vel[i, 1])))
         msg = link.gps_raw_int_encode(int(tk * 1e6), 3, lat, lon, alt, 80, 120, speed, 0, 12)
         events.append((float(tk) + 1e-4, msg.pack(link)))

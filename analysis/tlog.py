@@ -1,5 +1,6 @@
 """A `Track` from a bare MAVLink telemetry log (`.tlog`: 8-byte big-endian microsecond
-timestamp before every packet, as QGroundControl, MAVProxy and our recorder write).
+timestamp before every packet, as QGroundControl, MAVProxy and our recorder write),
+framed by the link's `companion.tlog.TlogReader` (which survives a cut or corrupted log).
 
 One sample per GPS_RAW_INT with a fix (GLOBAL_POSITION_INT when the log has no raw GPS);
 the armed state, relative altitude and speeds are the latest values received before the
@@ -12,35 +13,52 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
 from analysis.errors import NoGpsFixError, TrackLoadError
 from analysis.track import Track
+from companion.mav_framer import MAGIC_V1
+from companion.tlog import TlogReader
 
-_TYPES = ["GPS_RAW_INT", "GLOBAL_POSITION_INT", "HEARTBEAT", "VFR_HUD"]
-_ARMED = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-_NOT_AUTOPILOT = (mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER)
+_WANTED = {
+    mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT,
+    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink2.MAVLINK_MSG_ID_HEARTBEAT,
+    mavlink2.MAVLINK_MSG_ID_VFR_HUD,
+}
+_ARMED = mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+_NOT_AUTOPILOT = (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER)
 _UINT16_UNKNOWN = 65535
+
+
+def _msgid(packet: bytes) -> int:
+    """The message id from the packet header (v1: byte 5; v2: bytes 7-9, little-endian)."""
+    if packet[0] == MAGIC_V1:
+        return packet[5]
+    return packet[7] | (packet[8] << 8) | (packet[9] << 16)
 
 
 def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
     if not path.is_file():
         raise TrackLoadError(f"'{path}' does not exist.")
-    try:
-        conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
-    except Exception as exc:  # pymavlink raises bare Exceptions on bad files
-        raise TrackLoadError(f"'{path}' is not a readable tlog: {exc}") from None
     gps: list[tuple[float, ...]] = []
     glob: list[tuple[float, ...]] = []
     hb: list[tuple[float, bool]] = []
     rel: list[tuple[float, float]] = []
     hud: list[tuple[float, float, float]] = []
+    decoder = mavlink2.MAVLink(None)
+    decoder.robust_parsing = True
+    reader = TlogReader(path)
     try:
-        while True:
-            msg = conn.recv_match(type=_TYPES, blocking=False)
-            if msg is None:
-                break
-            t = float(getattr(msg, "_timestamp", 0.0))
+        for t, packet in reader:
+            # Decode only the four messages analysis reads: a real log holds hundreds of
+            # packets per second, and pymavlink's decode is the slow part.
+            if _msgid(packet) not in _WANTED:
+                continue
+            try:
+                msg = decoder.decode(bytearray(packet))
+            except Exception:  # a corrupted packet (bad CRC, cut short): skip it
+                continue
             kind = msg.get_type()
             if kind == "GPS_RAW_INT":
                 speed = np.nan if msg.vel == _UINT16_UNKNOWN else msg.vel / 100.0
@@ -50,15 +68,15 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
                 glob.append((t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0, 3, np.nan))
                 rel.append((t, msg.relative_alt / 1000.0))
             elif kind == "HEARTBEAT":
-                if msg.type in _NOT_AUTOPILOT or msg.autopilot == mavutil.mavlink.MAV_AUTOPILOT_INVALID:
+                if msg.type in _NOT_AUTOPILOT or msg.autopilot == mavlink2.MAV_AUTOPILOT_INVALID:
                     continue  # the station's or a companion's own heartbeat
                 hb.append((t, bool(msg.base_mode & _ARMED)))
             elif kind == "VFR_HUD":
                 hud.append((t, float(msg.groundspeed), float(msg.climb)))
-    finally:
-        conn.close()
+    except OSError as exc:
+        raise TrackLoadError(f"'{path}' cannot be read: {exc}") from None
 
-    rows = np.array(gps if gps else glob, dtype=np.float64).reshape(-1, 6)
+    rows = _by_time(np.array(gps if gps else glob, dtype=np.float64).reshape(-1, 6))
     if rows.shape[0] == 0:
         raise NoGpsFixError(f"'{path}' holds no GPS_RAW_INT or GLOBAL_POSITION_INT message.")
     t, lat, lon, alt, fix, speed = rows.T
@@ -69,7 +87,7 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
         )
     t, lat, lon, alt, fix, speed = (a[ok] for a in (t, lat, lon, alt, fix, speed))
     t0 = t[0]
-    hud_a = np.array(hud, dtype=np.float64).reshape(-1, 3)
+    hud_a = _by_time(np.array(hud, dtype=np.float64).reshape(-1, 3))
     if np.isnan(speed).all() and hud_a.shape[0]:
         speed = _latest(hud_a[:, 0], hud_a[:, 1], t)
     return Track(
@@ -88,9 +106,16 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
     )
 
 
+def _by_time(a: np.ndarray) -> np.ndarray:
+    """Rows sorted by their receive time (column 0). A tlog stamps packets with the wall
+    clock, which can step back (NTP on a Pi without a real-time clock)."""
+    if a.shape[0] > 1 and np.any(np.diff(a[:, 0]) < 0):
+        return a[np.argsort(a[:, 0], kind="stable")]
+    return a
+
+
 def _cols(rows: list[tuple[float, float]], n: int) -> tuple[np.ndarray, ...]:
-    a = np.array(rows, dtype=np.float64).reshape(-1, n)
-    return tuple(a.T)
+    return tuple(_by_time(np.array(rows, dtype=np.float64).reshape(-1, n)).T)
 
 
 def _latest(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -106,6 +131,6 @@ def _latest(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _latest_bool(rows: list[tuple[float, bool]], t: np.ndarray) -> np.ndarray:
     if not rows:
         return np.zeros(t.size, bool)
-    a = np.array(rows, dtype=np.float64)
+    a = _by_time(np.array(rows, dtype=np.float64))
     v = _latest(a[:, 0], a[:, 1], t)
     return np.nan_to_num(v, nan=0.0) > 0.5

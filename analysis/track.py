@@ -95,7 +95,8 @@ def load_track(
     if p.suffix.lower() == ".tlog":
         return load_tlog(p, label, min_fix_type)
     if p.suffix.lower() == ".csv":
-        return load_telemetry_csv(p.read_bytes(), label or p.parent.name, str(p), position, min_fix_type)
+        name = label or p.parent.name
+        return load_telemetry_csv(p.read_bytes(), name, str(p), position, min_fix_type)
     raise TrackLoadError(f"'{p}' is not a session folder, .zip, .csv or .tlog.")
 
 
@@ -133,7 +134,8 @@ def load_session_zip(
         name = label or str(meta.get("label") or zip_path.stem)
         csvs = sorted((n for n in names if n.rsplit("/", 1)[-1] == TELEMETRY_CSV), key=len)
         if csvs:
-            track = load_telemetry_csv(zf.read(csvs[0]), name, str(zip_path), position, min_fix_type)
+            raw = zf.read(csvs[0])
+            track = load_telemetry_csv(raw, name, str(zip_path), position, min_fix_type)
             return replace(track, meta=meta)
         tlogs = sorted((n for n in names if n.lower().endswith(".tlog")), key=len)
         if not tlogs:

@@ -56,8 +56,9 @@ def scene_jpegs(n: int, width: int, height: int) -> list[bytes]:
     return out
 
 
-def thread_cpu_s(native_ids: set[int]) -> float:
-    return sum(t.user_time + t.system_time for t in psutil.Process().threads() if t.id in native_ids)
+def thread_cpu_s(native_ids: dict[str, int]) -> dict[str, float]:
+    by_id = {t.id: t.user_time + t.system_time for t in psutil.Process().threads()}
+    return {name: by_id.get(tid, 0.0) for name, tid in native_ids.items()}
 
 
 async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
@@ -76,21 +77,23 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     vehicle.start()
     await rec.start("bench")
     session = rec.session
-    ids = {threading.get_native_id(), session.writer._thread.native_id,
-           session._sampler.native_id}
+    tids = session.thread_ids()
+    ids = {"event loop (frame consumers)": threading.get_native_id(),
+           "writer thread": tids["writer"], "sampler thread": tids["sampler"]}
     cpu0, wall0 = thread_cpu_s(ids), time.monotonic()
     await asyncio.sleep(seconds)
     cpu_mid = thread_cpu_s(ids)  # before stop: the writer thread is gone after it
     await rec.stop("requested")
     wall = time.monotonic() - wall0
-    cpu = cpu_mid - cpu0
+    per_thread = {name: cpu_mid[name] - cpu0[name] for name in ids}
+    cpu = sum(per_thread.values())
     vehicle.stop()
     for c in cams.values():
         c.stop()
     sid = rec.last_stop.id
     meta = json.loads((root / sid / "session.json").read_text())
     size = sum(p.stat().st_size for p in (root / sid).rglob("*") if p.is_file())
-    return {"meta": meta, "cpu_s": cpu, "wall_s": wall, "bytes": size,
+    return {"meta": meta, "cpu_s": cpu, "per_thread": per_thread, "wall_s": wall, "bytes": size,
             "published": {n: max(c.published) for n, c in cams.items()},
             "packets_sent": vehicle.packets_sent}
 
@@ -115,9 +118,11 @@ def main() -> None:
     ap.add_argument("--dir", type=Path, default=None, help="where to write (default: a temp dir)")
     args = ap.parse_args()
     jpegs = scene_jpegs(30, args.width, args.height)
+    load_before = psutil.getloadavg()
     root = Path(tempfile.mkdtemp(prefix="fpv-bench-", dir=args.dir))
     try:
         r = asyncio.run(record(root, args.seconds, jpegs))
+        r["load_before"] = load_before
         png_cpu = paper_png_cpu_per_frame(root, jpegs, args.png_frames)
     finally:
         shutil.rmtree(root, ignore_errors=True)
@@ -125,12 +130,13 @@ def main() -> None:
     written = sum(c["frames_written"] for c in q["cameras"].values())
     dropped = sum(c["frames_dropped"] for c in q["cameras"].values())
     ours = r["cpu_s"] / written
+    print(f"load average before: {r['load_before']}, after: {psutil.getloadavg()}")
     print(f"recording: {args.seconds:.0f} s, 2 cameras x {FPS:.0f} fps {args.width}x{args.height} "
           f"JPEG (mean {np.mean([len(j) for j in jpegs]) / 1e3:.1f} kB), telemetry 100 Hz")
     print(f"  frames written        {written}  (published {sum(r['published'].values())})")
     print(f"  frames dropped        {dropped}")
     print(f"  telemetry rows        {q['telemetry_rows']}  ({q['telemetry_achieved_hz']} Hz achieved,"
-          f" {q['telemetry_rows_dropped']} dropped)")
+          f" {q['telemetry_rows_dropped']} dropped, {q['telemetry_ticks_late']} instants late)")
     print(f"  tlog packets          {q['tlog_packets']} of {r['packets_sent']} "
           f"({q['tlog_packets_dropped']} dropped)")
     for cam, c in q["cameras"].items():
@@ -139,6 +145,8 @@ def main() -> None:
     print(f"  disk                  {r['bytes'] / 1e6 / r['wall_s']:.2f} MB/s")
     print(f"  recorder CPU          {r['cpu_s']:.2f} s over {r['wall_s']:.1f} s "
           f"({100 * r['cpu_s'] / r['wall_s']:.1f}% of one core)")
+    for name, c in r["per_thread"].items():
+        print(f"    {name:28s} {c:.2f} s")
     print(f"  CPU per recorded frame {ours * 1e3:.3f} ms (telemetry and tlog included)")
     print(f"paper (decode + PNG per frame): {png_cpu * 1e3:.2f} ms CPU per frame")
     print(f"ratio: ours is {png_cpu / ours:.1f}x cheaper per frame")

@@ -55,11 +55,7 @@ class Latest(Generic[T]):
             version = self.version + 1
             self._current = Versioned(version, value)
             waiters, self._waiters = self._waiters, []
-        for loop, fut in waiters:
-            try:
-                loop.call_soon_threadsafe(_wake, fut)
-            except RuntimeError:  # that loop is closed: its waiter is gone with it
-                pass
+        _wake_waiters(waiters)
         return version
 
     def close(self) -> None:
@@ -67,11 +63,7 @@ class Latest(Generic[T]):
         with self._lock:
             self._closed = True
             waiters, self._waiters = self._waiters, []
-        for loop, fut in waiters:
-            try:
-                loop.call_soon_threadsafe(_wake, fut)
-            except RuntimeError:
-                pass
+        _wake_waiters(waiters)
 
     @property
     def closed(self) -> bool:
@@ -105,6 +97,21 @@ class Latest(Generic[T]):
         return self._current
 
 
-def _wake(fut: asyncio.Future[None]) -> None:
-    if not fut.done():
-        fut.set_result(None)
+def _wake_waiters(waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]]) -> None:
+    # One call_soon_threadsafe per loop, not per waiter: each call writes to the loop's
+    # self-pipe, and twenty WebSocket clients waiting on telemetry would mean twenty
+    # syscalls per MAVLink packet.
+    by_loop: dict[asyncio.AbstractEventLoop, list[asyncio.Future[None]]] = {}
+    for loop, fut in waiters:
+        by_loop.setdefault(loop, []).append(fut)
+    for loop, futs in by_loop.items():
+        try:
+            loop.call_soon_threadsafe(_wake, futs)
+        except RuntimeError:  # that loop is closed: its waiters are gone with it
+            pass
+
+
+def _wake(futs: list[asyncio.Future[None]]) -> None:
+    for fut in futs:
+        if not fut.done():
+            fut.set_result(None)

@@ -9,7 +9,7 @@ never changes under a reader.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, replace
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -37,6 +37,15 @@ _AUTOPILOT_NAMES = {
 }
 _GPS_3D_FIX = 3
 _UINT16_UNKNOWN = 65535
+
+
+_STATE_FIELDS = tuple(f.name for f in fields(VehicleState))
+
+
+def _replace_state(state: VehicleState, **groups: object) -> VehicleState:
+    """`dataclasses.replace` for the hot path: it runs for every packet, and the generic
+    version (field introspection per call) was the largest cost of the link thread."""
+    return VehicleState(*[groups[n] if n in groups else getattr(state, n) for n in _STATE_FIELDS])
 
 
 def _enum_name(enum: str, value: int, prefix: str) -> str:
@@ -131,7 +140,8 @@ class StateTracker:
             t_mono=t,
             sysid=m.get_srcSystem(),
             compid=m.get_srcComponent(),
-            autopilot=_AUTOPILOT_NAMES.get(m.autopilot, _enum_name("MAV_AUTOPILOT", m.autopilot, "MAV_AUTOPILOT_")),
+            autopilot=_AUTOPILOT_NAMES.get(m.autopilot)
+            or _enum_name("MAV_AUTOPILOT", m.autopilot, "MAV_AUTOPILOT_"),
             vehicle_type=_enum_name("MAV_TYPE", m.type, "MAV_TYPE_"),
             armed=armed,
             mode=mode_name(m.autopilot, m.type, m.base_mode, m.custom_mode),
@@ -140,7 +150,7 @@ class StateTracker:
             system_status=_enum_name("MAV_STATE", m.system_status, "MAV_STATE_").upper(),
             mavlink_version=packet_version(m),
         )
-        self.state = replace(self.state, heartbeat=hb)
+        self.state = _replace_state(self.state, heartbeat=hb)
         if armed and not was_armed:
             self._take_reference("arming", t)
 
@@ -158,7 +168,7 @@ class StateTracker:
             ground_speed_mps=_scaled(m.vel, 0.01, _UINT16_UNKNOWN),
             course_deg=_scaled(m.cog, 0.01, _UINT16_UNKNOWN),
         )
-        self.state = replace(self.state, gps=g)
+        self.state = _replace_state(self.state, gps=g)
         if not self._gp_seen:
             self._altitude_changed(t)
 
@@ -176,7 +186,7 @@ class StateTracker:
             vz_mps=m.vz * 0.01,
             heading_deg=_scaled(m.hdg, 0.01, _UINT16_UNKNOWN),
         )
-        self.state = replace(self.state, global_position=gp)
+        self.state = _replace_state(self.state, global_position=gp)
         if not self._gp_seen:
             self._gp_seen = True
             alt = self.state.altitude
@@ -198,7 +208,7 @@ class StateTracker:
             throttle_pct=float(m.throttle),
             alt_m=m.alt,
         )
-        self.state = replace(self.state, vfr_hud=hud)
+        self.state = _replace_state(self.state, vfr_hud=hud)
 
     def _attitude(self, m: mavlink.MAVLink_message, t: float) -> None:
         att = Attitude(
@@ -211,7 +221,7 @@ class StateTracker:
             pitchspeed_rad_s=m.pitchspeed,
             yawspeed_rad_s=m.yawspeed,
         )
-        self.state = replace(self.state, attitude=att)
+        self.state = _replace_state(self.state, attitude=att)
 
     def _rc_channels(self, m: mavlink.MAVLink_message, t: float) -> None:
         pwm = tuple(getattr(m, f"chan{i}_raw") for i in range(1, 19))
@@ -222,12 +232,12 @@ class StateTracker:
             pwm_us=pwm,
             rssi=None if m.rssi == 255 else m.rssi,
         )
-        self.state = replace(self.state, rc=rc)
+        self.state = _replace_state(self.state, rc=rc)
 
     def _servo_output(self, m: mavlink.MAVLink_message, t: float) -> None:
         pwm = tuple(getattr(m, f"servo{i}_raw", 0) for i in range(1, 17))
         servo = ServoOutputs(t_mono=t, time_usec=m.time_usec, port=m.port, pwm_us=pwm)
-        self.state = replace(self.state, servo=servo)
+        self.state = _replace_state(self.state, servo=servo)
 
     def _sys_status(self, m: mavlink.MAVLink_message, t: float) -> None:
         b = self.state.battery
@@ -271,7 +281,7 @@ class StateTracker:
             vy_mps=m.vy,
             vz_mps=m.vz,
         )
-        self.state = replace(self.state, local_position=lp)
+        self.state = _replace_state(self.state, local_position=lp)
 
     # -- the pilot's altitude (paper: relative to the altitude at arming) ---------------
 

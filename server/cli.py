@@ -39,7 +39,18 @@ def add_serve_parser(sub: Any) -> None:
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
     add_camera_flags(p)
     add_viser_flags(p)
+    add_recording_flags(p)
     p.set_defaults(func=run_serve)
+
+
+def add_recording_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sessions-dir", dest="recording.sessions_dir", type=Path,
+                   help="where recorded sessions go (default ./sessions)")
+    p.add_argument("--record-rate", dest="recording.rate_hz", type=float,
+                   help="telemetry.csv rows per second (1-100, default 30)")
+    p.add_argument("--no-auto-record", dest="recording.auto_record_on_arm",
+                   action="store_const", const=False,
+                   help="do not start recording when the vehicle arms")
 
 
 def add_viser_flags(p: argparse.ArgumentParser) -> None:
@@ -140,8 +151,12 @@ def run_serve(args: argparse.Namespace) -> int:
     from server.listen import listening_socket
 
     sock = listening_socket(settings.server.host, settings.server.port)
+    # No permessage-deflate: browsers ask for it, and it would compress every telemetry
+    # message once per client, the per-client re-encoding the shared JSON body avoids.
     # MJPEG streams never end by themselves: give them 2 s at shutdown, then cancel them.
-    config = uvicorn.Config(app, log_level="info", timeout_graceful_shutdown=2)
+    config = uvicorn.Config(
+        app, log_level="info", ws_per_message_deflate=False, timeout_graceful_shutdown=2
+    )
     uvicorn.Server(config).run(sockets=[sock])
     return 0
 

@@ -7,7 +7,6 @@ MAVLink packets are real pymavlink-encoded bytes.
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 
@@ -41,6 +40,7 @@ class FakeCamera:
         self.jpegs = jpegs
         self.frames: Latest[Frame] = Latest()
         self.published: dict[int, bytes] = {}
+        self.published_mono: dict[int, float] = {}  # when publish() had returned
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"fake-cam-{name}", daemon=True)
 
@@ -67,6 +67,7 @@ class FakeCamera:
             self.frames.publish(
                 Frame(self.name, seq, jpeg, 320, 240, time.monotonic(), time.time())
             )
+            self.published_mono[seq] = time.monotonic()
             next_t += period
 
 
@@ -94,16 +95,16 @@ class FakeVehicle:
 
     def publish_now(self) -> None:
         now = time.monotonic()
-        s = VehicleState()
-        s.heartbeat = Heartbeat(t_mono=now, sysid=1, compid=1, autopilot="px4", armed=self.armed,
-                                mode="POSCTL")
-        s.rc = RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14)
-        s.altitude = PilotAltitude(
-            t_mono=now, relative_alt_m=self.alt_m, reference_alt_m=180.0,
-            reference="arming" if self.armed else "first_fix", home_lat_deg=43.0021,
-            home_lon_deg=-78.7875,
-        )
-        self.state.publish(s)
+        self.state.publish(VehicleState(
+            heartbeat=Heartbeat(t_mono=now, sysid=1, compid=1, autopilot="px4", armed=self.armed,
+                                mode="POSCTL"),
+            rc=RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14),
+            altitude=PilotAltitude(
+                t_mono=now, relative_alt_m=self.alt_m, reference_alt_m=180.0,
+                reference="arming" if self.armed else "first_fix", home_lat_deg=43.0021,
+                home_lon_deg=-78.7875,
+            ),
+        ))
 
     def _run(self) -> None:
         period = 1.0 / self.rate_hz
@@ -120,6 +121,3 @@ class FakeVehicle:
                 for cb in self.listeners:
                     cb(time.time(), packet)
 
-
-def replace_state(state: VehicleState, **groups) -> VehicleState:
-    return dataclasses.replace(state, **groups)

@@ -276,3 +276,93 @@ def test_cli_writes_table_and_plots_and_reports_errors(flights, tmp_path):
     bad = subprocess.run(cmd[:5] + ["--task", "hover", "--no-scene"], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "never reached 4 m" in bad.stderr
+
+
+def test_tlog_with_other_messages_and_junk(flights, tmp_path):
+    """Real logs hold many other messages and may hold junk: only ours are decoded."""
+    from pymavlink.dialects.v20 import common as mav
+
+    flight, _, tlog = flights["a-to-b"]
+    link = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    noisy = bytearray()
+    data = tlog.read_bytes()
+    i = 0
+    while i < len(data):
+        length = data[i + 9] + 12  # v2 packets without signature
+        noisy += data[i : i + 8 + length]
+        noisy += data[i : i + 8] + link.attitude_encode(0, 0.1, 0.2, 0.3, 0, 0, 0).pack(link)
+        if i % 7 == 0:
+            noisy += b"\x00junk\xfd"
+        i += 8 + length
+    (tmp_path / "noisy.tlog").write_bytes(bytes(noisy))
+    ref = reference(flight)
+    clean = analyze_paths([tlog], "a-to-b", ref, scene=False).results[0]
+    dirty = analyze_paths([tmp_path / "noisy.tlog"], "a-to-b", ref, scene=False).results[0]
+    # A junk byte that looks like a record start can swallow the packet after it (the
+    # CRC then rejects the fake): a few samples may go, the answer must not move.
+    assert clean.samples * 0.95 <= dirty.samples <= clean.samples
+    assert rel(dirty.lateral_deviation_m, clean.lateral_deviation_m) < 0.01
+
+
+def test_session_written_by_the_real_recorder(tmp_path):
+    """The recorder's own RowFormatter and SessionWriter (CRLF rows, booleans as 1/0,
+    t_mono on the session clock, camera columns) feed the analysis unchanged."""
+    from companion.recording.rows import RowFormatter, Sample
+    from companion.recording.writer import SessionWriter, WriterLimits
+    from companion.vehicle_state import GpsRaw, Heartbeat, PilotAltitude, VehicleState
+
+    flight = syn.hover_flight(radius_m=0.4, bob_m=0.1, dt=1 / 30, heading_deg=HEADING)
+    llh = flight.llh()
+    t0_mono = 5000.0
+    fmt = RowFormatter(("front", "bottom"), t0_mono)
+    writer = SessionWriter(tmp_path, fmt, WriterLimits(row_queue=10**6, min_free_bytes=0))
+    gps_tick = np.floor(flight.t_s * 10) / 10  # GPS at 10 Hz, held between updates
+    gi = np.searchsorted(flight.t_s, gps_tick - 1e-9)
+    for k, t in enumerate(flight.t_s):
+        i = gi[k]
+        state = VehicleState(
+            heartbeat=Heartbeat(t_mono=t0_mono + t, armed=bool(flight.armed[k]), mode="POSCTL"),
+            gps=GpsRaw(t_mono=t0_mono + flight.t_s[i], fix_type=3, satellites=12,
+                       lat_deg=llh[i, 0], lon_deg=llh[i, 1], alt_m=llh[i, 2]),
+            altitude=PilotAltitude(t_mono=t0_mono + t, relative_alt_m=flight.xyz_m[k, 2]),
+        )  # fmt: skip
+        assert writer.put_row(Sample(t0_mono + t, 1.7e9 + t, state, (None, None)))
+    writer.start()
+    writer.close()
+    assert (tmp_path / "telemetry.csv").read_bytes().count(b"\r\n") > 100
+    r = analyze_paths([tmp_path], "hover", scene=False).results[0]
+    assert rel(r.hover_distance_m, 0.4) < 0.01
+    assert rel(r.height_deviation_m, 0.1 / np.sqrt(2)) < 0.01
+    assert r.window_samples == 101
+
+
+def test_gps_altitude_blip_on_the_pad_is_not_a_take_off(flights, tmp_path):
+    flight, folder, _ = flights["a-to-b"]
+    xyz = flight.xyz_m.copy()
+    on_pad = (flight.t_s >= 1.5) & (flight.t_s < 2.1)  # armed, 0.8 m "up" for 0.6 s
+    xyz[on_pad, 2] = 0.8
+    blip = syn.write_session(dataclasses.replace(flight, xyz_m=xyz), tmp_path / "blip")
+    clean = analyze_paths([folder], "a-to-b", reference(flight), scene=False).results[0]
+    noisy = analyze_paths([blip], "a-to-b", reference(flight), scene=False).results[0]
+    assert noisy.trial_time_s == pytest.approx(clean.trial_time_s)
+    assert noisy.takeoff_s == pytest.approx(clean.takeoff_s)
+
+
+def test_obstacle_task_uses_the_longitudinal_window(flights):
+    flight, folder, _ = flights["a-to-b"]
+    a = analyze_paths([folder], "a-to-b", reference(flight), scene=False).results[0]
+    o = analyze_paths([folder], "obstacle", reference(flight), scene=False).results[0]
+    assert o.task == "obstacle" and o.lateral_deviation_m == a.lateral_deviation_m
+
+
+def test_quoted_csv_cells_take_the_careful_path(flights, tmp_path):
+    """csv.writer quotes a cell holding a comma (a mode name, say): still read right."""
+    flight, folder, _ = flights["a-to-b"]
+    d = tmp_path / "quoted"
+    shutil.copytree(folder, d)
+    text = (d / "telemetry.csv").read_text().replace(",POSCTL,", ',"POS,CTL",')
+    (d / "telemetry.csv").write_text(text)
+    good = analyze_paths([folder], "a-to-b", reference(flight), scene=False).results[0]
+    quoted = analyze_paths([d], "a-to-b", reference(flight), scene=False).results[0]
+    same = {"source": "", "label": ""}
+    assert quoted.to_dict() | same == good.to_dict() | same

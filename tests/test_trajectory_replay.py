@@ -92,6 +92,12 @@ def test_build_trajectory_origin_gaps_and_alignment():
     np.testing.assert_allclose(a.y_m[-1], 0.0, atol=0.01)  # start-to-end on +x
     assert a.x_m[-1] == pytest.approx(math.hypot(r.x_m[-1], r.y_m[-1]), abs=0.01)
     assert a.align_rad == pytest.approx(-math.atan2(2, 1), abs=1e-3)
+    # a flight that comes back: "farthest" still finds its axis, "end" would not
+    back = np.concatenate([enu, enu[::-1]])
+    blat, blon, balt = enu_to_geodetic(back, 43.0, -78.8, 180.0).T
+    f = build_trajectory("x", np.arange(back.shape[0]) * 0.5, blat, blon, balt, align="farthest")
+    i = int(np.argmax(np.hypot(f.x_m, f.y_m)))
+    assert abs(f.y_m[i]) < 0.01 and f.x_m[i] > 20
     with pytest.raises(ValueError):
         build_trajectory("x", t[:0], lat[:0], lon[:0], alt[:0])
 

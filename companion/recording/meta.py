@@ -7,6 +7,8 @@ analysis. Unknown keys are kept on read so that newer writers do not break older
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 from pathlib import Path
@@ -24,6 +26,9 @@ class _Model(BaseModel):
 class CameraQuality(_Model):
     configured_fps: float | None = None
     achieved_fps: float | None = None  # frames written / time between first and last
+    # Frames the camera produced while recording (by sequence numbers, from the first one
+    # the recorder saw): always frames_written + frames_dropped.
+    frames_captured: int = 0
     frames_written: int = 0
     # Frames the camera captured that never reached the disk: skipped by the Latest slot
     # before the consumer saw them, or refused because the writer queue was full.
@@ -46,6 +51,9 @@ class Quality(_Model):
     telemetry_rows: int = 0
     telemetry_achieved_hz: float | None = None
     telemetry_rows_dropped: int = 0
+    # Row instants skipped because the sampler thread was held up (CPU starved): the
+    # grid stays fixed, so a late sampler leaves gaps instead of bunching rows.
+    telemetry_ticks_late: int = 0
     tlog_packets: int = 0
     tlog_packets_dropped: int = 0
     cameras: dict[str, CameraQuality] = Field(default_factory=dict)
@@ -81,14 +89,30 @@ class SessionMeta(_Model):
 
 
 def write_meta(path: Path, meta: SessionMeta) -> None:
-    """Write session.json atomically (temp file, fsync, rename) so a crash never halves it."""
+    """Write session.json atomically (temp file, fsync, rename) so a crash never halves it.
+
+    On a full disk the temp file cannot be written; then the file is overwritten in place,
+    which needs no new blocks while it does not grow past the ones it holds (the reason
+    "disk full" must still reach session.json).
+    """
     tmp = path.with_name(path.name + ".tmp")
     data = json.dumps(meta.model_dump(mode="json"), indent=2).encode()
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT) or not path.exists():
+            raise
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        with open(path, "r+b") as f:
+            f.write(data)
+            f.truncate()
+            f.flush()
+            os.fsync(f.fileno())
 
 
 def read_meta(path: Path) -> SessionMeta:

@@ -49,7 +49,8 @@ class _CameraTrack:
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.last_seq: int | None = None
+        self.first_seq: int | None = None  # first frame offered to the writer
+        self.last_seq: int | None = None  # newest frame offered to the writer
         self.ref: FrameRef | None = None  # newest frame accepted by the writer
         self.missed = 0
         self.skew = SkewStats()
@@ -129,6 +130,15 @@ class RecordingSession:
     def stopping(self) -> bool:
         return self._stop.is_set()
 
+    def frames_dropped(self) -> dict[str, int]:
+        """Per camera: frames captured but not (going to be) on disk, so far."""
+        queue = self.writer.stats.frames_dropped_queue
+        return {c: self._tracks[c].missed + queue.get(c, 0) for c in self.cameras}
+
+    def thread_ids(self) -> dict[str, int | None]:
+        """Native ids of the session's threads (for CPU accounting in benchmarks)."""
+        return {"writer": self.writer.native_id, "sampler": self._sampler.native_id}
+
     # -- inputs ----------------------------------------------------------------------------
 
     def on_packet(self, t_wall: float, packet: bytes) -> None:
@@ -144,6 +154,8 @@ class RecordingSession:
                 return track.ref  # a placeholder, or a frame already offered
             if track.last_seq is not None:
                 track.missed += frame.seq - track.last_seq - 1
+            else:
+                track.first_seq = frame.seq
             track.last_seq = frame.seq
             if self.writer.put_frame(cam, frame):
                 track.ref = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
@@ -264,6 +276,9 @@ class RecordingSession:
             cams[cam] = CameraQuality(
                 configured_fps=self.config.camera_fps.get(cam),
                 achieved_fps=achieved,
+                frames_captured=(
+                    0 if track.first_seq is None else track.last_seq - track.first_seq + 1
+                ),
                 frames_written=written,
                 frames_missed=track.missed,
                 frames_dropped_queue=dropped_q,
@@ -281,6 +296,7 @@ class RecordingSession:
                 round((st.rows_written - 1) / span, 3) if span and st.rows_written > 1 else None
             ),
             telemetry_rows_dropped=st.rows_dropped,
+            telemetry_ticks_late=self.ticks_late,
             tlog_packets=st.packets_written,
             tlog_packets_dropped=st.packets_dropped,
             cameras=cams,

@@ -62,12 +62,15 @@ class SessionSummary:
 
 
 class SessionStore:
-    """Read access to `root`, the configurable sessions directory (created if missing)."""
+    """Read access to `root`, the configurable sessions directory (created by the first
+    session, so that a station that never records leaves no empty folder behind)."""
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
-        self.root.mkdir(parents=True, exist_ok=True)
         self._real_root = Path(os.path.realpath(self.root))
+        # Folder sizes by id, valid while session.json keeps its mtime: a finished session
+        # does not change, and walking thousands of frames on every list costs a Pi.
+        self._sizes: dict[str, tuple[int, int]] = {}
 
     # -- untrusted input -> safe paths -----------------------------------------------
 
@@ -111,6 +114,8 @@ class SessionStore:
     def ids(self) -> list[str]:
         """Ids of every session folder, oldest first (ids sort by start time)."""
         out = []
+        if not self._real_root.is_dir():
+            return out
         with os.scandir(self._real_root) as it:
             for entry in it:
                 if layout.is_valid_session_id(entry.name) and entry.is_dir(follow_symlinks=False):
@@ -124,7 +129,7 @@ class SessionStore:
     def summary(self, session_id: str) -> SessionSummary:
         folder = self.resolve(session_id)
         meta = self.meta_or_none(session_id)
-        size = folder_size(folder)
+        size = self._size(session_id, folder)
         if meta is None:
             return SessionSummary(
                 id=session_id,
@@ -156,6 +161,18 @@ class SessionStore:
             meta=meta,
         )
 
+    def _size(self, session_id: str, folder: Path) -> int:
+        try:
+            stamp = os.stat(folder / layout.SESSION_JSON).st_mtime_ns
+        except OSError:
+            stamp = -1
+        cached = self._sizes.get(session_id)
+        if cached is not None and cached[0] == stamp and stamp != -1:
+            return cached[1]
+        size = folder_size(folder)
+        self._sizes[session_id] = (stamp, size)
+        return size
+
     def meta(self, session_id: str) -> SessionMeta:
         """session.json of a session; raises SessionFileNotFound if missing or unreadable."""
         path = self.resolve(session_id) / layout.SESSION_JSON
@@ -174,6 +191,7 @@ class SessionStore:
         """Remove a session folder (the caller refuses while it is being recorded)."""
         folder = self.resolve(session_id)
         shutil.rmtree(folder)
+        self._sizes.pop(session_id, None)
 
     def files(self, session_id: str) -> list[tuple[str, Path]]:
         """(relative posix path, absolute path) of every regular file, sorted; no symlinks."""

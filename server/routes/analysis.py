@@ -7,7 +7,8 @@ one recorded session or a comparison of several.
     GET /api/analysis/{plot}.png?task=...&sessions=...
 
 Sessions are found only through the recorder's `SessionStore` (ids and file names are
-untrusted). Loading and plotting run in a worker thread, never on the event loop; the
+untrusted). Loading and plotting run in a worker thread (one analysis at a time, so the
+Pi's cores stay free for telemetry and video), never on the event loop; the
 last few analyses are cached, keyed on the files' size and modification time, so a page
 asking for the table and three figures loads the session once. The JSON is the CLI's
 `TABLE.json`, computed by the same `analysis.report.analyze_tracks`.
@@ -18,10 +19,11 @@ from __future__ import annotations
 import functools
 from dataclasses import replace
 from pathlib import Path
+from typing import Literal
 
+import anyio
 from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import Response
-from starlette.concurrency import run_in_threadpool
 
 from analysis import errors as ae
 from analysis.field import load_scene
@@ -34,6 +36,10 @@ from server.errors import ApiError, BadRequest, NotFound
 
 router = APIRouter(tags=["analysis"])
 MAX_SESSIONS = 8
+# Analyses at once: each is CPU-bound numpy/matplotlib, and the Pi's two spare cores
+# belong to telemetry and video first. Others wait their turn (bounded by the server's
+# thread pool), they are not refused.
+CONCURRENT_ANALYSES = 1
 TLOG = "mavlink.tlog"
 META = "session.json"
 
@@ -165,7 +171,11 @@ async def _run(request: Request, session_ids: list[str], task: str, reference: s
         except (ae.AnalysisError, st.SessionStoreError) as exc:
             raise _api_error(exc) from None
 
-    return await run_in_threadpool(work)
+    limiter = getattr(request.app.state, "analysis_limiter", None)
+    if limiter is None:  # made on first use, inside the app's event loop
+        limiter = anyio.CapacityLimiter(CONCURRENT_ANALYSES)
+        request.app.state.analysis_limiter = limiter
+    return await anyio.to_thread.run_sync(work, limiter=limiter)
 
 
 _TASK = Query(..., description="hover, a-to-b, obstacle or figure8")
@@ -176,15 +186,19 @@ _D = TaskParams()
 def _thresholds(
     hover_height_m: float = Query(_D.hover_height_m, gt=0),
     hover_window_s: float = Query(_D.hover_window_s, gt=0),
+    hover_height_tolerance_m: float = Query(_D.hover_height_tolerance_m, ge=0),
     margin_m: float = Query(_D.margin_m, ge=0),
     airborne_height_m: float = Query(_D.airborne_height_m, ge=0),
+    height_source: Literal["pilot", "gps"] = Query(_D.height_source),
 ) -> TaskParams:
     """The method's thresholds as query parameters, the paper's values by default."""
     return TaskParams(
         hover_height_m=hover_height_m,
         hover_window_s=hover_window_s,
+        hover_height_tolerance_m=hover_height_tolerance_m,
         margin_m=margin_m,
         airborne_height_m=airborne_height_m,
+        height_source=height_source,
     )
 
 
@@ -192,30 +206,36 @@ _P = Depends(_thresholds)
 
 
 @router.get("/api/sessions/{session_id}/analysis", summary="Task metrics of one session")
-async def session_analysis(request: Request, session_id: str, task: str = _TASK,
-                           reference: str | None = _REF, params: TaskParams = _P) -> dict:  # fmt: skip
+async def session_analysis(
+    request: Request, session_id: str, task: str = _TASK, reference: str | None = _REF,
+    params: TaskParams = _P,
+) -> dict:
     an = await _run(request, [session_id], task, reference, params)
     return {"sessions": [session_id], **an.comparison.to_dict()}
 
 
 @router.get("/api/sessions/{session_id}/analysis/{plot}.png", summary="A figure of one session")
-async def session_plot(request: Request, session_id: str, plot: str, task: str = _TASK,
-                       reference: str | None = _REF, params: TaskParams = _P) -> Response:  # fmt: skip
+async def session_plot(
+    request: Request, session_id: str, plot: str, task: str = _TASK,
+    reference: str | None = _REF, params: TaskParams = _P,
+) -> Response:
     png = await _run(request, [session_id], task, reference, params, plot)
     return Response(png, media_type="image/png")
 
 
 @router.get("/api/analysis", summary="One table comparing sessions of one task")
-async def compare_sessions(request: Request, task: str = _TASK,
-                           sessions: list[str] | None = Query(None),
-                           reference: str | None = _REF, params: TaskParams = _P) -> dict:  # fmt: skip
+async def compare_sessions(
+    request: Request, task: str = _TASK, sessions: list[str] | None = Query(None),
+    reference: str | None = _REF, params: TaskParams = _P,
+) -> dict:
     an = await _run(request, sessions or [], task, reference, params)
     return {"sessions": sessions or [], **an.comparison.to_dict()}
 
 
 @router.get("/api/analysis/{plot}.png", summary="A figure overlaying sessions of one task")
-async def compare_plot(request: Request, plot: str, task: str = _TASK,
-                       sessions: list[str] | None = Query(None),
-                       reference: str | None = _REF, params: TaskParams = _P) -> Response:  # fmt: skip
+async def compare_plot(
+    request: Request, plot: str, task: str = _TASK, sessions: list[str] | None = Query(None),
+    reference: str | None = _REF, params: TaskParams = _P,
+) -> Response:
     png = await _run(request, sessions or [], task, reference, params, plot)
     return Response(png, media_type="image/png")

@@ -87,7 +87,9 @@ def load_trajectory(
 async def get_trajectory(
     request: Request,
     session_id: str,
-    align: Align = Query("none", description="'end': rotate so that start-to-last-point is +x"),
+    align: Align = Query(
+        "none", description="rotate so that start-to-'end' (last point) or start-to-'farthest' "
+        "point lies along +x, as in the paper; 'none' keeps east-north-up"),
     reference: str | None = Query(None, description="LAT,LON put on +x (the paper's alignment)"),
 ) -> TrajectoryReply:
     settings = request.app.state.settings

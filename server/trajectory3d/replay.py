@@ -4,7 +4,9 @@ front and bottom frame of each instant.
 Pure numpy over the columns of an `analysis.track.Track` and the cameras' `frames.csv`;
 the route does the file access. Origin: the arming point (the first armed sample), else
 the first fix. Optional alignment as in the paper: rotated about the vertical so that the
-line from the origin to a reference point (by default the last point) lies along +x.
+line from the origin to a reference point lies along +x: a given point (the landing pad),
+the last point ("end", for A-to-B flights), or the point farthest from the origin
+("farthest": also right for flights that come back, such as the figure 8).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pydantic import BaseModel
 
 from analysis.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
 
-Align = Literal["none", "end"]
+Align = Literal["none", "end", "farthest"]
 
 
 class GeoPoint(BaseModel):
@@ -107,8 +109,12 @@ def build_trajectory(
     enu = geodetic_to_enu(lat, lon, alt, *origin)
     reference: GeoPoint | None = None
     angle = 0.0
-    if reference_latlon is not None or align == "end":
-        ref_lat, ref_lon = reference_latlon or (float(lat[-1]), float(lon[-1]))
+    if reference_latlon is not None or align != "none":
+        if reference_latlon is not None:
+            ref_lat, ref_lon = reference_latlon
+        else:
+            k = -1 if align == "end" else int(np.argmax(np.hypot(enu[:, 0], enu[:, 1])))
+            ref_lat, ref_lon = float(lat[k]), float(lon[k])
         reference = GeoPoint(lat_deg=ref_lat, lon_deg=ref_lon)
         ref_enu = geodetic_to_enu(ref_lat, ref_lon, origin[2], *origin)
         try:

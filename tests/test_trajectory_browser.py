@@ -1,0 +1,174 @@
+"""Headless Chromium on the real station: the pilot page's 3D panel (the viser client served
+by the station's viser server, offline) shows the flown path, and the replay page draws a
+recorded path with its time slider and frames. Pixels are checked, not just page loads."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from playwright.sync_api import sync_playwright
+
+from analysis.geodesy import enu_to_geodetic
+from companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
+from server.app import create_app
+from server.settings import load_settings
+from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, wait_until
+from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
+
+ORIGIN = (43.0021, -78.7875, 180.0)
+
+
+def saturated(png: bytes) -> np.ndarray:
+    """Mask of strongly coloured pixels (paths and markers; not grids, text or white)."""
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).astype(int)
+    return (img.max(axis=2) - img.min(axis=2)) > 70
+
+
+def state_at(t_s: float) -> VehicleState:
+    """A figure 8 at 3-6 m, 12 m across."""
+    e, n, u = 12 * math.sin(t_s / 4), 6 * math.sin(t_s / 2), 3 + 3 * (1 - math.cos(t_s / 8)) / 2
+    lat, lon, alt = (float(v) for v in enu_to_geodetic([e, n, u], *ORIGIN))
+    return VehicleState(
+        gps=GpsRaw(t_mono=t_s, fix_type=3, lat_deg=lat, lon_deg=lon, alt_m=alt),
+        global_position=GlobalPosition(t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt,
+                                       vx_mps=1.0, vy_mps=1.0),
+        attitude=Attitude(t_mono=t_s, roll_rad=0.1, pitch_rad=0.0, yaw_rad=t_s / 4),
+    )
+
+
+def open_offline(pw, outside: list[str]):
+    """A headless Chromium page that may only reach the station (the Pi has no internet)."""
+    browser = pw.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+    page = browser.new_page(viewport={"width": 960, "height": 640})  # software WebGL: keep it small
+
+    def only_local(route):
+        if route.request.url.startswith(("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")):
+            route.continue_()
+        else:
+            outside.append(route.request.url)
+            route.abort()
+
+    page.route("**/*", only_local)
+    return browser, page
+
+
+@pytest.fixture
+def station(sessions_dir):  # noqa: F811
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.port": 0, "viser.update_hz": 60,
+        "recording.sessions_dir": str(sessions_dir), "recording.auto_record_on_arm": False,
+    })
+    app = create_app(settings)
+    with run_uvicorn(app) as base:
+        yield base, app
+
+
+@pytest.mark.timeout(300)  # the viser client renders in software here
+def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
+    base, app = station
+    # Feed a flight through the station's state slot, as the link does.
+    slot = app.state.station.state
+    for i in range(400):
+        slot.publish(state_at(i * 0.1))
+        time.sleep(0.004)
+    assert wait_until(lambda: httpx.get(f"{base}/api/viser").json()["chunks"] >= 2, 5.0)
+    port = httpx.get(f"{base}/api/viser").json()["port"]
+
+    outside: list[str] = []
+    with sync_playwright() as pw:
+        browser, page = open_offline(pw, outside)
+        page.goto(f"{base}/")
+        panel = page.locator("#panel-3d")
+        assert panel.is_hidden()
+        page.locator("#p3d-toggle").click()
+        assert panel.is_visible()
+        page.locator("#p3d-enlarge").click()  # the panel can be enlarged
+        assert "p3d-large" in (panel.get_attribute("class") or "")
+        viser_url = f"http://127.0.0.1:{port}/"
+        assert page.locator("#p3d-frame").get_attribute("src") == viser_url
+        assert wait_until(lambda: any(f.url == viser_url for f in page.frames), 60.0)
+        frame = next(f for f in page.frames if f.url == viser_url)
+        frame.locator("canvas").first.wait_for(timeout=90_000)
+        clear = frame.get_by_role("button", name="Clear trail")
+        try:
+            clear.wait_for(timeout=90_000)
+        except Exception:
+            page.screenshot(path=str(tmp_path / "panel3d_failed.png"))
+            raise
+        page.wait_for_timeout(2500)  # let the software renderer draw the scene
+        with_path = panel.screenshot(path=str(tmp_path / "panel3d.png"), timeout=90_000)
+        clear.click()  # the viser GUI's own button: the trail goes, the rest stays
+        assert wait_until(lambda: httpx.get(f"{base}/api/viser").json()["chunks"] == 0, 5.0)
+        page.wait_for_timeout(1500)
+        without_path = panel.screenshot(path=str(tmp_path / "panel3d_cleared.png"), timeout=90_000)
+        path_px = saturated(with_path) & ~saturated(without_path)
+        assert path_px.sum() > 300, f"only {path_px.sum()} path pixels in the 3D panel"
+
+        # Follow: the viewer's camera is moved onto the vehicle as it flies.
+        frame.get_by_text("Follow vehicle").click()
+        service = app.state.station.trajectory3d
+        assert wait_until(lambda: service.controls.follow.value, 5.0)
+        for i in range(400, 420):
+            slot.publish(state_at(i * 0.1))
+            time.sleep(0.03)
+        vehicle = np.asarray(service.scene.vehicle.position)
+
+        def cameras_on_vehicle() -> bool:  # as the browser reports its camera back
+            cams = [np.asarray(c.camera.look_at) for c in service.server.get_clients().values()]
+            return bool(cams) and all(np.allclose(c, vehicle, atol=0.5) for c in cams)
+
+        assert wait_until(cameras_on_vehicle, 10.0)
+
+        browser.close()
+    assert outside == [], f"requests left the station: {outside[:5]}"
+
+
+@pytest.mark.timeout(200)
+def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_path):
+    base, _ = station
+    outside: list[str] = []
+    with sync_playwright() as pw:
+        browser, page = open_offline(pw, outside)
+        # Replay: picked from the sessions page, a second session overlaid in the paper's frame.
+        page.goto(f"{base}/sessions.html")
+        page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
+        page.wait_for_url(f"**/replay.html?session={SESSION_A}*")
+        page.wait_for_function(
+            "document.getElementById('replay-status').textContent.includes('fixes')",
+            timeout=10_000)
+        page.locator("#replay-compare").select_option(SESSION_B)  # also turns alignment on
+        page.wait_for_function(
+            "document.getElementById('replay-status').textContent.includes('overlay')",
+            timeout=10_000)
+        slider = page.locator("#replay-slider")
+        assert slider.is_visible() and int(slider.get_attribute("max")) > 300
+        slider.evaluate("el => { el.value = 300; el.dispatchEvent(new Event('input')); }")
+        assert page.locator("#replay-time").text_content().startswith("30.0")
+        page.wait_for_function(
+            "['replay-front', 'replay-bottom']"
+            ".every(id => document.getElementById(id).naturalWidth > 0)",
+            timeout=10_000)
+        front_src = page.locator("#replay-front").get_attribute("src")
+        assert front_src.endswith("/files/front/00000150.jpg")  # frame of t = 30 s at 5 fps
+        png = page.locator("#replay-top").screenshot(path=str(tmp_path / "replay.png"))
+        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).astype(int)
+        b, g, r = img[..., 0], img[..., 1], img[..., 2]
+        overlay = (r > 120) & (b > 150) & (g < 130)  # the compared session, purple
+        assert saturated(png).sum() > 1500, "the replay canvas shows no path"
+        assert overlay.sum() > 200, "the second session is not overlaid"
+        # Play at 8x from 5 s for about a second, then pause.
+        slider.evaluate("el => { el.value = 50; el.dispatchEvent(new Event('input')); }")
+        page.locator("#replay-speed").select_option("8")
+        # clicks from inside the page: a loaded test machine must not stretch the second
+        page.evaluate("document.getElementById('replay-play').click()")
+        page.wait_for_timeout(1000)
+        page.evaluate("document.getElementById('replay-play').click()")  # pause
+        t_played = float(page.locator("#replay-time").text_content().split("/")[0])
+        assert 12.0 < t_played < 40.0  # 8 s of flight per second of replay, plus the clicks
+        browser.close()
+    assert outside == [], f"requests left the station: {outside[:5]}"
