@@ -168,7 +168,7 @@ def test_auto_record_on_arm_with_post_disarm_tail(tmp_path):
         assert rec.status().recording and rec.status().stopping_at_wall is not None  # tail
         for _ in range(200):
             await asyncio.sleep(0.05)
-            if not rec.status().recording:
+            if rec.recording_id is None:  # stopped and finalized
                 break
         st = rec.status()
         await rec.aclose()
@@ -207,7 +207,7 @@ def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):
         free["bytes"] = 20 * 10**6  # the disk fills up
         for _ in range(200):
             await asyncio.sleep(0.05)
-            if not rec.status().recording:
+            if rec.recording_id is None:  # stopped and finalized
                 break
         return rec.status()
 
