@@ -111,7 +111,7 @@ class ViserSettings(_Section):
     speed_range_mps: tuple[float, float] = (0.0, 5.0)
     bottom_hfov_deg: float = Field(90.0, gt=1, lt=179)  # bottom camera's footprint
     bottom_vfov_deg: float = Field(70.0, gt=1, lt=179)
-    field_file: Path | None = None  # a twin scene TOML; None = the twin's default field
+    field_file: Path | None = None  # a twin scene TOML to draw; None = the twin's scene with --source sim
 
 
 class TwinSettings(_Section):
