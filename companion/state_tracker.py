@@ -36,6 +36,7 @@ _AUTOPILOT_NAMES = {
     mavlink.MAV_AUTOPILOT_GENERIC: "generic",
 }
 _GPS_3D_FIX = 3
+_GROUND_FIX_MAX_AGE_S = 2.5  # older than this (a gap in heartbeats): not "a moment ago"
 _UINT16_UNKNOWN = 65535
 
 
@@ -88,6 +89,10 @@ class StateTracker:
         self.compid: int | None = None
         self.state = VehicleState()
         self._gp_seen = False  # GLOBAL_POSITION_INT ever received (preferred altitude)
+        # Where the vehicle stood at its last disarmed HEARTBEAT: (t_mono, alt, lat, lon).
+        # Arming is only seen in the next HEARTBEAT (1 Hz on PX4), by which time a quick
+        # pilot is already climbing; the ground position one beat earlier is the truth.
+        self._ground_fix: tuple[float, float, float | None, float | None] | None = None
 
     def is_autopilot_heartbeat(self, msg: mavlink.MAVLink_message) -> bool:
         if msg.get_type() != "HEARTBEAT" or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
@@ -152,7 +157,12 @@ class StateTracker:
         )
         self.state = _replace_state(self.state, heartbeat=hb)
         if armed and not was_armed:
-            self._take_reference("arming", t)
+            ground = self._ground_fix
+            fresh = ground is not None and t - ground[0] <= _GROUND_FIX_MAX_AGE_S
+            self._take_reference("arming", t, ground[1:] if fresh else None)
+        if not armed:
+            alt = self._current_alt_m()
+            self._ground_fix = None if alt is None else (t, alt, *self._current_latlon())
 
     def _gps_raw(self, m: mavlink.MAVLink_message, t: float) -> None:
         g = GpsRaw(
@@ -303,20 +313,31 @@ class StateTracker:
         gp = self.state.global_position  # no GPS_RAW_INT at all: a fused position counts
         return gp.lat_deg not in (None, 0.0) or gp.lon_deg not in (None, 0.0)
 
-    def _take_reference(self, reference: str, t: float) -> None:
-        alt = self._current_alt_m()
+    def _take_reference(
+        self,
+        reference: str,
+        t: float,
+        at: tuple[float, float | None, float | None] | None = None,
+    ) -> None:
+        """Make the altitude now (or `at` = (alt, lat, lon), where the vehicle stood
+        a moment ago) the zero of the pilot's altitude."""
+        if at is not None:
+            alt, lat, lon = at
+        else:
+            alt = self._current_alt_m()
+            lat, lon = self._current_latlon()
         if alt is None:
             # Armed before any altitude: take the reference at the first altitude.
             self.state = replace(
                 self.state, altitude=PilotAltitude(t_mono=t, reference=f"pending_{reference}")
             )
             return
-        lat, lon = self._current_latlon()
+        now = self._current_alt_m()
         self.state = replace(
             self.state,
             altitude=PilotAltitude(
                 t_mono=t,
-                relative_alt_m=0.0,
+                relative_alt_m=now - alt if now is not None else 0.0,
                 reference_alt_m=alt,
                 reference=reference,
                 home_lat_deg=lat,

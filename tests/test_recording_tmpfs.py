@@ -41,7 +41,7 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
         await rec.open()
         await rec.start("test")
         deadline = time.monotonic() + timeout_s
-        while rec.status().recording and time.monotonic() < deadline:
+        while rec.recording_id is not None and time.monotonic() < deadline:  # until finalized
             await asyncio.sleep(0.1)
         return rec.status()
 

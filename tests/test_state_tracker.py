@@ -106,10 +106,25 @@ def test_pilot_altitude_first_fix_then_arming_and_rearming():
     v.alt_m = 210.0
     feed("GLOBAL_POSITION_INT")
     assert tracker.state.altitude.relative_alt_m == pytest.approx(7.0)  # still from arming
+    feed("HEARTBEAT")  # a beat later, still disarmed on the ground
     v.armed = True
     feed("HEARTBEAT", "GLOBAL_POSITION_INT")
     assert tracker.state.altitude.relative_alt_m == pytest.approx(0.0)  # reset at each arming
     assert tracker.state.altitude.reference_alt_m == pytest.approx(210.0)
+
+
+def test_arming_seen_late_takes_the_ground_altitude_of_the_last_disarmed_beat():
+    # HEARTBEAT comes at 1 Hz: a pilot who climbs at once is in the air when the station
+    # first sees the vehicle armed. The zero is where it stood at the last disarmed beat.
+    tracker, v, feed = make()
+    v.alt_m = 180.0
+    feed("HEARTBEAT", "GLOBAL_POSITION_INT", "HEARTBEAT")
+    v.armed = True
+    v.alt_m = 182.5  # armed and climbing between two heartbeats
+    feed("GLOBAL_POSITION_INT", "HEARTBEAT")
+    alt = tracker.state.altitude
+    assert alt.reference == "arming" and alt.reference_alt_m == pytest.approx(180.0)
+    assert alt.relative_alt_m == pytest.approx(2.5)
 
 
 def test_armed_before_any_altitude_takes_reference_at_first_altitude():

@@ -18,6 +18,10 @@ import numpy as np
 from twin.scene import Scene
 
 DEADBAND = 0.1  # the controller's stick deadband; commands start just outside it
+# A pilot told to climb to 4 m climbs until the display reads 4 m: aim a little above the
+# target so that it is crossed at a steady climb rate, not approached asymptotically
+# from below (the paper's hover window starts when the altitude first reaches 4 m).
+CLIMB_MARGIN_M = 0.2
 
 
 @dataclass(frozen=True)
@@ -76,9 +80,9 @@ class Pilot:
                 return (0.0, 0.0, 0.0, 0.5)
             return (0.0, 0.0, 1.0, 0.0)  # the gesture: throttle down, yaw right
         if leg.kind == "climb":
-            if z >= leg.alt_m - 0.05:
+            if z >= leg.alt_m:
                 self._next(obs)
-            return self._fly(obs, self._hold_xy, leg.alt_m)
+            return self._fly(obs, self._hold_xy, leg.alt_m + CLIMB_MARGIN_M)
         if leg.kind == "hold":
             if elapsed >= leg.seconds:
                 self._next(obs)
