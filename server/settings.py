@@ -111,7 +111,7 @@ class ViserSettings(_Section):
     speed_range_mps: tuple[float, float] = (0.0, 5.0)
     bottom_hfov_deg: float = Field(90.0, gt=1, lt=179)  # bottom camera's footprint
     bottom_vfov_deg: float = Field(70.0, gt=1, lt=179)
-    field_file: Path | None = None  # a twin scene TOML; None = the twin's default field
+    field_file: Path | None = None  # a twin scene TOML to draw; None = the twin's scene with --source sim
 
 
 class TwinSettings(_Section):
@@ -129,6 +129,15 @@ class TwinSettings(_Section):
     max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
     rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
     fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
+
+    @field_validator("scene")
+    @classmethod
+    def _scene_loads(cls, value: Path | None) -> Path | None:
+        if value is not None:
+            from twin.scene import load_scene
+
+            load_scene(value)  # SceneError (a ValueError) says which file and key
+        return value
 
 
 class Settings(_Section):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -22,6 +23,9 @@ from server.telemetry_json import SharedStateJson
 
 if TYPE_CHECKING:
     from server.trajectory3d.service import Trajectory3D
+
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -106,11 +110,21 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
 
 
 async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
-    from server.trajectory3d.field import default_field
+    from server.trajectory3d.field import load_field
     from server.trajectory3d.service import open_trajectory3d
+    from twin.scene import SceneError
 
     s = station.settings
-    field = default_field() if s.link.source == "sim" else None
+    # The field: an explicit scene file, else the twin's own scene when flying the twin;
+    # a real flight elsewhere gets a plain ground grid.
+    field = None
+    try:
+        if s.viser.field_file is not None:
+            field = load_field(s.viser.field_file)
+        elif s.link.source.strip() == "sim":
+            field = load_field(s.twin.scene)
+    except SceneError as exc:  # the panel still shows the flight, on a plain grid
+        log.error("3D panel: no field drawn: %s", exc)
     service = await open_trajectory3d(s.viser, station.state, s.server.host, field)
     station.trajectory3d = service
     # viser's stop joins its thread: keep that wait off the event loop.

@@ -6,7 +6,9 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
+import os
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -277,3 +279,85 @@ def test_no_3d_flag():
     with run_uvicorn(create_app(settings)) as base:
         assert httpx.get(f"{base}/api/viser").json() == {
             "enabled": False, "port": None, "points": 0, "chunks": 0}
+
+
+def test_field_comes_from_the_twin_scene():
+    f = default_field()  # twin/scenes/field.toml
+    assert (f.size_x_m, f.size_y_m) == (60.0, 37.0)
+    assert {p.name: p.x_m for p in f.pads} == {"start": -20.0, "landing": 20.0}
+    assert sorted(o.x_m for o in f.obstacles) == [-7.0, 7.0]
+    assert all(o.height_m == 3.0 for o in f.obstacles)
+
+
+def test_station_draws_a_field_file_and_survives_a_bad_one(tmp_path):
+    scene = tmp_path / "field.toml"
+    scene.write_text(
+        '[home]\nlat_deg = 43.0\nlon_deg = -78.8\nalt_m = 200.0\n'
+        '[field]\nsize_x_m = 30.0\nsize_y_m = 20.0\n'
+        '[[pads]]\nname = "start"\nx_m = -10.0\ny_m = 0.0\n'
+        '[[obstacles]]\nname = "pole a"\nx_m = 2.0\ny_m = 3.0\nheight_m = 5.0\n'
+    )
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.port": 0, "viser.field_file": str(scene)})
+    app = create_app(settings)
+    with run_uvicorn(app) as base:
+        assert httpx.get(f"{base}/api/viser").json()["enabled"]
+        handles = app.state.station.trajectory3d.scene.field_handles
+        assert set(handles) == {"pad:start", "obstacle:pole a"}
+        assert np.allclose(handles["obstacle:pole a"].position, (2.0, 3.0, 2.5))
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.port": 0, "viser.field_file": str(tmp_path / "nope.toml")})
+    app = create_app(settings)
+    with run_uvicorn(app) as base:  # no field, but the panel runs
+        assert httpx.get(f"{base}/api/viser").json()["enabled"]
+        assert app.state.station.trajectory3d.scene.field_handles == {}
+
+
+def test_cli_serves_the_panel_on_its_port_and_stops_it(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    from tests.helpers import free_port, wait_until
+
+    port, viser_port = free_port(), free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "server", "serve", "--source", "none", "--host", "127.0.0.1",
+         "--port", str(port), "--viser-port", str(viser_port)],
+        cwd=Path(__file__).resolve().parents[1], stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL, env={**os.environ, "FPV_RECORDING__SESSIONS_DIR": str(tmp_path)},
+    )
+    try:
+        def panel():
+            try:
+                return httpx.get(f"http://127.0.0.1:{port}/api/viser", timeout=1).json()
+            except httpx.HTTPError:
+                return None
+
+        assert wait_until(panel, 30.0)
+        assert panel()["port"] == viser_port
+        assert httpx.get(f"http://127.0.0.1:{viser_port}/", timeout=5).status_code == 200
+        proc.send_signal(signal.SIGINT)
+        # uvicorn shuts down, then re-raises the SIGINT it caught: -2 is its clean exit
+        assert proc.wait(timeout=20) in (0, -signal.SIGINT)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    with pytest.raises(httpx.ConnectError):
+        httpx.get(f"http://127.0.0.1:{viser_port}/", timeout=2)
+
+
+def test_positions_without_a_fix_are_not_drawn():
+    from server.trajectory3d.service import sample_from_state
+
+    good = make_state(1.0, (1.0, 2.0, 3.0))
+    assert sample_from_state(good) is not None
+    assert sample_from_state(make_state(1.0, (1.0, 2.0, 3.0), fix_type=2)) is None  # 2D fix
+    zero = GlobalPosition(t_mono=1.0, lat_deg=0.0, lon_deg=0.0, alt_m=0.0)  # before a fix
+    assert sample_from_state(VehicleState(global_position=zero)) is None
+    nan = GlobalPosition(t_mono=1.0, lat_deg=float("nan"), lon_deg=1.0, alt_m=0.0)
+    assert sample_from_state(VehicleState(global_position=nan)) is None
+    # only the raw GPS: used when it has a 3D fix
+    raw = make_state(1.0, (1.0, 2.0, 3.0)).gps
+    s = sample_from_state(VehicleState(gps=raw))
+    assert s is not None and s.lat_deg == raw.lat_deg

@@ -7,7 +7,7 @@
 (() => {
   const $ = (id) => document.getElementById(id);
   const params = new URLSearchParams(location.search);
-  const view = { a: null, b: null, t: 0, playing: false, lastFrame: null, frames: {} };
+  const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
 
   // The same ramp as the 3D panel (server/trajectory3d/colors.py), height 0-10 m.
   const STOPS = [[48, 18, 160], [30, 150, 230], [40, 190, 90], [240, 200, 30], [220, 40, 30]];
@@ -186,22 +186,31 @@
 
   function draw() { drawTop(); drawHeight(); }
 
-  function tick(now) {
+  // The playhead runs on the wall clock from where play started, so the replay keeps
+  // its speed however often the browser paints (slow laptops, background tabs).
+  function playhead() {
+    return view.anchorT + (performance.now() - view.anchorWall) / 1000 * Number($("replay-speed").value);
+  }
+
+  function anchor() { view.anchorT = view.t; view.anchorWall = performance.now(); }
+
+  function tick() {
     if (!view.playing) return;
-    const dt = view.lastFrame == null ? 0 : (now - view.lastFrame) / 1000;
-    view.lastFrame = now;
-    setTime(view.t + dt * Number($("replay-speed").value));
+    setTime(playhead());
     if (view.a && view.t >= duration(view.a)) { togglePlay(false); return; }
     requestAnimationFrame(tick);
   }
 
   function togglePlay(on) {
+    const was = view.playing;
     view.playing = on ?? !view.playing;
     $("replay-play").textContent = view.playing ? "Pause" : "Play";
-    if (view.playing) {
+    if (view.playing && !was) {
       if (view.a && view.t >= duration(view.a)) setTime(0);
-      view.lastFrame = null;
+      anchor();
       requestAnimationFrame(tick);
+    } else if (!view.playing && was) {
+      setTime(playhead());
     }
   }
 
@@ -220,7 +229,11 @@
       load();
     });
     $("replay-align").addEventListener("change", load);
-    $("replay-slider").addEventListener("input", () => setTime(Number($("replay-slider").value) / 10));
+    $("replay-slider").addEventListener("input", () => {
+      setTime(Number($("replay-slider").value) / 10);
+      anchor();
+    });
+    $("replay-speed").addEventListener("change", anchor);
     $("replay-play").addEventListener("click", () => togglePlay());
     window.addEventListener("resize", draw);
     await load();

@@ -1,4 +1,5 @@
-"""The test field as the 3D panel draws it: a flat ground with pads and obstacles.
+"""The test field as the 3D panel draws it: a flat ground with pads and obstacles,
+taken from the twin's scene file (twin/scenes/field.toml, or another one).
 
 Coordinates are metres in the field's own frame (x east, y north, z up) about a
 georeferenced anchor, so that the field lands at the right place in a flight's ENU frame
@@ -8,10 +9,12 @@ whatever the flight's origin (the arming point) is.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from analysis.geodesy import geodetic_to_enu
+from twin.scene import Scene, load_scene
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,18 +56,31 @@ class FieldScene:
         )
 
 
-def default_field() -> FieldScene:
-    """The university's netted field as the mission describes it (60 m x 37 m, two pads,
-    two 3 m obstacles on the line y = 0), anchored at its centre."""
+def field_from_scene(scene: Scene) -> FieldScene:
+    """The twin's scene (twin/scenes/*.toml) as the panel draws it; its world origin (the
+    field's centre) is the anchor, x east, y north, as in the twin."""
+    bgr_to_rgb = lambda bgr: (int(bgr[2]), int(bgr[1]), int(bgr[0]))  # noqa: E731
     return FieldScene(
-        size_x_m=60.0,
-        size_y_m=37.0,
-        anchor_lat_deg=43.0021,
-        anchor_lon_deg=-78.7875,
-        anchor_alt_m=180.0,
-        pads=(
-            Pad("start", -20.0, 0.0, 2.0, (40, 120, 220)),
-            Pad("landing", 20.0, 0.0, 2.0, (40, 180, 80)),
+        size_x_m=scene.field.size_x_m,
+        size_y_m=scene.field.size_y_m,
+        anchor_lat_deg=scene.home.lat_deg,
+        anchor_lon_deg=scene.home.lon_deg,
+        anchor_alt_m=scene.home.alt_m,
+        pads=tuple(Pad(p.name, p.x_m, p.y_m, p.size_m, bgr_to_rgb(p.bgr)) for p in scene.pads),
+        obstacles=tuple(
+            Obstacle(o.name, o.x_m, o.y_m, o.width_m, o.depth_m, o.height_m, bgr_to_rgb(o.bgr))
+            for o in scene.obstacles
         ),
-        obstacles=(Obstacle("west", -7.0, 0.0), Obstacle("east", 7.0, 0.0)),
     )
+
+
+def load_field(scene_file: Path | str | None = None) -> FieldScene:
+    """The field of a twin scene file (None: the twin's built-in field of the paper).
+    Raises twin.scene.SceneError with the file and key when the file cannot be used."""
+    return field_from_scene(load_scene(scene_file))
+
+
+def default_field() -> FieldScene:
+    """The twin's built-in field: 60 m x 37 m, start and landing pads at x = -20 m and
+    +20 m, two 3 m obstacles at x = -7 m and +7 m on y = 0, centred near 43.0021 N."""
+    return load_field(None)

@@ -42,6 +42,7 @@ class LiveScene:
         self.color_by: ColorBy = color_by
         self.field = field
         self.chunk_handles: dict[int, viser.LineSegmentsHandle] = {}
+        self.field_handles: dict[str, viser.SceneNodeHandle] = {}
         self._footprint: viser.LineSegmentsHandle | None = None
         self._field_frame = self._add_field(field)
         self._home = self.scene.add_icosphere(
@@ -63,13 +64,14 @@ class LiveScene:
             section_size=5.0, plane_color=(215, 235, 205), plane_opacity=0.6,
         )
         for pad in f.pads:
-            self.scene.add_box(
-                f"/field/pads/{pad.name}", color=pad.rgb, dimensions=(pad.size_m, pad.size_m, 0.04),
+            self.field_handles[f"pad:{pad.name}"] = self.scene.add_box(
+                f"/field/pads/{_node(pad.name)}", color=pad.rgb,
+                dimensions=(pad.size_m, pad.size_m, 0.04),
                 position=(pad.x_m, pad.y_m, 0.02),
             )
         for ob in f.obstacles:
-            self.scene.add_box(
-                f"/field/obstacles/{ob.name}", color=ob.rgb,
+            self.field_handles[f"obstacle:{ob.name}"] = self.scene.add_box(
+                f"/field/obstacles/{_node(ob.name)}", color=ob.rgb,
                 dimensions=(ob.width_m, ob.depth_m, ob.height_m),
                 position=(ob.x_m, ob.y_m, ob.height_m / 2.0),
             )
@@ -101,7 +103,9 @@ class LiveScene:
 
     # -- moving parts -------------------------------------------------------------
 
-    def set_vehicle_pose(self, position_enu_m: NDArray[np.float64], wxyz: NDArray[np.float64]) -> None:
+    def set_vehicle_pose(
+        self, position_enu_m: NDArray[np.float64], wxyz: NDArray[np.float64]
+    ) -> None:
         self.vehicle.position = tuple(float(v) for v in position_enu_m)
         self.vehicle.wxyz = tuple(float(v) for v in wxyz)
 
@@ -114,7 +118,8 @@ class LiveScene:
         pts = np.stack([lifted, np.roll(lifted, -1, axis=0)], axis=1)
         if self._footprint is None:
             self._footprint = self.scene.add_line_segments(
-                "/footprint", points=pts, colors=_FOOTPRINT_RGB, thickness=2.0, thickness_units="screen"
+                "/footprint", points=pts, colors=_FOOTPRINT_RGB, thickness=2.0,
+                thickness_units="screen",
             )
         else:
             self._footprint.points = pts
@@ -137,7 +142,8 @@ class LiveScene:
         handle = self.chunk_handles.get(chunk.id)
         if handle is None:
             self.chunk_handles[chunk.id] = self.scene.add_line_segments(
-                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=3.0, thickness_units="screen"
+                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=4.0,
+                thickness_units="screen",
             )
         else:
             handle.points = pts
@@ -153,3 +159,8 @@ class LiveScene:
         """Resend every chunk (after a new origin or colour-coding): a one-off cost."""
         for chunk in trail.chunks:
             self.sync_chunk(chunk)
+
+
+def _node(name: str) -> str:
+    """A scene-tree-safe node name ("obstacle 1" -> "obstacle_1"; no "/" nesting)."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name) or "unnamed"

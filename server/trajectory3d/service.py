@@ -31,29 +31,41 @@ log = logging.getLogger(__name__)
 MIN_FIX_TYPE = 3  # a 2D fix has no usable altitude: drawn as a gap
 
 
+def _valid_fix(lat_deg: float | None, lon_deg: float | None, alt_m: float | None) -> bool:
+    """Coordinates worth drawing: present, finite, on the globe, and not the (0, 0) that
+    autopilots send before their first fix."""
+    if lat_deg is None or lon_deg is None or alt_m is None:
+        return False
+    if not all(math.isfinite(v) for v in (lat_deg, lon_deg, alt_m)):
+        return False
+    return abs(lat_deg) <= 90 and abs(lon_deg) <= 180 and (lat_deg, lon_deg) != (0.0, 0.0)
+
+
 def sample_from_state(state: VehicleState) -> TrailSample | None:
     """The position to draw: the autopilot's fused GLOBAL_POSITION_INT, else the raw GPS.
     None when there is no 3D fix (the trail then shows a gap)."""
     gps, gp = state.gps, state.global_position
     if gps.t_mono is not None and gps.fix_type < MIN_FIX_TYPE:
         return None
-    if gp.t_mono is not None and None not in (gp.lat_deg, gp.lon_deg, gp.alt_m):
+    if gp.t_mono is not None and _valid_fix(gp.lat_deg, gp.lon_deg, gp.alt_m):
         speed = (
             math.hypot(gp.vx_mps, gp.vy_mps)
             if gp.vx_mps is not None and gp.vy_mps is not None
             else math.nan
         )
-        return TrailSample(gp.t_mono, gp.lat_deg, gp.lon_deg, gp.alt_m, speed)  # type: ignore[arg-type]
-    if gps.t_mono is not None and None not in (gps.lat_deg, gps.lon_deg, gps.alt_m):
+        return TrailSample(gp.t_mono, gp.lat_deg, gp.lon_deg, gp.alt_m,  # type: ignore[arg-type]
+                           speed)
+    if gps.t_mono is not None and _valid_fix(gps.lat_deg, gps.lon_deg, gps.alt_m):
         speed = gps.ground_speed_mps if gps.ground_speed_mps is not None else math.nan
-        return TrailSample(gps.t_mono, gps.lat_deg, gps.lon_deg, gps.alt_m, speed)  # type: ignore[arg-type]
+        return TrailSample(gps.t_mono, gps.lat_deg, gps.lon_deg,  # type: ignore[arg-type]
+                           gps.alt_m, speed)
     return None
 
 
 def origin_from_state(state: VehicleState) -> Origin | None:
     """The arming point (or the first fix before any arming), as the link measured it."""
     a = state.altitude
-    if a.reference == "none" or None in (a.home_lat_deg, a.home_lon_deg, a.reference_alt_m):
+    if a.reference == "none" or not _valid_fix(a.home_lat_deg, a.home_lon_deg, a.reference_alt_m):
         return None
     return (a.home_lat_deg, a.home_lon_deg, a.reference_alt_m)  # type: ignore[return-value]
 
@@ -192,7 +204,8 @@ class Trajectory3D:
     def _attitude(self, state: VehicleState) -> np.ndarray:
         a = state.attitude
         if None not in (a.roll_rad, a.pitch_rad, a.yaw_rad):
-            return R_enu_flu_from_euler(a.roll_rad, a.pitch_rad, a.yaw_rad)  # type: ignore[arg-type]
+            return R_enu_flu_from_euler(a.roll_rad, a.pitch_rad,  # type: ignore[arg-type]
+                                        a.yaw_rad)
         heading = state.global_position.heading_deg
         return R_enu_flu_from_euler(0.0, 0.0, math.radians(heading or 0.0))
 
