@@ -3,7 +3,8 @@
     fpv-station analyze SESSION [SESSION ...] --task {hover,a-to-b,obstacle,figure8}
                         [--reference LAT,LON] [--out DIR] [--scene FILE | --no-scene]
                         [--label NAME ...] [--hover-height M] [--hover-window S]
-                        [--margin M] [--airborne-height M]
+                        [--hover-tolerance M]
+                        [--margin M] [--airborne-height M] [--height-source pilot|gps]
 
 SESSION is a session folder, a downloaded session zip, or a bare .tlog. Prints the
 comparison table (Markdown) and writes it as .md/.csv/.json with the three figures.
@@ -49,9 +50,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--label", action="append", help="name of each session, in order")
     p.add_argument("--hover-height", type=float, default=d.hover_height_m, metavar="M")
     p.add_argument("--hover-window", type=float, default=d.hover_window_s, metavar="S")
+    p.add_argument("--hover-tolerance", type=float, default=d.hover_height_tolerance_m,
+                   metavar="M", help="the hover starts at hover height minus this")  # fmt: skip
     p.add_argument("--margin", type=float, default=d.margin_m, metavar="M",
                    help="window starts/ends this far along x from take-off/landing")  # fmt: skip
     p.add_argument("--airborne-height", type=float, default=d.airborne_height_m, metavar="M")
+    p.add_argument("--height-source", choices=("pilot", "gps"), default=d.height_source,
+                   help="height that decides take-off, landing, the hover start and contacts: "
+                   "the pilot's recorded altitude (default) or GPS")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,8 +66,10 @@ def run(args: argparse.Namespace) -> int:
     params = TaskParams(
         hover_height_m=args.hover_height,
         hover_window_s=args.hover_window,
+        hover_height_tolerance_m=args.hover_tolerance,
         margin_m=args.margin,
         airborne_height_m=args.airborne_height,
+        height_source=args.height_source,
     )
     scene: Any = False if args.no_scene else (args.scene if args.scene else True)
     try:

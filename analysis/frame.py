@@ -1,11 +1,16 @@
-"""A track in the paper's frame: ENU about the arming point (or the first point), rotated
-so that the line from the start to a reference point is +x. x = longitudinal,
-y = lateral, z = height above the start.
+"""A track in the paper's frame: ENU about the arming point (the last sample before the
+vehicle reports armed; or the first point), rotated so that the line from the start to a
+reference point is +x. x = longitudinal, y = lateral, z = height above the start.
 
 The reference, in order of preference: the one given (`--reference LAT,LON`); the scene's
 landing pad (when the flight is on a known field); the landing point; the point farthest
 from the start (a figure 8 lands where it took off, so its landing point gives no
 direction). With none farther than `min_reference_m`, the ENU axes stay unrotated.
+
+Heights: z is GPS height above the origin (the paper's, used for the height deviation
+and the plots). GPS altitude wanders by metres over a flight, so deciding *when* things
+happen (take-off, landing, reaching 4 m, touching an obstacle) uses the altitude the
+pilot saw (`relative_alt_m`: barometric, since arming) wherever it was recorded.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from analysis.track import Track
 Array = NDArray[np.float64]
 ReferenceKind = Literal["given", "scene", "landing", "farthest", "none"]
 OriginKind = Literal["arming", "first"]
+HeightSource = Literal["pilot", "gps"]
 
 
 @dataclass(frozen=True)
@@ -35,6 +41,10 @@ class AlignedTrack:
     reference_latlon: tuple[float, float] | None
     reference_kind: ReferenceKind
     field: FieldLayout | None  # the field's pads and obstacles in this frame, when known
+    pilot_height_m: Array  # the altitude the pilot saw (since arming) where recorded, else z
+
+    def height_m(self, source: HeightSource) -> Array:
+        return self.pilot_height_m if source == "pilot" else self.xyz_m[:, 2]
 
     @property
     def t_s(self) -> Array:
@@ -53,6 +63,7 @@ def align_track(
     origin: OriginKind = "arming",
     min_points: int = 10,
     min_reference_m: float = 2.0,
+    ground_height_m: float = 0.5,
 ) -> AlignedTrack:
     if len(track) < min_points:
         raise TooFewPointsError(
@@ -61,7 +72,16 @@ def align_track(
         )
     i0 = 0
     if origin == "arming" and track.armed.any():
-        i0 = int(np.argmax(track.armed))
+        # The last sample before the arming is seen: a disarmed vehicle is on the ground,
+        # while the first armed sample can already be in the air (HEARTBEAT comes at 1 Hz
+        # and a pilot climbs right after arming).
+        i0 = max(int(np.argmax(track.armed)) - 1, 0)
+        # Still late when the pilot's altitude already shows a climb: step back to the
+        # last sample at ground level.
+        rel = track.relative_alt_m[: i0 + 1]
+        grounded = np.flatnonzero(np.isfinite(rel) & (rel <= ground_height_m))
+        if np.isfinite(rel[-1]) and rel[-1] > ground_height_m and grounded.size:
+            i0 = int(grounded[-1])
     o = (float(track.lat_deg[i0]), float(track.lon_deg[i0]), float(track.alt_m[i0]))
     enu = geodetic_to_enu(track.lat_deg, track.lon_deg, track.alt_m, *o)
 
@@ -86,6 +106,7 @@ def align_track(
     if ref_en is not None and np.hypot(*ref_en) > 1e-6:
         rotation = heading_alignment_rad((0.0, 0.0), ref_en)
     xyz = rotate_about_up(enu, rotation)
+    rel = track.relative_alt_m
     return AlignedTrack(
         track=track,
         xyz_m=xyz,
@@ -94,4 +115,5 @@ def align_track(
         reference_latlon=ref,
         reference_kind=kind,
         field=field.in_track_frame(o, rotation) if field is not None else None,
+        pilot_height_m=np.where(np.isfinite(rel), rel, xyz[:, 2]),
     )

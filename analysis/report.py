@@ -22,7 +22,7 @@ from analysis.compare import Comparison, compare
 from analysis.field import FieldLayout, load_scene
 from analysis.frame import AlignedTrack, align_track
 from analysis.geodesy import geodetic_to_enu
-from analysis.tasks import TaskParams, analyze, check_task
+from analysis.tasks import TaskParams, TaskResult, analyze, check_task
 from analysis.track import Track, load_track
 
 SCENE_RADIUS_M = 150.0
@@ -35,7 +35,7 @@ class Analysis:
     comparison: Comparison
 
     @property
-    def results(self):
+    def results(self) -> tuple[TaskResult, ...]:
         return self.comparison.results
 
     def plot(self, kind: str) -> bytes:
@@ -61,7 +61,9 @@ class Analysis:
         return files + plots.write_all(self._ordered(), self.results, out_dir, prefix)
 
 
-def field_for(track: Track, field: FieldLayout | None, radius_m: float = SCENE_RADIUS_M):
+def field_for(
+    track: Track, field: FieldLayout | None, radius_m: float = SCENE_RADIUS_M
+) -> FieldLayout | None:
     """`field` if the track starts near one of its pads, else None."""
     if field is None or not field.pads or len(track) == 0:
         return None
@@ -83,7 +85,7 @@ def analyze_tracks(
     for track in tracks:
         near = field_for(track, field)
         a = align_track(track, reference_latlon, near, min_points=p.min_points,
-                        min_reference_m=p.margin_m)  # fmt: skip
+                        min_reference_m=p.margin_m, ground_height_m=p.airborne_height_m)  # fmt: skip
         # Draw the field for every flight, count contacts for the twin only (see above).
         result = analyze(a, task, p, count_contacts=track.platform == "twin")
         aligned.append(a)

@@ -77,9 +77,9 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     vehicle.start()
     await rec.start("bench")
     session = rec.session
+    tids = session.thread_ids()
     ids = {"event loop (frame consumers)": threading.get_native_id(),
-           "writer thread": session.writer._thread.native_id,
-           "sampler thread": session._sampler.native_id}
+           "writer thread": tids["writer"], "sampler thread": tids["sampler"]}
     cpu0, wall0 = thread_cpu_s(ids), time.monotonic()
     await asyncio.sleep(seconds)
     cpu_mid = thread_cpu_s(ids)  # before stop: the writer thread is gone after it

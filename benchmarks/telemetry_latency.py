@@ -20,9 +20,11 @@ import asyncio
 import json
 import os
 import socket
+import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -30,6 +32,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 RATE_HZ = 250.0
+# Telemetry only: the 3D panel and recorder are measured by their own benchmarks.
+SERVER_ENV = {
+    "FPV_LINK__REQUEST_STREAMS": "false",
+    "FPV_VISER__ENABLED": "false",
+    "FPV_RECORDING__AUTO_RECORD_ON_ARM": "false",
+}
 
 
 def free_port(kind: int) -> int:
@@ -126,11 +134,12 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
     import psutil
 
     http_port, udp_port = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
+    tmp = tempfile.mkdtemp(prefix="fpv-bench-")
     server = subprocess.Popen(
         [sys.executable, "-m", "server", "serve", "--host", "127.0.0.1", "--port", str(http_port),
          "--source", f"udpin:127.0.0.1:{udp_port}"],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        env={**os.environ, "FPV_LINK__REQUEST_STREAMS": "false"},
+        env={**os.environ, **SERVER_ENV, "FPV_RECORDING__SESSIONS_DIR": tmp},
     )  # fmt: skip
     workers: list[subprocess.Popen] = []
     try:
@@ -172,6 +181,7 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
             w.wait()
         server.terminate()
         server.wait(10)
+        shutil.rmtree(tmp, ignore_errors=True)
     ms = sorted(x * 1000 for x in samples)
     return {
         "clients": n_clients,
@@ -182,6 +192,28 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
         "cpu_s_per_1000_packets": cpu_s / packets * 1000,
         "server_cpu_pct": cpu_s / seconds * 100,
     }
+
+
+def link_cpu_us_per_packet() -> float:
+    """CPU per packet of the link thread's work (framing, decode, state merge, publish)."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from companion.link import MavlinkLink
+    from server.settings import LinkSettings
+
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    packets = [bytes(mav.heartbeat_encode(2, 12, 81, 3 << 16, 4).pack(mav))]
+    for i in range(5000):
+        packets.append(bytes(mav.attitude_encode(i, 0.1, 0, 0, 0, 0, 0).pack(mav)))
+        packets.append(bytes(mav.global_position_int_encode(i, 1, 2, 3, 4, 5, 6, 7, 8).pack(mav)))
+    link = MavlinkLink(LinkSettings(source="udpin:127.0.0.1:9"))  # never started: no socket
+    best = float("inf")
+    for _ in range(5):
+        t0 = time.process_time()
+        for p in packets:
+            link._on_bytes(p, time.monotonic())
+        best = min(best, (time.process_time() - t0) / len(packets))
+    return best * 1e6
 
 
 def main() -> None:
@@ -197,6 +229,7 @@ def main() -> None:
     ap.add_argument("--max-rate", type=float, default=50.0, help="per-client cap (the default)")
     ap.add_argument("--per-worker", type=int, default=25, help="clients per client process")
     args = ap.parse_args()
+    print(f"link thread: {link_cpu_us_per_packet():.1f} us CPU per packet (best of 5)")
     print(f"sender: ATTITUDE + GLOBAL_POSITION_INT at {RATE_HZ:.0f} Hz each; "
           f"clients capped at {args.max_rate:g} Hz; {args.seconds:g} s per run")  # fmt: skip
     print(f"{'clients':>7} {'samples':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "

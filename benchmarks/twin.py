@@ -52,6 +52,21 @@ def dynamics_rate(steps: int) -> float:
     return steps / (time.process_time() - c0)
 
 
+def vector_env_rate(num_envs: int, steps: int) -> tuple[float, float]:
+    """Gymnasium vector env: env steps/s and the physics vehicle-steps/s behind them."""
+    from twin.gym_vector import TwinVectorEnv
+
+    env = TwinVectorEnv(num_envs=num_envs)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-0.3, 0.3, (steps, num_envs, 4))
+    c0 = time.process_time()
+    for a in actions:
+        env.step(a)
+    cpu = time.process_time() - c0
+    per_step = int(round(1.0 / (env.control_hz * env.sim.dt_s)))
+    return steps * num_envs / cpu, steps * num_envs * per_step / cpu
+
+
 def flight_with_cameras(seconds: float, fpv_noise: bool) -> tuple[float, float, float]:
     """CPU seconds per simulated second: physics + front + bottom at 30 fps each."""
     sim = Sim()
@@ -89,6 +104,9 @@ def main() -> int:
         wall, cpu = physics_rate(n, 1000)
         print(f"physics, batch of {n} vehicles: {cpu:,.0f} vehicle-steps/s per CPU second "
               f"({wall:,.0f} wall)")
+    env_rate, phys_rate = vector_env_rate(64, 40)
+    print(f"gymnasium TwinVectorEnv, 64 envs at 10 Hz control: {env_rate:,.0f} env-steps/s "
+          f"per CPU second ({phys_rate:,.0f} physics vehicle-steps/s)")
     for noise in (False, True):
         cost, ms, sim_s = flight_with_cameras(args.seconds, noise)
         print(f"flight with both cameras at 30 fps{' + analog noise' if noise else ''}: "

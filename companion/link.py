@@ -61,18 +61,23 @@ class MavlinkLink:
                 raise ConnectionStringError(
                     f"--forward '{spec.text}' must be udpout:HOST:PORT or udpin:HOST:PORT."
                 )
-        self.mav = mavlink.MAVLink(None, srcSystem=settings.gcs_sysid, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.mav = mavlink.MAVLink(
+            None, srcSystem=settings.gcs_sysid, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER
+        )
         self.state: Latest[VehicleState] = Latest(VehicleState())
         self._tracker = StateTracker(settings.sysid)
         self._framer = MavFramer()
         self._meter = HealthMeter(self.spec.text)
         self._streams = StreamRequester(self.mav, settings.message_rates_hz)
         self._listeners: list[PacketListener] = []
-        self._outbox: collections.deque[mavlink.MAVLink_message] = collections.deque(maxlen=_OUTBOX_MAX)
+        self._outbox: collections.deque[mavlink.MAVLink_message] = collections.deque(
+            maxlen=_OUTBOX_MAX
+        )
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._stop = threading.Event()
+        self._pipe_closed = False
         self._thread: threading.Thread | None = None
         self._transport: Transport | None = None
         self._forwarders: list[UdpTransport] = []
@@ -87,7 +92,9 @@ class MavlinkLink:
         if self._thread is not None:
             raise RuntimeError("MavlinkLink already started")
         self._forwarders = [UdpTransport(spec) for spec in self._forward_specs]
-        self._thread = threading.Thread(target=self._run, name=f"mavlink {self.spec.text}", daemon=True)
+        self._thread = threading.Thread(
+            target=self._run, name=f"mavlink {self.spec.text}", daemon=True
+        )
         self._thread.start()
 
     def stop(self, timeout: float = 3.0) -> None:
@@ -95,14 +102,16 @@ class MavlinkLink:
         self._wake()
         if self._thread is not None:
             self._thread.join(timeout)
+        self.state.close()
+        if self._thread is not None and self._thread.is_alive():
+            log.error("MAVLink link thread did not stop within %.1f s", timeout)
+            return  # leave its fds open rather than pull them from under it
         for fwd in self._forwarders:
             fwd.close()
-        self.state.close()
-        for fd in (self._wake_r, self._wake_w):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        if not self._pipe_closed:  # twice would close fd numbers the OS may have reused
+            self._pipe_closed = True
+            os.close(self._wake_r)
+            os.close(self._wake_w)
 
     def add_packet_listener(self, cb: PacketListener) -> None:
         """`cb(t_wall_s, packet)` runs in the link thread for every good packet; it must
@@ -134,6 +143,8 @@ class MavlinkLink:
     # -- the thread ------------------------------------------------------------------
 
     def _wake(self) -> None:
+        if self._pipe_closed:
+            return  # never write to a closed fd number: the OS may have reused it
         try:
             os.write(self._wake_w, b"\0")
         except (BlockingIOError, OSError):
@@ -264,7 +275,9 @@ class MavlinkLink:
                 except Exception:
                     self._listener_errors += 1
                     if self._listener_errors in (1, 10, 100, 1000):
-                        log.exception("packet listener %r failed (%d times)", cb, self._listener_errors)
+                        log.exception(
+                            "packet listener %r failed (%d times)", cb, self._listener_errors
+                        )
             for fwd in self._forwarders:
                 fwd.write(packet)
             if tracker.update(msg, now):
@@ -284,7 +297,8 @@ class MavlinkLink:
             self._tracker.set_link_lost(False, now, now)
             # (Re)gained the autopilot: (re)ask for our rates; it may have rebooted.
             if self._transport is not None and self.settings.request_streams:
-                for req in self._streams.start(now, self._tracker.sysid or 0, self._tracker.compid or 0):
+                target = (self._tracker.sysid or 0, self._tracker.compid or 0)
+                for req in self._streams.start(now, *target):
                     self._write(self._transport, req)
         else:
             self._tracker.set_link_lost(False, self._tracker.state.link.t_mono or now, now)
@@ -294,7 +308,11 @@ class MavlinkLink:
             if now >= self._next_gcs_hb:
                 self._next_gcs_hb = now + 1.0 / self.settings.heartbeat_hz
                 hb = self.mav.heartbeat_encode(
-                    mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+                    mavlink.MAV_TYPE_GCS,
+                    mavlink.MAV_AUTOPILOT_INVALID,
+                    0,
+                    0,
+                    mavlink.MAV_STATE_ACTIVE,
                 )
                 self._write(transport, hb)
             for req in self._streams.poll(now):

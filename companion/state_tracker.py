@@ -140,7 +140,8 @@ class StateTracker:
             t_mono=t,
             sysid=m.get_srcSystem(),
             compid=m.get_srcComponent(),
-            autopilot=_AUTOPILOT_NAMES.get(m.autopilot, _enum_name("MAV_AUTOPILOT", m.autopilot, "MAV_AUTOPILOT_")),
+            autopilot=_AUTOPILOT_NAMES.get(m.autopilot)
+            or _enum_name("MAV_AUTOPILOT", m.autopilot, "MAV_AUTOPILOT_"),
             vehicle_type=_enum_name("MAV_TYPE", m.type, "MAV_TYPE_"),
             armed=armed,
             mode=mode_name(m.autopilot, m.type, m.base_mode, m.custom_mode),

@@ -56,21 +56,25 @@ def parse_connection(text: str) -> ConnSpec:
                 speed = 0.0 if raw == "max" else float(raw)
             except ValueError:
                 raise ConnectionStringError(
-                    f"Replay speed '{raw}' in '{text}' is not a number (use ?speed=4 or ?speed=max)."
+                    f"Replay speed '{raw}' in '{text}' is not a number "
+                    "(use ?speed=4 or ?speed=max)."
                 ) from None
             if speed < 0:
                 raise ConnectionStringError(f"Replay speed in '{text}' must be >= 0.")
         if not path:
             raise ConnectionStringError(f"'{text}' names no file: use replay:FILE.tlog.")
         return ConnSpec(kind="replay", text=text, path=path, speed=speed)
-    for prefix, kind in (("udpin:", "udpin"), ("udp:", "udpin"), ("udpout:", "udpout"), ("tcp:", "tcp")):
+    prefixes = (("udpin:", "udpin"), ("udp:", "udpin"), ("udpout:", "udpout"), ("tcp:", "tcp"))
+    for prefix, kind in prefixes:
         if text.startswith(prefix):
             host, sep, port = text.removeprefix(prefix).rpartition(":")
             if not sep or not port.isdigit() or not 0 < int(port) < 65536:
                 raise ConnectionStringError(
-                    f"'{text}' needs HOST:PORT after '{prefix}' (for example {prefix}127.0.0.1:14550)."
+                    f"'{text}' needs HOST:PORT after '{prefix}' "
+                    f"(for example {prefix}127.0.0.1:14550)."
                 )
-            return ConnSpec(kind=kind, text=text, host=host or "0.0.0.0", port=int(port))  # type: ignore[arg-type]
+            host = host or "0.0.0.0"
+            return ConnSpec(kind=kind, text=text, host=host, port=int(port))  # type: ignore[arg-type]
     if text.startswith("/") or text.upper().startswith("COM"):
         path, sep, baud = text.rpartition(":")
         if sep and baud.isdigit():

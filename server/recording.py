@@ -35,7 +35,7 @@ def recorder_options(settings: Settings, camera_fps: Mapping[str, float | None])
         link_lost_s=settings.link.link_lost_s,
         source=settings.link.source,
         software_version=__version__,
-        settings={"recording": r.model_dump(mode="json"), "link": {"source": settings.link.source}},
+        settings=_provenance(settings),
         camera_fps=dict(camera_fps),
     )
     return RecorderOptions(
@@ -43,6 +43,19 @@ def recorder_options(settings: Settings, camera_fps: Mapping[str, float | None])
         auto_record_on_arm=r.auto_record_on_arm,
         post_disarm_tail_s=r.post_disarm_tail_s,
     )
+
+
+def _provenance(settings: Settings) -> dict[str, Any]:
+    """The settings a dataset user needs to know how a session was made (no token)."""
+    out: dict[str, Any] = {
+        "recording": settings.recording.model_dump(mode="json"),
+        "link": {"source": settings.link.source, "sysid": settings.link.sysid},
+    }
+    for section in ("cameras", "twin"):  # sections of other parts, when present
+        value = getattr(settings, section, None)
+        if value is not None and (section != "twin" or settings.link.source == "sim"):
+            out[section] = value.model_dump(mode="json")
+    return out
 
 
 async def open_recorder(

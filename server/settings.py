@@ -130,6 +130,15 @@ class TwinSettings(_Section):
     rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
     fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
 
+    @field_validator("scene")
+    @classmethod
+    def _scene_loads(cls, value: Path | None) -> Path | None:
+        if value is not None:
+            from twin.scene import load_scene
+
+            load_scene(value)  # SceneError (a ValueError) says which file and key
+        return value
+
 
 class Settings(_Section):
     server: ServerSettings = Field(default_factory=ServerSettings)

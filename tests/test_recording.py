@@ -115,7 +115,6 @@ def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
 
 def test_missed_frames_are_counted_never_silent(tmp_path):
     """A burst faster than the consumer: Latest skips frames; they are counted as dropped."""
-    front: "Latest[Frame]"
     vehicle = FakeVehicle()
     cam = FakeCamera("front", FPS, make_jpegs(2))
     rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames},

@@ -91,7 +91,7 @@ def test_kill_9_of_the_server_and_restart(tmp_path):
     port = free_port()
     env = {"FPV_RECORDING__SESSIONS_DIR": str(tmp_path), "FPV_RECORDING__MIN_FREE_MB": "0"}
     args = ["-m", "server", "serve", "--source", "none", "--host", "127.0.0.1",
-            "--port", str(port)]
+            "--port", str(port), "--no-3d"]
     base = f"http://127.0.0.1:{port}"
 
     def up() -> bool:

@@ -21,7 +21,7 @@ def test_arm_records_disarm_stops_and_tlog_replays(tmp_path):
     root = tmp_path / "sessions"
     with MavVehicle("udp") as v:
         settings = load_settings(environ={}, overrides={
-            "link.source": v.station_source, "link.link_lost_s": 0.5,
+            "link.source": v.station_source, "link.link_lost_s": 0.5, "viser.enabled": False,
             "recording.sessions_dir": str(root), "recording.rate_hz": 50,
             "recording.post_disarm_tail_s": 0.8, "recording.min_free_mb": 0})
         with run_uvicorn(create_app(settings)) as base:
@@ -48,6 +48,8 @@ def test_arm_records_disarm_stops_and_tlog_replays(tmp_path):
     folder = root / last["id"]
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
     assert meta["status"] == "complete" and meta["source"] == v.station_source
+    assert meta["settings"]["recording"]["rate_hz"] == 50 and "twin" not in meta["settings"]
+    assert meta["settings"]["cameras"]["front"]["fps"] == 30.0
     assert meta["arming"]["reference_alt_m"] == pytest.approx(180.0)
     assert meta["arming"]["home_lat_deg"] == pytest.approx(43.0021)
     losses = meta["quality"]["link_loss"]

@@ -10,7 +10,8 @@ from tests.helpers import run_uvicorn
 
 
 def make_app(tmp_path, token=None):
-    overrides = {"link.source": "none", "recording.sessions_dir": str(tmp_path / "sessions"),
+    overrides = {"link.source": "none", "viser.enabled": False,
+                 "recording.sessions_dir": str(tmp_path / "sessions"),
                  "recording.auto_record_on_arm": False, "recording.min_free_mb": 0}
     if token:
         overrides["server.token"] = token
@@ -85,6 +86,9 @@ def test_delete_and_refused_while_recording(server):
     assert r.status_code == 409 and r.json()["error"] == "Conflict"
     listed = {s["id"]: s for s in httpx.get(f"{base}/api/sessions").json()}
     assert listed[live]["recording_now"] is True and listed[live]["status"] == "recording"
+    # A session being written downloads as a valid zip of what is on disk now.
+    zf = zipfile.ZipFile(io.BytesIO(httpx.get(f"{base}/api/sessions/{live}/download").content))
+    assert zf.testzip() is None and f"{live}/telemetry.csv" in zf.namelist()
     httpx.post(f"{base}/api/recording/stop")
     assert httpx.delete(f"{base}/api/sessions/{sid}").json() == {"deleted": sid}
     assert not (root / sid).exists()
@@ -136,3 +140,37 @@ def test_token_guards_control_and_leaves_reading_open(tmp_path):
         assert httpx.delete(f"{base}/api/sessions/{sid}").status_code == 401
         assert httpx.get(f"{base}/api/sessions/{sid}").status_code == 200
         assert httpx.delete(f"{base}/api/sessions/{sid}", headers=good).status_code == 200
+
+
+def test_start_refused_with_a_clear_error_on_a_full_disk(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10**6, 10**6))
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "recording.sessions_dir": str(tmp_path / "sessions"),
+        "recording.auto_record_on_arm": False, "recording.min_free_mb": 100,
+        "viser.enabled": False})
+    with run_uvicorn(create_app(settings)) as base:
+        r = httpx.post(f"{base}/api/recording/start")
+        assert r.status_code == 503 and r.json()["error"] == "Unavailable"
+        assert "disk full: 1.0 MB free" in r.json()["error_msg"]
+        status = httpx.get(f"{base}/api/recording").json()
+        assert status["recording"] is False and "disk full" in status["last_error"]
+        assert httpx.get(f"{base}/api/sessions").json() == []
+
+
+def test_start_refused_when_the_sessions_dir_is_unusable(tmp_path):
+    app = make_app(tmp_path)
+    with run_uvicorn(app) as base:
+        (tmp_path / "sessions").mkdir()
+        (tmp_path / "sessions").chmod(0o500)  # read-only: root ignores modes, so also
+        import os
+        if os.geteuid() == 0:  # make it a file behind the store's back
+            (tmp_path / "sessions").chmod(0o700)
+            os.rename(tmp_path / "sessions", tmp_path / "elsewhere")
+            (tmp_path / "sessions").write_text("not a folder")
+        r = httpx.post(f"{base}/api/recording/start")
+        assert r.status_code == 503, r.text
+        assert "Cannot" in r.json()["error_msg"] and "sessions" in r.json()["error_msg"]

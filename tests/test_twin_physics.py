@@ -216,3 +216,19 @@ def test_battery_energy_matches_the_power_drawn() -> None:
     power_w = af.power_coeff_w_per_n1_5 * float((f ** 1.5).sum()) + af.avionics_w
     assert energy_j == pytest.approx(power_w * 10.0, rel=0.03)
     assert (q0 - float(s.charge_c[0])) == pytest.approx(energy_j / float(s.voltage_v[0]), rel=0.03)
+
+
+@pytest.mark.parametrize("task_id", [3, 4])
+def test_pilot_flies_the_circle_and_figure_eight_tasks(task_id: int) -> None:
+    sim = Sim(config=QUIET)
+    sim.run_for(2.5)
+    pilot = Pilot(task_plan(sim.scene, task_id))
+    track = fly(sim, pilot, timeout_s=300)
+    assert pilot.done and sim.crash_reason() == "", pilot.log[-3:]
+    end = sim.scene.pad(sim.scene.task(task_id).end_pad).xy_m
+    assert np.hypot(*(track[-1, 1:3] - end)) < 0.4
+    assert np.abs(track[:, 2]).max() > 2.5  # it went around, not along the line
+    if task_id == 4:  # a lobe around each obstacle: north and south of it, west and east
+        for lobe in (track[:, 1] < -3.0, track[:, 1] > 3.0):
+            ys = track[lobe, 2]
+            assert ys.min() < -1.5 and ys.max() > 1.5

@@ -125,3 +125,24 @@ def test_twin_render_from_live_pose_and_bad_camera() -> None:
     assert not np.array_equal(front, bottom)
     with pytest.raises(ValueError, match="front"):
         twin.render("left")
+
+
+def test_any_pose_renders_without_error(renderer: Renderer) -> None:
+    """Upside down, inside an obstacle, on the ground, outside the net: always a frame."""
+    rng = np.random.default_rng(0)
+    for k in range(150):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        w, x, y, z = q
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        pos = rng.uniform([-45, -30, 0], [45, 30, 40])
+        if k % 10 == 0:
+            pos = np.array([-7.0, 0.0, 1.0])  # inside obstacle 1
+        if k % 10 == 1:
+            pos[2] = 0.0
+        pose = Pose(0.0, pos, np.zeros(3), R, np.zeros(3))
+        for cam in ("front", "bottom"):
+            img = renderer.render(cam, pose)
+            assert img.shape == (480, 640, 3) and img.dtype == np.uint8

@@ -16,7 +16,8 @@ from tests.helpers import run_uvicorn, wait_until
 
 def sim_app(**overrides):
     settings = load_settings(None, {"link.source": "sim", "twin.realtime_factor": 2.0,
-                                    "recording.auto_record_on_arm": False, **overrides},
+                                    "recording.auto_record_on_arm": False, "viser.enabled": False,
+                                    **overrides},
                              environ={})
     return create_app(settings)
 
@@ -76,7 +77,7 @@ def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None
 
 
 def test_control_is_refused_without_the_twin(tmp_path) -> None:
-    app = create_app(load_settings(None, {"link.source": "none",
+    app = create_app(load_settings(None, {"link.source": "none", "viser.enabled": False,
                                           "recording.sessions_dir": str(tmp_path)}, environ={}))
     with run_uvicorn(app) as url, connect(url.replace("http", "ws") + "/ws/control") as ws:
         reply = json.loads(ws.recv(timeout=5))
@@ -130,7 +131,7 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
     port = free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "server", "serve", "--source", "sim", "--host", "127.0.0.1",
-         "--port", str(port)],
+         "--port", str(port), "--no-3d"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
         env={**__import__("os").environ, "PYTHONPATH": str(__import__("pathlib").Path(
             __file__).resolve().parents[1])})

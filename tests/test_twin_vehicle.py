@@ -92,3 +92,47 @@ def test_refused_arming_is_acked_denied_with_a_reason(twin_and_gcs) -> None:
     twin.step_for(1.0)
     hb = drain(gcs, "HEARTBEAT")[-1]
     assert hb.system_status == mavutil.mavlink.MAV_STATE_EMERGENCY
+
+
+def test_true_geodetic_matches_the_gps_without_noise(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    twin.step_for(0.5)
+    lat, lon, alt = twin.true_geodetic()
+    gps = drain(gcs, "GPS_RAW_INT")[-1]
+    assert gps.lat / 1e7 == pytest.approx(lat, abs=2e-7)
+    assert gps.lon / 1e7 == pytest.approx(lon, abs=2e-7)
+    assert alt == pytest.approx(twin.scene.home.alt_m, abs=0.01)  # on the start pad
+
+
+def test_parameters_load_like_px4_and_are_read_only(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    gcs.mav.param_request_list_send(1, 1)
+    twin.step_for(0.1)
+    values = {m.param_id: m for m in drain(gcs, "PARAM_VALUE")}
+    count = next(iter(values.values())).param_count
+    assert len(values) == count and sorted(m.param_index for m in values.values()) == list(
+        range(count))
+    assert values["MPC_XY_VEL_MAX"].param_value == pytest.approx(5.0)
+    assert values["BAT1_N_CELLS"].param_value == 3
+    gcs.mav.param_request_read_send(1, 1, b"MIS_TAKEOFF_ALT", -1)
+    gcs.mav.param_set_send(1, 1, b"MPC_XY_VEL_MAX", 12.0, mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+    twin.step_for(0.1)
+    got = drain(gcs)
+    replies = {m.param_id: m.param_value for m in got if m.get_type() == "PARAM_VALUE"}
+    assert replies == {"MIS_TAKEOFF_ALT": pytest.approx(2.5), "MPC_XY_VEL_MAX": pytest.approx(5.0)}
+    assert any("read-only" in m.text for m in got if m.get_type() == "STATUSTEXT")
+    assert twin.sim.config.gains.max_vel_xy_mps == 5.0
+
+
+def test_home_position_is_where_it_armed(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    twin.sim.arm()
+    got = []
+    for _ in range(25):  # small steps: a burst of seconds would overflow the UDP buffer
+        twin.step_for(0.1)
+        got += drain(gcs, timeout=0.02)
+    home = [m for m in got if m.get_type() == "HOME_POSITION"][-1]
+    lat, lon, alt = twin.true_geodetic()
+    assert home.latitude / 1e7 == pytest.approx(lat, abs=2e-7)
+    assert home.longitude / 1e7 == pytest.approx(lon, abs=2e-7)
+    assert home.altitude / 1000 == pytest.approx(alt, abs=0.05)

@@ -57,6 +57,16 @@ class Commander:
         self._battery_failsafe = np.zeros(n, bool)
         self.events: list[Event] = []
 
+    def reset_vehicles(self, idx: np.ndarray) -> None:
+        self.armed[idx] = False
+        self.mode[idx] = POSCTL
+        self.landed[idx] = True
+        self.target_m[idx] = 0.0
+        for arr in (self._gesture_s, self._land_s, self._since_arm_s):
+            arr[idx] = 0.0
+        for arr in (self._ever_flew, self._crash_reported, self._battery_failsafe):
+            arr[idx] = False
+
     def mode_name(self, i: int = 0) -> str:
         return MODE_NAMES[int(self.mode[i])]
 

@@ -134,6 +134,13 @@ class Dynamics:
         self._steps = 0
         self._eye = np.eye(3)
         self._dt_over_J = self.dt_s / self._J
+        self._dJ = self._J[[2, 0, 1]] - self._J[[1, 2, 0]]
+        self._rot_keep = 1.0 - af.rot_drag_nm_per_rad_s * self._dt_over_J
+        self._dt_over_m = self.dt_s / af.mass_kg
+        self._drag_lin_dt = af.drag_linear_n_per_mps * self._dt_over_m
+        self._drag_quad_dt = af.drag_quadratic_n_per_mps2 * self._dt_over_m
+        self._g_dt = self._g * self.dt_s
+        self._grounded = True
         self._i1, self._i2 = np.array([1, 2, 0]), np.array([2, 0, 1])
         # (3, 9) generator: w @ G = dt * skew(w) flattened row-major.
         G = np.zeros((3, 9))
@@ -149,6 +156,7 @@ class Dynamics:
         charge = np.full(n, af.capacity_ah * 3600.0)
         volt = np.full(n, af.cells * float(ocv_per_cell_v(1.0)))
         self._w_max_alive = (af.kv_rad_s_per_v * volt)[:, None]
+        self._grounded = True
         return BodyState(
             pos_m=pos, vel_mps=np.zeros((n, 3)), R_world_body=yaw_matrix(np.full(n, yaw_rad)),
             omega_rad_s=np.zeros((n, 3)), rotor_rad_s=np.zeros((n, 4)), charge_c=charge,
@@ -166,35 +174,56 @@ class Dynamics:
         The fast part only (rotors, rigid body, ground); `collisions` (~50 Hz) and
         `slow_update` (~10 Hz: battery, gusts) run at lower rates from the caller.
         """
-        af, dt = self.airframe, self.dt_s
-        u = np.minimum(np.maximum(throttle, 0.0), 1.0) * self._w_max_alive
-        s.rotor_rad_s += (u - s.rotor_rad_s) * self._motor_alpha
-        f = af.thrust_coeff_n_per_rad2 * s.rotor_rad_s * s.rotor_rad_s
+        u = np.minimum(np.maximum(throttle, 0.0), 1.0)
+        u *= self._w_max_alive  # commanded rotor speed
+        r = s.rotor_rad_s
+        u -= r
+        u *= self._motor_alpha
+        r += u  # first-order lag
+        f = r * r
+        f *= self.airframe.thrust_coeff_n_per_rad2
         s.rotor_thrust_n = f
         wrench = f @ self._A_T  # (N, 4): thrust, tau_x, tau_y, tau_z
 
-        # Rotation: Euler's equations with a diagonal inertia, then R <- R exp([w dt]x)
-        # to second order (re-orthonormalized every 32 steps).
-        w, J = s.omega_rad_s, self._J
-        Jw = w * J
-        gyro = w[:, self._i1] * Jw[:, self._i2] - w[:, self._i2] * Jw[:, self._i1]
-        w += (wrench[:, 1:] - gyro - af.rot_drag_nm_per_rad_s * w) * self._dt_over_J
+        # Rotation: Euler's equations with a diagonal inertia (gyroscopic term
+        # w x Jw = (wy wz (Jz - Jy), wz wx (Jx - Jz), wx wy (Jy - Jx))), rotor-wash damping,
+        # then R <- R exp([w dt]x) to second order, re-orthonormalized every 32 steps.
+        w = s.omega_rad_s
+        gyro = w[:, self._i1] * w[:, self._i2]
+        gyro *= self._dJ
+        tau = wrench[:, 1:] - gyro
+        tau *= self._dt_over_J
+        w *= self._rot_keep
+        w += tau
         S = (w @ self._skew_gen).reshape(-1, 3, 3)  # [w dt]x for every vehicle
-        s.R_world_body = s.R_world_body @ (self._eye + S + 0.5 * (S @ S))
+        M = S @ S
+        M *= 0.5
+        M += S
+        M += self._eye
+        s.R_world_body = s.R_world_body @ M
         self._steps += 1
         if self._steps % 32 == 0:
             U, _, Vt = np.linalg.svd(s.R_world_body)
             s.R_world_body = U @ Vt
 
-        # Translation: thrust along body z, gravity, drag against the air.
+        # Translation: thrust along body z, gravity, drag against the air (all times dt).
         v_air = s.vel_mps - s.wind_mps
-        speed = np.sqrt((v_air * v_air).sum(axis=1, keepdims=True))
-        k = (af.drag_linear_n_per_mps + af.drag_quadratic_n_per_mps2 * speed) / af.mass_kg
-        acc = s.R_world_body[:, :, 2] * (wrench[:, :1] / af.mass_kg) + self._g - k * v_air
-        s.vel_mps += acc * dt
-        s.pos_m += s.vel_mps * dt
-        if (s.pos_m[:, 2] <= 0.0).any() or s.on_ground.any():
+        k = np.sqrt((v_air * v_air).sum(axis=1, keepdims=True))
+        k *= self._drag_quad_dt
+        k += self._drag_lin_dt
+        dv = s.R_world_body[:, :, 2] * (wrench[:, :1] * self._dt_over_m)
+        dv += self._g_dt
+        dv -= k * v_air
+        s.vel_mps += dv
+        s.pos_m += s.vel_mps * self.dt_s
+        if self._grounded or (s.pos_m[:, 2] <= 0.0).any():
             self._ground(s)
+
+    def revive(self, s: BodyState) -> None:
+        """Recompute the motors' power after vehicles were reset in place."""
+        alive = (s.crash == 0) & (s.charge_c > 0)
+        self._w_max_alive = (self.airframe.kv_rad_s_per_v * s.voltage_v * alive)[:, None]
+        self._grounded = bool(s.on_ground.any() or (s.pos_m[:, 2] <= 0).any())
 
     def slow_update(self, s: BodyState, dt: float) -> None:
         """Battery and gusts, which change slowly (~10 Hz is plenty)."""
@@ -256,3 +285,4 @@ class Dynamics:
             if hard.any():
                 self._w_max_alive[hard] = 0.0
         s.on_ground = touching
+        self._grounded = bool(touching.any())

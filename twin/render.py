@@ -44,13 +44,15 @@ def front_camera(tilt_up_deg: float = 15.0, hfov_deg: float = 100.0) -> CameraMo
     t = np.radians(tilt_up_deg)
     z = np.array([np.cos(t), 0.0, np.sin(t)])
     x = np.array([0.0, -1.0, 0.0])
+    # Offsets are from the body origin at the skids' bottom (pose z = 0 on the ground):
+    # an F450 on its landing gear carries the cameras ~10-20 cm above the grass.
     return CameraModel("front", np.column_stack([x, np.cross(z, x), z]),
-                       np.array([0.10, 0.0, 0.05]), hfov_deg)
+                       np.array([0.10, 0.0, 0.20]), hfov_deg)
 
 
 def bottom_camera(hfov_deg: float = 90.0) -> CameraModel:
     x, y, z = np.array([0.0, -1.0, 0.0]), np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0])
-    return CameraModel("bottom", np.column_stack([x, y, z]), np.array([0.0, 0.0, -0.06]), hfov_deg)
+    return CameraModel("bottom", np.column_stack([x, y, z]), np.array([0.0, 0.0, 0.12]), hfov_deg)
 
 
 def camera_pose(cam: CameraModel, pose: Pose) -> tuple[np.ndarray, np.ndarray]:

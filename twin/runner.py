@@ -112,7 +112,11 @@ class Twin:
             log.exception("twin loop died")
 
     def step_for(self, seconds: float) -> None:
-        """Advance sim time by `seconds` as fast as possible, polling MAVLink every tick."""
+        """Advance sim time by `seconds` as fast as possible, polling MAVLink every tick.
+
+        Telemetry goes out at sim-time rates, so a long call bursts many packets at once:
+        a peer reading UDP slower than that loses the excess in its socket buffer.
+        """
         if self.mavlink_url and self.vehicle is None:
             self.vehicle = MavlinkVehicle(self.mavlink_url, self.rates_hz)
         per_tick = max(1, int(round(self.tick_s / self.sim.dt_s)))
@@ -130,6 +134,16 @@ class Twin:
 
     def local_position_enu_m(self) -> np.ndarray:
         return self.pose().pos_enu_m
+
+    def true_geodetic(self) -> tuple[float, float, float]:
+        """The true position as (lat_deg, lon_deg, alt_m MSL), georeferenced at the scene's
+        home: compare recorded GPS tracks with it through the same geodesy."""
+        from analysis.geodesy import enu_to_geodetic
+
+        home = self.scene.home
+        lat, lon, alt = enu_to_geodetic(self.pose().pos_enu_m, home.lat_deg, home.lon_deg,
+                                        home.alt_m)
+        return float(lat), float(lon), float(alt)
 
     def set_sticks(self, roll: float, pitch: float, yaw: float, throttle: float) -> None:
         with self.lock:

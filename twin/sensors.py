@@ -70,6 +70,13 @@ class Sensors:
         self._next_gps_s = 0.0
         self.last_fix: list[GpsFix | None] = [None] * n
 
+    def redraw(self, idx: np.ndarray) -> None:
+        """New drift states for reset vehicles (a receiver that was switched off and on)."""
+        p, k = self.p, len(idx)
+        std = np.array([p.gps_drift_std_m, p.gps_drift_std_m, p.gps_vert_drift_std_m])
+        self.gps_drift_m[idx] = self.rng.standard_normal((k, 3)) * std * self._scale
+        self.baro_drift_m[idx] = self.rng.standard_normal(k) * p.baro_drift_std_m * self._scale
+
     def has_fix(self, t_s: float) -> bool:
         return t_s >= self.p.gps_fix_delay_s
 

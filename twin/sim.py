@@ -96,6 +96,25 @@ class Sim:
         self.est_pos_m, self.est_vel_mps = self.sensors.estimate(self.state.pos_m, self.state.vel_mps)
         self.controller.reset(np.ones(self.n, bool), self.est_pos_m, self.state.R_world_body)
 
+    def reset_vehicles(self, mask: np.ndarray) -> None:
+        """Put the vehicles in `mask` back on the start pad, disarmed, battery full, sensors
+        re-drawn; the others fly on (vectorized environments reset one episode at a time)."""
+        idx = np.nonzero(mask)[0]
+        if not len(idx):
+            return
+        fresh = self.dynamics.initial_state(len(idx), self.scene.start_xy_m)
+        s = self.state
+        for name in ("pos_m", "vel_mps", "R_world_body", "omega_rad_s", "rotor_rad_s",
+                     "charge_c", "voltage_v", "current_a", "rotor_thrust_n", "on_ground",
+                     "crash", "wind_mps"):
+            getattr(s, name)[idx] = getattr(fresh, name)
+        self.dynamics.revive(s)
+        self.commander.reset_vehicles(idx)
+        self.sensors.redraw(idx)
+        self.sticks[idx] = [0.0, 0.0, 0.0, 0.5]
+        self.est_pos_m, self.est_vel_mps = self.sensors.estimate(s.pos_m, s.vel_mps)
+        self.controller.reset(mask, self.est_pos_m, s.R_world_body)
+
     # ---- inputs ----
     def set_sticks(self, roll: float, pitch: float, yaw: float, throttle: float, i: int = 0) -> None:
         """Normalized sticks: roll/pitch/yaw in [-1, 1], throttle in [0, 1] (0.5 = centred)."""

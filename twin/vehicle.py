@@ -14,20 +14,16 @@ import math
 import socket
 from dataclasses import dataclass, field
 
-import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from analysis.geodesy import enu_to_geodetic
-from twin.control import ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_TAKEOFF, POSCTL, STABILIZED
+from twin.control import AUTO_LOITER, STABILIZED
 from twin.sim import Sim
+from twin.params import ParamServer, px4_params
+from twin.telemetry import PX4_MODES, Telemetry
 
 log = logging.getLogger(__name__)
 
 # PX4 custom mode = main << 16 | sub << 24 (px4_custom_mode.h).
-PX4_MODES = {  # our mode -> (main, sub)
-    STABILIZED: (7, 0), ALTCTL: (2, 0), POSCTL: (3, 0),
-    AUTO_TAKEOFF: (4, 2), AUTO_LOITER: (4, 3), AUTO_LAND: (4, 6),
-}
 PX4_MODE_FROM_MAIN_SUB = {v: k for k, v in PX4_MODES.items()}
 PX4_MODE_FROM_MAIN_SUB[(1, 0)] = STABILIZED  # MANUAL: a multicopter flies it stabilized
 PX4_MODE_FROM_MAIN_SUB[(4, 0)] = AUTO_LOITER
@@ -37,17 +33,9 @@ DEFAULT_RATES_HZ = {
     "HEARTBEAT": 1.0, "SYS_STATUS": 2.0, "BATTERY_STATUS": 1.0, "GPS_RAW_INT": 5.0,
     "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 10.0, "ATTITUDE": 20.0,
     "VFR_HUD": 10.0, "RC_CHANNELS": 10.0, "SERVO_OUTPUT_RAW": 10.0, "EXTENDED_SYS_STATE": 1.0,
+    "HOME_POSITION": 0.5,
 }
 STICK_TIMEOUT_S = 1.0  # no MANUAL_CONTROL/override for this long = sticks centred
-
-
-def px4_custom_mode(mode: int) -> int:
-    main, sub = PX4_MODES[mode]
-    return (main << 16) | (sub << 24)
-
-
-def stick_to_pwm(x: float) -> int:
-    return int(round(1500 + 500 * np.clip(x, -1, 1)))
 
 
 @dataclass
@@ -73,7 +61,8 @@ class MavlinkVehicle:
         self.interval_s = {k: (1.0 / v if v > 0 else None) for k, v in self.defaults_hz.items()}
         self._next_s: dict[str, float] = {k: 0.0 for k in self.interval_s}
         self.stats = VehicleStats()
-        self._home_alt_m: float | None = None
+        self.telemetry = Telemetry(self.mav)
+        self.params: ParamServer | None = None  # built from the sim's config on first use
         self._pending_once: list[str] = []
 
     @staticmethod
@@ -171,6 +160,14 @@ class MavlinkVehicle:
                                       msg.get_srcComponent())
             if text:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
+        elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
+            if getattr(msg, "target_system", 0) not in (0, self.sysid):
+                return
+            if self.params is None:
+                self.params = ParamServer(self.mav, px4_params(sim.config, self.sysid))
+            note = self.params.handle(msg)
+            if note:
+                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, note.encode()[:50])
         elif kind == "SET_MODE":
             if msg.target_system not in (0, self.sysid):
                 return
@@ -188,7 +185,7 @@ class MavlinkVehicle:
             ok, why = sim.arm(msg.param1 > 0.5, force=int(msg.param2) == 21196)
         elif c == mavlink.MAV_CMD_NAV_TAKEOFF:
             alt = msg.param7
-            rel = None if not math.isfinite(alt) else alt - (self._home_alt_m or sim.scene.home.alt_m)
+            rel = None if not math.isfinite(alt) else alt - (self.telemetry.home_alt_m or sim.scene.home.alt_m)
             ok, why = sim.takeoff(rel)
         elif c == mavlink.MAV_CMD_NAV_LAND:
             ok, why = sim.land()
@@ -228,114 +225,7 @@ class MavlinkVehicle:
 
     # ---- outputs ----
     def _send(self, sim: Sim, name: str, now_s: float) -> None:
-        getattr(self, "_send_" + name.lower())(sim, int(now_s * 1000) & 0xFFFFFFFF)
-
-    def _send_heartbeat(self, sim: Sim, t_ms: int) -> None:
-        com = sim.commander
-        mode = int(com.mode[0])
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
-        if mode >= AUTO_TAKEOFF:
-            base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
-        else:
-            base |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
-        if com.armed[0]:
-            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        if sim.state.crash[0]:
-            status = mavlink.MAV_STATE_EMERGENCY
-        else:
-            status = mavlink.MAV_STATE_ACTIVE if com.armed[0] else mavlink.MAV_STATE_STANDBY
-        self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base,
-                                px4_custom_mode(mode), status)
-
-    def _send_sys_status(self, sim: Sim, t_ms: int) -> None:
-        sensors = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-                   | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
-                   | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | mavlink.MAV_SYS_STATUS_SENSOR_GPS
-                   | mavlink.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY)
-        health = sensors if sim.sensors.has_fix(sim.t_s) else sensors & ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
-        s = sim.state
-        self.mav.sys_status_send(sensors, sensors, health, 250, int(s.voltage_v[0] * 1000),
-                                 int(s.current_a[0] * 100), int(sim.battery_pct()), 0, 0, 0, 0, 0, 0)
-
-    def _send_battery_status(self, sim: Sim, t_ms: int) -> None:
-        s, af = sim.state, sim.config.airframe
-        cell_mv = int(s.voltage_v[0] / af.cells * 1000)
-        cells = [cell_mv] * af.cells + [65535] * (10 - af.cells)
-        used_mah = int((af.capacity_ah * 3600 - s.charge_c[0]) / 3.6)
-        self.mav.battery_status_send(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
-                                     32767, cells, int(s.current_a[0] * 100), used_mah, -1,
-                                     int(sim.battery_pct()))
-
-    def _send_gps_raw_int(self, sim: Sim, t_ms: int) -> None:
-        fix = sim.sensors.last_fix[0]
-        if fix is None:
-            return
-        self.mav.gps_raw_int_send(int(fix.t_s * 1e6), fix.fix_type, int(fix.lat_deg * 1e7),
-                                  int(fix.lon_deg * 1e7), int(fix.alt_m * 1000),
-                                  min(int(fix.eph_m * 100), 65535), min(int(fix.epv_m * 100), 65535),
-                                  int(fix.ground_speed_mps * 100), int(fix.course_deg * 100),
-                                  fix.satellites)
-
-    def _fused(self, sim: Sim) -> tuple[np.ndarray, np.ndarray]:
-        home = sim.scene.home
-        geo = enu_to_geodetic(sim.est_pos_m[0], home.lat_deg, home.lon_deg, home.alt_m)
-        return geo, sim.est_vel_mps[0]
-
-    def _send_global_position_int(self, sim: Sim, t_ms: int) -> None:
-        if not sim.sensors.has_fix(sim.t_s):
-            return
-        geo, v = self._fused(sim)
-        if self._home_alt_m is None or (sim.commander.armed[0] and sim.commander.landed[0]):
-            self._home_alt_m = float(geo[2])  # PX4 sets home at arming, on the ground
-        yaw = sim.pose().euler_ned_rad[2]
-        self.mav.global_position_int_send(
-            t_ms, int(geo[0] * 1e7), int(geo[1] * 1e7), int(geo[2] * 1000),
-            int((geo[2] - self._home_alt_m) * 1000), int(v[1] * 100), int(v[0] * 100),
-            int(-v[2] * 100), int(np.degrees(yaw) % 360 * 100))
-
-    def _send_local_position_ned(self, sim: Sim, t_ms: int) -> None:
-        p = sim.est_pos_m[0] - np.append(sim.scene.start_xy_m, 0.0)  # EKF origin: power-on spot
-        v = sim.est_vel_mps[0]
-        self.mav.local_position_ned_send(t_ms, p[1], p[0], -p[2], v[1], v[0], -v[2])
-
-    def _send_attitude(self, sim: Sim, t_ms: int) -> None:
-        pose = sim.pose()
-        roll, pitch, yaw = np.array(pose.euler_ned_rad) + sim.sensors.attitude_noise()[0]
-        w = pose.omega_body_rad_s * [1, -1, -1]  # FLU -> FRD
-        self.mav.attitude_send(t_ms, roll, pitch, (yaw + np.pi) % (2 * np.pi) - np.pi, *w)
-
-    def _send_vfr_hud(self, sim: Sim, t_ms: int) -> None:
-        v = sim.est_vel_mps[0]
-        air = v - sim.state.wind_mps[0]
-        yaw = sim.pose().euler_ned_rad[2]
-        thr = int(100 * sim.throttle[0].mean())
-        alt = float(sim.sensors.baro_alt_m(sim.state.pos_m)[0])
-        self.mav.vfr_hud_send(float(np.linalg.norm(air[:2])), float(np.hypot(v[0], v[1])),
-                              int(np.degrees(yaw) % 360), thr, alt, float(v[2]))
-
-    def _send_rc_channels(self, sim: Sim, t_ms: int) -> None:
-        roll, pitch, yaw, thr = sim.sticks[0]
-        mode_pwm = {STABILIZED: 1100, ALTCTL: 1500, POSCTL: 1900}.get(int(sim.commander.mode[0]), 1500)
-        ch = [stick_to_pwm(roll), stick_to_pwm(pitch), int(round(1000 + 1000 * thr)),
-              stick_to_pwm(yaw), mode_pwm, 1000, 1000, 1000] + [65535] * 10
-        self.mav.rc_channels_send(t_ms, 8, *ch, 254)
-
-    def _send_servo_output_raw(self, sim: Sim, t_ms: int) -> None:
-        armed = bool(sim.commander.armed[0])
-        motors = [int(1000 + 1000 * u) if armed else 900 for u in sim.throttle[0]]
-        self.mav.servo_output_raw_send((t_ms * 1000) & 0xFFFFFFFF, 0, *motors, 0, 0, 0, 0)
-
-    def _send_autopilot_version(self, sim: Sim, t_ms: int) -> None:
-        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
-        # flight_sw_version 1.14.0 release (0xFF), as PX4 packs it: major.minor.patch.type
-        self.mav.autopilot_version_send(caps, (1 << 24) | (14 << 16) | (0 << 8) | 0xFF, 0, 0, 0,
-                                        [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x7717)
-
-    def _send_extended_sys_state(self, sim: Sim, t_ms: int) -> None:
-        self.mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED,
-                                         sim.commander.landed_state(0))
+        self.telemetry.send(name, sim, int(now_s * 1000) & 0xFFFFFFFF)
 
 
 def _msg_name(msg_id: int) -> str:

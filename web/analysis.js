@@ -1,6 +1,6 @@
 // The paper's task analysis of recorded sessions: the table from GET /api/analysis, the
-// figures from /api/analysis/{plot}.png. ?sessions=ID&task=... preselects (links from
-// the sessions page).
+// figures from /api/analysis/{plot}.png. ?sessions=ID&task=...&reference=LAT,LON
+// preselects (links from the sessions page).
 (() => {
   "use strict";
   const PLOTS = ["trajectory3d", "birdseye", "history"];
@@ -69,6 +69,7 @@
   async function init() {
     const pre = new URLSearchParams(location.search);
     if (pre.get("task")) $("task").value = pre.get("task");
+    if (pre.get("reference")) $("reference").value = pre.get("reference");
     const wanted = new Set(pre.getAll("sessions"));
     const r = await fetch("/api/sessions", { cache: "no-store" });
     if (!r.ok) return showError("Cannot list sessions.");

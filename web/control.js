@@ -123,7 +123,11 @@
     ctl.sticks = sticks;
     if (calibrating && pad) sweep(pad);
     const pill = $("ctl-input");
-    if (!pill.classList.contains("bad")) pill.textContent = pad ? pad.id.slice(0, 24) : "keyboard";
+    if (!pill.classList.contains("bad")) {
+      // Some browsers offer gamepads only to secure pages (https or localhost).
+      const noPads = !navigator.getGamepads && !window.isSecureContext;
+      pill.textContent = pad ? pad.id.slice(0, 24) : noPads ? "keyboard (gamepad needs https)" : "keyboard";
+    }
     if (socket && socket.readyState === 1) socket.send(JSON.stringify({ type: "sticks", ...sticks }));
   }
 

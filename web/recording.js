@@ -75,6 +75,10 @@
       const last = status.last_stop;
       button.title = last ? `Last session ${last.id}: ${last.reason}` : "Start recording";
       if (last && last.reason.startsWith("disk full")) button.className = "error";
+      if (status.last_error) {
+        button.className = "error";
+        button.title = `Recording could not start: ${status.last_error}`;
+      }
     }
   }
 

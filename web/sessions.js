@@ -28,7 +28,9 @@
     for (const cam of Object.keys(s.frames_written || {})) {
       const dropped = (s.frames_dropped || {})[cam] || 0;
       if (dropped) bad = true;
-      parts.push(`${cam} ${s.frames_written[cam]} frames` + (dropped ? ` (${dropped} dropped)` : ""));
+      const skew = (s.skew_p99_s || {})[cam];
+      parts.push(`${cam} ${s.frames_written[cam]} frames` + (dropped ? ` (${dropped} dropped)` : "") +
+        (skew != null ? `, skew p99 ${Math.round(skew * 1000)} ms` : ""));
     }
     return { text: parts.join(", ") || "--", bad };
   }

@@ -60,6 +60,8 @@
     v.img.src = `/video/${name}.mjpg?t=${Date.now()}`;
   }
 
+  let stationDown = false;
+
   async function poll() {
     const sentAt = Date.now();
     let reply;
@@ -69,7 +71,14 @@
       reply = await r.json();
     } catch (err) {
       for (const v of Object.values(views)) setReadout(v, "station unreachable", "bad");
+      stationDown = true;
       return;
+    }
+    if (stationDown) {
+      // The station is back (restarted): a stream that ended quietly will not error,
+      // so reconnect every stream.
+      stationDown = false;
+      Object.keys(views).forEach(attach);
     }
     const now = Date.now();
     const rttS = (now - sentAt) / 1000;

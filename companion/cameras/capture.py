@@ -47,7 +47,7 @@ class CameraStats:
     frames: int  # good frames captured
     frames_dropped: int  # frame slots missed (late, corrupt) while the source delivered
     encodes: int
-    encode_ms: float  # mean JPEG encode time
+    encode_ms: float  # JPEG encode time, moving average over about 20 frames
     passthrough_frames: int  # frames whose JPEG came from the device as is
     clients: int  # MJPEG viewers now
     last_frame_time: float | None  # Unix time of the newest good frame's capture
@@ -231,7 +231,8 @@ class Camera:
 
     def _watchdog_loop(self) -> None:
         """Show NO SIGNAL when an open source stops delivering (its read is stuck)."""
-        stall_s = self.config.stall_s
+        # A slow camera (fps < 1.5) must not look stalled between two of its own frames.
+        stall_s = max(self.config.stall_s, 3.0 / self.config.fps)
         while not self._stop.wait(min(0.25, stall_s / 4)):
             last = self._last_good_mono
             now = time.monotonic()
@@ -265,7 +266,7 @@ class Camera:
             frames=self._frames,
             frames_dropped=self._dropped,
             encodes=self.encoder.encodes,
-            encode_ms=round(self.encoder.mean_encode_ms, 3),
+            encode_ms=round(self.encoder.recent_encode_ms, 3),
             passthrough_frames=self._passthrough,
             clients=self.clients,
             last_frame_time=last_wall,

@@ -67,6 +67,7 @@ class JpegEncoder:
         self.encodes = 0
         self.encode_s_total = 0.0
         self.last_encode_s = 0.0
+        self.recent_encode_s = 0.0  # moving average over about the last 20 encodes
 
     def encode(self, image: np.ndarray) -> bytes:
         t0 = time.perf_counter()
@@ -78,9 +79,17 @@ class JpegEncoder:
             self.encodes += 1
             self.encode_s_total += dt
             self.last_encode_s = dt
+            alpha = max(0.05, 1.0 / self.encodes)
+            self.recent_encode_s += alpha * (dt - self.recent_encode_s)
         return buf.tobytes()
 
     @property
     def mean_encode_ms(self) -> float:
+        """Mean encode time since start."""
         with self._lock:
             return 1000.0 * self.encode_s_total / self.encodes if self.encodes else 0.0
+
+    @property
+    def recent_encode_ms(self) -> float:
+        """Encode time now (moving average), what /api/cameras shows."""
+        return 1000.0 * self.recent_encode_s

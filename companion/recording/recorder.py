@@ -22,6 +22,7 @@ from typing import Any
 
 from companion.frames import Frame
 from companion.latest import Latest
+from companion.recording import diskspace
 from companion.recording.recovery import mark_interrupted
 from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.store import SessionStore
@@ -59,10 +60,11 @@ class RecordingStatus:
     auto_record_on_arm: bool = True
     stopping_at_wall: float | None = None  # end of the post-disarm tail, when pending
     last_stop: LastStop | None = None
+    last_error: str | None = None  # why the last start failed, if it did
 
 
 class RecorderError(Exception):
-    pass
+    """A session could not start; the message says why and what to do."""
 
 
 class Recorder:
@@ -80,6 +82,7 @@ class Recorder:
         self.session: RecordingSession | None = None
         self._finalizing: RecordingSession | None = None  # stopped, files being closed
         self.last_stop: LastStop | None = None
+        self.last_error: str | None = None
         self._lock = asyncio.Lock()
         self._spawn: Spawn | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -113,19 +116,38 @@ class Recorder:
         async with self._lock:
             self._cancel_tail()
             if self.session is None:
-                session = await asyncio.to_thread(
-                    RecordingSession,
-                    self.store.root,
-                    self.state,
-                    self.cameras,
-                    self.options.session,
-                    trigger,
-                    self._on_writer_failure,
-                )
+                try:
+                    session = await asyncio.to_thread(self._new_session, trigger)
+                except (OSError, RecorderError) as exc:
+                    self.last_error = str(exc)
+                    log.error("recording did not start: %s", exc)
+                    raise RecorderError(str(exc)) from None
                 session.start()
                 self.session = session
+                self.last_error = None
                 log.info("recording session %s started (%s)", session.id, trigger)
         return self.status()
+
+    def _new_session(self, trigger: str) -> RecordingSession:
+        root = self.store.root
+        need = self.options.session.limits.min_free_bytes
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+            free = diskspace.free_bytes(root)
+        except OSError as exc:
+            raise RecorderError(f"Cannot record in '{root}': {exc.strerror or exc}.") from None
+        if free < need:
+            raise RecorderError(
+                f"disk full: {free / 1e6:.1f} MB free in '{root}', under the "
+                f"{need / 1e6:.0f} MB minimum; free some space (delete old sessions)."
+            )
+        try:
+            return RecordingSession(root, self.state, self.cameras, self.options.session,
+                                    trigger, self._on_writer_failure)
+        except OSError as exc:
+            raise RecorderError(
+                f"Cannot create a session in '{root}': {exc.strerror or exc}."
+            ) from None
 
     async def stop(self, reason: str = "requested", only_id: str | None = None) -> RecordingStatus:
         """Stop the running session (only if its id is `only_id`, when given); finalize it."""
@@ -162,11 +184,9 @@ class Recorder:
                 recording=False,
                 auto_record_on_arm=self.options.auto_record_on_arm,
                 last_stop=self.last_stop,
+                last_error=self.last_error,
             )
         stats = s.writer.stats
-        dropped = {
-            c: s._tracks[c].missed + stats.frames_dropped_queue.get(c, 0) for c in s.cameras
-        }
         return RecordingStatus(
             recording=True,
             id=s.id,
@@ -175,7 +195,7 @@ class Recorder:
             elapsed_s=round(time.monotonic() - s.t0_mono, 3),
             telemetry_rows=stats.rows_written,
             frames_written=dict(stats.frames_written),
-            frames_dropped=dropped,
+            frames_dropped=s.frames_dropped(),
             auto_record_on_arm=self.options.auto_record_on_arm,
             stopping_at_wall=self._tail_deadline_wall,
             last_stop=self.last_stop,
@@ -195,7 +215,10 @@ class Recorder:
             version = got.version
             armed = bool(got.value.heartbeat.armed)
             if armed and was_armed is not True:
-                await self.start("arm")
+                try:
+                    await self.start("arm")
+                except RecorderError:
+                    pass  # logged, and shown in status().last_error
             elif not armed and was_armed is True:
                 self._schedule_tail()
             was_armed = armed

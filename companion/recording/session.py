@@ -130,6 +130,15 @@ class RecordingSession:
     def stopping(self) -> bool:
         return self._stop.is_set()
 
+    def frames_dropped(self) -> dict[str, int]:
+        """Per camera: frames captured but not (going to be) on disk, so far."""
+        queue = self.writer.stats.frames_dropped_queue
+        return {c: self._tracks[c].missed + queue.get(c, 0) for c in self.cameras}
+
+    def thread_ids(self) -> dict[str, int | None]:
+        """Native ids of the session's threads (for CPU accounting in benchmarks)."""
+        return {"writer": self.writer.native_id, "sampler": self._sampler.native_id}
+
     # -- inputs ----------------------------------------------------------------------------
 
     def on_packet(self, t_wall: float, packet: bytes) -> None:

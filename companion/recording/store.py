@@ -62,11 +62,11 @@ class SessionSummary:
 
 
 class SessionStore:
-    """Read access to `root`, the configurable sessions directory (created if missing)."""
+    """Read access to `root`, the configurable sessions directory (created by the first
+    session, so that a station that never records leaves no empty folder behind)."""
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
-        self.root.mkdir(parents=True, exist_ok=True)
         self._real_root = Path(os.path.realpath(self.root))
         # Folder sizes by id, valid while session.json keeps its mtime: a finished session
         # does not change, and walking thousands of frames on every list costs a Pi.
@@ -114,6 +114,8 @@ class SessionStore:
     def ids(self) -> list[str]:
         """Ids of every session folder, oldest first (ids sort by start time)."""
         out = []
+        if not self._real_root.is_dir():
+            return out
         with os.scandir(self._real_root) as it:
             for entry in it:
                 if layout.is_valid_session_id(entry.name) and entry.is_dir(follow_symlinks=False):

@@ -121,6 +121,10 @@ class SessionWriter:
     def start(self) -> None:
         self._thread.start()
 
+    @property
+    def native_id(self) -> int | None:
+        return self._thread.native_id
+
     def close(self, timeout: float = 10.0) -> None:
         """Write what is buffered, flush, close the files; returns when the thread is done."""
         with self._cond:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 from dataclasses import replace
 from pathlib import Path
+from typing import Literal
 
 import anyio
 from fastapi import APIRouter, Depends, Query, Request
@@ -185,15 +186,19 @@ _D = TaskParams()
 def _thresholds(
     hover_height_m: float = Query(_D.hover_height_m, gt=0),
     hover_window_s: float = Query(_D.hover_window_s, gt=0),
+    hover_height_tolerance_m: float = Query(_D.hover_height_tolerance_m, ge=0),
     margin_m: float = Query(_D.margin_m, ge=0),
     airborne_height_m: float = Query(_D.airborne_height_m, ge=0),
+    height_source: Literal["pilot", "gps"] = Query(_D.height_source),
 ) -> TaskParams:
     """The method's thresholds as query parameters, the paper's values by default."""
     return TaskParams(
         hover_height_m=hover_height_m,
         hover_window_s=hover_window_s,
+        hover_height_tolerance_m=hover_height_tolerance_m,
         margin_m=margin_m,
         airborne_height_m=airborne_height_m,
+        height_source=height_source,
     )
 
 

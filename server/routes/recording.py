@@ -7,7 +7,7 @@ import dataclasses
 from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel
 
-from companion.recording.recorder import Recorder
+from companion.recording.recorder import Recorder, RecorderError
 from server.auth import require_control_token
 from server.errors import Unavailable
 
@@ -32,6 +32,7 @@ class RecordingStatusModel(BaseModel):
     auto_record_on_arm: bool = True
     stopping_at_wall: float | None = None  # end of the post-disarm tail, when pending
     last_stop: LastStopModel | None = None  # the previous session and why it stopped
+    last_error: str | None = None  # why the last start failed, if it did
 
 
 def get_recorder(request: Request) -> Recorder:
@@ -57,7 +58,10 @@ async def recording_status(recorder: Recorder = Depends(get_recorder)) -> Record
     summary="Start recording a session (no-op while one is recording)",
 )
 async def start_recording(recorder: Recorder = Depends(get_recorder)) -> RecordingStatusModel:
-    await recorder.start("rest")
+    try:
+        await recorder.start("rest")
+    except RecorderError as exc:
+        raise Unavailable(f"Recording did not start: {exc}") from None
     return _model(recorder)
 
 

@@ -11,7 +11,7 @@ import contextlib
 from collections.abc import Iterator
 from typing import Any
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends
 from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import BaseModel
 
@@ -47,6 +47,7 @@ class SessionSummaryModel(BaseModel):
     telemetry_rows: int | None
     frames_written: dict[str, int]
     frames_dropped: dict[str, int]
+    skew_p99_s: dict[str, float | None]  # camera -> p99 of row-to-frame skew
     recording_now: bool
 
 
@@ -74,6 +75,8 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
                             if hasattr(s, k)}
     data["start_utc"] = layout.utc_label(s.start_wall) if s.start_wall is not None else None
     data["recording_now"] = s.id == recording_id
+    cams = s.meta.quality.cameras if s.meta is not None else {}
+    data["skew_p99_s"] = {c: q.skew_p99_s for c, q in cams.items()}
     return SessionSummaryModel.model_validate(data)
 
 
@@ -117,10 +120,10 @@ async def download_session(session_id: str, recorder: Recorder = Depends(get_rec
 
 @router.get("/api/sessions/{session_id}/files/{path:path}", summary="One file of a session",
             response_class=FileResponse)
-async def session_file(session_id: str, path: str, request: Request,
+async def session_file(session_id: str, path: str,
                        recorder: Recorder = Depends(get_recorder)) -> FileResponse:
     with _store_errors():
-        real = recorder.store.file(session_id, path)
+        real = await asyncio.to_thread(recorder.store.file, session_id, path)
     return FileResponse(real, filename=real.name, content_disposition_type="inline")
 
 
@@ -128,7 +131,7 @@ async def session_file(session_id: str, path: str, request: Request,
                summary="Delete a session (refused while it is recorded)")
 async def delete_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> dict[str, str]:
     with _store_errors():
-        recorder.store.resolve(session_id)
+        await asyncio.to_thread(recorder.store.resolve, session_id)
         if recorder.recording_id == session_id:
             raise Conflict(f"Session '{session_id}' is being recorded; stop it first.")
         await asyncio.to_thread(recorder.store.delete, session_id)

@@ -4,10 +4,11 @@
     GET /video/{camera}.jpg    the newest frame
     GET /api/cameras           per camera: source, resolution, fps, drops, encode time, clients
 
-Every viewer is an async generator awaiting the camera's `Latest[Frame]`: no thread per
-viewer and no queue. A viewer that cannot keep up sits in its socket write; when that
-returns it takes the newest frame, skipping the ones it missed, so it never delays the
-camera or another viewer. Each frame's multipart part is built once and shared.
+Every viewer is an async generator (no thread per viewer, no queue) fed by the camera's
+fan-out (`server.video_fanout`): one waiter on the camera's `Latest[Frame]`, each frame's
+multipart part built once. A viewer that cannot keep up sits in its socket write; when
+that returns it takes the newest part, skipping the ones it missed, so it never delays
+the camera or another viewer.
 """
 
 from __future__ import annotations

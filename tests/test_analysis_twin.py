@@ -1,0 +1,148 @@
+"""The twin, flown through each of the paper's four tasks by its scripted pilot, sends
+real MAVLink over UDP; a tlog recorder on the other socket makes a session of it; the
+sessions analyse without error and with plausible values."""
+
+from __future__ import annotations
+
+import json
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.report import analyze_paths
+from analysis.tasks import TaskParams
+from companion.tlog import encode_record
+from twin.pilot import Observation, Pilot, task_plan
+from twin.runner import Twin
+
+TASKS = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
+WALL_T0 = 1.76e9
+TICK_S = 0.02  # the pilot's 50 Hz
+
+
+def fly_to_session(task_id: int, folder: Path, timeout_s: float = 300.0) -> Path:
+    """Step the twin faster than real time; every datagram it sends is written to the
+    session's mavlink.tlog stamped with the sim clock, as the recorder stamps receive time."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.setblocking(False)
+    twin = Twin(mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}")
+    folder.mkdir(parents=True)
+    pilot = Pilot(task_plan(twin.scene, task_id))
+    try:
+        with open(folder / "mavlink.tlog", "wb") as tlog:
+
+            def drain() -> None:
+                while True:
+                    try:
+                        data = rx.recv(65535)
+                    except BlockingIOError:
+                        return
+                    tlog.write(encode_record(WALL_T0 + twin.sim.t_s, data))
+
+            for _ in range(int(2.5 / TICK_S)):  # on the pad until the GPS has a fix
+                twin.step_for(TICK_S)
+                drain()
+            t0 = twin.sim.t_s
+            while not pilot.done and twin.sim.t_s - t0 < timeout_s:
+                pose = twin.pose()
+                assert not twin.sim.state.crash[0], twin.sim.crash_reason()
+                yaw = float(np.arctan2(pose.R_world_body[1, 0], pose.R_world_body[0, 0]))
+                armed = bool(twin.sim.commander.armed[0])
+                obs = Observation(pose.t_s, pose.pos_enu_m, pose.vel_enu_mps, yaw, armed)
+                twin.set_sticks(*pilot.update(obs))
+                twin.step_for(TICK_S)
+                drain()
+            for _ in range(int(3.0 / TICK_S)):  # the tail after landing, as recorded
+                twin.step_for(TICK_S)
+                drain()
+    finally:
+        if twin.vehicle is not None:
+            twin.vehicle.close()
+        rx.close()
+    assert pilot.done, f"task {task_id}: the pilot did not finish: {pilot.log[-3:]}"
+    (folder / "session.json").write_text(json.dumps({"source": "sim"}))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("twin_sessions")
+    return {name: fly_to_session(k, root / f"task{k}") for k, name in TASKS.items()}
+
+
+def test_twin_hover(sessions):
+    an = analyze_paths([sessions["hover"]], "hover")
+    r = an.results[0]
+    assert r.platform == "twin" and an.aligned[0].reference_kind == "scene"
+    assert r.hover_distance_m < 0.5  # no wind: Position mode holds over the pad
+    assert 10.0 <= r.time_in_window_s <= 10.5 and 15 < r.trial_time_s < 120
+    # The scripted pilot levels off just under 4 m and crosses 4.00 m seconds later, so
+    # the paper's literal window runs into the descent; read as a pilot reads a 0.1 m
+    # display (4.0 from 3.95 m), the window is the hold, and the height holds.
+    assert r.height_deviation_m < 1.0
+    held = analyze_paths([sessions["hover"]], "hover",
+                         params=TaskParams(hover_height_tolerance_m=0.05)).results[0]  # fmt: skip
+    assert held.height_deviation_m < 0.3 and held.hover_distance_m < 0.5
+
+
+@pytest.mark.parametrize("task", ["a-to-b", "obstacle", "figure8"])
+def test_twin_longitudinal_tasks(sessions, task):
+    an = analyze_paths([sessions[task]], task)
+    r = an.results[0]
+    assert r.platform == "twin" and an.aligned[0].reference_kind == "scene"
+    assert r.obstacle_contacts == 0  # the pilot flies over and around, never into them
+    assert r.height_deviation_m < 1.0 and 20 < r.trial_time_s < 300
+    # The straight task stays near the line; circling and the 8 swing metres off it.
+    assert r.lateral_deviation_m < 1.0 if task == "a-to-b" else 0.5 < r.lateral_deviation_m < 8
+    assert r.path_length_m > 36 and 0.3 < r.mean_speed_mps < 5
+
+
+def test_twin_and_synthetic_physical_compare_in_one_table(sessions):
+    an = analyze_paths([sessions["a-to-b"], sessions["a-to-b"]], "a-to-b", labels=["a", "b"])
+    assert len(an.comparison.rows()) == 2
+    assert "Digital twin" in an.comparison.to_markdown()
+
+
+def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
+    """End to end: `--source sim` station, the scripted pilot flies task 1, the recorder
+    starts on arming and stops after landing, and the REST analysis of that session (the
+    recorder's own telemetry.csv from the live link) gives a hover near the pad."""
+    import httpx
+
+    from server.app import create_app
+    from server.settings import load_settings
+    from tests.helpers import run_uvicorn, wait_until
+    from twin.pilot import Leg, fly_twin
+
+    settings = load_settings(None, {
+        "link.source": "sim", "viser.enabled": False,  # real time: the recorder stamps wall time
+        "cameras.front.spec": "none", "cameras.bottom.spec": "none",
+        "recording.sessions_dir": str(tmp_path), "recording.post_disarm_tail_s": 1.0,
+        "recording.min_free_mb": 0}, environ={})  # fmt: skip
+    app = create_app(settings)
+    with run_uvicorn(app) as base:
+        station = app.state.station
+        state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
+        assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 20)
+        legs = task_plan(station.twin.scene, 1)
+        # A pilot waits a moment on the pad after arming (the armed HEARTBEAT is 1 Hz).
+        legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
+        pilot = Pilot(legs)
+        fly_twin(station.twin, pilot, timeout_s=120)
+        assert pilot.done, pilot.log
+        assert wait_until(lambda: station.recorder.last_stop is not None
+                          and station.recorder.recording_id is None, 20)  # fmt: skip
+        sid = station.recorder.last_stop.id
+        # The scripted pilot levels off just under 4 m: read 4 m as a 0.1 m display does
+        # (with the literal 4.00 m it may cross too late for a 10 s window: NoTaskWindow).
+        params = {"task": "hover", "hover_height_tolerance_m": 0.05}
+        r = httpx.get(f"{base}/api/sessions/{sid}/analysis", params=params, timeout=60)
+    assert r.status_code == 200, r.text
+    res = r.json()["results"][0]
+    assert res["platform"] == "twin" and res["reference_kind"] == "scene"
+    assert res["hover_distance_m"] < 0.5 and res["window_samples"] >= 40  # 5 Hz GPS, 10 s
+    assert 10 < res["trial_time_s"] < 60 and res["obstacle_contacts"] == 0
+    assert res["height_deviation_m"] < 0.5

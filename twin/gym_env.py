@@ -1,0 +1,161 @@
+"""A Gymnasium environment on the twin, as the paper proposes for imitation and
+reinforcement learning: the agent gives the same four sticks a pilot gives in Position
+mode; the twin is stepped faster than real time.
+
+    env = TwinEnv(task=2)                     # fly from the start pad to the landing pad
+    obs, info = env.reset(seed=0)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+
+## Action Space
+`Box(-1, 1, (4,), float32)`: roll (right +), pitch (forward +), yaw (clockwise +),
+throttle (-1 full descent, 0 centred = hold altitude, +1 full climb), held for one
+control period (`1 / control_hz`, default 0.1 s).
+
+## Observation Space
+`Box(-1e4, 1e4, (18,), float32)`: position relative to the target (3, ENU m), velocity
+(3, ENU m/s), roll, pitch (rad), sin and cos of the heading, body rates (3, rad/s),
+battery fraction, armed, on the ground, horizontal distance and height above the target.
+With `cameras=("bottom",)` (or "front") the observation is a Dict of that vector
+("state") and the camera images, (H, W, 3) uint8 RGB at `image_size`.
+
+## Rewards
+Progress: the decrease of the distance to the target each step; -0.01 per step for
+time; +10 on landing within 0.5 m of the target pad (task 1: holding 4 m over the start
+pad for 10 s, then landing on it); -10 on a crash.
+
+## Starting State
+On the task's start pad, armed, Position mode, sensors warmed up (GPS fix). Sensor noise,
+drift and gusts come from the episode's seed.
+
+## Episode End
+Terminated: crash, or landed (disarmed after touchdown). Truncated: `max_episode_s`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from twin.scene import Scene, load_scene
+from twin.sim import Sim, SimConfig
+
+STATE_SIZE = 18
+
+
+class TwinEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(self, task: int = 2, scene: Scene | None = None, config: SimConfig | None = None,
+                 max_episode_s: float = 180.0, control_hz: float = 10.0,
+                 cameras: tuple[str, ...] = (), image_size: tuple[int, int] = (160, 120),
+                 render_mode: str | None = None) -> None:
+        self.scene = scene or load_scene()
+        self.task = self.scene.task(task)
+        self.config = config or SimConfig()
+        self.max_episode_s = max_episode_s
+        self.control_hz = control_hz
+        self.cameras = tuple(cameras)
+        self.image_size = image_size
+        self.render_mode = render_mode
+        self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
+        state = spaces.Box(-1e4, 1e4, (STATE_SIZE,), np.float32)
+        if self.cameras:
+            w, h = image_size
+            self.observation_space = spaces.Dict(
+                {"state": state, **{c: spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras}})
+        else:
+            self.observation_space = state
+        end = self.scene.pad(self.task.end_pad)
+        self.target_m = np.array([end.x_m, end.y_m, 0.0])
+        self.sim: Sim | None = None
+        self._renderer = None
+
+    # ---- gymnasium API ----
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        sim_seed = int(self.np_random.integers(0, 2**31 - 1))
+        self.sim = Sim(self.scene, replace(self.config, seed=sim_seed))
+        self.sim.run_for(self.sim.config.sensors.gps_fix_delay_s + 0.5)
+        ok, why = self.sim.arm()
+        if not ok:
+            raise RuntimeError(f"the twin refused to arm at reset: {why}")
+        self._t0 = self.sim.t_s
+        self._hover_s = 0.0
+        self._dist = self._distance()
+        return self._observation(), self._info()
+
+    def step(self, action):
+        sim = self.sim
+        if sim is None:
+            raise RuntimeError("call reset() before step()")
+        a = np.clip(np.asarray(action, float), -1.0, 1.0)
+        sim.set_sticks(a[0], a[1], a[2], 0.5 + 0.5 * a[3])
+        sim.step(max(1, int(round(1.0 / (self.control_hz * sim.dt_s)))))
+        crashed = bool(sim.state.crash[0])
+        landed = not sim.commander.armed[0] and not crashed
+        dist = self._distance()
+        reward = (self._dist - dist) - 0.01
+        self._dist = dist
+        horizontal = float(np.hypot(*(sim.state.pos_m[0, :2] - self.target_m[:2])))
+        if self.task.id == 1 and abs(sim.state.pos_m[0, 2] - self.task.altitude_m) < 0.3:
+            self._hover_s += 1.0 / self.control_hz
+        if crashed:
+            reward -= 10.0
+        elif landed and horizontal < 0.5:
+            reward += 10.0
+        terminated = crashed or landed
+        truncated = not terminated and sim.t_s - self._t0 >= self.max_episode_s
+        return self._observation(), float(reward), terminated, truncated, self._info()
+
+    def render(self):
+        if self.render_mode != "rgb_array" or self.sim is None:
+            return None
+        return self._camera("front", full_size=True)
+
+    # ---- helpers ----
+    def _distance(self) -> float:
+        """To the target; task 1 first wants the hover point 4 m over the pad for 10 s."""
+        target = self.target_m
+        if self.task.id == 1 and self._hover_s < (self.task.hold_s or 10.0):
+            target = target + [0.0, 0.0, self.task.altitude_m]
+        return float(np.linalg.norm(self.sim.state.pos_m[0] - target))
+
+    def _state_vector(self) -> np.ndarray:
+        sim = self.sim
+        pose = sim.pose()
+        roll, pitch, _ = pose.euler_ned_rad
+        yaw = pose.yaw_enu_rad
+        rel = pose.pos_enu_m - self.target_m
+        return np.concatenate([
+            rel, pose.vel_enu_mps, [roll, pitch, np.sin(yaw), np.cos(yaw)], pose.omega_body_rad_s,
+            [sim.battery_pct() / 100.0, float(sim.commander.armed[0]),
+             float(sim.state.on_ground[0]), float(np.hypot(rel[0], rel[1])), float(rel[2])],
+        ]).astype(np.float32)
+
+    def _observation(self):
+        state = self._state_vector()
+        if not self.cameras:
+            return state
+        return {"state": state, **{c: self._camera(c) for c in self.cameras}}
+
+    def _camera(self, name: str, full_size: bool = False) -> np.ndarray:
+        import cv2
+
+        if self._renderer is None:
+            from twin.render import Renderer
+
+            self._renderer = Renderer(self.scene)
+        bgr = self._renderer.render(name, self.sim.pose())
+        if not full_size:
+            bgr = cv2.resize(bgr, self.image_size, interpolation=cv2.INTER_AREA)
+        return np.ascontiguousarray(bgr[..., ::-1])
+
+    def _info(self) -> dict[str, Any]:
+        sim = self.sim
+        return {"t_s": sim.t_s - self._t0, "crash": sim.crash_reason(),
+                "mode": sim.commander.mode_name(), "distance_m": self._dist,
+                "pos_enu_m": sim.state.pos_m[0].copy()}
