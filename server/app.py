@@ -15,6 +15,7 @@ from server.routes import (
     control,
     health,
     recording,
+    replay3d,
     sessions,
     status,
     telemetry,
@@ -51,6 +52,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(video.router)
     app.include_router(viser_panel.router)
     app.include_router(trajectory.router)
+    app.include_router(replay3d.router)
     app.include_router(control.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

@@ -56,6 +56,8 @@ def add_recording_flags(p: argparse.ArgumentParser) -> None:
 def add_viser_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--viser-port", dest="viser.port", type=int,
                    help="port of the 3D trajectory panel (viser; default 8080)")
+    p.add_argument("--viser-replay-port", dest="viser.replay_port", type=int,
+                   help="port of the replay page's 3D panel (viser; default: --viser-port + 1)")
     p.add_argument("--no-3d", dest="viser.enabled", action="store_const", const=False,
                    help="do not start the 3D trajectory panel")
 def add_sim_parser(sub: Any) -> None:

@@ -112,6 +112,14 @@ class ViserSettings(_Section):
     bottom_hfov_deg: float = Field(90.0, gt=1, lt=179)  # bottom camera's footprint
     bottom_vfov_deg: float = Field(70.0, gt=1, lt=179)
     field_file: Path | None = None  # a twin scene TOML to draw; None = the twin's scene with --source sim
+    # The replay panel's own viser server: None = port + 1 (any free port when port is 0).
+    replay_port: int | None = Field(None, ge=0, le=65535)
+
+    @property
+    def replay_port_resolved(self) -> int:
+        if self.replay_port is not None:
+            return self.replay_port
+        return 0 if self.port == 0 else min(self.port + 1, 65535)
 
 
 class TwinSettings(_Section):

@@ -22,6 +22,7 @@ from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
 
 if TYPE_CHECKING:
+    from server.trajectory3d.replay_scene import Replay3D
     from server.trajectory3d.service import Trajectory3D
 
 
@@ -41,6 +42,7 @@ class Station:
     # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
     cameras: dict[str, Any] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
+    replay3d: Replay3D | None = None  # the replay's viser panel; None with --no-3d
     # The digital twin (twin.runner.Twin) when link.source is "sim", else None.
     twin: Any = None
 
@@ -130,3 +132,10 @@ async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack
     # viser's stop joins its thread: keep that wait off the event loop.
     stack.push_async_callback(asyncio.to_thread, service.stop)
     station.tasks.spawn("trajectory3d", service.run())
+    # The replay's own viser server, with the same field (server/trajectory3d/replay_scene.py).
+    from server.trajectory3d.replay_scene import Replay3D
+
+    replay = Replay3D(s.viser, host=s.server.host, field=field)
+    await asyncio.to_thread(replay.start)
+    station.replay3d = replay
+    stack.push_async_callback(asyncio.to_thread, replay.stop)

@@ -275,10 +275,13 @@ def test_no_3d_flag():
     args = build_parser().parse_args(["serve", "--no-3d", "--viser-port", "8090"])
     settings = settings_from_args(args)
     assert settings.viser.enabled is False and settings.viser.port == 8090
+    assert settings.viser.replay_port_resolved == 8091
+    args = build_parser().parse_args(["serve", "--viser-replay-port", "9100"])
+    assert settings_from_args(args).viser.replay_port_resolved == 9100
     settings = load_settings(environ={}, overrides={"link.source": "none", "viser.enabled": False})
     with run_uvicorn(create_app(settings)) as base:
         assert httpx.get(f"{base}/api/viser").json() == {
-            "enabled": False, "port": None, "points": 0, "chunks": 0}
+            "enabled": False, "port": None, "points": 0, "chunks": 0, "replay_port": None}
 
 
 def test_field_comes_from_the_twin_scene():

@@ -13,6 +13,7 @@ class ViserPanel(BaseModel):
     port: int | None  # the port actually bound (viser moves on when the asked one is taken)
     points: int  # trail points drawn so far
     chunks: int  # trail chunks (scene handles) drawn so far
+    replay_port: int | None = None  # the replay page's own viser server (PUT /api/replay3d)
 
 
 @router.get("/api/viser", response_model=ViserPanel, summary="The 3D trajectory panel")
@@ -20,7 +21,9 @@ async def get_viser_panel(request: Request) -> ViserPanel:
     service = request.app.state.station.trajectory3d
     if service is None or service.server is None:
         return ViserPanel(enabled=False, port=None, points=0, chunks=0)
+    replay = request.app.state.station.replay3d
     return ViserPanel(
+        replay_port=replay.port if replay is not None and replay.server is not None else None,
         enabled=True,
         port=service.port,
         points=service.trail.n_points,

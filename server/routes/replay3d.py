@@ -1,0 +1,87 @@
+"""The replay's 3D panel: which sessions it shows and the instant of the time slider.
+
+Both endpoints change only what the replay panel draws, never recorded data, so they stay
+open like reading (no control token). The scene is shared by every viewer of the replay
+panel: the last page to load or scrub wins (a field station has few users).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+from fastapi import APIRouter, Request
+from pydantic import BaseModel, Field
+
+from companion.recording.store import SessionStore
+from server.errors import BadRequest, Unavailable
+from server.routes.trajectory import _parse_reference, load_trajectory
+from server.trajectory3d.replay import Align
+
+router = APIRouter(tags=["trajectory"])
+
+
+class Replay3DLoad(BaseModel):
+    session: str = Field(min_length=1, max_length=200)
+    overlay: str | None = None  # a second session drawn in another colour
+    align: Align = "none"  # as GET /api/sessions/{id}/trajectory, applied to both
+    reference: str | None = None  # LAT,LON put on +x
+
+
+class Replay3DTime(BaseModel):
+    t_s: float  # seconds after the session's first fix
+
+
+class Replay3DState(BaseModel):
+    port: int
+    session: str | None
+    overlay: str | None
+    t_s: float
+    duration_s: float | None
+    segments: int  # path segments drawn for the session
+
+
+def _service(request: Request):
+    service = request.app.state.station.replay3d
+    if service is None or service.server is None:
+        raise Unavailable("The 3D replay panel is not running (--no-3d).")
+    return service
+
+
+def _state(service) -> Replay3DState:
+    a, b = service.primary, service.overlay
+    return Replay3DState(
+        port=service.port, session=a.id if a else None, overlay=b.id if b else None,
+        t_s=service.t_s, duration_s=a.duration_s if a else None,
+        segments=int((~a.starts_run[1:]).sum()) if a else 0,
+    )
+
+
+@router.put("/api/replay3d", response_model=Replay3DState,
+            summary="Show a session (and an overlay) in the 3D replay panel")
+async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
+    service = _service(request)
+    settings = request.app.state.settings
+    store = SessionStore(settings.recording.sessions_dir)
+    ref = _parse_reference(body.reference)
+    gap_s = settings.viser.gap_s
+
+    def work() -> None:  # file reads, geodesy and the scene batch: off the event loop
+        a = load_trajectory(store, body.session, body.align, ref, gap_s)
+        b = load_trajectory(store, body.overlay, body.align, ref, gap_s) if body.overlay else None
+        service.load(a, b)
+
+    await asyncio.to_thread(work)
+    return _state(service)
+
+
+@router.put("/api/replay3d/time", response_model=Replay3DState,
+            summary="Move the 3D replay panel's vehicle to an instant")
+async def put_replay3d_time(request: Request, body: Replay3DTime) -> Replay3DState:
+    service = _service(request)
+    if not math.isfinite(body.t_s):
+        raise BadRequest("t_s must be a finite number of seconds.")
+    if service.primary is None:
+        raise BadRequest("No session loaded: PUT /api/replay3d first.")
+    service.set_time(body.t_s)  # a few small messages: cheap enough for the loop
+    return _state(service)

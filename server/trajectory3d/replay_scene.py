@@ -1,0 +1,207 @@
+"""The replay in 3D: a second viser server whose scene shows recorded sessions.
+
+It reuses the live scene (scene.py: field, home, vehicle body, footprint, colour-coded
+trail chunks) on its own port, so that the replay never disturbs the live panel. `load()`
+draws the whole path of a session (built by replay.py's `build_trajectory`, gaps as gaps)
+and an optional overlay session in one colour; `set_time()` moves the vehicle and the
+bottom camera's footprint to an instant. The scene is shared by every viewer of the
+replay panel: whoever loads or scrubs last wins (a field station has few users).
+
+Attitude is not in the trajectory reply: the body is drawn level, its nose along the
+direction of travel (the last horizontal motion of more than 5 cm).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+
+import numpy as np
+import viser
+
+from server.settings import ViserSettings
+from server.trajectory3d.field import FieldScene
+from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
+from server.trajectory3d.replay import TrajectoryReply
+from server.trajectory3d.scene import LiveScene
+from server.trajectory3d.trail import TrailChunk
+
+log = logging.getLogger(__name__)
+
+OVERLAY_RGB = (150, 60, 200)  # purple, as the 2D replay page draws the compared session
+_CHUNK_SEGMENTS = 500  # one scene handle per 500 segments: few messages, bounded size
+
+
+class ReplayPath:
+    """One session as numpy arrays, relative times from its first fix."""
+
+    def __init__(self, reply: TrajectoryReply) -> None:
+        self.id = reply.id
+        t = np.asarray(reply.t_s, float)
+        self.t_rel_s = t - t[0]
+        self.enu_m = np.column_stack([reply.x_m, reply.y_m, reply.z_m]).astype(float)
+        self.speed_mps = np.array([np.nan if v is None else v for v in reply.speed_mps], float)
+        self.starts_run = np.asarray(reply.starts_run, bool)
+        self.origin = (reply.origin.lat_deg, reply.origin.lon_deg, reply.origin.alt_m or 0.0)
+        self.align_rad = reply.align_rad
+        self.yaw_enu_rad = _travel_heading_rad(self.enu_m)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_rel_s[-1])
+
+    def index_at(self, t_rel_s: float) -> int:
+        """The last fix at or before `t_rel_s` seconds after the start."""
+        i = int(np.searchsorted(self.t_rel_s, t_rel_s, side="right")) - 1
+        return min(max(i, 0), len(self.t_rel_s) - 1)
+
+    def chunks(self) -> list[TrailChunk]:
+        """The path as trail chunks for LiveScene.sync_chunk; continuous across chunks."""
+        out: list[TrailChunk] = []
+        n = len(self.t_rel_s)
+        for k, start in enumerate(range(0, max(n - 1, 1), _CHUNK_SEGMENTS)):
+            stop = min(start + _CHUNK_SEGMENTS + 1, n)
+            runs = self.starts_run[start:stop].tolist()
+            runs[0] = True  # a chunk's first point joins nothing before it
+            out.append(TrailChunk(
+                id=k, speed_mps=self.speed_mps[start:stop].tolist(), starts_run=runs,
+                enu_m=list(self.enu_m[start:stop]),
+            ))
+        return out
+
+
+def _travel_heading_rad(enu_m: np.ndarray) -> np.ndarray:
+    """ENU heading (from +x, counter-clockwise) of the last horizontal step > 5 cm."""
+    d = np.diff(enu_m[:, :2], axis=0, prepend=enu_m[:1, :2])
+    moved = np.hypot(d[:, 0], d[:, 1]) > 0.05
+    idx = np.where(moved, np.arange(len(d)), -1)
+    last = np.maximum.accumulate(idx)
+    yaw = np.arctan2(d[np.maximum(last, 0), 1], d[np.maximum(last, 0), 0])
+    return np.where(last >= 0, yaw, 0.0)
+
+
+class Replay3D:
+    """Owns the replay viser server and its scene; thread-safe load and set_time."""
+
+    def __init__(self, settings: ViserSettings, host: str = "0.0.0.0",
+                 field: FieldScene | None = None) -> None:
+        self.settings = settings
+        self.host = settings.host or host
+        self.field = field
+        self.server: viser.ViserServer | None = None
+        self.scene: LiveScene | None = None
+        self.primary: ReplayPath | None = None
+        self.overlay: ReplayPath | None = None
+        self.overlay_handles: list[viser.SceneNodeHandle] = []
+        self.overlay_vehicle: viser.IcosphereHandle | None = None
+        self.t_s = 0.0
+        self._lock = threading.Lock()  # load runs in a worker thread, set_time on the loop
+
+    def start(self) -> None:
+        s = self.settings
+        self.server = viser.ViserServer(host=self.host, port=s.replay_port_resolved,
+                                        label="fpv-station replay 3D", verbose=False)
+        self.server.scene.set_up_direction("+z")
+        self.server.initial_camera.position = (-25.0, -30.0, 20.0)
+        self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
+        self.scene = LiveScene(self.server, height_range_m=s.height_range_m,
+                               speed_range_mps=s.speed_range_mps, color_by=s.color_by,
+                               field=self.field)
+        log.info("3D replay panel (viser) on port %d", self.port)
+
+    @property
+    def port(self) -> int:
+        if self.server is None:
+            raise RuntimeError("The 3D replay panel is not started.")
+        return self.server.get_port()
+
+    def stop(self) -> None:
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    def load(self, primary: TrajectoryReply, overlay: TrajectoryReply | None = None) -> None:
+        """Replace the drawn sessions (heavy: run it off the event loop)."""
+        assert self.server is not None and self.scene is not None
+        a = ReplayPath(primary)
+        b = ReplayPath(overlay) if overlay is not None else None
+        with self._lock, self.server.atomic():
+            sc = self.scene
+            for h in list(sc.chunk_handles.values()):
+                h.remove()
+            sc.chunk_handles.clear()
+            for h in reversed(self.overlay_handles):  # children (the label) first
+                h.remove()
+            self.overlay_handles = []
+            self.overlay_vehicle = None
+            self._place_field(a)
+            for chunk in a.chunks():
+                sc.sync_chunk(chunk)
+            if b is not None:
+                self._draw_overlay(b)
+            self.primary, self.overlay = a, b
+            self._set_time(0.0)
+
+    def _place_field(self, a: ReplayPath) -> None:
+        """The field in the session's (possibly aligned) ENU frame."""
+        assert self.scene is not None
+        if self.field is None:
+            return
+        anchor = self.field.anchor_in_enu(a.origin)
+        c, s = math.cos(a.align_rad), math.sin(a.align_rad)
+        frame = self.scene._field_frame
+        frame.position = (c * anchor[0] - s * anchor[1], s * anchor[0] + c * anchor[1], anchor[2])
+        frame.wxyz = (math.cos(a.align_rad / 2), 0.0, 0.0, math.sin(a.align_rad / 2))
+
+    def _draw_overlay(self, b: ReplayPath) -> None:
+        assert self.server is not None
+        joined = np.nonzero(~b.starts_run[1:])[0] + 1
+        if len(joined):
+            pts = np.stack([b.enu_m[joined - 1], b.enu_m[joined]], axis=1).astype(np.float32)
+            self.overlay_handles.append(self.server.scene.add_line_segments(
+                "/overlay/path", points=pts, colors=OVERLAY_RGB, thickness=3.0,
+                thickness_units="screen"))
+        self.overlay_vehicle = self.server.scene.add_icosphere(
+            "/overlay/vehicle", radius=0.35, color=OVERLAY_RGB,
+            position=tuple(float(v) for v in b.enu_m[0]))
+        self.overlay_handles.append(self.overlay_vehicle)
+        self.overlay_handles.append(self.server.scene.add_label(
+            "/overlay/vehicle/label", b.id, position=(0.0, 0.0, 0.7)))
+
+    def set_time(self, t_rel_s: float) -> float:
+        """Move the vehicle(s) to `t_rel_s` seconds after the primary's first fix (cheap:
+        a few small messages). Returns the time applied (clamped to the session)."""
+        # Never wait for a load in progress (this runs on the event loop): that load ends
+        # by setting its own time, and the page sends the next instant soon after.
+        if not self._lock.acquire(blocking=False):
+            return self.t_s
+        try:
+            if self.server is None or self.primary is None:
+                return 0.0
+            with self.server.atomic():
+                return self._set_time(t_rel_s)
+        finally:
+            self._lock.release()
+
+    def _set_time(self, t_rel_s: float) -> float:
+        assert self.scene is not None and self.primary is not None
+        a = self.primary
+        t = min(max(float(t_rel_s), 0.0), a.duration_s) if math.isfinite(t_rel_s) else 0.0
+        self.t_s = t
+        i = a.index_at(t)
+        pos = a.enu_m[i]
+        # The body's yaw in the (possibly aligned) frame: NED yaw = pi/2 - ENU heading.
+        R = R_enu_flu_from_euler(0.0, 0.0, math.pi / 2 - float(a.yaw_enu_rad[i]))
+        self.scene.set_vehicle_pose(pos, wxyz_from_matrix(R))
+        s = self.settings
+        ground_up = 0.0
+        if self.field is not None:
+            ground_up = float(self.field.anchor_in_enu(a.origin)[2])
+        self.scene.set_footprint(bottom_footprint_enu(
+            pos, R, math.radians(s.bottom_hfov_deg), math.radians(s.bottom_vfov_deg),
+            ground_up_m=ground_up))
+        if self.overlay is not None and self.overlay_vehicle is not None:
+            b = self.overlay
+            self.overlay_vehicle.position = tuple(float(v) for v in b.enu_m[b.index_at(t)])
+        return t

@@ -1,0 +1,144 @@
+"""The replay in 3D: a second viser server that draws recorded sessions (real session
+folders, real viser, real uvicorn) and moves the vehicle to the slider's instant."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+import pytest
+
+from analysis.synthetic import a_to_b_flight, write_session
+from server.app import create_app
+from server.settings import ViserSettings, load_settings
+from server.trajectory3d.field import default_field
+from server.trajectory3d.replay import build_trajectory
+from server.trajectory3d.replay_scene import Replay3D
+from tests.helpers import run_uvicorn
+from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
+
+
+def straight_line(session_id: str, n: int = 1200, gap_at: int | None = None):
+    """A 0.5 m/s east flight at 2 m, 10 Hz, as a trajectory reply (optionally a 3 s gap)."""
+    from analysis.geodesy import enu_to_geodetic
+
+    f = default_field()
+    t = np.arange(n) * 0.1
+    enu = np.column_stack([0.5 * t, np.zeros(n), np.full(n, 2.0)])
+    lat, lon, alt = enu_to_geodetic(enu, f.anchor_lat_deg, f.anchor_lon_deg, f.anchor_alt_m).T
+    if gap_at is not None:
+        t[gap_at:] += 3.0
+    return build_trajectory(session_id, t, lat, lon, alt, speed_mps=np.full(n, 0.5))
+
+
+@pytest.fixture
+def replay():
+    svc = Replay3D(ViserSettings(port=0), host="127.0.0.1", field=default_field())
+    svc.start()
+    try:
+        yield svc
+    finally:
+        svc.stop()
+
+
+def all_segments(svc: Replay3D) -> np.ndarray:
+    return np.concatenate([np.asarray(h.points) for h in svc.scene.chunk_handles.values()])
+
+
+def test_replay_scene_draws_the_path_with_gaps_and_moves_the_vehicle(replay):
+    assert replay.port > 0 and replay.scene.chunk_handles == {}
+    replay.load(straight_line("a", gap_at=600), straight_line("b", n=300))
+    # 1199 steps minus the one across the gap, in chunks of at most 500 segments
+    segs = all_segments(replay)
+    assert segs.shape == (1198, 2, 3) and len(replay.scene.chunk_handles) == 3
+    jumps = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
+    assert jumps.max() < 0.06  # no segment drawn across the gap (it would be 0.05 m + 0)
+    assert not np.any(np.all(np.isclose(segs[:, 0, :1], 29.95, atol=1e-3), axis=1)
+                      & np.all(np.isclose(segs[:, 1, :1], 30.0, atol=1e-3), axis=1))
+    overlay_path = replay.overlay_handles[0]
+    assert np.asarray(overlay_path.points).shape == (299, 2, 3)
+    # time: the vehicle and the overlay's marker move to the instant, clamped to the flight
+    np.testing.assert_allclose(replay.scene.vehicle.position, [0, 0, 0], atol=0.01)  # origin: the first fix
+    assert replay.set_time(10.0) == 10.0
+    np.testing.assert_allclose(replay.scene.vehicle.position, [5.0, 0, 0], atol=0.06)
+    np.testing.assert_allclose(replay.overlay_vehicle.position, [5.0, 0, 0], atol=0.06)
+    fp = np.asarray(replay.scene._footprint.points)
+    assert fp.shape == (4, 2, 3) and abs(fp[:, :, 0].mean() - 5.0) < 0.1  # under the body
+    np.testing.assert_allclose(fp[:, :, 2], -2.0 + 0.03, atol=0.01)  # on the field, 2 m below
+    # nose along the travel (east): the body's +x maps onto +x of ENU
+    import viser.transforms as vtf
+
+    R = vtf.SO3(np.asarray(replay.scene.vehicle.wxyz)).as_matrix()
+    np.testing.assert_allclose(R @ [1, 0, 0], [1, 0, 0], atol=1e-6)
+    assert replay.set_time(1e6) == pytest.approx(replay.primary.duration_s)
+    assert replay.set_time(float("nan")) == 0.0
+    # a new load replaces the drawn sessions: no overlay, fresh chunks
+    replay.load(straight_line("c", n=50))
+    assert all_segments(replay).shape == (49, 2, 3) and replay.overlay_handles == []
+
+
+@pytest.fixture
+def base(sessions_dir):  # noqa: F811
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.port": 0, "recording.sessions_dir": str(sessions_dir),
+        "recording.auto_record_on_arm": False,
+    })
+    app = create_app(settings)
+    with run_uvicorn(app) as url:
+        yield url, app
+
+
+def test_replay3d_endpoints_load_sessions_and_set_time(base):
+    url, app = base
+    info = httpx.get(f"{url}/api/viser").json()
+    replay = app.state.station.replay3d
+    assert info["replay_port"] == replay.port and info["replay_port"] != info["port"]
+    # the replay panel serves its own viser client
+    assert httpx.get(f"http://127.0.0.1:{info['replay_port']}/").status_code == 200
+    r = httpx.put(f"{url}/api/replay3d", json={"session": SESSION_A, "overlay": SESSION_B,
+                                                "align": "farthest"}, timeout=30)
+    assert r.status_code == 200, r.text
+    j = r.json()
+    assert j["session"] == SESSION_A and j["overlay"] == SESSION_B and j["segments"] > 300
+    assert len(replay.scene.chunk_handles) >= 1 and replay.overlay_handles
+    # the same path as the 2D replay's endpoint draws
+    traj = httpx.get(f"{url}/api/sessions/{SESSION_A}/trajectory?align=farthest").json()
+    assert j["segments"] == sum(1 for s in traj["starts_run"][1:] if not s)
+    t = httpx.put(f"{url}/api/replay3d/time", json={"t_s": 30.0})
+    assert t.status_code == 200 and t.json()["t_s"] == 30.0
+    i = max(k for k, ts in enumerate(traj["t_s"]) if ts - traj["t_s"][0] <= 30.0)
+    np.testing.assert_allclose(replay.scene.vehicle.position,
+                               [traj["x_m"][i], traj["y_m"][i], traj["z_m"][i]], atol=0.01)
+
+
+def test_replay3d_endpoints_refuse_bad_input(base):
+    url, app = base
+    r = httpx.put(f"{url}/api/replay3d/time", json={"t_s": 1.0})
+    assert r.status_code == 400 and r.json()["error"] == "BadRequest"  # nothing loaded yet
+    r = httpx.put(f"{url}/api/replay3d", json={"session": "20991122T040000Z_sim"})
+    assert r.status_code == 404 and r.json()["error"] == "NotFound"
+    r = httpx.put(f"{url}/api/replay3d", json={"session": SESSION_A,
+                                                "overlay": "20991122T040000Z_sim"})
+    assert r.status_code == 404 and r.json()["error"] == "NotFound"
+    r = httpx.put(f"{url}/api/replay3d", json={"session": "../../etc/passwd"})
+    assert r.status_code in (400, 404) and "error" in r.json()
+    r = httpx.put(f"{url}/api/replay3d", json={"session": SESSION_A, "reference": "abc"})
+    assert r.status_code == 400 and r.json()["error"] == "BadRequest"
+    r = httpx.put(f"{url}/api/replay3d/time", json={"t_s": "soon"})
+    assert r.status_code == 422
+    assert app.state.station.replay3d.primary is None  # nothing half-loaded
+
+
+def test_replay3d_is_off_with_no_3d(sessions_dir):  # noqa: F811
+    settings = load_settings(environ={}, overrides={
+        "link.source": "none", "viser.enabled": False, "recording.sessions_dir": str(sessions_dir),
+        "recording.auto_record_on_arm": False,
+    })
+    with run_uvicorn(create_app(settings)) as url:
+        r = httpx.put(f"{url}/api/replay3d", json={"session": SESSION_A})
+        assert r.status_code == 503 and r.json()["error"] == "Unavailable"
+
+
+def test_replay_port_defaults_to_live_port_plus_one():
+    assert ViserSettings(port=8080).replay_port_resolved == 8081
+    assert ViserSettings(port=0).replay_port_resolved == 0
+    assert ViserSettings(port=8080, replay_port=9000).replay_port_resolved == 9000
