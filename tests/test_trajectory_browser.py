@@ -134,9 +134,9 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
     assert outside == [], f"requests left the station: {outside[:5]}"
 
 
-@pytest.mark.timeout(200)
+@pytest.mark.timeout(300)  # the 3D replay panel renders in software here
 def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_path):
-    base, _ = station
+    base, app = station
     outside: list[str] = []
     with sync_playwright() as pw:
         browser, page = open_offline(pw, outside)
@@ -176,5 +176,27 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         page.evaluate("document.getElementById('replay-play').click()")  # pause
         t_played = float(page.locator("#replay-time").text_content().split("/")[0])
         assert 12.0 < t_played < 40.0  # 8 s of flight per second of replay, plus the clicks
+
+        # The 3D replay panel: the station's replay viser server, showing both sessions and
+        # following the slider (PUT /api/replay3d/time, throttled).
+        replay3d = app.state.station.replay3d
+        viser_url = f"http://127.0.0.1:{replay3d.port}/"
+        assert page.locator("#replay-3d").get_attribute("src") == viser_url
+        assert wait_until(lambda: replay3d.primary is not None and replay3d.overlay is not None
+                          and (replay3d.primary.id, replay3d.overlay.id) == (SESSION_A, SESSION_B)
+                          and abs(replay3d.t_s - t_played) < 0.2, 10.0)
+        frame = next((f for f in page.frames if f.url.startswith(viser_url)), None)
+        assert frame is not None, [f.url for f in page.frames]
+        frame.locator("canvas").first.wait_for(timeout=90_000)
+        # a narrow panel gets viser's bottom sheet: fold it away, as a user would
+        frame.get_by_text("fpv-station replay 3D").first.click(timeout=90_000)
+        page.wait_for_timeout(2500)  # let the software renderer draw the scene
+        png3d = page.locator("#replay-3d").screenshot(path=str(tmp_path / "replay3d.png"),
+                                                      timeout=90_000)
+        img = cv2.imdecode(np.frombuffer(png3d, np.uint8), cv2.IMREAD_COLOR).astype(int)
+        b, g, r = img[..., 0], img[..., 1], img[..., 2]
+        assert saturated(png3d).sum() > 500, "the 3D replay panel shows no path"
+        purple = (r > 110) & (b > 150) & (g < 100)  # only the overlay is this colour
+        assert purple.sum() > 50, "the second session is not drawn in the 3D replay panel"
         browser.close()
     assert outside == [], f"requests left the station: {outside[:5]}"

@@ -2,12 +2,17 @@
 // a time slider (and play at 1x-8x) that moves the vehicle along it and shows the front and
 // bottom frames of that instant, and a second session overlaid in the paper's frame.
 // Data: GET /api/sessions/{id}/trajectory (ENU metres, times, frame files per time).
+// 3D: the station's replay viser server in an iframe, told what to show by
+// PUT /api/replay3d and the slider's instant by PUT /api/replay3d/time (<= 15 Hz). That
+// scene is shared by every viewer of the replay panel: the last page to move it wins.
 "use strict";
 
 (() => {
   const $ = (id) => document.getElementById(id);
   const params = new URLSearchParams(location.search);
   const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
+  const r3d = { port: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null };
+  const R3D_PERIOD_MS = 1000 / 15;
 
   // The same ramp as the 3D panel (server/trajectory3d/colors.py), height 0-10 m.
   const STOPS = [[48, 18, 160], [30, 150, 230], [40, 190, 90], [240, 200, 30], [220, 40, 30]];
@@ -62,11 +67,65 @@
       draw();
       return;
     }
+    load3d(a, b);
     const dur = duration(view.a);
     $("replay-slider").max = String(Math.max(1, Math.round(dur * 10)));
     setTime(0);
     status(`${view.a.t_s.length} fixes, ${dur.toFixed(1)} s` +
       (view.b ? `; overlay ${view.b.id} (${view.b.t_s.length} fixes)` : ""));
+  }
+
+  // -- the 3D panel ------------------------------------------------------------------
+
+  async function put(url, body) {
+    const r = await fetch(url, { method: "PUT", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify(body) });
+    const reply = await r.json().catch(() => ({}));
+    if (!r.ok) throw new Error(reply.error_msg || `${r.status} ${r.statusText}`);
+    return reply;
+  }
+
+  async function init3d() {
+    try {
+      const info = await getJson("/api/viser");
+      r3d.port = info.replay_port || null;
+    } catch (err) { r3d.port = null; } // an older station: the 2D view alone
+  }
+
+  async function load3d(a, b) {
+    if (!r3d.port) return;
+    const frame = $("replay-3d");
+    if (!frame.getAttribute("src")) {
+      frame.hidden = false;
+      frame.setAttribute("src", `${location.protocol}//${location.hostname}:${r3d.port}/`);
+      draw(); // the canvas just got narrower
+    }
+    r3d.ready = false;
+    const gen = ++r3d.gen; // a newer pick supersedes this one
+    try {
+      await put("/api/replay3d", { session: a, overlay: b || null,
+        align: $("replay-align").checked ? "farthest" : "none" });
+      if (gen !== r3d.gen) return;
+      r3d.ready = true;
+      r3d.sentT = null;
+      send3dTime();
+    } catch (err) {
+      status(`${$("replay-status").textContent} (3D: ${err.message})`);
+    }
+  }
+
+  // Throttled: at most 15 PUTs a second while the slider moves or play runs, and the
+  // last instant is always sent.
+  function send3dTime() {
+    if (!r3d.ready || r3d.sentT === view.t) return;
+    const wait = r3d.lastSent + R3D_PERIOD_MS - performance.now();
+    if (wait > 0) {
+      if (!r3d.timer) r3d.timer = setTimeout(() => { r3d.timer = null; send3dTime(); }, wait);
+      return;
+    }
+    r3d.lastSent = performance.now();
+    r3d.sentT = view.t;
+    put("/api/replay3d/time", { t_s: view.t }).catch(() => { r3d.sentT = null; });
   }
 
   const duration = (tr) => tr.t_s.length ? tr.t_s[tr.t_s.length - 1] - tr.t_s[0] : 0;
@@ -89,6 +148,7 @@
     $("replay-time").textContent = `${view.t.toFixed(1)} / ${view.a ? duration(view.a).toFixed(1) : "--"} s`;
     if (view.a) showInstant(view.a, indexAt(view.a, view.t));
     draw();
+    send3dTime();
   }
 
   function showInstant(tr, i) {
@@ -216,6 +276,7 @@
 
   async function main() {
     $("replay-align").checked = params.get("align") === "1";
+    await init3d();
     try {
       const sessions = await loadSessions();
       $("replay-session").value = params.get("session") || (sessions[0] && sessions[0].id) || "";

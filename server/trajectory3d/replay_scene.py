@@ -142,6 +142,26 @@ class Replay3D:
                 self._draw_overlay(b)
             self.primary, self.overlay = a, b
             self._set_time(0.0)
+            self._frame_camera(np.concatenate([a.enu_m] + ([b.enu_m] if b else [])))
+
+    def _frame_camera(self, pts_enu_m: np.ndarray) -> None:
+        """Look at the whole path from the south-west, above: new viewers and open ones."""
+        assert self.server is not None
+        lo, hi = pts_enu_m.min(axis=0), pts_enu_m.max(axis=0)
+        centre = (lo + hi) / 2.0
+        span = max(float(np.linalg.norm(hi - lo)), 10.0)
+        eye = centre + np.array([-0.45, -0.65, 0.6]) * span
+        look, pos = tuple(float(v) for v in centre), tuple(float(v) for v in eye)
+        self.server.initial_camera.look_at = look
+        self.server.initial_camera.position = pos
+        for client in self.server.get_clients().values():
+            # The position setter drags look_at along: set look_at second. A client that
+            # has not reported its camera yet fails viser's assert and gets initial_camera.
+            try:
+                client.camera.position = pos
+                client.camera.look_at = look
+            except AssertionError:
+                continue
 
     def _place_field(self, a: ReplayPath) -> None:
         """The field in the session's (possibly aligned) ENU frame."""
