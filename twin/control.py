@@ -85,8 +85,34 @@ class Controller:
         vee = np.zeros((9, 3))  # E.flat @ vee = vee(E - E^T)
         vee[7, 0], vee[5, 0], vee[2, 1], vee[6, 1], vee[3, 2], vee[1, 2] = 1, -1, 1, -1, 1, -1
         self._vee = vee
-        self._R_sp_T = np.swapaxes(self.R_sp, 1, 2).copy()
-        self._z_sp = self.R_sp[:, :, 2].copy()
+        # Inner-loop buffers: the attitude error and thrust projection are linear in R, so
+        # outer() folds R_sp into K (N, 9, 4) and inner() needs one matmul for both.
+        self._vee3 = vee.reshape(3, 3, 3)
+        self._K = np.zeros((n, 9, 4))
+        self._y = np.zeros((n, 1, 4))
+        self._rate_sp, self._along = self._y[:, 0, :3], self._y[:, 0, 3:]
+        self._max_rate = np.tile(self._max_rate, (n, 1))
+        self._neg_max_rate = -self._max_rate
+        self._wrench = np.zeros((n, 4))
+        self._u = np.zeros((n, 4))
+        self._thrust_col = np.zeros((n, 1))
+        self._u_lo, self._u_hi, self._inv_w_max = np.zeros((n, 1)), np.zeros((n, 1)), np.ones((n, 1))
+        # [thrust, rate error] -> rotor speed^2: the rate P gain, mixer and 1/k_T in one matrix.
+        self._mix = (np.concatenate([[1.0], self._J_rate_p])[:, None] * self._A_inv_T
+                     / airframe.thrust_coeff_n_per_rad2)
+        self._R_src: np.ndarray | None = None
+        self._R_flat = np.zeros((n, 1, 9))
+        self._set_setpoint(self.R_sp, self.thrust_sp_n)
+
+    def _set_setpoint(self, R_sp: np.ndarray, thrust_n: np.ndarray) -> None:
+        # E.flat = (R_sp^T R).flat, so vee(E - E^T) = R.flat @ K with
+        # K[(k, j), c] = sum_i R_sp[k, i] vee[(i, j), c].
+        n = R_sp.shape[0]
+        self._K[:, :, :3] = (np.einsum("nki,ijc->nkjc", R_sp, self._vee3).reshape(n, 9, 3)
+                             * (-0.5 * self._att_p))
+        self._K[:, :, 3] = 0.0
+        self._K[:, 2::3, 3] = R_sp[:, :, 2]  # R.flat[(k, 2)] = body z: z_sp . z_body
+        self._thrust_col[:, 0] = thrust_n
 
     def reset(self, mask: np.ndarray, pos_m: np.ndarray, R: np.ndarray) -> None:
         """On the ground: forget integrators, latch position and heading."""
@@ -182,26 +208,36 @@ class Controller:
             yx * zy - yy * zx
         R_sp[:, :, 2] = z_d
         self.R_sp = R_sp
-        self._R_sp_T = np.swapaxes(R_sp, 1, 2).copy()
-        self._z_sp = z_d
+        self._set_setpoint(R_sp, thrust)
 
-    def inner(self, R: np.ndarray, omega: np.ndarray, max_rotor_rad_s: np.ndarray,
-              armed: np.ndarray, idle: np.ndarray) -> np.ndarray:
-        """Rotor throttles (N, 4) in [0, 1]: attitude P -> rate P -> torque -> mixer."""
-        af = self.af
-        E = self._R_sp_T @ R
-        # vee(E - E^T) / 2: the rotation error (body frame) for small and large errors alike.
-        e_R = 0.5 * (E.reshape(-1, 9) @ self._vee)
-        rate_sp = np.minimum(np.maximum(-self._att_p * e_R, -self._max_rate), self._max_rate)
-        wrench = np.empty((R.shape[0], 4))
-        wrench[:, 1:] = self._J_rate_p * (rate_sp - omega)
+    def set_limits(self, max_rotor_rad_s: np.ndarray, armed: np.ndarray, idle: np.ndarray) -> None:
+        """Throttle bounds per vehicle, which change only at the outer rate (battery voltage,
+        arming, idling on the ground): disarmed = 0, idle = idle throttle, else [idle, 1]."""
+        idle_u = self.af.idle_throttle
+        lo = np.where(idle, idle_u, idle_u) * armed
+        hi = np.where(idle, idle_u, 1.0) * armed
+        self._u_lo[:] = lo[:, None]
+        self._u_hi[:] = hi[:, None]
+        self._inv_w_max[:] = 1.0 / max_rotor_rad_s[:, None]
+
+    def inner(self, R: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """Rotor throttles (N, 4) in [0, 1]: attitude P -> rate P -> torque -> mixer, within
+        the bounds of `set_limits`. Returns the same buffer every call (overwritten)."""
+        if R is not self._R_src:
+            self._R_src, self._R_flat = R, R.reshape(-1, 1, 9)
+        y, rate, wrench, u = self._y, self._rate_sp, self._wrench, self._u
+        # One matmul: -att_p * vee(E - E^T) / 2 with E = R_sp^T R, and z_sp . z_body.
+        np.matmul(self._R_flat, self._K, y)
+        np.minimum(rate, self._max_rate, out=rate)
+        np.maximum(rate, self._neg_max_rate, out=rate)
+        np.subtract(rate, omega, wrench[:, 1:])
         # Collective along the current body z, as PX4 projects the thrust vector.
-        along = (self._z_sp * R[:, :, 2]).sum(axis=1)
-        wrench[:, 0] = self.thrust_sp_n * np.maximum(along, 0.0)
-        f = wrench @ self._A_inv_T
-        w_max = max_rotor_rad_s[:, None]
-        w = np.sqrt(np.maximum(f, 0.0) * (1.0 / af.thrust_coeff_n_per_rad2))
-        u = np.minimum(np.maximum(w / w_max, af.idle_throttle), 1.0)
-        if idle.any():
-            u[idle] = af.idle_throttle
-        return u * armed[:, None]
+        np.maximum(self._along, 0.0, out=wrench[:, :1])
+        np.multiply(wrench[:, :1], self._thrust_col, wrench[:, :1])
+        np.matmul(wrench, self._mix, u)  # rotor speeds squared
+        np.maximum(u, 0.0, out=u)
+        np.sqrt(u, u)
+        np.multiply(u, self._inv_w_max, u)
+        np.maximum(u, self._u_lo, out=u)
+        np.minimum(u, self._u_hi, out=u)
+        return u

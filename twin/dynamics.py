@@ -148,6 +148,22 @@ class Dynamics:
         G[2, 3], G[1, 6], G[0, 7] = 1, -1, 1
         self._skew_gen = G * self.dt_s
         self._w_max_alive = np.zeros((0, 1))
+        # phi = [1, w (3), w w^T (9, row-major), rotor thrust (4)] -> [thrust dt/m, d omega].
+        B = np.zeros((17, 4))
+        B[13:, 0] = self._dt_over_m
+        B[13:, 1:] = self._A_T[:, 1:] * self._dt_over_J
+        B[1:4, 1:] = np.diag(self._rot_keep - 1.0)
+        for row, (a, b) in enumerate([(1, 2), (2, 0), (0, 1)]):  # gyro: w_a w_b (J_b - J_a)
+            B[4 + 3 * a + b, 1 + row] = -self._dJ[row] * self._dt_over_J[row]
+        self._B = B
+        # phi -> (I + S + S^2 / 2).flat with S = [w dt]x, S^2 = dt^2 (w w^T - |w|^2 I).
+        G = np.zeros((17, 9))
+        G[0] = np.eye(3).ravel()
+        G[1:4] = self._skew_gen
+        G[4:13] = 0.5 * self.dt_s ** 2 * (np.eye(9) - np.outer(np.eye(3).ravel(), np.eye(3).ravel()))
+        self._G = G
+        self._bound: BodyState | None = None
+        self._bound_R: np.ndarray | None = None
 
     def initial_state(self, n: int, xy_m: np.ndarray, yaw_rad: float = 0.0) -> BodyState:
         af = self.airframe
@@ -168,55 +184,89 @@ class Dynamics:
     def max_rotor_speed_rad_s(self, s: BodyState) -> np.ndarray:
         return self.airframe.kv_rad_s_per_v * s.voltage_v
 
+    def _bind(self, s: BodyState) -> None:
+        """Preallocate the step's work buffers for state `s` (once per state object).
+
+        One vehicle pays numpy's per-call overhead, not arithmetic, so the step is a few
+        fused array expressions into these buffers. `s.omega_rad_s` and `s.rotor_thrust_n`
+        become views into the feature row phi = [1, w, w w^T, rotor thrust], from which one
+        matmul gives every rate increment and another the rotation increment.
+        """
+        n = s.n
+        phi = np.zeros((n, 17))
+        phi[:, 0] = 1.0
+        phi[:, 1:4] = s.omega_rad_s
+        phi[:, 13:17] = s.rotor_thrust_n
+        s.omega_rad_s, s.rotor_thrust_n = phi[:, 1:4], phi[:, 13:17]
+        w = s.omega_rad_s
+        self._phi = phi
+        self._ww = phi[:, 4:13].reshape(n, 3, 3)
+        self._w_col, self._w_row = w[:, :, None], w[:, None, :]
+        self._u = np.empty((n, 4))
+        self._dw = np.empty((n, 4))  # [thrust dt / m, d omega (3)]
+        self._M = np.empty((n, 9))
+        self._M3 = self._M.reshape(n, 3, 3)
+        self._R_new = np.empty((n, 3, 3))
+        self._va = np.empty((n, 3))
+        self._dv = np.empty((n, 3))
+        self._k = np.empty((n, 1))
+        self._bound = s
+        self._bound_R = s.R_world_body
+
     def step(self, s: BodyState, throttle: np.ndarray) -> None:
         """Advance every vehicle by dt under per-rotor throttle (N, 4) in [0, 1]; in place.
 
         The fast part only (rotors, rigid body, ground); `collisions` (~50 Hz) and
         `slow_update` (~10 Hz: battery, gusts) run at lower rates from the caller.
         """
-        u = np.minimum(np.maximum(throttle, 0.0), 1.0)
-        u *= self._w_max_alive  # commanded rotor speed
-        r = s.rotor_rad_s
-        u -= r
-        u *= self._motor_alpha
-        r += u  # first-order lag
-        f = r * r
-        f *= self.airframe.thrust_coeff_n_per_rad2
-        s.rotor_thrust_n = f
-        wrench = f @ self._A_T  # (N, 4): thrust, tau_x, tau_y, tau_z
+        if s is not self._bound or s.R_world_body is not self._bound_R:
+            self._bind(s)
+        mul, add, mm = np.multiply, np.add, np.matmul
+        u, r, phi, dw = self._u, s.rotor_rad_s, self._phi, self._dw
+        np.maximum(throttle, 0.0, out=u)
+        np.minimum(u, 1.0, out=u)
+        mul(u, self._w_max_alive, u)  # commanded rotor speed
+        np.subtract(u, r, u)
+        mul(u, self._motor_alpha, u)
+        add(r, u, r)  # first-order lag
+        f = s.rotor_thrust_n
+        mul(r, r, f)
+        mul(f, self.airframe.thrust_coeff_n_per_rad2, f)
 
         # Rotation: Euler's equations with a diagonal inertia (gyroscopic term
-        # w x Jw = (wy wz (Jz - Jy), wz wx (Jx - Jz), wx wy (Jy - Jx))), rotor-wash damping,
-        # then R <- R exp([w dt]x) to second order, re-orthonormalized every 32 steps.
+        # w x Jw = (wy wz (Jz - Jy), wz wx (Jx - Jz), wx wy (Jy - Jx))) and rotor-wash
+        # damping, all linear in phi = [1, w, w w^T, f]: one matmul gives d omega and the
+        # thrust's dv. Then R <- R exp([w dt]x) to second order, I + S + S^2 / 2 with
+        # S^2 = dt^2 (w w^T - |w|^2 I), again linear in phi; re-orthonormalized every 32 steps.
         w = s.omega_rad_s
-        gyro = w[:, self._i1] * w[:, self._i2]
-        gyro *= self._dJ
-        tau = wrench[:, 1:] - gyro
-        tau *= self._dt_over_J
-        w *= self._rot_keep
-        w += tau
-        S = (w @ self._skew_gen).reshape(-1, 3, 3)  # [w dt]x for every vehicle
-        M = S @ S
-        M *= 0.5
-        M += S
-        M += self._eye
-        s.R_world_body = s.R_world_body @ M
+        mul(self._w_col, self._w_row, self._ww)
+        mm(phi, self._B, dw)
+        add(w, dw[:, 1:], w)
+        mul(self._w_col, self._w_row, self._ww)
+        mm(phi, self._G, self._M)
+        R = s.R_world_body
+        mm(R, self._M3, self._R_new)
+        np.copyto(R, self._R_new)
         self._steps += 1
         if self._steps % 32 == 0:
-            U, _, Vt = np.linalg.svd(s.R_world_body)
-            s.R_world_body = U @ Vt
+            U, _, Vt = np.linalg.svd(R)
+            mm(U, Vt, R)
 
         # Translation: thrust along body z, gravity, drag against the air (all times dt).
-        v_air = s.vel_mps - s.wind_mps
-        k = np.sqrt((v_air * v_air).sum(axis=1, keepdims=True))
-        k *= self._drag_quad_dt
-        k += self._drag_lin_dt
-        dv = s.R_world_body[:, :, 2] * (wrench[:, :1] * self._dt_over_m)
-        dv += self._g_dt
-        dv -= k * v_air
-        s.vel_mps += dv
-        s.pos_m += s.vel_mps * self.dt_s
-        if self._grounded or (s.pos_m[:, 2] <= 0.0).any():
+        va, dv, k = self._va, self._dv, self._k
+        np.subtract(s.vel_mps, s.wind_mps, va)
+        mm(va[:, None, :], va[:, :, None], k[:, :, None])
+        np.sqrt(k, k)
+        mul(k, self._drag_quad_dt, k)
+        add(k, self._drag_lin_dt, k)
+        mul(va, k, va)
+        mul(R[:, :, 2], dw[:, :1], dv)
+        np.subtract(dv, va, dv)
+        add(dv, self._g_dt, dv)
+        add(s.vel_mps, dv, s.vel_mps)
+        mul(s.vel_mps, self.dt_s, dv)
+        add(s.pos_m, dv, s.pos_m)
+        if self._grounded or np.minimum.reduce(s.pos_m[:, 2]) <= 0.0:
             self._ground(s)
 
     def revive(self, s: BodyState) -> None:

@@ -93,6 +93,7 @@ class Sim:
         self.sensors = Sensors(self.n, self.scene.home, cfg.sensors, self.rng)
         self.sticks = np.tile([0.0, 0.0, 0.0, 0.5], (self.n, 1))  # centred, throttle mid
         self.throttle = np.zeros((self.n, 4))
+        self._idle = np.zeros(self.n, bool)
         self.est_pos_m, self.est_vel_mps = self.sensors.estimate(self.state.pos_m, self.state.vel_mps)
         self.controller.reset(np.ones(self.n, bool), self.est_pos_m, self.state.R_world_body)
 
@@ -142,6 +143,8 @@ class Sim:
         com, ctl = self.commander, self.controller
         slow_every = cfg.outer_every * cfg.slow_every
         dt_outer, dt_slow = self.dt_s * cfg.outer_every, self.dt_s * slow_every
+        # Arming, reset or battery may have changed between calls; then at the outer rate.
+        ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
         for _ in range(n_steps):
             if self.steps % slow_every == 0:  # 10 Hz: battery, drifts, commander
                 self.dynamics.slow_update(s, dt_slow)
@@ -161,8 +164,8 @@ class Sim:
                           s.R_world_body, com.target_m)
                 self._idle = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
                                                    ctl.vel_sp_mps[:, 2] <= 0.2)
-            self.throttle = ctl.inner(s.R_world_body, s.omega_rad_s,
-                                      self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
+                ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
+            self.throttle = ctl.inner(s.R_world_body, s.omega_rad_s)
             self.dynamics.step(s, self.throttle)
             self.steps += 1
             self.t_s = self.steps * self.dt_s
