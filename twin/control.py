@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twin.dynamics import GRAVITY_MPS2, Airframe
+from twin.dynamics import GRAVITY_MPS2, Airframe, _clip
 
 STABILIZED, ALTCTL, POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND = range(6)
 MODE_NAMES = {STABILIZED: "STABILIZED", ALTCTL: "ALTCTL", POSCTL: "POSCTL",
@@ -96,7 +96,9 @@ class Controller:
         self._wrench = np.zeros((n, 4))
         self._u = np.zeros((n, 4))
         self._thrust_col = np.zeros((n, 1))
-        self._u_lo, self._u_hi, self._inv_w_max = np.zeros((n, 1)), np.zeros((n, 1)), np.ones((n, 1))
+        # Same-shape operands everywhere: broadcasting triples numpy's per-call cost.
+        self._u_lo, self._u_hi, self._inv_w_max = np.zeros((n, 4)), np.zeros((n, 4)), np.ones((n, 4))
+        self._zero1, self._zero4, self._w0 = np.zeros((n, 1)), np.zeros((n, 4)), self._wrench[:, :1]
         # [thrust, rate error] -> rotor speed^2: the rate P gain, mixer and 1/k_T in one matrix.
         self._mix = (np.concatenate([[1.0], self._J_rate_p])[:, None] * self._A_inv_T
                      / airframe.thrust_coeff_n_per_rad2)
@@ -218,7 +220,7 @@ class Controller:
         hi = np.where(idle, idle_u, 1.0) * armed
         self._u_lo[:] = lo[:, None]
         self._u_hi[:] = hi[:, None]
-        self._inv_w_max[:] = 1.0 / max_rotor_rad_s[:, None]
+        self._inv_w_max[:] = 1.0 / max_rotor_rad_s[:, None]  # broadcast once here, not per step
 
     def inner(self, R: np.ndarray, omega: np.ndarray) -> np.ndarray:
         """Rotor throttles (N, 4) in [0, 1]: attitude P -> rate P -> torque -> mixer, within
@@ -228,16 +230,14 @@ class Controller:
         y, rate, wrench, u = self._y, self._rate_sp, self._wrench, self._u
         # One matmul: -att_p * vee(E - E^T) / 2 with E = R_sp^T R, and z_sp . z_body.
         np.matmul(self._R_flat, self._K, y)
-        np.minimum(rate, self._max_rate, out=rate)
-        np.maximum(rate, self._neg_max_rate, out=rate)
+        _clip(rate, self._neg_max_rate, self._max_rate, rate)
         np.subtract(rate, omega, wrench[:, 1:])
         # Collective along the current body z, as PX4 projects the thrust vector.
-        np.maximum(self._along, 0.0, out=wrench[:, :1])
-        np.multiply(wrench[:, :1], self._thrust_col, wrench[:, :1])
+        np.maximum(self._along, self._zero1, out=self._w0)
+        np.multiply(self._w0, self._thrust_col, self._w0)
         np.matmul(wrench, self._mix, u)  # rotor speeds squared
-        np.maximum(u, 0.0, out=u)
+        np.maximum(u, self._zero4, out=u)
         np.sqrt(u, u)
         np.multiply(u, self._inv_w_max, u)
-        np.maximum(u, self._u_lo, out=u)
-        np.minimum(u, self._u_hi, out=u)
+        _clip(u, self._u_lo, self._u_hi, u)
         return u
