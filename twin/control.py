@@ -104,20 +104,35 @@ class Controller:
                      / airframe.thrust_coeff_n_per_rad2)
         self._R_src: np.ndarray | None = None
         self._R_flat = np.zeros((n, 1, 9))
+        V = np.zeros((3, 3, 4))  # [i, j, c], c = 3 (the thrust projection) set separately
+        V[:, :, :3] = vee.reshape(3, 3, 3) * (-0.5 * self._att_p)
+        self._V = V.reshape(3, 12)
+        self._K3 = self._K.reshape(n, 3, 12)  # [k, (j, c)]: a view, written by one matmul
+        # Outer-loop constants (pre-shaped so each expression is one call per array).
+        self._stick_scale = np.array([1.0, 1.0, 1.0, 2.0])
+        self._stick_offset = np.array([0.0, 0.0, 0.0, -1.0])
+        self._db_gain = 1.0 / (1.0 - self.g.stick_deadband)
+        self._cs = np.zeros((n, 2))
+        self._flip = np.array([1.0, -1.0])
+        self._int_lo, self._int_hi = np.array([-2.0, -2.0, -3.0]), np.array([2.0, 2.0, 3.0])
+        self._vel_p = np.array([self.g.vel_p, self.g.vel_p, self.g.z_vel_p])
+        self._vel_i = np.array([self.g.vel_i, self.g.vel_i, self.g.z_vel_i])
+        self._gravity = np.array([0.0, 0.0, GRAVITY_MPS2])
+        self._tan_max = float(np.tan(self.g.max_tilt_rad))
         self._set_setpoint(self.R_sp, self.thrust_sp_n)
 
     def _set_setpoint(self, R_sp: np.ndarray, thrust_n: np.ndarray) -> None:
-        # E.flat = (R_sp^T R).flat, so vee(E - E^T) = R.flat @ K with
-        # K[(k, j), c] = sum_i R_sp[k, i] vee[(i, j), c].
+        # E.flat = (R_sp^T R).flat, so -att_p vee(E - E^T) / 2 = R.flat @ K with
+        # K[(k, j), c] = sum_i R_sp[k, i] V[i, (j, c)]: one batched matmul.
         n = R_sp.shape[0]
-        self._K[:, :, :3] = (np.einsum("nki,ijc->nkjc", R_sp, self._vee3).reshape(n, 9, 3)
-                             * (-0.5 * self._att_p))
-        self._K[:, :, 3] = 0.0
+        np.matmul(R_sp, self._V, self._K3)
         self._K[:, 2::3, 3] = R_sp[:, :, 2]  # R.flat[(k, 2)] = body z: z_sp . z_body
         self._thrust_col[:, 0] = thrust_n
 
     def reset(self, mask: np.ndarray, pos_m: np.ndarray, R: np.ndarray) -> None:
         """On the ground: forget integrators, latch position and heading."""
+        if not mask.any():  # called at the outer rate; usually nobody is on the ground
+            return
         self.vel_int[mask] = 0.0
         self.hold_pos_m[mask] = pos_m[mask]
         self.hold_xy_valid[mask] = True
@@ -127,60 +142,69 @@ class Controller:
 
     def outer(self, dt: float, mode: np.ndarray, sticks: np.ndarray, pos_m: np.ndarray,
               vel_mps: np.ndarray, R: np.ndarray, target_m: np.ndarray) -> None:
-        """Velocity and thrust-vector setpoints. `target_m` (N, 3) serves the AUTO modes."""
+        """Velocity and thrust-vector setpoints. `target_m` (N, 3) serves the AUTO modes.
+
+        Written for numpy's per-call cost at N = 1 (~1-2 us a call): whole-row expressions,
+        np.where instead of masked writes, no column_stack, the clip ufunc."""
         g = self.g
-        centred = sticks.copy()
-        centred[:, 3] = 2.0 * sticks[:, 3] - 1.0
-        db = _stick_with_deadband(centred, g.stick_deadband)
+        where, clip = np.where, _clip
+        db = sticks * self._stick_scale
+        db += self._stick_offset  # throttle 0..1 -> climb -1..1
+        db = np.sign(db) * clip((np.abs(db) - g.stick_deadband) * self._db_gain, 0.0, 1.0)
         roll, pitch, yaw, climb = db[:, 0], db[:, 1], db[:, 2], db[:, 3]
         auto = mode >= AUTO_TAKEOFF
-        self.yaw_sp_rad = np.where(auto, self.yaw_sp_rad,
-                                   self.yaw_sp_rad + yaw * g.max_yaw_rate_rad_s * dt)
-        self.yaw_sp_rad = (self.yaw_sp_rad + np.pi) % (2 * np.pi) - np.pi
+        posctl = mode == POSCTL
+        yaw_sp = where(auto, self.yaw_sp_rad, self.yaw_sp_rad + yaw * (g.max_yaw_rate_rad_s * dt))
+        self.yaw_sp_rad = (yaw_sp + np.pi) % (2 * np.pi) - np.pi
 
         # Horizontal: stick velocity, or brake then hold the latched position.
-        c, s = np.cos(self.yaw_sp_rad), np.sin(self.yaw_sp_rad)
-        stick_v = g.max_vel_xy_mps * np.column_stack([pitch * c + roll * s, pitch * s - roll * c])
-        stick_active = (mode == POSCTL) & ((roll != 0) | (pitch != 0))
+        cs = self._cs
+        np.cos(self.yaw_sp_rad, cs[:, 0])
+        np.sin(self.yaw_sp_rad, cs[:, 1])
+        c, s = cs[:, 0], cs[:, 1]
+        # [pitch c + roll s, pitch s - roll c] = pitch (c, s) + roll (s, -c)
+        stick_v = (pitch[:, None] * cs + roll[:, None] * cs[:, ::-1] * self._flip) * g.max_vel_xy_mps
+        stick_active = posctl & ((roll != 0) | (pitch != 0))
         self.hold_xy_valid &= ~stick_active
-        speed_xy = np.hypot(vel_mps[:, 0], vel_mps[:, 1])
-        latch = ~self.hold_xy_valid & ~stick_active & (speed_xy < g.brake_speed_mps)
-        self.hold_pos_m[latch, :2] = pos_m[latch, :2]
+        vel_xy = vel_mps[:, :2]
+        latch = ~self.hold_xy_valid & ~stick_active & (
+            (vel_xy * vel_xy).sum(axis=1) < g.brake_speed_mps ** 2)
+        hold = self.hold_pos_m
+        np.copyto(hold[:, :2], pos_m[:, :2], where=latch[:, None])
         self.hold_xy_valid |= latch
-        hold_xy = np.where(auto[:, None], target_m[:, :2], self.hold_pos_m[:, :2])
-        pos_v = np.clip(g.pos_p * (hold_xy - pos_m[:, :2]), -g.max_vel_xy_mps, g.max_vel_xy_mps)
+        hold_xy = where(auto[:, None], target_m[:, :2], hold[:, :2])
+        pos_v = clip(g.pos_p * (hold_xy - pos_m[:, :2]), -g.max_vel_xy_mps, g.max_vel_xy_mps)
         holding = self.hold_xy_valid | auto
-        v_xy = np.where(stick_active[:, None], stick_v, np.where(holding[:, None], pos_v, 0.0))
+        vel_sp = self.vel_sp_mps
+        vel_sp[:, :2] = where(stick_active[:, None], stick_v, where(holding[:, None], pos_v, 0.0))
 
         # Vertical: climb-rate stick, or hold the latched altitude; AUTO has its own targets.
-        climb_v = np.where(climb > 0, climb * g.max_climb_mps, climb * g.max_descent_mps)
-        climb_active = ((mode == POSCTL) | (mode == ALTCTL)) & (climb != 0)
+        climb_v = climb * where(climb > 0, g.max_climb_mps, g.max_descent_mps)
+        climb_active = (posctl | (mode == ALTCTL)) & (climb != 0)
         self.hold_z_valid &= ~climb_active
         latch_z = ~self.hold_z_valid & ~climb_active & (np.abs(vel_mps[:, 2]) < g.brake_speed_mps)
-        self.hold_pos_m[latch_z, 2] = pos_m[latch_z, 2]
+        np.copyto(hold[:, 2], pos_m[:, 2], where=latch_z)
         self.hold_z_valid |= latch_z
-        hold_z = np.where(auto, target_m[:, 2], self.hold_pos_m[:, 2])
-        pos_vz = np.clip(g.z_pos_p * (hold_z - pos_m[:, 2]), -g.max_descent_mps, g.max_climb_mps)
-        pos_vz = np.where(mode == AUTO_TAKEOFF, np.minimum(pos_vz, g.takeoff_speed_mps), pos_vz)
-        pos_vz = np.where(mode == AUTO_LAND, -g.land_speed_mps, pos_vz)
-        v_z = np.where(climb_active, climb_v,
-                       np.where(self.hold_z_valid | auto, pos_vz, 0.0))
-        self.vel_sp_mps = np.column_stack([v_xy, v_z])
+        hold_z = where(auto, target_m[:, 2], hold[:, 2])
+        pos_vz = clip(g.z_pos_p * (hold_z - pos_m[:, 2]), -g.max_descent_mps, g.max_climb_mps)
+        if auto.any():
+            pos_vz = where(mode == AUTO_TAKEOFF, np.minimum(pos_vz, g.takeoff_speed_mps), pos_vz)
+            pos_vz = where(mode == AUTO_LAND, -g.land_speed_mps, pos_vz)
+        vel_sp[:, 2] = where(climb_active, climb_v,
+                             where(self.hold_z_valid | auto, pos_vz, 0.0))
 
         # Velocity -> acceleration (PI) -> thrust vector with a tilt limit.
-        err = self.vel_sp_mps - vel_mps
+        err = vel_sp - vel_mps
         self.vel_int += err * dt
-        self.vel_int[:, :2] = np.clip(self.vel_int[:, :2], -2.0, 2.0)
-        self.vel_int[:, 2] = np.clip(self.vel_int[:, 2], -3.0, 3.0)
-        acc = np.empty((self.n, 3))
-        acc[:, :2] = g.vel_p * err[:, :2] + g.vel_i * self.vel_int[:, :2]
-        acc_xy = np.hypot(acc[:, 0], acc[:, 1])[:, None]
-        acc[:, :2] *= np.minimum(1.0, g.max_acc_xy_mps2 / np.maximum(acc_xy, 1e-9))
-        acc[:, 2] = g.z_vel_p * err[:, 2] + g.z_vel_i * self.vel_int[:, 2] + GRAVITY_MPS2
+        clip(self.vel_int, self._int_lo, self._int_hi, self.vel_int)
+        acc = err * self._vel_p
+        acc += self.vel_int * self._vel_i
+        acc += self._gravity
+        acc_xy = np.sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1])
+        acc[:, :2] *= np.minimum(1.0, g.max_acc_xy_mps2 / np.maximum(acc_xy, 1e-9))[:, None]
         acc[:, 2] = np.maximum(acc[:, 2], 0.1 * GRAVITY_MPS2)
-        tan_max = np.tan(g.max_tilt_rad)
-        acc_xy = np.hypot(acc[:, 0], acc[:, 1])[:, None]
-        acc[:, :2] *= np.minimum(1.0, tan_max * acc[:, 2:3] / np.maximum(acc_xy, 1e-9))
+        acc_xy = np.sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1])
+        acc[:, :2] *= np.minimum(1.0, self._tan_max * acc[:, 2] / np.maximum(acc_xy, 1e-9))[:, None]
 
         # Manual tilt modes: sticks are angles (pitch forward = nose down).
         manual_tilt = (mode == STABILIZED) | (mode == ALTCTL)
