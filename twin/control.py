@@ -265,3 +265,8 @@ class Controller:
         np.multiply(u, self._inv_w_max, u)
         _clip(u, self._u_lo, self._u_hi, u)
         return u
+
+    @property
+    def throttle(self) -> np.ndarray:
+        """The last rotor throttles (N, 4) `inner` returned (the same buffer)."""
+        return self._u

@@ -191,6 +191,7 @@ class Dynamics:
         self._G = G
         self._ones33 = np.ones((3, 3))
         self._bound: tuple | None = None
+        self._boxes: tuple | None = None
 
     def initial_state(self, n: int, xy_m: np.ndarray, yaw_rad: float = 0.0) -> BodyState:
         af = self.airframe
@@ -336,27 +337,28 @@ class Dynamics:
 
     def collisions(self, s: BodyState) -> None:
         """Obstacles and the net (~50 Hz: 10 cm of travel at 5 m/s between checks)."""
-        r = self.airframe.frame_radius_m
-        z = s.pos_m[:, 2]
+        if self._boxes is None:  # obstacle boxes grown by the frame radius, once
+            r, b = self.airframe.frame_radius_m, self.obstacle_boxes_m
+            self._boxes = (b[:, 0] - r, b[:, 3] + r, b[:, 1] - r, b[:, 4] + r, b[:, 5] + 0.05)
+        p = s.pos_m
         if len(self.obstacle_boxes_m):
-            b = self.obstacle_boxes_m
-            x, y = s.pos_m[:, :1], s.pos_m[:, 1:2]
-            inside = ((x > b[:, 0] - r) & (x < b[:, 3] + r) & (y > b[:, 1] - r)
-                      & (y < b[:, 4] + r) & (z[:, None] < b[:, 5] + 0.05)).any(axis=1)
-            hit = (s.crash == 0) & inside
-            if hit.any():
-                s.crash[hit] = CRASH_OBSTACLE
-                s.vel_mps[hit, :2] = 0.0  # stopped by the obstacle; it falls from there
-                self._w_max_alive[hit] = 0.0
+            x0, x1, y0, y1, z1 = self._boxes
+            x, y, z = p[:, :1], p[:, 1:2], p[:, 2:3]
+            inside = ((x > x0) & (x < x1) & (y > y0) & (y < y1) & (z < z1)).any(axis=1)
+            self._hit(s, inside, CRASH_OBSTACLE)  # stopped by the obstacle; it falls from there
         if self.net_half_extent_m is not None:
+            r = self.airframe.frame_radius_m
             hx, hy = self.net_half_extent_m
-            out = ((np.abs(s.pos_m[:, 0]) > hx - r) | (np.abs(s.pos_m[:, 1]) > hy - r)) & (
-                z < self.net_height_m)
-            hit = (s.crash == 0) & out
-            if hit.any():
-                s.crash[hit] = CRASH_NET
-                s.vel_mps[hit, :2] = 0.0  # caught in the net
-                self._w_max_alive[hit] = 0.0
+            out = ((np.abs(p[:, 0]) > hx - r) | (np.abs(p[:, 1]) > hy - r)) & (
+                p[:, 2] < self.net_height_m)
+            self._hit(s, out, CRASH_NET)  # caught in the net
+
+    def _hit(self, s: BodyState, touching: np.ndarray, code: int) -> None:
+        hit = (s.crash == 0) & touching
+        if hit.any():
+            s.crash[hit] = code
+            s.vel_mps[hit, :2] = 0.0
+            self._w_max_alive[hit] = 0.0
 
     def _ground(self, s: BodyState) -> None:
         touching = s.pos_m[:, 2] <= 0.0

@@ -145,14 +145,16 @@ class Sim:
         dt_outer, dt_slow = self.dt_s * cfg.outer_every, self.dt_s * slow_every
         # Arming, reset or battery may have changed between calls; then at the outer rate.
         ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
-        for _ in range(n_steps):
-            if self.steps % slow_every == 0:  # 10 Hz: battery, drifts, commander
+        steps, end, every = self.steps, self.steps + n_steps, cfg.outer_every
+        inner, physics_step = ctl.inner, self.dynamics.step
+        while steps < end:
+            if steps % slow_every == 0:  # 10 Hz: battery, drifts, commander
                 self.dynamics.slow_update(s, dt_slow)
                 self.sensors.update(dt_slow)
                 fix = np.full(self.n, self.sensors.has_fix(self.t_s))
                 com.update(dt_slow, self.sticks, s.on_ground, s.crash, self.est_pos_m,
                            ctl.vel_sp_mps[:, 2], self.battery_pct_all(), fix)
-            if self.steps % cfg.outer_every == 0:  # 50 Hz: collisions, estimate, outer loop
+            if steps % every == 0:  # 50 Hz: collisions, estimate, outer loop
                 self.dynamics.collisions(s)
                 self.sensors.poll_gps(self.t_s, s.pos_m, s.vel_mps)
                 self.est_pos_m, self.est_vel_mps = self.sensors.estimate(s.pos_m, s.vel_mps)
@@ -165,10 +167,14 @@ class Sim:
                 self._idle = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
                                                    ctl.vel_sp_mps[:, 2] <= 0.2)
                 ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
-            self.throttle = ctl.inner(s.R_world_body, s.omega_rad_s)
-            self.dynamics.step(s, self.throttle)
-            self.steps += 1
-            self.t_s = self.steps * self.dt_s
+            # Attitude/rate loop and rigid body at the physics rate, up to the next outer tick.
+            run = min(every - steps % every, end - steps)
+            for _ in range(run):
+                physics_step(s, inner(s.R_world_body, s.omega_rad_s))
+            self.throttle = ctl.throttle
+            steps += run
+            self.steps = steps
+            self.t_s = steps * self.dt_s
 
     def run_for(self, seconds: float) -> None:
         self.step(int(round(seconds / self.dt_s)))
