@@ -125,8 +125,11 @@ class UdpTransport:
             return  # udpin: nobody has spoken yet, so nobody to answer
         try:
             self._sock.sendto(data, self._peer)
-        except (BlockingIOError, ConnectionRefusedError):
-            pass  # UDP: a dropped datagram is the protocol's normal loss
+        except OSError:
+            # UDP: a full buffer, a refused port, an unreachable network (WiFi down) all
+            # mean a lost datagram, the protocol's normal loss; never a reason to drop
+            # the vehicle link (a forward target's trouble must not cost the vehicle).
+            pass
 
     def close(self) -> None:
         self._sock.close()

@@ -139,25 +139,16 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    import uvicorn
-
     from server.app import create_app
+    from server.listen import listening_socket, uvicorn_server
 
     settings = settings_from_args(args)
     check_link_settings(settings)
     app = create_app(settings)
     print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
     # Our own listening socket: it caps unsent bytes per connection (see server/listen.py).
-    from server.listen import listening_socket
-
     sock = listening_socket(settings.server.host, settings.server.port)
-    # No permessage-deflate: browsers ask for it, and it would compress every telemetry
-    # message once per client, the per-client re-encoding the shared JSON body avoids.
-    # MJPEG streams never end by themselves: give them 2 s at shutdown, then cancel them.
-    config = uvicorn.Config(
-        app, log_level="info", ws_per_message_deflate=False, timeout_graceful_shutdown=2
-    )
-    uvicorn.Server(config).run(sockets=[sock])
+    uvicorn_server(app).run(sockets=[sock])
     return 0
 
 

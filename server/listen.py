@@ -14,6 +14,8 @@ from __future__ import annotations
 import logging
 import socket
 
+import uvicorn
+
 log = logging.getLogger(__name__)
 
 NOTSENT_LOWAT_BYTES = 64 * 1024  # about one 640x480 JPEG
@@ -39,3 +41,20 @@ def listening_socket(host: str, port: int, backlog: int = 128) -> socket.socket:
         raise
     sock.set_inheritable(True)
     return sock
+
+
+def uvicorn_server(app, log_level: str = "info") -> uvicorn.Server:
+    """The uvicorn server as `fpv-station serve` runs it (tests run the same one).
+
+    No permessage-deflate: browsers ask for it, and it would compress every telemetry
+    message once per client, the per-client re-encoding the shared JSON body avoids.
+    MJPEG streams never end by themselves: they get 2 s at shutdown, then are cancelled.
+    """
+    config = uvicorn.Config(
+        app,
+        log_level=log_level,
+        ws_per_message_deflate=False,
+        timeout_graceful_shutdown=2,
+        lifespan="on",
+    )
+    return uvicorn.Server(config)

@@ -8,7 +8,7 @@ import threading
 import time
 from collections.abc import Iterator
 
-import uvicorn
+from server.listen import listening_socket, uvicorn_server
 
 # Flags that let Debian's chromium run headless as root on this closed network.
 CHROMIUM_PATH = "/usr/bin/chromium"
@@ -31,11 +31,14 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
 
 @contextlib.contextmanager
 def run_uvicorn(app, port: int | None = None, timeout: float = 15.0) -> Iterator[str]:
-    """Serve `app` with a real uvicorn in a thread; yields the base URL."""
-    port = port or free_port()
-    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on")
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, name="uvicorn-test", daemon=True)
+    """Serve `app` with a real uvicorn in a thread, configured and on the kind of socket
+    `fpv-station serve` uses; yields the base URL."""
+    sock = listening_socket("127.0.0.1", port or 0)
+    port = sock.getsockname()[1]
+    server = uvicorn_server(app, log_level="warning")
+    thread = threading.Thread(
+        target=server.run, kwargs={"sockets": [sock]}, name="uvicorn-test", daemon=True
+    )
     thread.start()
     deadline = time.monotonic() + timeout
     while not server.started:
@@ -47,6 +50,7 @@ def run_uvicorn(app, port: int | None = None, timeout: float = 15.0) -> Iterator
     finally:
         server.should_exit = True
         thread.join(timeout)
+        sock.close()
 
 
 def wait_until(predicate, timeout: float = 5.0, interval: float = 0.02) -> bool:

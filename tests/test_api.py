@@ -20,7 +20,12 @@ from tests.mav_vehicle import MavVehicle
 
 
 def make_app(source="none", **overrides):
-    return create_app(load_settings(environ={}, overrides={"link.source": source, **overrides}))
+    defaults = {
+        "link.source": source,
+        "viser.port": 0,  # any free port: other test runs may hold 8080
+        "recording.auto_record_on_arm": False,  # no sessions in the working directory
+    }
+    return create_app(load_settings(environ={}, overrides={**defaults, **overrides}))
 
 
 def test_status_without_a_vehicle_link():

@@ -18,7 +18,9 @@ def serve(*args, env=None):
     return subprocess.Popen(
         [sys.executable, "-m", "server", "serve", *args],
         cwd=ROOT,
-        env={**os.environ, **(env or {})},
+        # Any free port for the 3D panel (other runs may hold 8080), no sessions here.
+        env={**os.environ, "FPV_VISER__PORT": "0", "FPV_RECORDING__AUTO_RECORD_ON_ARM": "false",
+             **(env or {})},
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

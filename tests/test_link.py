@@ -293,3 +293,15 @@ def test_serial_port_that_goes_away_and_comes_back(tmp_path):
         finally:
             os.close(master)
             os.close(slave)
+
+
+def test_mavlink1_autopilot_gets_mavlink1_replies():
+    with MavVehicle("tcp", mavlink1=True, autopilot="ardupilot", sysid=77) as v:
+        with running_link(v.station_source) as link:
+            assert wait_until(lambda: state(link).heartbeat.mavlink_version == 1)
+            assert state(link).heartbeat.mode == "LOITER"
+            assert state(link).heartbeat.autopilot == "ardupilot"
+            assert wait_until(lambda: state(link).attitude.t_mono is not None)
+            # Old firmware may drop MAVLink 2 frames: the station answers in MAVLink 1.
+            assert wait_until(lambda: any(
+                m.get_type() == "HEARTBEAT" and m.get_msgbuf()[0] == 0xFE for m in v.received))

@@ -17,10 +17,17 @@ def browser():
         b.close()
 
 
-def test_page_shows_live_values_and_link_lost(browser):
+def test_page_shows_live_values_and_link_lost(browser, tmp_path):
     with MavVehicle("udp") as vehicle:
         settings = load_settings(
-            environ={}, overrides={"link.source": vehicle.station_source, "link.link_lost_s": 1.0}
+            environ={},
+            overrides={
+                "link.source": vehicle.station_source,
+                "link.link_lost_s": 1.0,
+                # Arming starts a recording: keep it out of the working directory.
+                "recording.sessions_dir": str(tmp_path / "sessions"),
+                "viser.port": 0,
+            },
         )
         with run_uvicorn(create_app(settings)) as base:
             page = browser.new_page()

@@ -91,8 +91,14 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
         assert "p3d-large" in (panel.get_attribute("class") or "")
         viser_url = f"http://127.0.0.1:{port}/"
         assert page.locator("#p3d-frame").get_attribute("src") == viser_url
-        assert wait_until(lambda: any(f.url == viser_url for f in page.frames), 60.0)
-        frame = next(f for f in page.frames if f.url == viser_url)
+        # The viser client may add query parameters to its own URL once it runs. Poll with
+        # Playwright's own wait: a plain sleep would not let it process frame events.
+        for _ in range(600):
+            if any(f.url.startswith(viser_url) for f in page.frames):
+                break
+            page.wait_for_timeout(100)
+        frame = next((f for f in page.frames if f.url.startswith(viser_url)), None)
+        assert frame is not None, [f.url for f in page.frames]
         frame.locator("canvas").first.wait_for(timeout=90_000)
         clear = frame.get_by_role("button", name="Clear trail")
         try:

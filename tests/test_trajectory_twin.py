@@ -6,7 +6,6 @@ The live 3D panel drew the same flight meanwhile."""
 from __future__ import annotations
 
 import csv
-import threading
 
 import httpx
 import numpy as np
@@ -16,7 +15,7 @@ from companion.recording import layout
 from server.app import create_app
 from server.settings import load_settings
 from tests.helpers import run_uvicorn, wait_until
-from tests.test_recording_twin import fly_task
+from twin.pilot import Leg, Pilot, fly_twin, task_plan
 
 
 @pytest.mark.timeout(240)
@@ -30,7 +29,12 @@ def test_twin_session_trajectory_matches_local_position(tmp_path):
         station = app.state.station
         state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
         assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 15)
-        pilot = fly_task(station.twin, 2, threading.Event())
+        legs = task_plan(station.twin.scene, 2)
+        # Wait on the pad after arming, as a pilot does: the station takes the arming
+        # point from the armed HEARTBEAT (1 Hz), before the take-off.
+        legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
+        pilot = Pilot(legs)
+        fly_twin(station.twin, pilot, timeout_s=120)
         assert pilot.done, pilot.log
         assert wait_until(lambda: station.recorder.last_stop is not None
                           and station.recorder.recording_id is None, 20)

@@ -8,8 +8,8 @@ from playwright.sync_api import expect, sync_playwright
 
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
-from tests.video_fixtures import run_uvicorn_tuned, write_images
+from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn
+from tests.video_fixtures import write_images
 
 
 def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
@@ -20,7 +20,7 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
         "cameras.bottom.spec": "v4l2:/dev/video-unplugged",  # shows NO SIGNAL
         "cameras.bottom.width": 320, "cameras.bottom.height": 240,
     })
-    with run_uvicorn_tuned(create_app(settings)) as base, sync_playwright() as p:
+    with run_uvicorn(create_app(settings)) as base, sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True)
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 720})

@@ -261,6 +261,7 @@ class FakeUvcCapture:
         return self.props.get(prop, 0.0)
 
     def read(self):
+        time.sleep(1 / 30)  # a device delivers at its frame rate
         if not self.frames:
             return False, None  # unplugged: OpenCV's read fails
         return True, self.frames.pop(0)
@@ -281,7 +282,8 @@ def test_v4l2_mjpeg_is_passed_through_untouched_and_a_lost_device_reopens():
 
     def factory(device, api):
         assert (device, api) == (0, cv2.CAP_V4L2)
-        cap = FakeUvcCapture("MJPG", [raw[0], truncated, raw[1], raw[2]] if not devices else raw)
+        # The first device is pulled after 4 buffers; the second (re-plugged) one streams.
+        cap = FakeUvcCapture("MJPG", [raw[0], truncated, raw[1], raw[2]] if not devices else raw * 100)
         devices.append(cap)
         return cap
 

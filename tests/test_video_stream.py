@@ -13,9 +13,9 @@ import pytest
 
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import wait_until
+from tests.helpers import run_uvicorn, wait_until
 from tests.mjpeg_client import Viewer
-from tests.video_fixtures import run_uvicorn_tuned, write_images
+from tests.video_fixtures import write_images
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def server(tmp_path_factory):
         "cameras.bottom.width": 320, "cameras.bottom.height": 240,
     })
     app = create_app(settings)
-    with run_uvicorn_tuned(app) as base:
+    with run_uvicorn(app) as base:
         yield base
 
 
@@ -135,7 +135,7 @@ def test_viewer_of_a_silent_camera_is_cleaned_up_after_disconnect():
     """A `none` camera publishes one NO SIGNAL frame and then nothing: no write reveals
     the disconnect, so the stream must notice it by itself."""
     app = create_app(load_settings(environ={}, overrides={"link.source": "none"}))
-    with run_uvicorn_tuned(app) as base:
+    with run_uvicorn(app) as base:
         viewer = Viewer("127.0.0.1", _port(base), "/video/bottom.mjpg")
         asyncio.run(viewer.run(1.0))
         assert [p.signal for p in viewer.parts] == [False]

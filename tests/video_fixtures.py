@@ -2,18 +2,11 @@
 
 from __future__ import annotations
 
-import contextlib
 import threading
-import time
-from collections.abc import Iterator
 from pathlib import Path
-
-import uvicorn
 
 import cv2
 import numpy as np
-
-from server.listen import listening_socket
 
 
 class CountingRenderer:
@@ -46,24 +39,3 @@ def write_images(folder: Path, count: int, size: tuple[int, int], suffix: str = 
         cv2.putText(image, str(i), (10, height // 2), 0, 1.0, (255, 255, 255), 2)
         cv2.imwrite(str(folder / f"{i:03d}{suffix}"), image)
     return folder
-
-
-@contextlib.contextmanager
-def run_uvicorn_tuned(app, timeout: float = 15.0) -> Iterator[str]:
-    """Like tests.helpers.run_uvicorn, on the socket `fpv-station serve` listens on."""
-    sock = listening_socket("127.0.0.1", 0)
-    port = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + timeout
-    while not server.started:
-        if not thread.is_alive() or time.monotonic() > deadline:
-            raise RuntimeError("uvicorn did not start")
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(timeout)
-        sock.close()
