@@ -52,11 +52,6 @@ class ControlGains:
     max_rate_rad_s: tuple[float, float, float] = tuple(np.radians([220.0, 220.0, 200.0]))
 
 
-def _stick_with_deadband(x: np.ndarray, deadband: float) -> np.ndarray:
-    """Rescale so that the deadband maps to 0 and the end stays at +-1."""
-    return np.sign(x) * np.clip((np.abs(x) - deadband) / (1.0 - deadband), 0.0, 1.0)
-
-
 def yaw_of(R: np.ndarray) -> np.ndarray:
     return np.arctan2(R[:, 1, 0], R[:, 0, 0])
 
@@ -87,7 +82,6 @@ class Controller:
         self._vee = vee
         # Inner-loop buffers: the attitude error and thrust projection are linear in R, so
         # outer() folds R_sp into K (N, 9, 4) and inner() needs one matmul for both.
-        self._vee3 = vee.reshape(3, 3, 3)
         self._K = np.zeros((n, 9, 4))
         self._y = np.zeros((n, 1, 4))
         self._rate_sp, self._along = self._y[:, 0, :3], self._y[:, 0, 3:]
@@ -97,7 +91,8 @@ class Controller:
         self._u = np.zeros((n, 4))
         self._thrust_col = np.zeros((n, 1))
         # Same-shape operands everywhere: broadcasting triples numpy's per-call cost.
-        self._u_lo, self._u_hi, self._inv_w_max = np.zeros((n, 4)), np.zeros((n, 4)), np.ones((n, 4))
+        self._u_lo, self._u_hi = np.zeros((n, 4)), np.zeros((n, 4))
+        self._inv_w_max = np.ones((n, 4))
         self._zero1, self._zero4, self._w0 = np.zeros((n, 1)), np.zeros((n, 4)), self._wrench[:, :1]
         # [thrust, rate error] -> rotor speed^2: the rate P gain, mixer and 1/k_T in one matrix.
         self._mix = (np.concatenate([[1.0], self._J_rate_p])[:, None] * self._A_inv_T
@@ -163,7 +158,8 @@ class Controller:
         np.sin(self.yaw_sp_rad, cs[:, 1])
         c, s = cs[:, 0], cs[:, 1]
         # [pitch c + roll s, pitch s - roll c] = pitch (c, s) + roll (s, -c)
-        stick_v = (pitch[:, None] * cs + roll[:, None] * cs[:, ::-1] * self._flip) * g.max_vel_xy_mps
+        stick_v = pitch[:, None] * cs + roll[:, None] * cs[:, ::-1] * self._flip
+        stick_v *= g.max_vel_xy_mps
         stick_active = posctl & ((roll != 0) | (pitch != 0))
         self.hold_xy_valid &= ~stick_active
         vel_xy = vel_mps[:, :2]
@@ -240,10 +236,8 @@ class Controller:
         """Throttle bounds per vehicle, which change only at the outer rate (battery voltage,
         arming, idling on the ground): disarmed = 0, idle = idle throttle, else [idle, 1]."""
         idle_u = self.af.idle_throttle
-        lo = np.where(idle, idle_u, idle_u) * armed
-        hi = np.where(idle, idle_u, 1.0) * armed
-        self._u_lo[:] = lo[:, None]
-        self._u_hi[:] = hi[:, None]
+        self._u_lo[:] = (idle_u * armed)[:, None]
+        self._u_hi[:] = (np.where(idle, idle_u, 1.0) * armed)[:, None]
         self._inv_w_max[:] = 1.0 / max_rotor_rad_s[:, None]  # broadcast once here, not per step
 
     def inner(self, R: np.ndarray, omega: np.ndarray) -> np.ndarray:

@@ -144,7 +144,6 @@ class Dynamics:
         self._g = np.array([0.0, 0.0, -GRAVITY_MPS2])
         self._rng = np.random.default_rng(self.seed)
         self._steps = 0
-        self._eye = np.eye(3)
         self._dt_over_J = self.dt_s / self._J
         self._dJ = self._J[[2, 0, 1]] - self._J[[1, 2, 0]]
         self._rot_keep = 1.0 - af.rot_drag_nm_per_rad_s * self._dt_over_J
@@ -153,7 +152,6 @@ class Dynamics:
         self._drag_quad_dt = af.drag_quadratic_n_per_mps2 * self._dt_over_m
         self._g_dt = self._g * self.dt_s
         self._grounded = True
-        self._i1, self._i2 = np.array([1, 2, 0]), np.array([2, 0, 1])
         # (3, 9) generator: w @ G = dt * skew(w) flattened row-major.
         G = np.zeros((3, 9))
         G[2, 1], G[1, 2], G[0, 5] = -1, 1, -1
@@ -243,7 +241,8 @@ class Dynamics:
         self._c_zero4, self._c_one4 = full((n, 4), 0.0), full((n, 4), 1.0)
         self._c_alpha4 = full((n, 4), self._motor_alpha)
         self._c_kT4 = full((n, 4), self.airframe.thrust_coeff_n_per_rad2)
-        self._c_quad3, self._c_lin3 = full((n, 3), self._drag_quad_dt), full((n, 3), self._drag_lin_dt)
+        self._c_quad3 = full((n, 3), self._drag_quad_dt)
+        self._c_lin3 = full((n, 3), self._drag_lin_dt)
         self._c_g3, self._c_dt3 = np.tile(self._g_dt, (n, 1)), full((n, 3), self.dt_s)
         self._pz = s.pos_m[:, 2]
         self._bound = (s, s.R_world_body, s.pos_m, s.vel_mps, s.rotor_rad_s, s.wind_mps)
