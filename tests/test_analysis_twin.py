@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from analysis.report import analyze_paths
-from analysis.tasks import TaskParams
 from companion.tlog import encode_record
 from twin.pilot import Observation, Pilot, task_plan
 from twin.runner import Twin
@@ -78,14 +77,11 @@ def test_twin_hover(sessions):
     r = an.results[0]
     assert r.platform == "twin" and an.aligned[0].reference_kind == "scene"
     assert r.hover_distance_m < 0.5  # no wind: Position mode holds over the pad
-    assert 10.0 <= r.time_in_window_s <= 10.5 and 15 < r.trial_time_s < 120
-    # The scripted pilot levels off just under 4 m and crosses 4.00 m seconds later, so
-    # the paper's literal window runs into the descent; read as a pilot reads a 0.1 m
-    # display (4.0 from 3.95 m), the window is the hold, and the height holds.
-    assert r.height_deviation_m < 1.0
-    held = analyze_paths([sessions["hover"]], "hover",
-                         params=TaskParams(hover_height_tolerance_m=0.05)).results[0]  # fmt: skip
-    assert held.height_deviation_m < 0.3 and held.hover_distance_m < 0.5
+    # The window is 10 s, measured between GPS samples (10 Hz): at most one period short.
+    assert 9.85 <= r.time_in_window_s <= 10.5 and 15 < r.trial_time_s < 120
+    # The scripted pilot climbs through 4 m as a person does, so the paper's literal
+    # window (from the first time the altitude reaches 4 m) is the hold.
+    assert r.height_deviation_m < 0.3
 
 
 @pytest.mark.parametrize("task", ["a-to-b", "obstacle", "figure8"])

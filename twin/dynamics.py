@@ -103,6 +103,18 @@ class BodyState:
         return self.pos_m.shape[0]
 
 
+try:  # the clip ufunc: one call with an output, unlike the np.clip wrapper
+    from numpy._core.umath import clip as _clip
+except ImportError:  # numpy < 2
+    from numpy.core.umath import clip as _clip
+_min = np.minimum.reduce
+
+
+def _per_rotor(x: np.ndarray) -> np.ndarray:
+    """(N,) -> (N, 4): same-shape operands keep numpy's per-call cost down."""
+    return np.repeat(x[:, None], 4, axis=1)
+
+
 def yaw_matrix(yaw_rad: np.ndarray) -> np.ndarray:
     c, s = np.cos(yaw_rad), np.sin(yaw_rad)
     R = np.zeros((len(yaw_rad), 3, 3))
@@ -132,7 +144,6 @@ class Dynamics:
         self._g = np.array([0.0, 0.0, -GRAVITY_MPS2])
         self._rng = np.random.default_rng(self.seed)
         self._steps = 0
-        self._eye = np.eye(3)
         self._dt_over_J = self.dt_s / self._J
         self._dJ = self._J[[2, 0, 1]] - self._J[[1, 2, 0]]
         self._rot_keep = 1.0 - af.rot_drag_nm_per_rad_s * self._dt_over_J
@@ -141,13 +152,44 @@ class Dynamics:
         self._drag_quad_dt = af.drag_quadratic_n_per_mps2 * self._dt_over_m
         self._g_dt = self._g * self.dt_s
         self._grounded = True
-        self._i1, self._i2 = np.array([1, 2, 0]), np.array([2, 0, 1])
         # (3, 9) generator: w @ G = dt * skew(w) flattened row-major.
         G = np.zeros((3, 9))
         G[2, 1], G[1, 2], G[0, 5] = -1, 1, -1
         G[2, 3], G[1, 6], G[0, 7] = 1, -1, 1
         self._skew_gen = G * self.dt_s
-        self._w_max_alive = np.zeros((0, 1))
+        self._w_max_alive = np.zeros((0, 4))
+        # phi = [1, w (3), w w^T (9, row-major), rotor thrust (4)].
+        # P: phi[:4] -> (w_i, w_j) for every (i, j), so that w w^T is one product.
+        P = np.zeros((4, 18))
+        for i in range(3):
+            for j in range(3):
+                P[1 + i, 3 * i + j] = P[1 + j, 9 + 3 * i + j] = 1.0
+        self._P = P
+        # B: phi -> [thrust dt/m (x3), new w = w + d omega, P of the new w].
+        d_w = np.zeros((17, 3))
+        d_w[13:] = self._A_T[:, 1:] * self._dt_over_J
+        d_w[1:4] = np.diag(self._rot_keep)  # w itself, damped by the rotor wash
+        for row, (a, b) in enumerate([(1, 2), (2, 0), (0, 1)]):  # gyro: w_a w_b (J_b - J_a)
+            d_w[4 + 3 * a + b, row] = -self._dJ[row] * self._dt_over_J[row]
+        to_pairs = np.zeros((17, 18))
+        for i in range(3):
+            for j in range(3):
+                to_pairs[:, 3 * i + j], to_pairs[:, 9 + 3 * i + j] = d_w[:, i], d_w[:, j]
+        B = np.zeros((17, 24))
+        B[13:, :3] = self._dt_over_m
+        B[:, 3:6] = d_w
+        B[:, 6:] = to_pairs
+        self._B = B
+        # G: phi -> (I + S + S^2 / 2).flat with S = [w dt]x, S^2 = dt^2 (w w^T - |w|^2 I).
+        G = np.zeros((17, 9))
+        eye = np.eye(3).ravel()
+        G[0] = eye
+        G[1:4] = self._skew_gen
+        G[4:13] = 0.5 * self.dt_s ** 2 * (np.eye(9) - np.outer(eye, eye))
+        self._G = G
+        self._ones33 = np.ones((3, 3))
+        self._bound: tuple | None = None
+        self._boxes: tuple | None = None
 
     def initial_state(self, n: int, xy_m: np.ndarray, yaw_rad: float = 0.0) -> BodyState:
         af = self.airframe
@@ -155,7 +197,7 @@ class Dynamics:
         pos[:, :2] = xy_m
         charge = np.full(n, af.capacity_ah * 3600.0)
         volt = np.full(n, af.cells * float(ocv_per_cell_v(1.0)))
-        self._w_max_alive = (af.kv_rad_s_per_v * volt)[:, None]
+        self._w_max_alive = _per_rotor(af.kv_rad_s_per_v * volt)
         self._grounded = True
         return BodyState(
             pos_m=pos, vel_mps=np.zeros((n, 3)), R_world_body=yaw_matrix(np.full(n, yaw_rad)),
@@ -168,61 +210,105 @@ class Dynamics:
     def max_rotor_speed_rad_s(self, s: BodyState) -> np.ndarray:
         return self.airframe.kv_rad_s_per_v * s.voltage_v
 
+    def _bind(self, s: BodyState) -> None:
+        """Preallocate the step's work buffers for state `s` (once per state object).
+
+        One vehicle pays numpy's per-call overhead, not arithmetic, and a call costs two to
+        three times more when it broadcasts or takes a Python scalar, so the step is a few
+        fused expressions on same-shape operands into these buffers. `s.omega_rad_s` and
+        `s.rotor_thrust_n` become views into the feature row phi = [1, w, w w^T, thrust],
+        from which one matmul gives every rate increment and another the rotation increment.
+        """
+        n = s.n
+        phi = np.zeros((n, 17))
+        phi[:, 0] = 1.0
+        phi[:, 1:4] = s.omega_rad_s
+        phi[:, 13:17] = s.rotor_thrust_n
+        s.omega_rad_s, s.rotor_thrust_n = phi[:, 1:4], phi[:, 13:17]
+        self._phi, self._phi_w, self._ww = phi[:, :4], phi, phi[:, 4:13]
+        self._pairs = np.empty((n, 18))  # w_i and w_j for every (i, j): w w^T = product
+        self._p1, self._p2 = self._pairs[:, :9], self._pairs[:, 9:]
+        self._inc = np.empty((n, 24))  # [thrust dt/m (x3), new w, pairs of the new w]
+        self._thrust3, self._w_new = self._inc[:, :3], self._inc[:, 3:6]
+        self._q1, self._q2 = self._inc[:, 6:15], self._inc[:, 15:]
+        self._u = np.empty((n, 4))
+        self._M = np.empty((n, 9))
+        self._M3 = self._M.reshape(n, 3, 3)
+        self._R_new = np.empty((n, 3, 3))
+        self._z_body = s.R_world_body[:, :, 2]
+        self._va, self._dv, self._k = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        full = lambda shape, v: np.full(shape, v, float)  # noqa: E731
+        self._c_zero4, self._c_one4 = full((n, 4), 0.0), full((n, 4), 1.0)
+        self._c_alpha4 = full((n, 4), self._motor_alpha)
+        self._c_kT4 = full((n, 4), self.airframe.thrust_coeff_n_per_rad2)
+        self._c_quad3 = full((n, 3), self._drag_quad_dt)
+        self._c_lin3 = full((n, 3), self._drag_lin_dt)
+        self._c_g3, self._c_dt3 = np.tile(self._g_dt, (n, 1)), full((n, 3), self.dt_s)
+        self._pz = s.pos_m[:, 2]
+        self._bound = (s, s.R_world_body, s.pos_m, s.vel_mps, s.rotor_rad_s, s.wind_mps)
+
     def step(self, s: BodyState, throttle: np.ndarray) -> None:
         """Advance every vehicle by dt under per-rotor throttle (N, 4) in [0, 1]; in place.
 
         The fast part only (rotors, rigid body, ground); `collisions` (~50 Hz) and
         `slow_update` (~10 Hz: battery, gusts) run at lower rates from the caller.
         """
-        u = np.minimum(np.maximum(throttle, 0.0), 1.0)
-        u *= self._w_max_alive  # commanded rotor speed
-        r = s.rotor_rad_s
-        u -= r
-        u *= self._motor_alpha
-        r += u  # first-order lag
-        f = r * r
-        f *= self.airframe.thrust_coeff_n_per_rad2
-        s.rotor_thrust_n = f
-        wrench = f @ self._A_T  # (N, 4): thrust, tau_x, tau_y, tau_z
+        b = self._bound
+        if (b is None or s is not b[0] or s.R_world_body is not b[1] or s.pos_m is not b[2]
+                or s.vel_mps is not b[3] or s.rotor_rad_s is not b[4] or s.wind_mps is not b[5]):
+            self._bind(s)
+        mul, add, sub, mm = np.multiply, np.add, np.subtract, np.matmul
+        u, r, f = self._u, s.rotor_rad_s, s.rotor_thrust_n
+        _clip(throttle, self._c_zero4, self._c_one4, u)
+        mul(u, self._w_max_alive, u)  # commanded rotor speed
+        sub(u, r, u)
+        mul(u, self._c_alpha4, u)
+        add(r, u, r)  # first-order lag
+        mul(r, self._c_kT4, f)
+        mul(f, r, f)
 
         # Rotation: Euler's equations with a diagonal inertia (gyroscopic term
-        # w x Jw = (wy wz (Jz - Jy), wz wx (Jx - Jz), wx wy (Jy - Jx))), rotor-wash damping,
-        # then R <- R exp([w dt]x) to second order, re-orthonormalized every 32 steps.
-        w = s.omega_rad_s
-        gyro = w[:, self._i1] * w[:, self._i2]
-        gyro *= self._dJ
-        tau = wrench[:, 1:] - gyro
-        tau *= self._dt_over_J
-        w *= self._rot_keep
-        w += tau
-        S = (w @ self._skew_gen).reshape(-1, 3, 3)  # [w dt]x for every vehicle
-        M = S @ S
-        M *= 0.5
-        M += S
-        M += self._eye
-        s.R_world_body = s.R_world_body @ M
+        # w x Jw = (wy wz (Jz - Jy), wz wx (Jx - Jz), wx wy (Jy - Jx))) and rotor-wash
+        # damping are linear in phi = [1, w, w w^T, f]: one matmul gives the new w, the
+        # thrust's dv and the factors of the new w w^T. Then R <- R exp([w dt]x) to second
+        # order, I + S + S^2 / 2 with S^2 = dt^2 (w w^T - |w|^2 I), again linear in phi;
+        # re-orthonormalized every 32 steps.
+        mm(self._phi, self._P, self._pairs)
+        mul(self._p1, self._p2, self._ww)
+        mm(self._phi_w, self._B, self._inc)
+        np.copyto(s.omega_rad_s, self._w_new)
+        mul(self._q1, self._q2, self._ww)
+        mm(self._phi_w, self._G, self._M)
+        R = s.R_world_body
+        mm(R, self._M3, self._R_new)
+        np.copyto(R, self._R_new)
         self._steps += 1
         if self._steps % 32 == 0:
-            U, _, Vt = np.linalg.svd(s.R_world_body)
-            s.R_world_body = U @ Vt
+            U, _, Vt = np.linalg.svd(R)
+            mm(U, Vt, R)
 
         # Translation: thrust along body z, gravity, drag against the air (all times dt).
-        v_air = s.vel_mps - s.wind_mps
-        k = np.sqrt((v_air * v_air).sum(axis=1, keepdims=True))
-        k *= self._drag_quad_dt
-        k += self._drag_lin_dt
-        dv = s.R_world_body[:, :, 2] * (wrench[:, :1] * self._dt_over_m)
-        dv += self._g_dt
-        dv -= k * v_air
-        s.vel_mps += dv
-        s.pos_m += s.vel_mps * self.dt_s
-        if self._grounded or (s.pos_m[:, 2] <= 0.0).any():
+        va, dv, k = self._va, self._dv, self._k
+        sub(s.vel_mps, s.wind_mps, va)
+        mul(va, va, dv)
+        mm(dv, self._ones33, k)  # |v_air|^2 in every column
+        np.sqrt(k, k)
+        mul(k, self._c_quad3, k)
+        add(k, self._c_lin3, k)
+        mul(va, k, va)
+        mul(self._z_body, self._thrust3, dv)
+        sub(dv, va, dv)
+        add(dv, self._c_g3, dv)
+        add(s.vel_mps, dv, s.vel_mps)
+        mul(s.vel_mps, self._c_dt3, dv)
+        add(s.pos_m, dv, s.pos_m)
+        if self._grounded or _min(self._pz) <= 0.0:
             self._ground(s)
 
     def revive(self, s: BodyState) -> None:
         """Recompute the motors' power after vehicles were reset in place."""
         alive = (s.crash == 0) & (s.charge_c > 0)
-        self._w_max_alive = (self.airframe.kv_rad_s_per_v * s.voltage_v * alive)[:, None]
+        self._w_max_alive = _per_rotor(self.airframe.kv_rad_s_per_v * s.voltage_v * alive)
         self._grounded = bool(s.on_ground.any() or (s.pos_m[:, 2] <= 0).any())
 
     def slow_update(self, s: BodyState, dt: float) -> None:
@@ -235,7 +321,7 @@ class Dynamics:
                 gust.shape)
             s.wind_mps = gust + self.wind.mean_enu_mps
         alive = (s.crash == 0) & (s.charge_c > 0)
-        self._w_max_alive = (self.airframe.kv_rad_s_per_v * s.voltage_v * alive)[:, None]
+        self._w_max_alive = _per_rotor(self.airframe.kv_rad_s_per_v * s.voltage_v * alive)
 
     def _battery(self, s: BodyState, f: np.ndarray, dt: float) -> None:
         af = self.airframe
@@ -250,39 +336,49 @@ class Dynamics:
 
     def collisions(self, s: BodyState) -> None:
         """Obstacles and the net (~50 Hz: 10 cm of travel at 5 m/s between checks)."""
-        r = self.airframe.frame_radius_m
-        z = s.pos_m[:, 2]
+        if self._boxes is None:  # obstacle boxes grown by the frame radius, once
+            r, b = self.airframe.frame_radius_m, self.obstacle_boxes_m
+            self._boxes = (b[:, 0] - r, b[:, 3] + r, b[:, 1] - r, b[:, 4] + r, b[:, 5] + 0.05)
+        p = s.pos_m
         if len(self.obstacle_boxes_m):
-            b = self.obstacle_boxes_m
-            x, y = s.pos_m[:, :1], s.pos_m[:, 1:2]
-            inside = ((x > b[:, 0] - r) & (x < b[:, 3] + r) & (y > b[:, 1] - r)
-                      & (y < b[:, 4] + r) & (z[:, None] < b[:, 5] + 0.05)).any(axis=1)
-            hit = (s.crash == 0) & inside
-            s.crash[hit] = CRASH_OBSTACLE
-            s.vel_mps[hit, :2] = 0.0  # stopped by the obstacle; it falls from there
-            self._w_max_alive[hit] = 0.0
+            x0, x1, y0, y1, z1 = self._boxes
+            x, y, z = p[:, :1], p[:, 1:2], p[:, 2:3]
+            inside = ((x > x0) & (x < x1) & (y > y0) & (y < y1) & (z < z1)).any(axis=1)
+            self._hit(s, inside, CRASH_OBSTACLE)  # stopped by the obstacle; it falls from there
         if self.net_half_extent_m is not None:
+            r = self.airframe.frame_radius_m
             hx, hy = self.net_half_extent_m
-            out = ((np.abs(s.pos_m[:, 0]) > hx - r) | (np.abs(s.pos_m[:, 1]) > hy - r)) & (
-                z < self.net_height_m)
-            hit = (s.crash == 0) & out
-            s.crash[hit] = CRASH_NET
-            s.vel_mps[hit, :2] = 0.0  # caught in the net
+            out = ((np.abs(p[:, 0]) > hx - r) | (np.abs(p[:, 1]) > hy - r)) & (
+                p[:, 2] < self.net_height_m)
+            self._hit(s, out, CRASH_NET)  # caught in the net
+
+    def _hit(self, s: BodyState, touching: np.ndarray, code: int) -> None:
+        hit = (s.crash == 0) & touching
+        if hit.any():
+            s.crash[hit] = code
+            s.vel_mps[hit, :2] = 0.0
             self._w_max_alive[hit] = 0.0
 
     def _ground(self, s: BodyState) -> None:
         touching = s.pos_m[:, 2] <= 0.0
-        if touching.any():
-            hard = touching & (s.vel_mps[:, 2] < -self.airframe.crash_speed_mps) & (s.crash == 0)
+        if not touching.any():
+            s.on_ground = touching
+            self._grounded = False
+            return
+        # A vehicle resting on the ground comes here every step: basic slices when all
+        # vehicles touch, and the checks below skip what is already settled.
+        idx = slice(None) if touching.all() else np.nonzero(touching)[0]
+        vz = s.vel_mps[:, 2]
+        if _min(vz) < -self.airframe.crash_speed_mps:
+            hard = touching & (vz < -self.airframe.crash_speed_mps) & (s.crash == 0)
             s.crash[hard] = CRASH_GROUND
-            idx = np.nonzero(touching)[0]
-            s.pos_m[idx, 2] = 0.0
-            # Skids on grass: no sliding, no bouncing, the frame settles level.
-            s.vel_mps[idx] = 0.0
-            yaw = np.arctan2(s.R_world_body[idx, 1, 0], s.R_world_body[idx, 0, 0])
-            s.R_world_body[idx] = yaw_matrix(yaw)
-            s.omega_rad_s[idx] = 0.0
-            if hard.any():
-                self._w_max_alive[hard] = 0.0
+            self._w_max_alive[hard] = 0.0
+        s.pos_m[idx, 2] = 0.0
+        # Skids on grass: no sliding, no bouncing, the frame settles level.
+        s.vel_mps[idx] = 0.0
+        s.omega_rad_s[idx] = 0.0
+        R = s.R_world_body
+        if _min(R[idx, 2, 2]) < 1.0:  # tilted: level it, keeping the heading
+            R[idx] = yaw_matrix(np.arctan2(R[idx, 1, 0], R[idx, 0, 0]))
         s.on_ground = touching
-        self._grounded = bool(touching.any())
+        self._grounded = True

@@ -131,7 +131,7 @@ def _stick(command: float) -> float:
 def task_plan(scene: Scene, task_id: int) -> list[Leg]:
     """The legs of one of the scene's tasks (1 hover, 2 A to B, 3 obstacle circle, 4 figure 8)."""
     task = scene.task(task_id)
-    start, end = scene.pad(task.start_pad), scene.pad(task.end_pad)
+    end = scene.pad(task.end_pad)
     tallest = max((o.height_m for o in scene.obstacles), default=0.0)
     cruise_alt = max(task.altitude_m, tallest + 1.0)  # "above 3 m" over 3 m obstacles
     legs = [Leg("arm"), Leg("climb", alt_m=task.altitude_m if task_id == 1 else cruise_alt)]

@@ -93,6 +93,7 @@ class Sim:
         self.sensors = Sensors(self.n, self.scene.home, cfg.sensors, self.rng)
         self.sticks = np.tile([0.0, 0.0, 0.0, 0.5], (self.n, 1))  # centred, throttle mid
         self.throttle = np.zeros((self.n, 4))
+        self._idle = np.zeros(self.n, bool)
         self.est_pos_m, self.est_vel_mps = self.sensors.estimate(self.state.pos_m, self.state.vel_mps)
         self.controller.reset(np.ones(self.n, bool), self.est_pos_m, self.state.R_world_body)
 
@@ -142,14 +143,18 @@ class Sim:
         com, ctl = self.commander, self.controller
         slow_every = cfg.outer_every * cfg.slow_every
         dt_outer, dt_slow = self.dt_s * cfg.outer_every, self.dt_s * slow_every
-        for _ in range(n_steps):
-            if self.steps % slow_every == 0:  # 10 Hz: battery, drifts, commander
+        # Arming, reset or battery may have changed between calls; then at the outer rate.
+        ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
+        steps, end, every = self.steps, self.steps + n_steps, cfg.outer_every
+        inner, physics_step = ctl.inner, self.dynamics.step
+        while steps < end:
+            if steps % slow_every == 0:  # 10 Hz: battery, drifts, commander
                 self.dynamics.slow_update(s, dt_slow)
                 self.sensors.update(dt_slow)
                 fix = np.full(self.n, self.sensors.has_fix(self.t_s))
                 com.update(dt_slow, self.sticks, s.on_ground, s.crash, self.est_pos_m,
                            ctl.vel_sp_mps[:, 2], self.battery_pct_all(), fix)
-            if self.steps % cfg.outer_every == 0:  # 50 Hz: collisions, estimate, outer loop
+            if steps % every == 0:  # 50 Hz: collisions, estimate, outer loop
                 self.dynamics.collisions(s)
                 self.sensors.poll_gps(self.t_s, s.pos_m, s.vel_mps)
                 self.est_pos_m, self.est_vel_mps = self.sensors.estimate(s.pos_m, s.vel_mps)
@@ -161,11 +166,15 @@ class Sim:
                           s.R_world_body, com.target_m)
                 self._idle = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
                                                    ctl.vel_sp_mps[:, 2] <= 0.2)
-            self.throttle = ctl.inner(s.R_world_body, s.omega_rad_s,
-                                      self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
-            self.dynamics.step(s, self.throttle)
-            self.steps += 1
-            self.t_s = self.steps * self.dt_s
+                ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
+            # Attitude/rate loop and rigid body at the physics rate, up to the next outer tick.
+            run = min(every - steps % every, end - steps)
+            for _ in range(run):
+                physics_step(s, inner(s.R_world_body, s.omega_rad_s))
+            self.throttle = ctl.throttle
+            steps += run
+            self.steps = steps
+            self.t_s = steps * self.dt_s
 
     def run_for(self, seconds: float) -> None:
         self.step(int(round(seconds / self.dt_s)))

@@ -54,8 +54,8 @@ CAMERA_COLUMN_FIELDS: tuple[str, ...] = ("seq", "file", "t_wall", "skew_s")
 # front/frames.csv and bottom/frames.csv.
 FRAME_COLUMNS: tuple[str, ...] = ("seq", "file", "t_s", "t_wall", "width", "height", "bytes")
 
-# tlog: each packet is preceded by its receive time, big-endian uint64 microseconds.
-TLOG_TIMESTAMP_FORMAT = ">Q"
+# tlog: each packet is preceded by its receive time, big-endian uint64 microseconds
+# (written and read by companion.tlog, which the link's replay source uses too).
 
 
 def frame_file(seq: int) -> str:

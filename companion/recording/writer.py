@@ -14,7 +14,6 @@ import csv
 import errno
 import logging
 import os
-import struct
 import threading
 import time
 from collections import deque
@@ -25,10 +24,10 @@ from pathlib import Path
 from companion.frames import Frame
 from companion.recording import diskspace, layout
 from companion.recording.rows import RowFormatter, Sample
+from companion.tlog import encode_record
 
 log = logging.getLogger(__name__)
 
-_TLOG_TS = struct.Struct(layout.TLOG_TIMESTAMP_FORMAT)
 
 
 @dataclass
@@ -210,11 +209,7 @@ class SessionWriter:
                 st.last_seq[cam] = frame.seq
                 st.last_frame_mono[cam] = frame.t_mono
         if packets:
-            chunks = []
-            for t_wall, packet in packets:
-                chunks.append(_TLOG_TS.pack(int(t_wall * 1e6)))
-                chunks.append(packet)
-            data = b"".join(chunks)
+            data = b"".join(encode_record(t_wall, packet) for t_wall, packet in packets)
             self._tlog.write(data)
             st.packets_written += len(packets)
             st.bytes_written += len(data)
