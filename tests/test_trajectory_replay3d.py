@@ -142,3 +142,21 @@ def test_replay_port_defaults_to_live_port_plus_one():
     assert ViserSettings(port=8080).replay_port_resolved == 8081
     assert ViserSettings(port=0).replay_port_resolved == 0
     assert ViserSettings(port=8080, replay_port=9000).replay_port_resolved == 9000
+
+
+def test_replay_scene_turns_the_field_with_the_papers_alignment(replay):
+    """A flight due north, aligned start-to-end on +x: the field turns with it (-90 deg)."""
+    from analysis.geodesy import enu_to_geodetic
+
+    f = default_field()
+    t = np.arange(100) * 0.1
+    enu = np.column_stack([np.full(100, 5.0), t, np.full(100, 2.0)])  # 5 m east of the anchor
+    lat, lon, alt = enu_to_geodetic(enu, f.anchor_lat_deg, f.anchor_lon_deg, f.anchor_alt_m).T
+    replay.load(build_trajectory("n", t, lat, lon, alt, align="end"))
+    assert replay.primary.align_rad == pytest.approx(-np.pi / 2, abs=1e-3)
+    frame = replay.scene._field_frame
+    # the anchor lies 5 m west of the origin; after turning -90 deg that is +y (north)
+    np.testing.assert_allclose(frame.position, [0.0, 5.0, -2.0], atol=0.02)
+    np.testing.assert_allclose(np.abs(frame.wxyz), [np.sqrt(0.5), 0, 0, np.sqrt(0.5)], atol=1e-3)
+    assert frame.wxyz[3] * frame.wxyz[0] < 0  # a clockwise turn
+    np.testing.assert_allclose(all_segments(replay)[-1, 1], [9.9, 0.0, 0.0], atol=0.02)
