@@ -108,34 +108,13 @@ def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
     recorder's own telemetry.csv from the live link) gives a hover near the pad."""
     import httpx
 
-    from server.app import create_app
-    from server.settings import load_settings
-    from tests.helpers import run_uvicorn, wait_until
-    from twin.pilot import Leg, fly_twin
+    from tests.twin_flights import recorded_twin_flight
 
-    settings = load_settings(None, {
-        "link.source": "sim", "viser.enabled": False,  # real time: the recorder stamps wall time
-        "cameras.front.spec": "none", "cameras.bottom.spec": "none",
-        "recording.sessions_dir": str(tmp_path), "recording.post_disarm_tail_s": 1.0,
-        "recording.min_free_mb": 0}, environ={})  # fmt: skip
-    app = create_app(settings)
-    with run_uvicorn(app) as base:
-        station = app.state.station
-        state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
-        assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 20)
-        legs = task_plan(station.twin.scene, 1)
-        # A pilot waits a moment on the pad after arming (the armed HEARTBEAT is 1 Hz).
-        legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
-        pilot = Pilot(legs)
-        fly_twin(station.twin, pilot, timeout_s=120)
-        assert pilot.done, pilot.log
-        assert wait_until(lambda: station.recorder.last_stop is not None
-                          and station.recorder.recording_id is None, 20)  # fmt: skip
-        sid = station.recorder.last_stop.id
-        # The scripted pilot levels off just under 4 m: read 4 m as a 0.1 m display does
-        # (with the literal 4.00 m it may cross too late for a 10 s window: NoTaskWindow).
-        params = {"task": "hover", "hover_height_tolerance_m": 0.05}
-        r = httpx.get(f"{base}/api/sessions/{sid}/analysis", params=params, timeout=60)
+    # Real time (viser off, cameras off): the recorder stamps wall time.
+    overrides = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    with recorded_twin_flight(tmp_path, 1, overrides) as flight:
+        r = httpx.get(f"{flight.base_url}/api/sessions/{flight.session_id}/analysis",
+                      params={"task": "hover"}, timeout=60)
     assert r.status_code == 200, r.text
     res = r.json()["results"][0]
     assert res["platform"] == "twin" and res["reference_kind"] == "scene"

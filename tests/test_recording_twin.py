@@ -14,44 +14,19 @@ import pytest
 from analysis.track import load_session_dir
 from companion.link import MavlinkLink
 from companion.recording import layout
-from server.app import create_app
-from server.settings import LinkSettings, load_settings
-from tests.helpers import run_uvicorn, wait_until
-from twin.pilot import Leg, Pilot, fly_twin, task_plan
+from server.settings import LinkSettings
+from tests.helpers import wait_until
+from tests.twin_flights import recorded_twin_flight
 
 RATE_HZ = 30.0
 
 
-def hover_pilot(twin) -> Pilot:
-    legs = task_plan(twin.scene, 1)
-    # A pilot waits on the pad a moment after arming before throttling up. It matters
-    # here: the station takes the arming altitude when it sees the armed HEARTBEAT (1 Hz),
-    # so a take-off within that second would move the pilot's altitude reference.
-    assert legs[0].kind == "arm"
-    legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
-    return Pilot(legs)
-
-
 def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
-    settings = load_settings(None, {
-        "link.source": "sim", "viser.enabled": False,
-        "recording.sessions_dir": str(tmp_path), "recording.rate_hz": RATE_HZ,
-        "recording.post_disarm_tail_s": 1.0, "recording.min_free_mb": 0}, environ={})
-    app = create_app(settings)
-    with run_uvicorn(app) as _base:
-        station = app.state.station
-        state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
-        assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 15)
-        fps = {n: cam.config.fps for n, cam in station.cameras.items()}
-        t0 = time.monotonic()
-        pilot = hover_pilot(station.twin)
-        fly_twin(station.twin, pilot, timeout_s=60)
-        assert pilot.done, pilot.log
-        assert time.monotonic() - t0 < 60
-        # Landed: the commander disarms 2 s later, then the 1 s tail ends the session.
-        assert wait_until(lambda: station.recorder.last_stop is not None
-                          and station.recorder.recording_id is None, 15)
-        last = station.recorder.last_stop
+    t0 = time.monotonic()
+    with recorded_twin_flight(tmp_path, 1, {"recording.rate_hz": RATE_HZ}) as flight:
+        fps = {n: cam.config.fps for n, cam in flight.station.cameras.items()}
+        assert time.monotonic() - t0 < 80
+        last = flight.station.recorder.last_stop
     assert last.reason == "disarmed"
     folder = tmp_path / last.id
     meta = json.loads((folder / layout.SESSION_JSON).read_text())

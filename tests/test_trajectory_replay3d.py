@@ -7,7 +7,6 @@ import httpx
 import numpy as np
 import pytest
 
-from analysis.synthetic import a_to_b_flight, write_session
 from server.app import create_app
 from server.settings import ViserSettings, load_settings
 from server.trajectory3d.field import default_field

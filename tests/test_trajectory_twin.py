@@ -12,33 +12,14 @@ import numpy as np
 import pytest
 
 from companion.recording import layout
-from server.app import create_app
-from server.settings import load_settings
-from tests.helpers import run_uvicorn, wait_until
-from twin.pilot import Leg, Pilot, fly_twin, task_plan
+from tests.twin_flights import recorded_twin_flight
 
 
 @pytest.mark.timeout(240)
 def test_twin_session_trajectory_matches_local_position(tmp_path):
-    settings = load_settings(None, {
-        "link.source": "sim", "viser.port": 0,
-        "recording.sessions_dir": str(tmp_path), "recording.rate_hz": 20.0,
-        "recording.post_disarm_tail_s": 1.0, "recording.min_free_mb": 0}, environ={})
-    app = create_app(settings)
-    with run_uvicorn(app) as base:
-        station = app.state.station
-        state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
-        assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 15)
-        legs = task_plan(station.twin.scene, 2)
-        # Wait on the pad after arming, as a pilot does: the station takes the arming
-        # point from the armed HEARTBEAT (1 Hz), before the take-off.
-        legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
-        pilot = Pilot(legs)
-        fly_twin(station.twin, pilot, timeout_s=120)
-        assert pilot.done, pilot.log
-        assert wait_until(lambda: station.recorder.last_stop is not None
-                          and station.recorder.recording_id is None, 20)
-        session_id = station.recorder.last_stop.id
+    overrides = {"viser.enabled": True, "viser.port": 0, "recording.rate_hz": 20.0}
+    with recorded_twin_flight(tmp_path, 2, overrides) as flight:
+        station, base, session_id = flight.station, flight.base_url, flight.session_id
         # The live panel drew the flight: the field of the twin's scene and a long trail.
         panel = station.trajectory3d
         assert {"pad:start", "pad:landing"} <= set(panel.scene.field_handles)
@@ -53,7 +34,8 @@ def test_twin_session_trajectory_matches_local_position(tmp_path):
         rows = [r for r in csv.DictReader(f) if r["local_position.x_m"]]
     t_rows = np.array([float(r["t_s"]) for r in rows])
     ned = np.array([[float(r[f"local_position.{k}_m"]) for k in "xyz"] for r in rows])
-    armed = np.array([r["heartbeat.armed"] == "True" for r in rows])
+    armed = np.array([r["heartbeat.armed"] == "1" for r in rows])
+    assert armed.any()
     enu_local = np.column_stack([ned[:, 1], ned[:, 0], -ned[:, 2]])
     enu_local -= enu_local[np.argmax(armed)]  # the same origin: where it armed
 

@@ -104,6 +104,8 @@ def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
         page.keyboard.down("ArrowUp")
         assert wait_until(lambda: twin.pose().pos_enu_m[2] > 1.5, timeout=8)
         page.keyboard.up("ArrowUp")
+        # Sticks are sampled on the page's 50 Hz tick: the release shows by the next one.
+        page.wait_for_function("window.fpv.control.sticks.throttle === 0.5", timeout=2000)
         sticks = page.evaluate("window.fpv.control.sticks")
         assert sticks == {"roll": 0, "pitch": 0, "yaw": 0, "throttle": 0.5}
         page.keyboard.down("KeyW")  # forward: east

@@ -1,0 +1,58 @@
+"""A recorded flight of the station on the digital twin, for the end-to-end tests.
+
+`recorded_twin_flight` starts a real station (`--source sim`, real uvicorn, real MAVLink
+over loopback) that auto-records into `sessions_dir`, lets the twin's scripted pilot fly
+one of the scene's tasks, and yields once the recorder has closed the session.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from server.app import create_app
+from server.settings import load_settings
+from tests.helpers import run_uvicorn, wait_until
+from twin.pilot import Leg, Pilot, fly_twin, task_plan
+
+
+@dataclass
+class RecordedFlight:
+    base_url: str
+    station: Any  # server.station.Station, still running
+    session_id: str
+    stop_reason: str
+    folder: Path
+
+
+@contextlib.contextmanager
+def recorded_twin_flight(
+    sessions_dir: Path, task_id: int, overrides: dict[str, Any] | None = None,
+    timeout_s: float = 120.0,
+) -> Iterator[RecordedFlight]:
+    settings = load_settings(None, {
+        "link.source": "sim", "viser.enabled": False,
+        "recording.sessions_dir": str(sessions_dir), "recording.post_disarm_tail_s": 1.0,
+        "recording.min_free_mb": 0, **(overrides or {})}, environ={})  # fmt: skip
+    app = create_app(settings)
+    with run_uvicorn(app) as base:
+        station = app.state.station
+        state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
+        assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 20)
+        legs = task_plan(station.twin.scene, task_id)
+        # A pilot waits on the pad a moment after arming. It matters here: recording
+        # starts when the station sees the armed HEARTBEAT (1 Hz), so a take-off within
+        # that second would be missing from the session.
+        assert legs[0].kind == "arm"
+        legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
+        pilot = Pilot(legs)
+        fly_twin(station.twin, pilot, timeout_s=timeout_s)
+        assert pilot.done, pilot.log
+        # Landed: the commander disarms 2 s later, then the 1 s tail ends the session.
+        assert wait_until(lambda: station.recorder.last_stop is not None
+                          and station.recorder.recording_id is None, 20)  # fmt: skip
+        last = station.recorder.last_stop
+        yield RecordedFlight(base, station, last.id, last.reason, Path(sessions_dir) / last.id)
