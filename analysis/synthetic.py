@@ -18,11 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from analysis.geodesy import enu_to_geodetic, rotate_about_up
-from companion.vehicle_state import VehicleState
+from companion.recording import layout
 
 Array = NDArray[np.float64]
 FIELD_HOME = (43.0021, -78.7875, 180.0)  # the paper's field, from MISSION.md
-CAMERAS = ("front", "bottom")  # the recorder adds these columns after the state
 
 
 @dataclass(frozen=True)
@@ -178,23 +177,6 @@ def figure8_flight(
 # ---------------------------------------------------------------- writers
 
 
-def csv_columns() -> list[str]:
-    """The recorder's header: t_s, wall_time, then VehicleState flattened."""
-    cols = ["t_s", "wall_time"]
-    state = VehicleState()
-    for g in dataclasses.fields(state):
-        group = getattr(state, g.name)
-        for f in dataclasses.fields(group):
-            value = getattr(group, f.name)
-            if isinstance(value, tuple):
-                cols += [f"{g.name}.{f.name}.{i}" for i in range(len(value))]
-            else:
-                cols.append(f"{g.name}.{f.name}")
-    for cam in CAMERAS:
-        cols += [f"{cam}.seq", f"{cam}.file", f"{cam}.t_wall", f"{cam}.skew_s"]
-    return cols
-
-
 def write_session(
     flight: Flight, folder: Path, gps_hz: float = 10.0, wall_t0: float = 1.7e9,
     fix_type: int = 3, meta: dict | None = None,
@@ -211,7 +193,8 @@ def write_session(
     gps_i = np.clip(gps_i, 0, t.size - 1)
     vel = np.gradient(flight.xyz_m, t, axis=0)
     n = t.size
-    cols = {name: np.full(n, "", dtype=object) for name in csv_columns()}
+    # The recorder's own header and cell format, so tests read what the recorder writes.
+    cols = {name: np.full(n, "", dtype=object) for name in layout.telemetry_columns()}
 
     def put(name: str, values, fmt: str = "%.3f") -> None:
         cols[name] = np.char.mod(fmt, np.asarray(values))
@@ -234,19 +217,19 @@ def write_session(
     put("altitude.relative_alt_m", flight.xyz_m[:, 2])
     put("vfr_hud.ground_speed_mps", np.hypot(vel[:, 0], vel[:, 1]))
     put("vfr_hud.climb_mps", vel[:, 2])
-    cols["heartbeat.armed"] = np.where(flight.armed, "True", "False")
+    cols["heartbeat.armed"] = np.where(flight.armed, "1", "0")
     cols["heartbeat.mode"] = np.full(n, "POSCTL", dtype=object)
     seq = np.floor(t * 30.0).astype(np.int64)  # cameras at 30 fps
-    for cam in CAMERAS:
+    for cam in layout.CAMERAS:
         put(f"{cam}.seq", seq, "%d")
-        cols[f"{cam}.file"] = np.char.mod(f"{cam}/%08d.jpg", seq)
+        cols[f"{cam}.file"] = np.array([layout.frame_relpath(cam, int(k)) for k in seq], object)
         put(f"{cam}.t_wall", wall_t0 + seq / 30.0, "%.6f")
         put(f"{cam}.skew_s", t - seq / 30.0, "%.6f")
     table = np.column_stack([np.asarray(v, dtype=object) for v in cols.values()])
     lines = [",".join(cols)] + [",".join(row) for row in table.tolist()]
-    (folder / "telemetry.csv").write_text("\n".join(lines) + "\n")
+    (folder / layout.TELEMETRY_CSV).write_text("\n".join(lines) + "\n")
     if meta is not None:
-        (folder / "session.json").write_text(json.dumps(meta))
+        (folder / layout.SESSION_JSON).write_text(json.dumps(meta))
     return folder
 
 

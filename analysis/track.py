@@ -26,12 +26,13 @@ from numpy.typing import NDArray
 
 from analysis.csvcols import CsvColumns, to_bool, to_float
 from analysis.errors import NoGpsFixError, TrackLoadError
+from companion.recording import layout
 
 Array = NDArray[np.float64]
 PositionSource = Literal["gps", "global_position"]
 
-TELEMETRY_CSV = "telemetry.csv"
-META_FILES = ("session.json", "meta.json", "metadata.json")
+TELEMETRY_CSV = layout.TELEMETRY_CSV
+META_FILES = (layout.SESSION_JSON, "meta.json", "metadata.json")
 MIN_FIX_3D = 3
 
 

@@ -102,7 +102,7 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
             name,
             getattr(cams, name),
             link_source=station.settings.link.source,
-            renderer=lambda: getattr(station, "twin", None),
+            renderer=lambda: station.twin,  # set by open_sim for source "sim", else None
             stall_s=cams.stall_s,
             retry_min_s=cams.retry_min_s,
             retry_max_s=cams.retry_max_s,

@@ -30,7 +30,8 @@ from analysis.field import load_scene
 from analysis.plots import PLOTS
 from analysis.report import Analysis, analyze_tracks
 from analysis.tasks import TaskParams
-from analysis.track import TELEMETRY_CSV, load_track, parse_meta
+from analysis.track import load_track, parse_meta
+from companion.recording import layout
 from companion.recording import store as st
 from server.errors import ApiError, BadRequest, NotFound
 
@@ -40,8 +41,6 @@ MAX_SESSIONS = 8
 # belong to telemetry and video first. Others wait their turn (bounded by the server's
 # thread pool), they are not refused.
 CONCURRENT_ANALYSES = 1
-TLOG = "mavlink.tlog"
-META = "session.json"
 
 
 class Unprocessable(ApiError):
@@ -101,16 +100,17 @@ def _session_files(store: st.SessionStore, session_id: str) -> tuple[Path, Path 
     """The telemetry file (CSV, else the tlog) and session.json, through the store."""
     store.resolve(session_id)
     try:
-        data = store.file(session_id, TELEMETRY_CSV)
+        data = store.file(session_id, layout.TELEMETRY_CSV)
     except st.SessionFileNotFound:
         try:
-            data = store.file(session_id, TLOG)
+            data = store.file(session_id, layout.MAVLINK_TLOG)
         except st.SessionFileNotFound:
             raise st.SessionFileNotFound(
-                f"Session '{session_id}' has neither {TELEMETRY_CSV} nor {TLOG} to analyse."
+                f"Session '{session_id}' has neither {layout.TELEMETRY_CSV} nor "
+                f"{layout.MAVLINK_TLOG} to analyse."
             ) from None
     try:
-        meta = store.file(session_id, META)
+        meta = store.file(session_id, layout.SESSION_JSON)
     except st.SessionFileNotFound:
         meta = None
     return data, meta
