@@ -7,6 +7,8 @@
     ├── Conflict              (409)
     └── Unavailable           (503, a service that is not running or not ready)
 
+Errors of the session store (`companion.recording.store`: a bad id or path -> 400, an
+unknown session or file -> 404) are mapped here too, so no route translates them itself.
 Handlers are installed in one place (`install_error_handlers`); unexpected exceptions
 are logged with their traceback and answered with a short 500, never the traceback.
 """
@@ -20,6 +22,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from companion.recording import store as session_store
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +72,10 @@ def install_error_handlers(app: FastAPI) -> None:
     async def _api_error(_: Request, exc: ApiError) -> JSONResponse:
         return error_response(exc.status_code, type(exc).__name__, exc.message)
 
+    @app.exception_handler(session_store.SessionStoreError)
+    async def _store_error(_: Request, exc: session_store.SessionStoreError) -> JSONResponse:
+        return _from_store_error(exc)
+
     @app.exception_handler(RequestValidationError)
     async def _validation(_: Request, exc: RequestValidationError) -> JSONResponse:
         problems = "; ".join(
@@ -83,3 +91,9 @@ def install_error_handlers(app: FastAPI) -> None:
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return error_response(500, "InternalError", "Internal error; see the station's log.")
+
+
+def _from_store_error(exc: Exception) -> JSONResponse:
+    missing = (session_store.SessionNotFound, session_store.SessionFileNotFound)
+    api = NotFound if isinstance(exc, missing) else BadRequest
+    return error_response(api.status_code, api.__name__, str(exc))

@@ -34,6 +34,7 @@ from analysis.track import load_track, parse_meta
 from companion.recording import layout
 from companion.recording import store as st
 from server.errors import ApiError, BadRequest, NotFound
+from server.routes.recording import get_recorder
 
 router = APIRouter(tags=["analysis"])
 MAX_SESSIONS = 8
@@ -71,10 +72,6 @@ _ERRORS: dict[type[Exception], type[ApiError]] = {
     ae.TooFewPointsError: TooFewPoints,
     ae.TaskWindowError: NoTaskWindow,
     ae.TrackLoadError: UnreadableSession,
-    st.InvalidSessionId: BadRequest,
-    st.InvalidPath: BadRequest,
-    st.SessionNotFound: NotFound,
-    st.SessionFileNotFound: NotFound,
 }
 
 
@@ -144,7 +141,7 @@ def _analyze(request: Request, session_ids: list[str], task: str, reference: str
              params: TaskParams) -> Analysis:  # fmt: skip
     """Runs in a worker thread: file access, parsing and numpy."""
     settings = request.app.state.settings
-    store = st.SessionStore(settings.recording.sessions_dir)
+    store = get_recorder(request).store  # the station's one SessionStore
     files = []
     for sid in session_ids:
         data, meta = _session_files(store, sid)
@@ -168,7 +165,7 @@ async def _run(request: Request, session_ids: list[str], task: str, reference: s
         try:
             an = _analyze(request, session_ids, task, reference, params)
             return an if plot is None else an.plot(plot)
-        except (ae.AnalysisError, st.SessionStoreError) as exc:
+        except ae.AnalysisError as exc:  # store errors: 400/404 by server.errors
             raise _api_error(exc) from None
 
     limiter = getattr(request.app.state, "analysis_limiter", None)

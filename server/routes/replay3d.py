@@ -13,8 +13,8 @@ import math
 from fastapi import APIRouter, Request
 from pydantic import BaseModel, Field
 
-from companion.recording.store import SessionStore
 from server.errors import BadRequest, Unavailable
+from server.routes.recording import get_recorder
 from server.routes.trajectory import _parse_reference, load_trajectory
 from server.trajectory3d.replay import Align
 
@@ -62,7 +62,7 @@ def _state(service) -> Replay3DState:
 async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     service = _service(request)
     settings = request.app.state.settings
-    store = SessionStore(settings.recording.sessions_dir)
+    store = get_recorder(request).store  # the station's one SessionStore
     ref = _parse_reference(body.reference)
     gap_s = settings.viser.gap_s
 

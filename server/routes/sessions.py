@@ -7,8 +7,6 @@ the sessions directory; its typed errors map onto the one error shape here.
 from __future__ import annotations
 
 import asyncio
-import contextlib
-from collections.abc import Iterator
 from typing import Any
 
 from fastapi import APIRouter, Depends
@@ -19,15 +17,10 @@ from companion.recording import layout
 from companion.recording.meta import SessionMeta
 from companion.recording.recorder import Recorder
 from companion.recording.store import (
-    InvalidPath,
-    InvalidSessionId,
-    SessionFileNotFound,
-    SessionNotFound,
-    SessionStoreError,
     SessionSummary,
 )
 from server.auth import require_control_token
-from server.errors import BadRequest, Conflict, NotFound
+from server.errors import Conflict
 from server.routes.recording import get_recorder
 from server.zipstream import stream_zip
 
@@ -56,18 +49,6 @@ class SessionDetailModel(BaseModel):
     meta: SessionMeta | None
     files: list[str]  # every file but the frames (see the frames.csv of each camera)
     frame_files: dict[str, int]  # camera -> JPEG files on disk
-
-
-@contextlib.contextmanager
-def _store_errors() -> Iterator[None]:
-    try:
-        yield
-    except (InvalidSessionId, InvalidPath) as exc:
-        raise BadRequest(str(exc)) from None
-    except (SessionNotFound, SessionFileNotFound) as exc:
-        raise NotFound(str(exc)) from None
-    except SessionStoreError as exc:  # pragma: no cover - every subclass is mapped above
-        raise BadRequest(str(exc)) from None
 
 
 def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummaryModel:
@@ -101,15 +82,13 @@ async def get_session(session_id: str, recorder: Recorder = Depends(get_recorder
         return SessionDetailModel(summary=_summary_model(summary, recorder.recording_id),
                                   meta=summary.meta, files=files, frame_files=frames)
 
-    with _store_errors():
-        return await asyncio.to_thread(load)
+    return await asyncio.to_thread(load)
 
 
 @router.get("/api/sessions/{session_id}/download", summary="The whole session as a zip (streamed)",
             response_class=StreamingResponse)
 async def download_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> StreamingResponse:
-    with _store_errors():
-        files = await asyncio.to_thread(recorder.store.files, session_id)
+    files = await asyncio.to_thread(recorder.store.files, session_id)
     entries = [(f"{session_id}/{rel}", path) for rel, path in files]
     return StreamingResponse(
         stream_zip(entries),
@@ -122,17 +101,15 @@ async def download_session(session_id: str, recorder: Recorder = Depends(get_rec
             response_class=FileResponse)
 async def session_file(session_id: str, path: str,
                        recorder: Recorder = Depends(get_recorder)) -> FileResponse:
-    with _store_errors():
-        real = await asyncio.to_thread(recorder.store.file, session_id, path)
+    real = await asyncio.to_thread(recorder.store.file, session_id, path)
     return FileResponse(real, filename=real.name, content_disposition_type="inline")
 
 
 @router.delete("/api/sessions/{session_id}", dependencies=[Depends(require_control_token)],
                summary="Delete a session (refused while it is recorded)")
 async def delete_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> dict[str, str]:
-    with _store_errors():
-        await asyncio.to_thread(recorder.store.resolve, session_id)
-        if recorder.recording_id == session_id:
-            raise Conflict(f"Session '{session_id}' is being recorded; stop it first.")
-        await asyncio.to_thread(recorder.store.delete, session_id)
+    await asyncio.to_thread(recorder.store.resolve, session_id)
+    if recorder.recording_id == session_id:
+        raise Conflict(f"Session '{session_id}' is being recorded; stop it first.")
+    await asyncio.to_thread(recorder.store.delete, session_id)
     return {"deleted": session_id}

@@ -17,12 +17,11 @@ from analysis.track import load_session_dir
 from companion.recording import layout
 from companion.recording.store import (
     InvalidPath,
-    InvalidSessionId,
     SessionFileNotFound,
-    SessionNotFound,
     SessionStore,
 )
-from server.errors import BadRequest, NotFound
+from server.errors import BadRequest
+from server.routes.recording import get_recorder
 from server.trajectory3d.replay import (
     Align,
     CameraFrames,
@@ -52,12 +51,7 @@ def load_trajectory(
     gap_s: float,
 ) -> TrajectoryReply:
     """Blocking: reads the session's files (run it in a thread)."""
-    try:
-        folder: Path = store.resolve(session_id)
-    except InvalidSessionId as exc:
-        raise BadRequest(str(exc)) from None
-    except SessionNotFound as exc:
-        raise NotFound(str(exc)) from None
+    folder: Path = store.resolve(session_id)  # store errors answer 400/404 (server.errors)
     try:
         track = load_session_dir(folder)
     except (TrackLoadError, NoGpsFixError) as exc:
@@ -93,7 +87,7 @@ async def get_trajectory(
     reference: str | None = Query(None, description="LAT,LON put on +x (the paper's alignment)"),
 ) -> TrajectoryReply:
     settings = request.app.state.settings
-    store = SessionStore(settings.recording.sessions_dir)
+    store = get_recorder(request).store  # the station's one SessionStore
     ref = _parse_reference(reference)
     return await asyncio.to_thread(
         load_trajectory, store, session_id, align, ref, settings.viser.gap_s
