@@ -33,7 +33,9 @@ test: $(STAMP) browser
 bench: $(STAMP)
 	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
 
+# The formatter and the linter, both as configured in pyproject.toml (CI runs this).
 lint: $(STAMP)
+	$(BIN)/python -m ruff format --check .
 	$(BIN)/python -m ruff check .
 
 clean:

@@ -36,13 +36,21 @@ def parse_latlon(text: str) -> tuple[float, float]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     d = TaskParams()
-    p.add_argument("sessions", nargs="+", type=Path, metavar="SESSION",
-                   help="session folder, session .zip or .tlog")  # fmt: skip
+    p.add_argument(
+        "sessions",
+        nargs="+",
+        type=Path,
+        metavar="SESSION",
+        help="session folder, session .zip or .tlog",
+    )
     # Not `choices=`: a wrong task gets the same clear message as through REST.
     p.add_argument("--task", required=True, help=f"one of: {', '.join(TASKS)}")
-    p.add_argument("--reference", type=parse_latlon, metavar="LAT,LON",
-                   help="point that sets +x (default: the scene's landing pad, else the "
-                   "landing point)")  # fmt: skip
+    p.add_argument(
+        "--reference",
+        type=parse_latlon,
+        metavar="LAT,LON",
+        help="point that sets +x (default: the scene's landing pad, else the landing point)",
+    )
     p.add_argument("--out", type=Path, help="output folder (default: ./analysis-TASK)")
     scene = p.add_mutually_exclusive_group()
     scene.add_argument("--scene", type=Path, help="twin scene TOML with pads and obstacles")
@@ -50,14 +58,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--label", action="append", help="name of each session, in order")
     p.add_argument("--hover-height", type=float, default=d.hover_height_m, metavar="M")
     p.add_argument("--hover-window", type=float, default=d.hover_window_s, metavar="S")
-    p.add_argument("--hover-tolerance", type=float, default=d.hover_height_tolerance_m,
-                   metavar="M", help="the hover starts at hover height minus this")  # fmt: skip
-    p.add_argument("--margin", type=float, default=d.margin_m, metavar="M",
-                   help="window starts/ends this far along x from take-off/landing")  # fmt: skip
+    p.add_argument(
+        "--hover-tolerance",
+        type=float,
+        default=d.hover_height_tolerance_m,
+        metavar="M",
+        help="the hover starts at hover height minus this",
+    )
+    p.add_argument(
+        "--margin",
+        type=float,
+        default=d.margin_m,
+        metavar="M",
+        help="window starts/ends this far along x from take-off/landing",
+    )
     p.add_argument("--airborne-height", type=float, default=d.airborne_height_m, metavar="M")
-    p.add_argument("--height-source", choices=("pilot", "gps"), default=d.height_source,
-                   help="height that decides take-off, landing, the hover start and contacts: "
-                   "the pilot's recorded altitude (default) or GPS")  # fmt: skip
+    p.add_argument(
+        "--height-source",
+        choices=("pilot", "gps"),
+        default=d.height_source,
+        help="height that decides take-off, landing, the hover start and contacts: "
+        "the pilot's recorded altitude (default) or GPS",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -39,8 +39,11 @@ class CsvColumns:
             self._ends = ends  # (rows, width) positions of each field's terminator
             self.rows = int(ends.shape[0])
         else:
-            rows = [r for r in csv.reader(io.StringIO(body.decode("utf-8", "replace")))
-                    if len(r) == width]  # fmt: skip
+            rows = [
+                r
+                for r in csv.reader(io.StringIO(body.decode("utf-8", "replace")))
+                if len(r) == width
+            ]
             self._table = np.array(rows, dtype=np.bytes_).reshape(len(rows), width)
             self.rows = len(rows)
 

@@ -61,7 +61,7 @@ class FieldLayout:
 
     def in_track_frame(
         self, origin: tuple[float, float, float], rotation_rad: float
-    ) -> "FieldLayout":
+    ) -> FieldLayout:
         """The same layout about `origin`, rotated by `rotation_rad` about Up (the
         track's alignment), heights still above the scene's ground. The ENU axes of two
         origins a field apart differ by ~1e-5 rad (meridian convergence): ignored."""
@@ -78,8 +78,12 @@ class FieldLayout:
         )
         k = len(self.pads)
         obstacles = tuple(
-            replace(o, x_m=float(moved[k + i, 0]), y_m=float(moved[k + i, 1]),
-                    yaw_rad=o.yaw_rad + rotation_rad)  # fmt: skip
+            replace(
+                o,
+                x_m=float(moved[k + i, 0]),
+                y_m=float(moved[k + i, 1]),
+                yaw_rad=o.yaw_rad + rotation_rad,
+            )
             for i, o in enumerate(self.obstacles)
         )
         return FieldLayout(home=origin, pads=pads, obstacles=obstacles, name=self.name)
@@ -102,10 +106,14 @@ def load_scene(path: str | Path | None = None) -> FieldLayout | None:
         )
         obstacles = tuple(
             Obstacle(
-                str(d["name"]), float(d["x_m"]), float(d["y_m"]),
-                float(d.get("width_m", 1.0)), float(d.get("depth_m", d.get("width_m", 1.0))),
-                float(d["height_m"]), float(np.radians(d.get("yaw_deg", 0.0))),
-            )  # fmt: skip
+                str(d["name"]),
+                float(d["x_m"]),
+                float(d["y_m"]),
+                float(d.get("width_m", 1.0)),
+                float(d.get("depth_m", d.get("width_m", 1.0))),
+                float(d["height_m"]),
+                float(np.radians(d.get("yaw_deg", 0.0))),
+            )
             for d in data.get("obstacles", [])
         )
         return FieldLayout(

@@ -93,13 +93,34 @@ def birds_eye(aligned: Sequence[AlignedTrack], results: Sequence[TaskResult]) ->
     if field is not None:
         for o in field.obstacles:
             ax.add_patch(Polygon(_obstacle_corners(o), closed=True, color="0.55", zorder=1))
-            ax.annotate(o.name, (o.x_m, o.y_m), textcoords="offset points", xytext=(0, 8),
-                        ha="center", fontsize=8)  # fmt: skip
+            ax.annotate(
+                o.name,
+                (o.x_m, o.y_m),
+                textcoords="offset points",
+                xytext=(0, 8),
+                ha="center",
+                fontsize=8,
+            )
         for p in field.pads:
-            ax.add_patch(Rectangle((p.x_m - p.size_m / 2, p.y_m - p.size_m / 2), p.size_m,
-                                   p.size_m, fill=False, lw=1.5, ec="0.1", zorder=1))  # fmt: skip
-            ax.annotate(f"{p.name} pad", (p.x_m, p.y_m), textcoords="offset points",
-                        xytext=(0, -14), ha="center", fontsize=8)  # fmt: skip
+            ax.add_patch(
+                Rectangle(
+                    (p.x_m - p.size_m / 2, p.y_m - p.size_m / 2),
+                    p.size_m,
+                    p.size_m,
+                    fill=False,
+                    lw=1.5,
+                    ec="0.1",
+                    zorder=1,
+                )
+            )
+            ax.annotate(
+                f"{p.name} pad",
+                (p.x_m, p.y_m),
+                textcoords="offset points",
+                xytext=(0, -14),
+                ha="center",
+                fontsize=8,
+            )
     for k, (a, r) in enumerate(zip(aligned, results)):
         color = COLORS[k % len(COLORS)]
         xyz = a.xyz_m
@@ -126,8 +147,13 @@ def position_history(aligned: Sequence[AlignedTrack], results: Sequence[TaskResu
         t = a.t_s - r.takeoff_s
         for row, (axis, name) in enumerate(zip(a.xyz_m.T, ("x (m)", "y (m)", "z (m)"))):
             ax = axes[row][k]
-            ax.axvspan(r.window_start_s - r.takeoff_s, r.window_end_s - r.takeoff_s,
-                       color=color, alpha=0.15, lw=0)  # fmt: skip
+            ax.axvspan(
+                r.window_start_s - r.takeoff_s,
+                r.window_end_s - r.takeoff_s,
+                color=color,
+                alpha=0.15,
+                lw=0,
+            )
             ax.plot(t, axis, color=color, lw=1.0)
             ax.grid(True, lw=0.3)
             if k == 0:

@@ -84,8 +84,14 @@ def analyze_tracks(
     aligned, results = [], []
     for track in tracks:
         near = field_for(track, field)
-        a = align_track(track, reference_latlon, near, min_points=p.min_points,
-                        min_reference_m=p.margin_m, ground_height_m=p.airborne_height_m)  # fmt: skip
+        a = align_track(
+            track,
+            reference_latlon,
+            near,
+            min_points=p.min_points,
+            min_reference_m=p.margin_m,
+            ground_height_m=p.airborne_height_m,
+        )
         # Draw the field for every flight, count contacts for the twin only (see above).
         result = analyze(a, task, p, count_contacts=track.platform == "twin")
         aligned.append(a)

@@ -68,9 +68,15 @@ def _vertical(x: float, y: float, z0: float, rate_mps: float):
 
 
 def _with_ground(
-    dt: float, climb_to: tuple[float, float, float], flight, land_at: tuple[float, float],
-    climb_mps: float = 1.0, descent_mps: float = 0.5, pre_s: float = 2.0, post_s: float = 2.0,
-) -> Flight:  # fmt: skip
+    dt: float,
+    climb_to: tuple[float, float, float],
+    flight,
+    land_at: tuple[float, float],
+    climb_mps: float = 1.0,
+    descent_mps: float = 0.5,
+    pre_s: float = 2.0,
+    post_s: float = 2.0,
+) -> Flight:
     """Ground (disarmed 1 s, armed `pre_s`), vertical climb, `flight`, descent, ground."""
     x0, y0, zc = climb_to
     fly_s, fly = flight
@@ -83,15 +89,19 @@ def _with_ground(
         (fly_s, fly),
         (end[2] / descent_mps, _vertical(land_at[0], land_at[1], end[2], -descent_mps)),
         (post_s, _at(land_at[0], land_at[1], 0.0)),
-    )  # fmt: skip
+    )
     armed = (t >= 1.0) & (t < t[-1] - post_s / 2)
     return Flight(t_s=t, xyz_m=p, armed=armed)
 
 
 def hover_flight(
-    radius_m: float = 0.3, height_m: float = 4.0, bob_m: float = 0.1, hover_s: float = 24.0,
-    dt: float = 0.02, heading_deg: float = 90.0,
-) -> Flight:  # fmt: skip
+    radius_m: float = 0.3,
+    height_m: float = 4.0,
+    bob_m: float = 0.1,
+    hover_s: float = 24.0,
+    dt: float = 0.02,
+    heading_deg: float = 90.0,
+) -> Flight:
     """Climb to `height_m` while drifting out to a circle of `radius_m`, then circle it
     (distance to origin = radius exactly) with height bobbing +-bob_m at 0.5 Hz
     (height std over whole periods = bob/sqrt(2))."""
@@ -103,10 +113,13 @@ def hover_flight(
 
     def hover_f(tau: Array) -> Array:
         w = 2 * np.pi / 8.0
-        return np.column_stack([
-            radius_m * np.cos(w * tau), radius_m * np.sin(w * tau),
-            height_m + bob_m * np.sin(2 * np.pi * 0.5 * tau),
-        ])  # fmt: skip
+        return np.column_stack(
+            [
+                radius_m * np.cos(w * tau),
+                radius_m * np.sin(w * tau),
+                height_m + bob_m * np.sin(2 * np.pi * 0.5 * tau),
+            ]
+        )
 
     t, p = _phases(
         dt,
@@ -116,34 +129,47 @@ def hover_flight(
         (hover_s, hover_f),
         (height_m / 0.5, _vertical(radius_m, 0.0, height_m, -0.5)),
         (2.0, _at(radius_m, 0, 0)),
-    )  # fmt: skip
+    )
     return Flight(t_s=t, xyz_m=p, armed=(t >= 1.0) & (t < t[-1] - 1.0), heading_deg=heading_deg)
 
 
 def a_to_b_flight(
-    length_m: float = 40.0, height_m: float = 3.0, lateral_amp_m: float = 0.5,
-    lateral_wavelength_m: float = 6.0, height_amp_m: float = 0.2, speed_mps: float = 1.2,
-    dt: float = 0.02, heading_deg: float = 90.0,
-) -> Flight:  # fmt: skip
+    length_m: float = 40.0,
+    height_m: float = 3.0,
+    lateral_amp_m: float = 0.5,
+    lateral_wavelength_m: float = 6.0,
+    height_amp_m: float = 0.2,
+    speed_mps: float = 1.2,
+    dt: float = 0.02,
+    heading_deg: float = 90.0,
+) -> Flight:
     """Straight from x=0 to x=length at `speed_mps`, weaving y = A sin(2 pi x / wavelength)
     (std A/sqrt(2) over whole wavelengths) and z = h + a sin(2 pi x / 12)."""
     fly_s = length_m / speed_mps
 
     def fly(tau: Array) -> Array:
         x = speed_mps * tau
-        return np.column_stack([
-            x, lateral_amp_m * np.sin(2 * np.pi * x / lateral_wavelength_m),
-            height_m + height_amp_m * np.sin(2 * np.pi * x / 12.0),
-        ])  # fmt: skip
+        return np.column_stack(
+            [
+                x,
+                lateral_amp_m * np.sin(2 * np.pi * x / lateral_wavelength_m),
+                height_m + height_amp_m * np.sin(2 * np.pi * x / 12.0),
+            ]
+        )
 
     f = _with_ground(dt, (0.0, 0.0, height_m), (fly_s, fly), (length_m, 0.0))
     return dataclasses.replace(f, heading_deg=heading_deg)
 
 
 def figure8_flight(
-    centre_x_m: float = 20.0, half_length_m: float = 10.0, half_width_m: float = 4.0,
-    height_m: float = 3.0, lap_s: float = 60.0, dt: float = 0.02, heading_deg: float = 90.0,
-) -> Flight:  # fmt: skip
+    centre_x_m: float = 20.0,
+    half_length_m: float = 10.0,
+    half_width_m: float = 4.0,
+    height_m: float = 3.0,
+    lap_s: float = 60.0,
+    dt: float = 0.02,
+    heading_deg: float = 90.0,
+) -> Flight:
     """Out along +x to the 8's centre, one lap of the lemniscate-like curve
     x = c + L sin(th), y = W sin(2 th), back to the start pad."""
     leg_s = centre_x_m / 1.2
@@ -153,10 +179,13 @@ def figure8_flight(
 
     def eight(tau: Array) -> Array:
         th = 2 * np.pi * tau / lap_s
-        return np.column_stack([
-            centre_x_m + half_length_m * np.sin(th), half_width_m * np.sin(2 * th),
-            np.full(tau.size, height_m),
-        ])  # fmt: skip
+        return np.column_stack(
+            [
+                centre_x_m + half_length_m * np.sin(th),
+                half_width_m * np.sin(2 * th),
+                np.full(tau.size, height_m),
+            ]
+        )
 
     def back(tau: Array) -> Array:
         x = centre_x_m - 1.2 * tau
@@ -166,9 +195,10 @@ def figure8_flight(
 
     def fly(tau: Array) -> Array:
         return np.where(
-            (tau < leg_s)[:, None], out(tau),
+            (tau < leg_s)[:, None],
+            out(tau),
             np.where((tau < leg_s + lap_s)[:, None], eight(tau - leg_s), back(tau - leg_s - lap_s)),
-        )  # fmt: skip
+        )
 
     f = _with_ground(dt, (0.0, 0.0, height_m), (total, fly), (0.0, 0.0))
     return dataclasses.replace(f, heading_deg=heading_deg)
@@ -178,9 +208,13 @@ def figure8_flight(
 
 
 def write_session(
-    flight: Flight, folder: Path, gps_hz: float = 10.0, wall_t0: float = 1.7e9,
-    fix_type: int = 3, meta: dict | None = None,
-) -> Path:  # fmt: skip
+    flight: Flight,
+    folder: Path,
+    gps_hz: float = 10.0,
+    wall_t0: float = 1.7e9,
+    fix_type: int = 3,
+    meta: dict | None = None,
+) -> Path:
     """A session folder whose `telemetry.csv` has one row per dense sample (the telemetry
     rate) and GPS values held between GPS updates, as the recorder writes them."""
     import json

@@ -62,8 +62,9 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
             kind = msg.get_type()
             if kind == "GPS_RAW_INT":
                 speed = np.nan if msg.vel == _UINT16_UNKNOWN else msg.vel / 100.0
-                gps.append((t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0,
-                            msg.fix_type, speed))  # fmt: skip
+                gps.append(
+                    (t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0, msg.fix_type, speed)
+                )
             elif kind == "GLOBAL_POSITION_INT":
                 glob.append((t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0, 3, np.nan))
                 rel.append((t, msg.relative_alt / 1000.0))
@@ -82,9 +83,7 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
     t, lat, lon, alt, fix, speed = rows.T
     ok = (fix >= min_fix_type) & ~((lat == 0) & (lon == 0))
     if not ok.any():
-        raise NoGpsFixError(
-            f"'{path}' has no GPS sample with a fix (fix_type >= {min_fix_type})."
-        )
+        raise NoGpsFixError(f"'{path}' has no GPS sample with a fix (fix_type >= {min_fix_type}).")
     t, lat, lon, alt, fix, speed = (a[ok] for a in (t, lat, lon, alt, fix, speed))
     t0 = t[0]
     hud_a = _by_time(np.array(hud, dtype=np.float64).reshape(-1, 3))

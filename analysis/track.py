@@ -57,12 +57,9 @@ class Track:
     def __len__(self) -> int:
         return int(self.t_s.size)
 
-    def select(self, mask: NDArray[np.bool_] | NDArray[np.intp]) -> "Track":
+    def select(self, mask: NDArray[np.bool_] | NDArray[np.intp]) -> Track:
         """The same track restricted to `mask` (boolean or index array)."""
-        arrays = {
-            name: getattr(self, name)[mask]
-            for name in _ARRAY_FIELDS
-        }
+        arrays = {name: getattr(self, name)[mask] for name in _ARRAY_FIELDS}
         return replace(self, **arrays)
 
     @property
@@ -74,9 +71,17 @@ class Track:
 
 
 _ARRAY_FIELDS = (
-    "t_s", "wall_time", "lat_deg", "lon_deg", "alt_m", "fix_type", "armed",
-    "relative_alt_m", "ground_speed_mps", "climb_mps",
-)  # fmt: skip
+    "t_s",
+    "wall_time",
+    "lat_deg",
+    "lon_deg",
+    "alt_m",
+    "fix_type",
+    "armed",
+    "relative_alt_m",
+    "ground_speed_mps",
+    "climb_mps",
+)
 
 
 def load_track(
@@ -102,9 +107,11 @@ def load_track(
 
 
 def load_session_dir(
-    folder: Path, label: str | None = None, position: PositionSource = "gps",
+    folder: Path,
+    label: str | None = None,
+    position: PositionSource = "gps",
     min_fix_type: int = MIN_FIX_3D,
-) -> Track:  # fmt: skip
+) -> Track:
     meta = _read_meta_dir(folder)
     name = label or str(meta.get("label") or folder.name)
     csv_path = folder / TELEMETRY_CSV
@@ -119,9 +126,11 @@ def load_session_dir(
 
 
 def load_session_zip(
-    zip_path: Path, label: str | None = None, position: PositionSource = "gps",
+    zip_path: Path,
+    label: str | None = None,
+    position: PositionSource = "gps",
     min_fix_type: int = MIN_FIX_3D,
-) -> Track:  # fmt: skip
+) -> Track:
     try:
         zf = zipfile.ZipFile(zip_path)
     except (zipfile.BadZipFile, OSError) as exc:
@@ -169,9 +178,12 @@ def parse_meta(raw: bytes) -> dict:
 
 
 def load_telemetry_csv(
-    raw: bytes, label: str, source: str, position: PositionSource = "gps",
+    raw: bytes,
+    label: str,
+    source: str,
+    position: PositionSource = "gps",
     min_fix_type: int = MIN_FIX_3D,
-) -> Track:  # fmt: skip
+) -> Track:
     """Parse the recorder's CSV: only the columns analysis needs, only the first row of
     each GPS message, all vectorized (see `analysis.csvcols`)."""
     header_line, _, body = raw.partition(b"\n")
@@ -203,8 +215,9 @@ def load_telemetry_csv(
     table = CsvColumns(body, len(header))
     if table.rows == 0:
         raise NoGpsFixError(f"'{source}' has a header but no telemetry rows.")
-    first = _first_of_each_message(table, [index[chosen["key"]]] if chosen["key"] else
-                                   [index[n] for n in need])  # fmt: skip
+    first = _first_of_each_message(
+        table, [index[chosen["key"]]] if chosen["key"] else [index[n] for n in need]
+    )
 
     def column(key: str) -> Array:
         name = chosen[key]
@@ -227,8 +240,9 @@ def load_telemetry_csv(
         )
     armed = (
         to_bool(table.column(index[chosen["armed"]], first))
-        if chosen["armed"] else np.zeros(first.size, bool)
-    )  # fmt: skip
+        if chosen["armed"]
+        else np.zeros(first.size, bool)
+    )
     return Track(
         label=label,
         source=source,
@@ -257,6 +271,7 @@ def _first_of_each_message(table: CsvColumns, key_cols: list[int]) -> NDArray[np
 
 
 # ---------------------------------------------------------------- .tlog
+
 
 def load_tlog(path: Path, label: str | None = None, min_fix_type: int = MIN_FIX_3D) -> Track:
     """A bare MAVLink telemetry log; see `analysis.tlog` (imported late: it imports us)."""

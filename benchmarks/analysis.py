@@ -15,6 +15,7 @@ import platform
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -22,6 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from analysis import synthetic as syn  # noqa: E402
 from analysis.report import analyze_tracks  # noqa: E402
 from analysis.track import load_track  # noqa: E402
+
+PLOT_KINDS = ("trajectory3d", "birdseye", "history")
 
 
 def best(fn, repeat: int) -> tuple[float, object]:
@@ -50,11 +53,14 @@ def main() -> None:
     ap.add_argument("--rate-hz", type=float, default=50.0)
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, "
-          f"Python {platform.python_version()}")
+    print(
+        f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    )
     print(f"load average: {os.getloadavg()[0]:.1f}")
-    print("| session | rows | CSV MB | load CSV (s) | metrics (s) | load+metrics (s) "
-          "| load+metrics CPU (s) | 3 figures (s) | load tlog (s) |")
+    print(
+        "| session | rows | CSV MB | load CSV (s) | metrics (s) | load+metrics (s) "
+        "| load+metrics CPU (s) | 3 figures (s) | load tlog (s) |"
+    )
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     with tempfile.TemporaryDirectory() as tmp:
         for minutes in args.minutes:
@@ -64,14 +70,16 @@ def main() -> None:
             folder = syn.write_session(flight, Path(tmp) / f"s{minutes:g}")
             tlog = syn.write_tlog(flight, Path(tmp) / f"s{minutes:g}.tlog")
             csv_mb = (folder / "telemetry.csv").stat().st_size / 1e6
-            t_load, track = best(lambda: load_track(folder), args.repeat)
-            t_metrics, an = best(lambda: analyze_tracks([track], "a-to-b"), args.repeat)
-            both = lambda: analyze_tracks([load_track(folder)], "a-to-b")  # noqa: E731
+            t_load, track = best(partial(load_track, folder), args.repeat)
+            t_metrics, an = best(partial(analyze_tracks, [track], "a-to-b"), args.repeat)
+
+            def both(folder: Path = folder) -> object:
+                return analyze_tracks([load_track(folder)], "a-to-b")
+
             t_both, _ = best(both, args.repeat)
             cpu_both = best_cpu(both, args.repeat)
-            kinds = ("trajectory3d", "birdseye", "history")
-            t_plots, _ = best(lambda: [an.plot(k) for k in kinds], 1)
-            t_tlog, _ = best(lambda: load_track(tlog), 1)
+            t_plots, _ = best(partial(lambda an: [an.plot(k) for k in PLOT_KINDS], an), 1)
+            t_tlog, _ = best(partial(load_track, tlog), 1)
             print(
                 f"| {minutes:g} min | {flight.t_s.size} | {csv_mb:.1f} | {t_load:.3f} | "
                 f"{t_metrics:.4f} | {t_both:.3f} | {cpu_both:.3f} | {t_plots:.2f} | {t_tlog:.2f} |"

@@ -65,8 +65,12 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     cams = {n: FakeCamera(n, FPS, jpegs) for n in ("front", "bottom")}
     vehicle = FakeVehicle(rate_hz=100.0)
     options = RecorderOptions(
-        session=SessionConfig(rate_hz=100.0, source="bench", camera_fps={n: FPS for n in cams},
-                              limits=WriterLimits(min_free_bytes=1)),
+        session=SessionConfig(
+            rate_hz=100.0,
+            source="bench",
+            camera_fps=dict.fromkeys(cams, FPS),
+            limits=WriterLimits(min_free_bytes=1),
+        ),
         auto_record_on_arm=False,
     )
     rec = Recorder(root, vehicle.state, {n: c.frames for n, c in cams.items()}, options)
@@ -78,8 +82,11 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     await rec.start("bench")
     session = rec.session
     tids = session.thread_ids()
-    ids = {"event loop (frame consumers)": threading.get_native_id(),
-           "writer thread": tids["writer"], "sampler thread": tids["sampler"]}
+    ids = {
+        "event loop (frame consumers)": threading.get_native_id(),
+        "writer thread": tids["writer"],
+        "sampler thread": tids["sampler"],
+    }
     cpu0, wall0 = thread_cpu_s(ids), time.monotonic()
     await asyncio.sleep(seconds)
     cpu_mid = thread_cpu_s(ids)  # before stop: the writer thread is gone after it
@@ -93,9 +100,15 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     sid = rec.last_stop.id
     meta = json.loads((root / sid / "session.json").read_text())
     size = sum(p.stat().st_size for p in (root / sid).rglob("*") if p.is_file())
-    return {"meta": meta, "cpu_s": cpu, "per_thread": per_thread, "wall_s": wall, "bytes": size,
-            "published": {n: max(c.published) for n, c in cams.items()},
-            "packets_sent": vehicle.packets_sent}
+    return {
+        "meta": meta,
+        "cpu_s": cpu,
+        "per_thread": per_thread,
+        "wall_s": wall,
+        "bytes": size,
+        "published": {n: max(c.published) for n, c in cams.items()},
+        "packets_sent": vehicle.packets_sent,
+    }
 
 
 def paper_png_cpu_per_frame(root: Path, jpegs: list[bytes], frames: int) -> float:
@@ -131,20 +144,30 @@ def main() -> None:
     dropped = sum(c["frames_dropped"] for c in q["cameras"].values())
     ours = r["cpu_s"] / written
     print(f"load average before: {r['load_before']}, after: {psutil.getloadavg()}")
-    print(f"recording: {args.seconds:.0f} s, 2 cameras x {FPS:.0f} fps {args.width}x{args.height} "
-          f"JPEG (mean {np.mean([len(j) for j in jpegs]) / 1e3:.1f} kB), telemetry 100 Hz")
+    print(
+        f"recording: {args.seconds:.0f} s, 2 cameras x {FPS:.0f} fps {args.width}x{args.height} "
+        f"JPEG (mean {np.mean([len(j) for j in jpegs]) / 1e3:.1f} kB), telemetry 100 Hz"
+    )
     print(f"  frames written        {written}  (published {sum(r['published'].values())})")
     print(f"  frames dropped        {dropped}")
-    print(f"  telemetry rows        {q['telemetry_rows']}  ({q['telemetry_achieved_hz']} Hz achieved,"
-          f" {q['telemetry_rows_dropped']} dropped, {q['telemetry_ticks_late']} instants late)")
-    print(f"  tlog packets          {q['tlog_packets']} of {r['packets_sent']} "
-          f"({q['tlog_packets_dropped']} dropped)")
+    print(
+        f"  telemetry rows        {q['telemetry_rows']}  ({q['telemetry_achieved_hz']} Hz achieved,"
+        f" {q['telemetry_rows_dropped']} dropped, {q['telemetry_ticks_late']} instants late)"
+    )
+    print(
+        f"  tlog packets          {q['tlog_packets']} of {r['packets_sent']} "
+        f"({q['tlog_packets_dropped']} dropped)"
+    )
     for cam, c in q["cameras"].items():
-        print(f"  {cam:6s} achieved fps {c['achieved_fps']}, skew max {c['skew_max_s'] * 1e3:.1f} ms,"
-              f" p99 {c['skew_p99_s'] * 1e3:.1f} ms")
+        print(
+            f"  {cam:6s} achieved fps {c['achieved_fps']}, skew max {c['skew_max_s'] * 1e3:.1f} ms,"
+            f" p99 {c['skew_p99_s'] * 1e3:.1f} ms"
+        )
     print(f"  disk                  {r['bytes'] / 1e6 / r['wall_s']:.2f} MB/s")
-    print(f"  recorder CPU          {r['cpu_s']:.2f} s over {r['wall_s']:.1f} s "
-          f"({100 * r['cpu_s'] / r['wall_s']:.1f}% of one core)")
+    print(
+        f"  recorder CPU          {r['cpu_s']:.2f} s over {r['wall_s']:.1f} s "
+        f"({100 * r['cpu_s'] / r['wall_s']:.1f}% of one core)"
+    )
     for name, c in r["per_thread"].items():
         print(f"    {name:28s} {c:.2f} s")
     print(f"  CPU per recorded frame {ours * 1e3:.3f} ms (telemetry and tlog included)")

@@ -42,9 +42,11 @@ def main() -> None:
     try:
         c0, w0 = time.process_time(), time.perf_counter()
         svc.load(reply, reply)
-        print(f"load: {t.size} fixes + overlay: {1e3 * (time.process_time() - c0):.0f} ms CPU, "
-              f"{1e3 * (time.perf_counter() - w0):.0f} ms wall; "
-              f"{len(svc.scene.chunk_handles)} path handles")
+        print(
+            f"load: {t.size} fixes + overlay: {1e3 * (time.process_time() - c0):.0f} ms CPU, "
+            f"{1e3 * (time.perf_counter() - w0):.0f} ms wall; "
+            f"{len(svc.scene.chunk_handles)} path handles"
+        )
         rng = np.random.default_rng(0)
         cpu = []
         for ts in rng.uniform(0, t[-1], args.steps):
@@ -52,8 +54,10 @@ def main() -> None:
             svc.set_time(float(ts))
             cpu.append(time.process_time() - c)
         ms = 1e3 * np.asarray(cpu)
-        print(f"set_time: p50 {np.percentile(ms, 50):.2f} ms, p99 {np.percentile(ms, 99):.2f} ms "
-              f"CPU over {args.steps} random instants")
+        print(
+            f"set_time: p50 {np.percentile(ms, 50):.2f} ms, p99 {np.percentile(ms, 99):.2f} ms "
+            f"CPU over {args.steps} random instants"
+        )
     finally:
         svc.stop()
 

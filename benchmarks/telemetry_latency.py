@@ -19,8 +19,8 @@ import argparse
 import asyncio
 import json
 import os
-import socket
 import shutil
+import socket
 import statistics
 import subprocess
 import sys
@@ -60,7 +60,11 @@ def run_sender(port: int, epoch: float, seconds: float) -> None:
 
     def heartbeat():
         return mav.heartbeat_encode(
-            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 81, 3 << 16, mavlink.MAV_STATE_ACTIVE
+            mavlink.MAV_TYPE_QUADROTOR,
+            mavlink.MAV_AUTOPILOT_PX4,
+            81,
+            3 << 16,
+            mavlink.MAV_STATE_ACTIVE,
         )
 
     period = 1.0 / RATE_HZ
@@ -125,8 +129,10 @@ async def run_clients(url: str, epoch: float, n: int) -> None:
 def _spawn(*args: str) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, __file__, *args],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
 
 
 def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) -> dict:
@@ -136,11 +142,23 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
     http_port, udp_port = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
     tmp = tempfile.mkdtemp(prefix="fpv-bench-")
     server = subprocess.Popen(
-        [sys.executable, "-m", "server", "serve", "--host", "127.0.0.1", "--port", str(http_port),
-         "--source", f"udpin:127.0.0.1:{udp_port}"],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        [
+            sys.executable,
+            "-m",
+            "server",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(http_port),
+            "--source",
+            f"udpin:127.0.0.1:{udp_port}",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
         env={**os.environ, **SERVER_ENV, "FPV_RECORDING__SESSIONS_DIR": tmp},
-    )  # fmt: skip
+    )
     workers: list[subprocess.Popen] = []
     try:
         base = f"http://127.0.0.1:{http_port}"
@@ -230,15 +248,21 @@ def main() -> None:
     ap.add_argument("--per-worker", type=int, default=25, help="clients per client process")
     args = ap.parse_args()
     print(f"link thread: {link_cpu_us_per_packet():.1f} us CPU per packet (best of 5)")
-    print(f"sender: ATTITUDE + GLOBAL_POSITION_INT at {RATE_HZ:.0f} Hz each; "
-          f"clients capped at {args.max_rate:g} Hz; {args.seconds:g} s per run")  # fmt: skip
-    print(f"{'clients':>7} {'samples':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
-          f"{'CPU s/1000 pkt':>15} {'server CPU %':>13}")  # fmt: skip
+    print(
+        f"sender: ATTITUDE + GLOBAL_POSITION_INT at {RATE_HZ:.0f} Hz each; "
+        f"clients capped at {args.max_rate:g} Hz; {args.seconds:g} s per run"
+    )
+    print(
+        f"{'clients':>7} {'samples':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
+        f"{'CPU s/1000 pkt':>15} {'server CPU %':>13}"
+    )
     for n in args.clients:
         r = measure(n, args.seconds, args.max_rate, args.per_worker)
-        print(f"{r['clients']:>7} {r['samples']:>8} {r['p50_ms']:>8.2f} {r['p99_ms']:>8.2f} "
-              f"{r['max_ms']:>8.2f} {r['cpu_s_per_1000_packets']:>15.4f} {r['server_cpu_pct']:>13.1f}",
-              flush=True)  # fmt: skip
+        print(
+            f"{r['clients']:>7} {r['samples']:>8} {r['p50_ms']:>8.2f} {r['p99_ms']:>8.2f} "
+            f"{r['max_ms']:>8.2f} {r['cpu_s_per_1000_packets']:>15.4f} {r['server_cpu_pct']:>13.1f}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

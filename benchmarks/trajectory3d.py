@@ -64,8 +64,9 @@ def main() -> None:
         fix = 1 if (i % int(300 * args.hz)) < int(2 * args.hz) else 3
         state = VehicleState(
             gps=GpsRaw(t_mono=ti, fix_type=fix, lat_deg=lat, lon_deg=lon, alt_m=alt),
-            global_position=GlobalPosition(t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt,
-                                           vx_mps=1.2, vy_mps=0.3),
+            global_position=GlobalPosition(
+                t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.2, vy_mps=0.3
+            ),
             attitude=Attitude(t_mono=ti, roll_rad=0.05, pitch_rad=-0.1, yaw_rad=ti / 20),
         )
         first = buffer.message_counter
@@ -79,22 +80,29 @@ def main() -> None:
     svc.stop()
 
     block = int(300 * args.hz)
-    print(f"live scene, {args.minutes:.0f} min at {args.hz:.0f} Hz ({n} steps), "
-          f"chunk of {svc.settings.chunk_segments} segments")
+    print(
+        f"live scene, {args.minutes:.0f} min at {args.hz:.0f} Hz ({n} steps), "
+        f"chunk of {svc.settings.chunk_segments} segments"
+    )
     print("minutes   cpu/step p50   p99      msgs/step  bytes/step")
     for b0 in range(0, n, block):
         sl = slice(b0, min(n, b0 + block))
-        print(f"{b0 / args.hz / 60:5.0f}-{min(n, b0 + block) / args.hz / 60:<4.0f}"
-              f" {np.median(cpu[sl]) * 1e3:8.3f} ms {np.percentile(cpu[sl], 99) * 1e3:6.3f} ms"
-              f" {msgs[sl].mean():9.2f} {nbytes[sl].mean():11.0f}")
-    print(f"trail handles at the end: {chunks}; CPU at 10 Hz: "
-          f"{np.mean(cpu) * 10 * 100:.2f}% of one core")
+        print(
+            f"{b0 / args.hz / 60:5.0f}-{min(n, b0 + block) / args.hz / 60:<4.0f}"
+            f" {np.median(cpu[sl]) * 1e3:8.3f} ms {np.percentile(cpu[sl], 99) * 1e3:6.3f} ms"
+            f" {msgs[sl].mean():9.2f} {nbytes[sl].mean():11.0f}"
+        )
+    print(
+        f"trail handles at the end: {chunks}; CPU at 10 Hz: "
+        f"{np.mean(cpu) * 10 * 100:.2f}% of one core"
+    )
 
     c0 = time.process_time()
     for _ in range(5):
         build_trajectory("bench", t, geo[:, 0], geo[:, 1], geo[:, 2], align="farthest")
-    print(f"replay: build_trajectory for {n} fixes: "
-          f"{(time.process_time() - c0) / 5 * 1e3:.1f} ms CPU")
+    print(
+        f"replay: build_trajectory for {n} fixes: {(time.process_time() - c0) / 5 * 1e3:.1f} ms CPU"
+    )
 
 
 if __name__ == "__main__":

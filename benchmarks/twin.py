@@ -94,24 +94,34 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds with cameras")
     args = ap.parse_args()
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}, "
-          f"numpy {np.__version__}")
+    print(
+        f"machine: {platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}, "
+        f"numpy {np.__version__}"
+    )
     wall, cpu = physics_rate(1, 5000)
-    print(f"physics, 1 vehicle (control + sensors + dynamics): {cpu:,.0f} steps/s per CPU "
-          f"second ({wall:,.0f} wall)")
+    print(
+        f"physics, 1 vehicle (control + sensors + dynamics): {cpu:,.0f} steps/s per CPU "
+        f"second ({wall:,.0f} wall)"
+    )
     print(f"dynamics only, 1 vehicle: {dynamics_rate(5000):,.0f} steps/s per CPU second")
     for n in (64, 512):
         wall, cpu = physics_rate(n, 1000)
-        print(f"physics, batch of {n} vehicles: {cpu:,.0f} vehicle-steps/s per CPU second "
-              f"({wall:,.0f} wall)")
+        print(
+            f"physics, batch of {n} vehicles: {cpu:,.0f} vehicle-steps/s per CPU second "
+            f"({wall:,.0f} wall)"
+        )
     env_rate, phys_rate = vector_env_rate(64, 40)
-    print(f"gymnasium TwinVectorEnv, 64 envs at 10 Hz control: {env_rate:,.0f} env-steps/s "
-          f"per CPU second ({phys_rate:,.0f} physics vehicle-steps/s)")
+    print(
+        f"gymnasium TwinVectorEnv, 64 envs at 10 Hz control: {env_rate:,.0f} env-steps/s "
+        f"per CPU second ({phys_rate:,.0f} physics vehicle-steps/s)"
+    )
     for noise in (False, True):
         cost, ms, sim_s = flight_with_cameras(args.seconds, noise)
-        print(f"flight with both cameras at 30 fps{' + analog noise' if noise else ''}: "
-              f"{cost:.2f} CPU s per simulated s ({100 * cost:.0f} % of one core; "
-              f"{ms:.1f} ms per frame; {sim_s:.0f} s flown)")
+        print(
+            f"flight with both cameras at 30 fps{' + analog noise' if noise else ''}: "
+            f"{cost:.2f} CPU s per simulated s ({100 * cost:.0f} % of one core; "
+            f"{ms:.1f} ms per frame; {sim_s:.0f} s flown)"
+        )
     return 0
 
 

@@ -126,9 +126,7 @@ class MjpegViewer(asyncio.BufferedProtocol):
                 return
             head, rest = self.part_head[:end], len(self.part_head) - end - 4
             self.part_head = b""
-            fields = dict(
-                line.split(b": ", 1) for line in head.split(b"\r\n") if b": " in line
-            )
+            fields = dict(line.split(b": ", 1) for line in head.split(b"\r\n") if b": " in line)
             self.seq = int(fields[b"X-Frame-Seq"])
             self.frame_time = float(fields[b"X-Frame-Time"])
             self.body_left = int(fields[b"Content-Length"]) + 2  # + CRLF after the JPEG
@@ -146,7 +144,8 @@ async def watch(port: int, cameras: list[str], per_camera: int, seconds: float, 
         for _ in range(per_camera):
             done = loop.create_future()
             transport, viewer = await loop.create_connection(
-                lambda d=done: MjpegViewer(d), "127.0.0.1", port)
+                lambda d=done: MjpegViewer(d), "127.0.0.1", port
+            )
             transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: b\r\n\r\n".encode())
             viewers.append(viewer)
             transports.append(transport)
@@ -171,10 +170,26 @@ def run(args: argparse.Namespace) -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    cmd = [sys.executable, "-m", "server", "serve", "--host", "127.0.0.1", "--port", str(port),
-           "--source", "none", "--front", f"folder:{front}", "--bottom", f"folder:{bottom}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "server",
+        "serve",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--source",
+        "none",
+        "--front",
+        f"folder:{front}",
+        "--bottom",
+        f"folder:{bottom}",
+    ]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    server = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    server = subprocess.Popen(
+        cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
     try:
         base = f"http://127.0.0.1:{port}"
         for _ in range(100):
@@ -184,21 +199,31 @@ def run(args: argparse.Namespace) -> None:
             except httpx.HTTPError:
                 time.sleep(0.1)
         proc = psutil.Process(server.pid)
-        print(f"# fpv-station video benchmark: 2 cameras {WIDTH}x{HEIGHT} @ {FPS:g} fps, "
-              f"mode={args.mode}, {args.seconds:g} s per run, loopback")
-        print(f"# machine: {platform.machine()}, {os.cpu_count()} cores, "
-              f"{_cpu_model()}, Python {platform.python_version()}")
+        print(
+            f"# fpv-station video benchmark: 2 cameras {WIDTH}x{HEIGHT} @ {FPS:g} fps, "
+            f"mode={args.mode}, {args.seconds:g} s per run, loopback"
+        )
+        print(
+            f"# machine: {platform.machine()}, {os.cpu_count()} cores, "
+            f"{_cpu_model()}, Python {platform.python_version()}"
+        )
         time.sleep(1.0)
         proc.cpu_percent(None)
         time.sleep(args.seconds)
         idle_cpu = proc.cpu_percent(None)
         cams = {c["name"]: c for c in httpx.get(f"{base}/api/cameras").json()["cameras"]}
-        jpeg_kb = np.mean([len(httpx.get(f"{base}/video/front.jpg").content) for _ in range(5)]) / 1024
-        print(f"# no viewers: server CPU {idle_cpu:.1f}% of one core; capture fps "
-              f"front {cams['front']['delivered_fps']:.1f}, bottom {cams['bottom']['delivered_fps']:.1f}; "
-              f"encode {cams['front']['encode_ms']:.2f} ms/frame; JPEG {jpeg_kb:.0f} kB")
-        print(f"{'viewers/cam':>11} {'fps min':>8} {'fps med':>8} {'lat p50 ms':>10} "
-              f"{'lat p99 ms':>10} {'server CPU %':>12} {'dropped':>8} {'encodes/frame':>13}")
+        jpeg_kb = (
+            np.mean([len(httpx.get(f"{base}/video/front.jpg").content) for _ in range(5)]) / 1024
+        )
+        print(
+            f"# no viewers: server CPU {idle_cpu:.1f}% of one core; capture fps "
+            f"front {cams['front']['delivered_fps']:.1f}, bottom {cams['bottom']['delivered_fps']:.1f}; "
+            f"encode {cams['front']['encode_ms']:.2f} ms/frame; JPEG {jpeg_kb:.0f} kB"
+        )
+        print(
+            f"{'viewers/cam':>11} {'fps min':>8} {'fps med':>8} {'lat p50 ms':>10} "
+            f"{'lat p99 ms':>10} {'server CPU %':>12} {'dropped':>8} {'encodes/frame':>13}"
+        )
         for n in args.viewers:
             before = httpx.get(f"{base}/api/cameras").json()["cameras"]
             proc.cpu_percent(None)
@@ -213,9 +238,11 @@ def run(args: argparse.Namespace) -> None:
                 window = [p for p in v.parts if t0 <= p[2] <= t1]
                 fps.append(len(window) / (t1 - t0))
                 lat.extend((arrived - ft) * 1000.0 for _, ft, arrived in window)
-            print(f"{n:>11} {min(fps):>8.1f} {statistics.median(fps):>8.1f} "
-                  f"{percentile(lat, 50):>10.2f} {percentile(lat, 99):>10.2f} {cpu:>12.1f} {dropped:>8} "
-                  f"{encodes / max(made, 1):>13.2f}")
+            print(
+                f"{n:>11} {min(fps):>8.1f} {statistics.median(fps):>8.1f} "
+                f"{percentile(lat, 50):>10.2f} {percentile(lat, 99):>10.2f} {cpu:>12.1f} {dropped:>8} "
+                f"{encodes / max(made, 1):>13.2f}"
+            )
             time.sleep(0.5)
     finally:
         server.terminate()

@@ -33,9 +33,7 @@ class Latest(Generic[T]):
 
     def __init__(self, initial: T | None = None) -> None:
         self._lock = threading.Lock()
-        self._current: Versioned[T] | None = (
-            Versioned(1, initial) if initial is not None else None
-        )
+        self._current: Versioned[T] | None = Versioned(1, initial) if initial is not None else None
         self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]] = []
         self._closed = False
 
@@ -69,7 +67,7 @@ class Latest(Generic[T]):
     def closed(self) -> bool:
         return self._closed
 
-    async def wait_newer(self, version: int, timeout: float | None = None) -> Versioned[T] | None:
+    async def wait_newer(self, version: int, timeout: float | None = None) -> Versioned[T] | None:  # noqa: ASYNC109
         """Wait until a value newer than `version` exists and return it.
 
         Returns the current value (possibly not newer) on timeout or when the slot is
@@ -84,7 +82,7 @@ class Latest(Generic[T]):
             self._waiters.append((loop, fut))
         try:
             await asyncio.wait_for(fut, timeout)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             pass
         finally:
             # On timeout or cancellation the waiter must leave the list, or a consumer

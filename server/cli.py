@@ -44,22 +44,49 @@ def add_serve_parser(sub: Any) -> None:
 
 
 def add_recording_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sessions-dir", dest="recording.sessions_dir", type=Path,
-                   help="where recorded sessions go (default ./sessions)")
-    p.add_argument("--record-rate", dest="recording.rate_hz", type=float,
-                   help="telemetry.csv rows per second (1-100, default 30)")
-    p.add_argument("--no-auto-record", dest="recording.auto_record_on_arm",
-                   action="store_const", const=False,
-                   help="do not start recording when the vehicle arms")
+    p.add_argument(
+        "--sessions-dir",
+        dest="recording.sessions_dir",
+        type=Path,
+        help="where recorded sessions go (default ./sessions)",
+    )
+    p.add_argument(
+        "--record-rate",
+        dest="recording.rate_hz",
+        type=float,
+        help="telemetry.csv rows per second (1-100, default 30)",
+    )
+    p.add_argument(
+        "--no-auto-record",
+        dest="recording.auto_record_on_arm",
+        action="store_const",
+        const=False,
+        help="do not start recording when the vehicle arms",
+    )
 
 
 def add_viser_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--viser-port", dest="viser.port", type=int,
-                   help="port of the 3D trajectory panel (viser; default 8080)")
-    p.add_argument("--viser-replay-port", dest="viser.replay_port", type=int,
-                   help="port of the replay page's 3D panel (viser; default: --viser-port + 1)")
-    p.add_argument("--no-3d", dest="viser.enabled", action="store_const", const=False,
-                   help="do not start the 3D trajectory panel")
+    p.add_argument(
+        "--viser-port",
+        dest="viser.port",
+        type=int,
+        help="port of the 3D trajectory panel (viser; default 8080)",
+    )
+    p.add_argument(
+        "--viser-replay-port",
+        dest="viser.replay_port",
+        type=int,
+        help="port of the replay page's 3D panel (viser; default: --viser-port + 1)",
+    )
+    p.add_argument(
+        "--no-3d",
+        dest="viser.enabled",
+        action="store_const",
+        const=False,
+        help="do not start the 3D trajectory panel",
+    )
+
+
 def add_sim_parser(sub: Any) -> None:
     p = sub.add_parser("sim", help="run the digital twin alone, as a MAVLink vehicle")
     p.add_argument("--config", type=Path, help="TOML settings file")
@@ -94,7 +121,9 @@ def run_sim(args: argparse.Namespace) -> int:
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    print(f"fpv-station sim: twin '{twin.scene.name}' talking MAVLink on {args.mavlink}", flush=True)
+    print(
+        f"fpv-station sim: twin '{twin.scene.name}' talking MAVLink on {args.mavlink}", flush=True
+    )
     try:
         while not done.wait(1.0):
             if twin.error:
@@ -116,6 +145,8 @@ def add_analyze_parser(sub: Any) -> None:
     )
     analysis_cli.add_arguments(p)
     p.set_defaults(func=analysis_cli.run)
+
+
 def add_camera_flags(p: Any) -> None:
     specs = "v4l2:/dev/video0[?width=640&height=480&fps=30&fourcc=MJPG], v4l2:0, file:X.mp4, "
     specs += "folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none"

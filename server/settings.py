@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import os
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal, Mapping
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -96,6 +97,8 @@ class CameraSettings(_Section):
     stall_s: float = Field(2.0, gt=0)  # no frame for this long = NO SIGNAL (stalled)
     retry_min_s: float = Field(0.5, gt=0)  # reopen back-off, doubling up to retry_max_s
     retry_max_s: float = Field(5.0, gt=0)
+
+
 class ViserSettings(_Section):
     """The 3D trajectory panel (a viser server on its own port)."""
 
@@ -111,7 +114,9 @@ class ViserSettings(_Section):
     speed_range_mps: tuple[float, float] = (0.0, 5.0)
     bottom_hfov_deg: float = Field(90.0, gt=1, lt=179)  # bottom camera's footprint
     bottom_vfov_deg: float = Field(70.0, gt=1, lt=179)
-    field_file: Path | None = None  # a twin scene TOML to draw; None = the twin's scene with --source sim
+    field_file: Path | None = (
+        None  # a twin scene TOML to draw; None = the twin's scene with --source sim
+    )
     # The replay panel's own viser server: None = port + 1 (any free port when port is 0).
     replay_port: int | None = Field(None, ge=0, le=65535)
 

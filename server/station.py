@@ -85,7 +85,10 @@ async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> 
 
     cams = station.cameras
     return await open_recorder(
-        station.settings, stack, station.tasks.spawn, station.state,
+        station.settings,
+        stack,
+        station.tasks.spawn,
+        station.state,
         {name: cam.frames for name, cam in cams.items()},
         {name: cam.config.fps for name, cam in cams.items()},
         station.link,

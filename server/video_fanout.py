@@ -98,7 +98,7 @@ class FrameFanout:
                     event = self._event
                     try:
                         await asyncio.wait_for(event.wait(), _DISCONNECT_CHECK_S)
-                    except asyncio.TimeoutError:
+                    except TimeoutError:
                         if await is_disconnected():
                             return
         finally:

@@ -78,8 +78,7 @@ async def stream_zip(
                     if path.suffix.lower() in STORED_SUFFIXES:
                         zf.write(path, arcname, compress_type=zipfile.ZIP_STORED)
                     else:
-                        zf.write(path, arcname, compress_type=zipfile.ZIP_DEFLATED,
-                                 compresslevel=1)
+                        zf.write(path, arcname, compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
             out.drain()
             put(None)
         except _Cancelled:

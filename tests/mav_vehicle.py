@@ -109,7 +109,7 @@ class MavVehicle:
 
     # -- lifecycle ---------------------------------------------------------------------
 
-    def start(self) -> "MavVehicle":
+    def start(self) -> MavVehicle:
         for target, name in ((self._send_loop, "send"), (self._recv_loop, "recv")):
             t = threading.Thread(target=target, name=f"mav-vehicle-{name}", daemon=True)
             t.start()
@@ -123,7 +123,7 @@ class MavVehicle:
         self.drop_connection()
         self._sock.close()
 
-    def __enter__(self) -> "MavVehicle":
+    def __enter__(self) -> MavVehicle:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -193,7 +193,9 @@ class MavVehicle:
                 mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
             )
         status = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
-        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, ap, base | armed, custom, status)
+        return self.mav.heartbeat_encode(
+            mavlink.MAV_TYPE_QUADROTOR, ap, base | armed, custom, status
+        )
 
     def build(self, name: str) -> mavlink.MAVLink_message:
         m, t = self.mav, self.time_boot_ms()
@@ -202,27 +204,54 @@ class MavVehicle:
         if name == "HEARTBEAT":
             return self.heartbeat()
         if name == "ATTITUDE":
-            return m.attitude_encode(t, self.roll_rad, self.pitch_rad, self.yaw_rad, 0.01, 0.02, 0.03)
+            return m.attitude_encode(
+                t, self.roll_rad, self.pitch_rad, self.yaw_rad, 0.01, 0.02, 0.03
+            )
         if name == "GLOBAL_POSITION_INT":
             return m.global_position_int_encode(
-                t, lat, lon, int(self.alt_m * 1000), int(self.relative_alt_m * 1000),
-                int(self.vx_mps * 100), int(self.vy_mps * 100), int(self.vz_mps * 100),
+                t,
+                lat,
+                lon,
+                int(self.alt_m * 1000),
+                int(self.relative_alt_m * 1000),
+                int(self.vx_mps * 100),
+                int(self.vy_mps * 100),
+                int(self.vz_mps * 100),
                 int(math.degrees(self.yaw_rad) % 360 * 100),
-            )  # fmt: skip
+            )
         if name == "GPS_RAW_INT":
             return m.gps_raw_int_encode(
-                t * 1000, self.fix_type, lat, lon, int(self.alt_m * 1000), 80, 120,
-                int(speed * 100), 9000, self.satellites,
-            )  # fmt: skip
+                t * 1000,
+                self.fix_type,
+                lat,
+                lon,
+                int(self.alt_m * 1000),
+                80,
+                120,
+                int(speed * 100),
+                9000,
+                self.satellites,
+            )
         if name == "VFR_HUD":
             return m.vfr_hud_encode(
                 speed, speed, int(math.degrees(self.yaw_rad)) % 360, 50, self.alt_m, -self.vz_mps
             )
         if name == "SYS_STATUS":
             return m.sys_status_encode(
-                0, 0, 0, 500, int(self.voltage_v * 1000), int(self.current_a * 100),
-                self.remaining_pct, 0, 0, 0, 0, 0, 0,
-            )  # fmt: skip
+                0,
+                0,
+                0,
+                500,
+                int(self.voltage_v * 1000),
+                int(self.current_a * 100),
+                self.remaining_pct,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
         if name == "BATTERY_STATUS":
             cells = [int(self.voltage_v * 1000 / 3)] * 3 + [65535] * 7
             return m.battery_status_encode(
@@ -261,7 +290,9 @@ class MavVehicle:
                     due[name] = max(t_due + 1.0 / rate, now - 0.5)
                     if not self.silent:
                         self.send_now(name)
-            nxt = min((due.get(n, now) for n, r in self.rates_hz.items() if r > 0), default=now + 0.05)
+            nxt = min(
+                (due.get(n, now) for n, r in self.rates_hz.items() if r > 0), default=now + 0.05
+            )
             self._stop.wait(min(max(nxt - time.monotonic(), 0.0), 0.05))
 
     def _recv_loop(self) -> None:
@@ -280,7 +311,7 @@ class MavVehicle:
                     if not data:
                         self.drop_connection()
                         continue
-            except (TimeoutError, socket.timeout, BlockingIOError):
+            except (TimeoutError, BlockingIOError):
                 continue
             except OSError:
                 if self.transport == "tcp":

@@ -36,7 +36,7 @@ class Viewer:
         """Watch for `seconds`, then disconnect."""
         try:
             await asyncio.wait_for(self._watch(), seconds)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             pass
 
     async def _watch(self) -> None:
@@ -62,9 +62,15 @@ class Viewer:
                     part_head += line
                 h = _headers(part_head.decode("latin-1").split("\r\n"))
                 body = await stream.readexactly(int(h["content-length"]))
-                self.parts.append(Part(
-                    int(h["x-frame-seq"]), float(h["x-frame-time"]), time.time(), len(body),
-                    h.get("x-frame-signal", "1") == "1"))
+                self.parts.append(
+                    Part(
+                        int(h["x-frame-seq"]),
+                        float(h["x-frame-time"]),
+                        time.time(),
+                        len(body),
+                        h.get("x-frame-signal", "1") == "1",
+                    )
+                )
                 if self.keep_bytes:
                     self.last_jpeg = body
         finally:

@@ -44,7 +44,7 @@ class FakeCamera:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"fake-cam-{name}", daemon=True)
 
-    def start(self) -> "FakeCamera":
+    def start(self) -> FakeCamera:
         self._thread.start()
         return self
 
@@ -85,7 +85,7 @@ class FakeVehicle:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fake-vehicle", daemon=True)
 
-    def start(self) -> "FakeVehicle":
+    def start(self) -> FakeVehicle:
         self._thread.start()
         return self
 
@@ -95,16 +95,22 @@ class FakeVehicle:
 
     def publish_now(self) -> None:
         now = time.monotonic()
-        self.state.publish(VehicleState(
-            heartbeat=Heartbeat(t_mono=now, sysid=1, compid=1, autopilot="px4", armed=self.armed,
-                                mode="POSCTL"),
-            rc=RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14),
-            altitude=PilotAltitude(
-                t_mono=now, relative_alt_m=self.alt_m, reference_alt_m=180.0,
-                reference="arming" if self.armed else "first_fix", home_lat_deg=43.0021,
-                home_lon_deg=-78.7875,
-            ),
-        ))
+        self.state.publish(
+            VehicleState(
+                heartbeat=Heartbeat(
+                    t_mono=now, sysid=1, compid=1, autopilot="px4", armed=self.armed, mode="POSCTL"
+                ),
+                rc=RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14),
+                altitude=PilotAltitude(
+                    t_mono=now,
+                    relative_alt_m=self.alt_m,
+                    reference_alt_m=180.0,
+                    reference="arming" if self.armed else "first_fix",
+                    home_lat_deg=43.0021,
+                    home_lon_deg=-78.7875,
+                ),
+            )
+        )
 
     def _run(self) -> None:
         period = 1.0 / self.rate_hz
@@ -120,4 +126,3 @@ class FakeVehicle:
                 self.packets_sent += 1
                 for cb in self.listeners:
                     cb(time.time(), packet)
-

@@ -17,8 +17,13 @@ import numpy as np
 import pytest
 
 from analysis import synthetic as syn
-from analysis.errors import NoGpsFixError, TaskWindowError, TooFewPointsError, TrackLoadError
-from analysis.errors import UnknownTaskError
+from analysis.errors import (
+    NoGpsFixError,
+    TaskWindowError,
+    TooFewPointsError,
+    TrackLoadError,
+    UnknownTaskError,
+)
 from analysis.field import FieldLayout, Obstacle, Pad
 from analysis.geodesy import enu_to_geodetic
 from analysis.plots import SIZE_PX
@@ -133,13 +138,19 @@ def test_comparison_table_in_paper_layout(flights, tmp_path):
     flight, folder, _ = flights["a-to-b"]
     twin = syn.write_session(
         dataclasses.replace(syn.a_to_b_flight(lateral_amp_m=1.0), heading_deg=HEADING),
-        tmp_path / "twin", meta={"source": "sim"},
+        tmp_path / "twin",
+        meta={"source": "sim"},
     )
     an = analyze_paths([twin, folder], "a-to-b", reference(flight), scene=False)
     assert [r.platform for r in an.results] == ["physical", "twin"]  # paper's order
     md = an.comparison.to_markdown()
-    assert "| Platform used | Session | Lateral deviation (m) | Height deviation (m) | Trial time" in md
-    assert "| Digital twin | twin | 0.707 |" in md and "| Physical quadcopter | a-to-b | 0.354 |" in md
+    assert (
+        "| Platform used | Session | Lateral deviation (m) | Height deviation (m) | Trial time"
+        in md
+    )
+    assert (
+        "| Digital twin | twin | 0.707 |" in md and "| Physical quadcopter | a-to-b | 0.354 |" in md
+    )
     rows = an.comparison.to_csv().splitlines()
     assert rows[0].startswith("platform,session,lateral_deviation_m,height_deviation_m")
     data = json.loads(an.comparison.to_json())
@@ -188,7 +199,10 @@ def test_obstacle_contacts_and_field_in_track_frame(tmp_path):
     real = syn.write_session(
         dataclasses.replace(syn.a_to_b_flight(height_m=2.0), home=start), tmp_path / "real"
     )
-    assert analyze_tracks([load_track(real)], "a-to-b", field=field).results[0].obstacle_contacts is None
+    assert (
+        analyze_tracks([load_track(real)], "a-to-b", field=field).results[0].obstacle_contacts
+        is None
+    )
 
 
 def test_default_scene_file_is_read_when_present():
@@ -262,8 +276,21 @@ def test_cli_writes_table_and_plots_and_reports_errors(flights, tmp_path):
     flight, folder, tlog = flights["a-to-b"]
     lat, lon = reference(flight)
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "server", "analyze", str(folder), str(tlog), "--task", "a-to-b",
-           "--reference", f"{lat},{lon}", "--out", str(out), "--no-scene"]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "server",
+        "analyze",
+        str(folder),
+        str(tlog),
+        "--task",
+        "a-to-b",
+        "--reference",
+        f"{lat},{lon}",
+        "--out",
+        str(out),
+        "--no-scene",
+    ]
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert "| Platform used | Session | Lateral deviation (m)" in done.stdout
@@ -273,8 +300,13 @@ def test_cli_writes_table_and_plots_and_reports_errors(flights, tmp_path):
         assert got == want
     for kind in ("trajectory3d", "birdseye", "history"):
         assert _png_size((out / f"a-to-b_{kind}.png").read_bytes()) == SIZE_PX
-    bad = subprocess.run(cmd[:5] + ["--task", "hover", "--no-scene"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=60)  # fmt: skip
+    bad = subprocess.run(
+        cmd[:5] + ["--task", "hover", "--no-scene"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert bad.returncode == 2 and "never reached 4 m" in bad.stderr
 
 
@@ -322,10 +354,16 @@ def test_session_written_by_the_real_recorder(tmp_path):
         i = gi[k]
         state = VehicleState(
             heartbeat=Heartbeat(t_mono=t0_mono + t, armed=bool(flight.armed[k]), mode="POSCTL"),
-            gps=GpsRaw(t_mono=t0_mono + flight.t_s[i], fix_type=3, satellites=12,
-                       lat_deg=llh[i, 0], lon_deg=llh[i, 1], alt_m=llh[i, 2]),
+            gps=GpsRaw(
+                t_mono=t0_mono + flight.t_s[i],
+                fix_type=3,
+                satellites=12,
+                lat_deg=llh[i, 0],
+                lon_deg=llh[i, 1],
+                alt_m=llh[i, 2],
+            ),
             altitude=PilotAltitude(t_mono=t0_mono + t, relative_alt_m=flight.xyz_m[k, 2]),
-        )  # fmt: skip
+        )
         assert writer.put_row(Sample(t0_mono + t, 1.7e9 + t, state, (None, None)))
     writer.start()
     writer.close()

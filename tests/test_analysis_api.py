@@ -33,8 +33,12 @@ def server(tmp_path_factory):
     syn.write_session(real, root / PHYSICAL, meta={"id": PHYSICAL, "source": "udpin:0.0.0.0:14550"})
     syn.write_session(twin, root / TWIN, meta={"id": TWIN, "source": "sim"})
     syn.write_session(real, root / NOFIX, fix_type=0)
-    overrides = {"link.source": "none", "recording.sessions_dir": str(root),
-                 "recording.auto_record_on_arm": False, "recording.min_free_mb": 0}  # fmt: skip
+    overrides = {
+        "link.source": "none",
+        "recording.sessions_dir": str(root),
+        "recording.auto_record_on_arm": False,
+        "recording.min_free_mb": 0,
+    }
     app = create_app(load_settings(environ={}, overrides=overrides))
     lat, lon = real.point_llh(40.0, 0.0)
     with run_uvicorn(app) as base:
@@ -48,16 +52,30 @@ def _png_size(data: bytes) -> tuple[int, int]:
 
 def test_rest_and_cli_give_the_same_numbers(server, tmp_path):
     base, root, ref = server
-    r = httpx.get(f"{base}/api/sessions/{PHYSICAL}/analysis",
-                  params={"task": "a-to-b", "reference": ref}, timeout=30)  # fmt: skip
+    r = httpx.get(
+        f"{base}/api/sessions/{PHYSICAL}/analysis",
+        params={"task": "a-to-b", "reference": ref},
+        timeout=30,
+    )
     assert r.status_code == 200, r.text
     rest = r.json()
     assert rest["sessions"] == [PHYSICAL] and rest["task"] == "a-to-b"
     assert rest["results"][0]["lateral_deviation_m"] == pytest.approx(0.5 / 2**0.5, rel=0.01)
 
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "server", "analyze", str(root / PHYSICAL), "--task", "a-to-b",
-           "--reference", ref, "--out", str(out)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "server",
+        "analyze",
+        str(root / PHYSICAL),
+        "--task",
+        "a-to-b",
+        "--reference",
+        ref,
+        "--out",
+        str(out),
+    ]
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     cli = json.loads((out / "a-to-b_table.json").read_text())
@@ -70,8 +88,11 @@ def test_rest_and_cli_give_the_same_numbers(server, tmp_path):
 def test_plots_as_png(server):
     base, _, ref = server
     for plot in ("trajectory3d", "birdseye", "history"):
-        r = httpx.get(f"{base}/api/sessions/{PHYSICAL}/analysis/{plot}.png",
-                      params={"task": "a-to-b", "reference": ref}, timeout=30)  # fmt: skip
+        r = httpx.get(
+            f"{base}/api/sessions/{PHYSICAL}/analysis/{plot}.png",
+            params={"task": "a-to-b", "reference": ref},
+            timeout=30,
+        )
         assert r.status_code == 200 and r.headers["content-type"] == "image/png"
         assert _png_size(r.content) == SIZE_PX
 
@@ -91,18 +112,66 @@ def test_comparison_of_physical_and_twin(server):
 @pytest.mark.parametrize(
     "path, params, status, error, words",
     [
-        (f"/api/sessions/{PHYSICAL}/analysis", {"task": "figure-9"}, 400, "BadRequest", "Unknown task"),
-        (f"/api/sessions/{PHYSICAL}/analysis", {"task": "hover"}, 422, "NoTaskWindow", "never reached 4 m"),
+        (
+            f"/api/sessions/{PHYSICAL}/analysis",
+            {"task": "figure-9"},
+            400,
+            "BadRequest",
+            "Unknown task",
+        ),
+        (
+            f"/api/sessions/{PHYSICAL}/analysis",
+            {"task": "hover"},
+            422,
+            "NoTaskWindow",
+            "never reached 4 m",
+        ),
         (f"/api/sessions/{NOFIX}/analysis", {"task": "hover"}, 422, "NoGpsFix", "GPS fix"),
-        ("/api/sessions/20261122T050000Z_sim/analysis", {"task": "hover"}, 404, "NotFound", "No session"),
-        ("/api/sessions/..%2F..%2Fetc%2Fpasswd/analysis", {"task": "hover"}, 404, "HTTPError", "Not Found"),
-        ("/api/sessions/..passwd/analysis", {"task": "hover"}, 400, "BadRequest", "not a session id"),
-        (f"/api/sessions/{PHYSICAL}/analysis", {"task": "hover", "reference": "north"}, 400, "BadRequest", "LAT,LON"),
-        (f"/api/sessions/{PHYSICAL}/analysis", {"task": "hover", "margin_m": "-1"}, 422, "ValidationError", "margin_m"),
-        (f"/api/sessions/{PHYSICAL}/analysis/pie.png", {"task": "hover"}, 404, "NotFound", "No plot"),
+        (
+            "/api/sessions/20261122T050000Z_sim/analysis",
+            {"task": "hover"},
+            404,
+            "NotFound",
+            "No session",
+        ),
+        (
+            "/api/sessions/..%2F..%2Fetc%2Fpasswd/analysis",
+            {"task": "hover"},
+            404,
+            "HTTPError",
+            "Not Found",
+        ),
+        (
+            "/api/sessions/..passwd/analysis",
+            {"task": "hover"},
+            400,
+            "BadRequest",
+            "not a session id",
+        ),
+        (
+            f"/api/sessions/{PHYSICAL}/analysis",
+            {"task": "hover", "reference": "north"},
+            400,
+            "BadRequest",
+            "LAT,LON",
+        ),
+        (
+            f"/api/sessions/{PHYSICAL}/analysis",
+            {"task": "hover", "margin_m": "-1"},
+            422,
+            "ValidationError",
+            "margin_m",
+        ),
+        (
+            f"/api/sessions/{PHYSICAL}/analysis/pie.png",
+            {"task": "hover"},
+            404,
+            "NotFound",
+            "No plot",
+        ),
         ("/api/analysis", {"task": "hover"}, 400, "BadRequest", "at least one session"),
     ],
-)  # fmt: skip
+)
 def test_clear_errors(server, path, params, status, error, words):
     base, _, _ = server
     r = httpx.get(f"{base}{path}", params=params, timeout=30)
@@ -114,8 +183,11 @@ def test_clear_errors(server, path, params, status, error, words):
 def test_thresholds_are_parameters(server):
     """The hover window of an A-to-B flight flown at 3 m happens at 2.5 m."""
     base, _, _ = server
-    r = httpx.get(f"{base}/api/sessions/{PHYSICAL}/analysis",
-                  params={"task": "hover", "hover_height_m": 2.5, "hover_window_s": 5}, timeout=30)  # fmt: skip
+    r = httpx.get(
+        f"{base}/api/sessions/{PHYSICAL}/analysis",
+        params={"task": "hover", "hover_height_m": 2.5, "hover_window_s": 5},
+        timeout=30,
+    )
     assert r.status_code == 200, r.text
     assert r.json()["results"][0]["time_in_window_s"] == pytest.approx(5.0, abs=0.11)
 
@@ -125,11 +197,16 @@ def test_parallel_requests_all_answer_and_the_station_stays_up(server):
     from concurrent.futures import ThreadPoolExecutor
 
     base, _, ref = server
-    urls = [f"{base}/api/sessions/{sid}/analysis/{plot}.png"
-            for sid in (PHYSICAL, TWIN) for plot in ("trajectory3d", "birdseye")]  # fmt: skip
+    urls = [
+        f"{base}/api/sessions/{sid}/analysis/{plot}.png"
+        for sid in (PHYSICAL, TWIN)
+        for plot in ("trajectory3d", "birdseye")
+    ]
     with ThreadPoolExecutor(4) as pool:
-        pending = [pool.submit(httpx.get, u, params={"task": "a-to-b", "reference": ref},
-                               timeout=60) for u in urls]  # fmt: skip
+        pending = [
+            pool.submit(httpx.get, u, params={"task": "a-to-b", "reference": ref}, timeout=60)
+            for u in urls
+        ]
         health = httpx.get(f"{base}/api/health", timeout=10)
         replies = [p.result() for p in pending]
     assert health.status_code == 200
@@ -147,8 +224,9 @@ def test_analysis_page_in_chromium(server):
     from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
 
     base, _, ref = server
-    q = urlencode([("task", "a-to-b"), ("sessions", PHYSICAL), ("sessions", TWIN),
-                   ("reference", ref)])  # fmt: skip
+    q = urlencode(
+        [("task", "a-to-b"), ("sessions", PHYSICAL), ("sessions", TWIN), ("reference", ref)]
+    )
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
         try:

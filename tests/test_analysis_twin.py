@@ -113,8 +113,11 @@ def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
     # Real time (viser off, cameras off): the recorder stamps wall time.
     overrides = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
     with recorded_twin_flight(tmp_path, 1, overrides) as flight:
-        r = httpx.get(f"{flight.base_url}/api/sessions/{flight.session_id}/analysis",
-                      params={"task": "hover"}, timeout=60)
+        r = httpx.get(
+            f"{flight.base_url}/api/sessions/{flight.session_id}/analysis",
+            params={"task": "hover"},
+            timeout=60,
+        )
     assert r.status_code == 200, r.text
     res = r.json()["results"][0]
     assert res["platform"] == "twin" and res["reference_kind"] == "scene"

@@ -10,6 +10,7 @@ from dataclasses import replace
 
 import httpx
 import pytest
+from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from companion.vehicle_state import Attitude, VehicleState
@@ -175,9 +176,8 @@ def test_websocket_rejects_a_bad_rate_and_survives_disconnects():
     app = make_app()
     with run_uvicorn(app) as base:
         ws_base = base.replace("http", "ws")
-        with pytest.raises(Exception):
-            with connect(f"{ws_base}/ws/telemetry?max_rate=-3") as ws:
-                ws.recv(timeout=2)
+        with pytest.raises(InvalidStatus), connect(f"{ws_base}/ws/telemetry?max_rate=-3") as ws:
+            ws.recv(timeout=2)
         for _ in range(5):  # clients leaving mid-stream leave nothing behind
             ws = connect(f"{ws_base}/ws/telemetry")
             app.state.station.state.publish(VehicleState())

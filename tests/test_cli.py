@@ -19,8 +19,12 @@ def serve(*args, env=None):
         [sys.executable, "-m", "server", "serve", *args],
         cwd=ROOT,
         # Any free port for the 3D panel (other runs may hold 8080), no sessions here.
-        env={**os.environ, "FPV_VISER__PORT": "0", "FPV_RECORDING__AUTO_RECORD_ON_ARM": "false",
-             **(env or {})},
+        env={
+            **os.environ,
+            "FPV_VISER__PORT": "0",
+            "FPV_RECORDING__AUTO_RECORD_ON_ARM": "false",
+            **(env or {}),
+        },
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -49,12 +53,16 @@ def test_serve_with_flags_config_env_and_forwarding(tmp_path):
     cfg.write_text(f'[server]\nhost = "127.0.0.1"\nport = {port}\n[link]\nlink_lost_s = 9.0\n')
     with MavVehicle("udp", sysid=9) as v:
         p = serve(
-            "--config", str(cfg),
-            "--source", v.station_source,
-            "--sysid", "9",
-            "--forward", f"udpout:127.0.0.1:{qgc.getsockname()[1]}",
+            "--config",
+            str(cfg),
+            "--source",
+            v.station_source,
+            "--sysid",
+            "9",
+            "--forward",
+            f"udpout:127.0.0.1:{qgc.getsockname()[1]}",
             env={"FPV_LINK__LINK_LOST_S": "1.25"},
-        )  # fmt: skip
+        )
         try:
             base = f"http://127.0.0.1:{port}"
 
@@ -64,7 +72,10 @@ def test_serve_with_flags_config_env_and_forwarding(tmp_path):
                 except httpx.HTTPError:
                     return None
 
-            assert wait_until(lambda: (s := status()) and s["state"] and s["state"]["heartbeat"]["sysid"] == 9, timeout=20)
+            assert wait_until(
+                lambda: (s := status()) and s["state"] and s["state"]["heartbeat"]["sysid"] == 9,
+                timeout=20,
+            )
             data, _ = qgc.recvfrom(65535)  # the forward copy arrives
             assert data[0] in (0xFD, 0xFE)
             v.silent = True  # env (1.25 s) beat the file (9 s): lost within seconds

@@ -47,7 +47,9 @@ def test_alignment_maps_start_reference_line_onto_x():
     enu = np.array([[0, 0, 0], [-10, 10, 3], [-20, 20, 3]], float)
     llh = g.enu_to_geodetic(enu, *HOME)
     ref = g.enu_to_geodetic([-30.0, 30.0, 0.0], *HOME)
-    aligned = g.track_to_aligned_enu(llh[:, 0], llh[:, 1], llh[:, 2], reference_latlon=(ref[0], ref[1]))
+    aligned = g.track_to_aligned_enu(
+        llh[:, 0], llh[:, 1], llh[:, 2], reference_latlon=(ref[0], ref[1])
+    )
     np.testing.assert_allclose(aligned[:, 1], 0, atol=1e-3)  # no lateral offset
     np.testing.assert_allclose(aligned[:, 0], [0, np.hypot(10, 10), np.hypot(20, 20)], atol=1e-3)
     np.testing.assert_allclose(aligned[:, 2], [0, 3, 3], atol=1e-3)

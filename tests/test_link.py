@@ -16,12 +16,12 @@ from companion.tlog import write_record
 from server.settings import LinkSettings
 from tests.helpers import free_port
 from tests.helpers import wait_until as _wait_until
+from tests.mav_vehicle import MavVehicle
 
 
 def wait_until(predicate, timeout=10.0):
     """Generous: six engineers' suites share two cores; it returns as soon as true."""
     return _wait_until(predicate, max(timeout, 10.0))
-from tests.mav_vehicle import MavVehicle
 
 
 @contextlib.contextmanager
@@ -75,8 +75,11 @@ def test_falls_back_to_request_data_stream(reply):
     with MavVehicle("udp", interval_reply=reply) as v, running_link(v.station_source) as link:
         assert wait_until(lambda: link.health().stream_request == "data_stream", timeout=4)
         assert wait_until(lambda: "REQUEST_DATA_STREAM" in v.received_types())
-        streams = {m.req_stream_id: m.req_message_rate for m in v.received
-                   if m.get_type() == "REQUEST_DATA_STREAM"}  # fmt: skip
+        streams = {
+            m.req_stream_id: m.req_message_rate
+            for m in v.received
+            if m.get_type() == "REQUEST_DATA_STREAM"
+        }
         assert streams[mavlink.MAV_DATA_STREAM_EXTRA1] == 50  # ATTITUDE
         assert streams[mavlink.MAV_DATA_STREAM_POSITION] == 25
 
@@ -110,7 +113,10 @@ def test_link_lost_and_recovered():
 
 def test_random_garbage_and_corrupt_packets_interleaved():
     rng = random.Random(3)
-    with MavVehicle("udp", rates_hz={"HEARTBEAT": 5.0}) as v, running_link(v.station_source) as link:
+    with (
+        MavVehicle("udp", rates_hz={"HEARTBEAT": 5.0}) as v,
+        running_link(v.station_source) as link,
+    ):
         assert wait_until(lambda: state(link).heartbeat.t_mono is not None)
         for i in range(200):
             v.inject(bytes(rng.randrange(256) for _ in range(rng.randrange(1, 60))))
@@ -303,5 +309,8 @@ def test_mavlink1_autopilot_gets_mavlink1_replies():
             assert state(link).heartbeat.autopilot == "ardupilot"
             assert wait_until(lambda: state(link).attitude.t_mono is not None)
             # Old firmware may drop MAVLink 2 frames: the station answers in MAVLink 1.
-            assert wait_until(lambda: any(
-                m.get_type() == "HEARTBEAT" and m.get_msgbuf()[0] == 0xFE for m in v.received))
+            assert wait_until(
+                lambda: any(
+                    m.get_type() == "HEARTBEAT" and m.get_msgbuf()[0] == 0xFE for m in v.received
+                )
+            )

@@ -21,8 +21,12 @@ FPS = 30.0
 
 
 def options(rate_hz=30.0, **kw) -> RecorderOptions:
-    session = SessionConfig(rate_hz=rate_hz, source="sim", camera_fps={"front": FPS, "bottom": FPS},
-                            limits=kw.pop("limits", WriterLimits(min_free_bytes=1)))
+    session = SessionConfig(
+        rate_hz=rate_hz,
+        source="sim",
+        camera_fps={"front": FPS, "bottom": FPS},
+        limits=kw.pop("limits", WriterLimits(min_free_bytes=1)),
+    )
     return RecorderOptions(session=session, **kw)
 
 
@@ -35,8 +39,12 @@ def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
     jpegs = make_jpegs()
     cams = {n: FakeCamera(n, FPS, jpegs).start() for n in layout.CAMERAS}
     vehicle = FakeVehicle().start()
-    rec = Recorder(tmp_path, vehicle.state, {n: c.frames for n, c in cams.items()},
-                   options(rate_hz=30.0, auto_record_on_arm=False))
+    rec = Recorder(
+        tmp_path,
+        vehicle.state,
+        {n: c.frames for n, c in cams.items()},
+        options(rate_hz=30.0, auto_record_on_arm=False),
+    )
     vehicle.listeners.append(rec.on_packet)
 
     t0 = {}
@@ -119,18 +127,21 @@ def test_missed_frames_are_counted_never_silent(tmp_path):
     """A burst faster than the consumer: Latest skips frames; they are counted as dropped."""
     vehicle = FakeVehicle()
     cam = FakeCamera("front", FPS, make_jpegs(2))
-    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames},
-                   options(auto_record_on_arm=False))
+    rec = Recorder(
+        tmp_path, vehicle.state, {"front": cam.frames}, options(auto_record_on_arm=False)
+    )
 
     async def run():
         await rec.open()
         await rec.start("test")
         jpeg = cam.jpegs[0]
         seq = 0
-        for burst in range(5):
+        for _burst in range(5):
             for _ in range(10):  # ten frames with no await in between: the consumer sees one
                 seq += 1
-                cam.frames.publish(Frame("front", seq, jpeg, 320, 240, time.monotonic(), time.time()))
+                cam.frames.publish(
+                    Frame("front", seq, jpeg, 320, 240, time.monotonic(), time.time())
+                )
             await asyncio.sleep(0.1)
         return seq, await rec.stop()
 
@@ -192,13 +203,17 @@ DiskUsage = namedtuple("usage", "total used free")
 def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):
     real = shutil.disk_usage
     free = {"bytes": 10**9}
-    monkeypatch.setattr(shutil, "disk_usage",
-                        lambda p: DiskUsage(real(p).total, real(p).used, free["bytes"]))
+    monkeypatch.setattr(
+        shutil, "disk_usage", lambda p: DiskUsage(real(p).total, real(p).used, free["bytes"])
+    )
     cam = FakeCamera("front", FPS, make_jpegs(2)).start()
     vehicle = FakeVehicle().start()
-    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames},
-                   options(auto_record_on_arm=False,
-                           limits=WriterLimits(min_free_bytes=50 * 10**6)))
+    rec = Recorder(
+        tmp_path,
+        vehicle.state,
+        {"front": cam.frames},
+        options(auto_record_on_arm=False, limits=WriterLimits(min_free_bytes=50 * 10**6)),
+    )
 
     async def run():
         await rec.open()
@@ -227,6 +242,7 @@ def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):
 def test_disk_too_slow_drops_are_counted(tmp_path, monkeypatch):
     """A disk that stalls for 1 s at every sync: small buffers overflow, drops are counted."""
     import os
+
     real_sync = os.fdatasync
 
     def slow_sync(fd):
@@ -236,9 +252,15 @@ def test_disk_too_slow_drops_are_counted(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "fdatasync", slow_sync)
     cam = FakeCamera("front", FPS, make_jpegs(2)).start()
     vehicle = FakeVehicle().start()
-    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames},
-                   options(auto_record_on_arm=False,
-                           limits=WriterLimits(frame_queue=4, row_queue=8, min_free_bytes=1)))
+    rec = Recorder(
+        tmp_path,
+        vehicle.state,
+        {"front": cam.frames},
+        options(
+            auto_record_on_arm=False,
+            limits=WriterLimits(frame_queue=4, row_queue=8, min_free_bytes=1),
+        ),
+    )
 
     async def run():
         await rec.open()

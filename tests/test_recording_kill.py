@@ -26,8 +26,12 @@ def complete_rows(path: Path) -> list[dict[str, str]]:
 
 def spawn(args: list[str], env: dict | None = None) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-        text=True, env={**os.environ, **(env or {})},
+        [sys.executable, *args],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, **(env or {})},
     )
 
 
@@ -36,7 +40,7 @@ def read_line(proc: subprocess.Popen, prefix: str, timeout: float = 20.0) -> str
     while time.monotonic() < deadline:
         line = proc.stdout.readline()
         if line.startswith(prefix):
-            return line[len(prefix):].strip()
+            return line[len(prefix) :].strip()
         if not line and proc.poll() is not None:
             break
     raise AssertionError(f"no '{prefix}' line from the recording process")
@@ -90,8 +94,18 @@ def test_kill_9_of_the_server_and_restart(tmp_path):
     """The real CLI: start over REST, SIGKILL the server, start it again, see it marked."""
     port = free_port()
     env = {"FPV_RECORDING__SESSIONS_DIR": str(tmp_path), "FPV_RECORDING__MIN_FREE_MB": "0"}
-    args = ["-m", "server", "serve", "--source", "none", "--host", "127.0.0.1",
-            "--port", str(port), "--no-3d"]
+    args = [
+        "-m",
+        "server",
+        "serve",
+        "--source",
+        "none",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--no-3d",
+    ]
     base = f"http://127.0.0.1:{port}"
 
     def up() -> bool:

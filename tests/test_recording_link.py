@@ -20,10 +20,18 @@ from tests.mav_vehicle import MavVehicle
 def test_arm_records_disarm_stops_and_tlog_replays(tmp_path):
     root = tmp_path / "sessions"
     with MavVehicle("udp") as v:
-        settings = load_settings(environ={}, overrides={
-            "link.source": v.station_source, "link.link_lost_s": 0.5, "viser.enabled": False,
-            "recording.sessions_dir": str(root), "recording.rate_hz": 50,
-            "recording.post_disarm_tail_s": 0.8, "recording.min_free_mb": 0})
+        settings = load_settings(
+            environ={},
+            overrides={
+                "link.source": v.station_source,
+                "link.link_lost_s": 0.5,
+                "viser.enabled": False,
+                "recording.sessions_dir": str(root),
+                "recording.rate_hz": 50,
+                "recording.post_disarm_tail_s": 0.8,
+                "recording.min_free_mb": 0,
+            },
+        )
         with run_uvicorn(create_app(settings)) as base:
             status = lambda: httpx.get(f"{base}/api/recording").json()  # noqa: E731
             time.sleep(1.0)  # first fix: the pilot altitude gets a reference

@@ -11,10 +11,16 @@ from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn
 
 @pytest.fixture
 def base(tmp_path):
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "viser.enabled": False,
-        "recording.sessions_dir": str(tmp_path / "sessions"),
-        "recording.auto_record_on_arm": False, "recording.min_free_mb": 0})
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "viser.enabled": False,
+            "recording.sessions_dir": str(tmp_path / "sessions"),
+            "recording.auto_record_on_arm": False,
+            "recording.min_free_mb": 0,
+        },
+    )
     with run_uvicorn(create_app(settings)) as url:
         yield url
 

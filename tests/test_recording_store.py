@@ -31,7 +31,7 @@ def make_session(root: Path, start: float = START, source: str = "sim") -> tuple
 
 def test_session_ids_from_time_and_source():
     assert layout.session_id_for(START, "sim") == "20261118T110640Z_sim"
-    assert layout.session_id_for(START, "/dev/serial0:921600") .endswith("_serial")
+    assert layout.session_id_for(START, "/dev/serial0:921600").endswith("_serial")
     assert layout.session_id_for(START, "udpin:0.0.0.0:14550").endswith("_udp")
     assert layout.session_id_for(START, "replay:/x/y.tlog", 2).endswith("_replay-2")
     assert layout.session_start_from_id("20261118T110640Z_sim") == START
@@ -48,9 +48,21 @@ def test_create_session_dir_never_reuses(tmp_path):
 def test_columns_flatten_vehicle_state_generically():
     cols = layout.telemetry_columns()
     assert cols[:2] == ("t_s", "wall_time")
-    for c in ("gps.lat_deg", "altitude.relative_alt_m", "rc.pwm_us.0", "rc.pwm_us.17",
-              "servo.pwm_us.15", "heartbeat.armed", "heartbeat.mode", "attitude.roll_rad",
-              "front.seq", "front.file", "front.t_wall", "front.skew_s", "bottom.skew_s"):
+    for c in (
+        "gps.lat_deg",
+        "altitude.relative_alt_m",
+        "rc.pwm_us.0",
+        "rc.pwm_us.17",
+        "servo.pwm_us.15",
+        "heartbeat.armed",
+        "heartbeat.mode",
+        "attitude.roll_rad",
+        "front.seq",
+        "front.file",
+        "front.t_wall",
+        "front.skew_s",
+        "bottom.skew_s",
+    ):
         assert c in cols, c
     assert "rc.pwm_us.18" not in cols and "rc.pwm_us" not in cols
     assert len(set(cols)) == len(cols)
@@ -69,8 +81,21 @@ def test_list_and_meta(tmp_path):
     assert store.meta(sid).id == sid
 
 
-@pytest.mark.parametrize("bad", ["../etc", "..", ".", "", "a/b", "x\x00y", "/etc",
-                                 "20261118T110640Z_sim/..", "20261118T021320Z_SIM", "a" * 300])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        "../etc",
+        "..",
+        ".",
+        "",
+        "a/b",
+        "x\x00y",
+        "/etc",
+        "20261118T110640Z_sim/..",
+        "20261118T021320Z_SIM",
+        "a" * 300,
+    ],
+)
 def test_bad_ids_rejected(tmp_path, bad):
     store = SessionStore(tmp_path)
     make_session(tmp_path)
@@ -83,9 +108,21 @@ def test_unknown_id_not_found(tmp_path):
         SessionStore(tmp_path).resolve("20200101T000000Z_sim")
 
 
-@pytest.mark.parametrize("bad", ["../../etc/passwd", "../20261118T110640Z_sim/telemetry.csv",
-                                 "/etc/passwd", "front/../../x", "front//x", "a\x00b",
-                                 "..\\..\\etc\\passwd", "C:/x", "./telemetry.csv", ""])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        "../../etc/passwd",
+        "../20261118T110640Z_sim/telemetry.csv",
+        "/etc/passwd",
+        "front/../../x",
+        "front//x",
+        "a\x00b",
+        "..\\..\\etc\\passwd",
+        "C:/x",
+        "./telemetry.csv",
+        "",
+    ],
+)
 def test_traversal_rejected(tmp_path, bad):
     store = SessionStore(tmp_path)
     sid, _ = make_session(tmp_path)

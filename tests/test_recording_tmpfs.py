@@ -18,8 +18,11 @@ from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
 @contextlib.contextmanager
 def tmpfs(path, size_kb: int):
     path.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_kb}k", "tmpfs", str(path)],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size_kb}k", "tmpfs", str(path)],
+        capture_output=True,
+        text=True,
+    )
     if r.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
     try:
@@ -32,16 +35,18 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
     cam = FakeCamera("front", 30.0, make_jpegs(4, 320, 240)).start()  # ~1.5 MB/s
     vehicle = FakeVehicle().start()
     options = RecorderOptions(
-        session=SessionConfig(rate_hz=30.0, source="sim",
-                              limits=WriterLimits(min_free_bytes=min_free_bytes)),
-        auto_record_on_arm=False)
+        session=SessionConfig(
+            rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=min_free_bytes)
+        ),
+        auto_record_on_arm=False,
+    )
     rec = Recorder(root, vehicle.state, {"front": cam.frames}, options)
 
     async def run():
         await rec.open()
         await rec.start("test")
         deadline = time.monotonic() + timeout_s
-        while rec.recording_id is not None and time.monotonic() < deadline:  # until finalized
+        while rec.recording_id is not None and time.monotonic() < deadline:  # noqa: ASYNC110
             await asyncio.sleep(0.1)
         return rec.status()
 
@@ -52,8 +57,9 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
         vehicle.stop()
 
 
-@pytest.mark.parametrize("min_free_kb,expect", [(5120, "MB free, under the"),
-                                                (0, "No space left on device")])
+@pytest.mark.parametrize(
+    "min_free_kb,expect", [(5120, "MB free, under the"), (0, "No space left on device")]
+)
 def test_full_tmpfs_stops_cleanly_with_reason(tmp_path, min_free_kb, expect):
     """5 MB: the free-space threshold stops it; 0: writes fail with ENOSPC and stop it."""
     with tmpfs(tmp_path / "disk", 8192) as root:

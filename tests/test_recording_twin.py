@@ -47,7 +47,7 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
     assert len(rows) >= 0.8 * t[-1] * RATE_HZ
     rel_alt = np.array([float(r["altitude.relative_alt_m"] or "nan") for r in rows])
     assert np.nanmax(rel_alt) == pytest.approx(4.0, abs=0.4)  # arming-relative
-    assert set(r["altitude.reference"] for r in rows) == {"arming"}
+    assert {r["altitude.reference"] for r in rows} == {"arming"}
     assert abs(rel_alt[-1]) < 0.5  # landed again
     armed = np.array([r["heartbeat.armed"] == "1" for r in rows])
     assert armed[0] and not armed[-1]
@@ -74,13 +74,18 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
         t_cap = {int(fr["seq"]): float(fr["t_s"]) for fr in frames}
         seqs = sorted(t_cap)
         gap_after = {a: t_cap[b] - t_cap[a] for a, b in zip(seqs, seqs[1:])}
-        ok = [float(r[f"{cam}.skew_s"]) <= gap_after.get(int(r[f"{cam}.seq"]), np.inf) + period
-              for r in rows if r[f"{cam}.seq"]]
+        ok = [
+            float(r[f"{cam}.skew_s"]) <= gap_after.get(int(r[f"{cam}.seq"]), np.inf) + period
+            for r in rows
+            if r[f"{cam}.seq"]
+        ]
         assert np.mean(ok) >= 0.97, (cam, np.mean(ok), q)
         skews = np.array([float(r[f"{cam}.skew_s"]) for r in rows if r[f"{cam}.seq"]])
         assert np.median(skews) < period, (cam, q)
-        print(f"{cam}: skew median {np.median(skews) * 1e3:.1f} ms, p99 "
-              f"{q['skew_p99_s'] * 1e3:.1f} ms, frame period {period * 1e3:.1f} ms")
+        print(
+            f"{cam}: skew median {np.median(skews) * 1e3:.1f} ms, p99 "
+            f"{q['skew_p99_s'] * 1e3:.1f} ms, frame period {period * 1e3:.1f} ms"
+        )
 
     # Analysis reads the session as recorded.
     track = load_session_dir(folder)
@@ -92,11 +97,13 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
     link.add_packet_listener(lambda _t, _p: None)
     link.start()
     try:
+
         def done():
             v = link.state.get()
             if v is not None and v.value.altitude.relative_alt_m is not None:
                 alts.append(v.value.altitude.relative_alt_m)
             return link.health().replay_done
+
         assert wait_until(done, timeout=20, interval=0.001)
         assert link.health().truncated_records == 0
         final = link.state.get().value

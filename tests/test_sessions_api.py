@@ -10,9 +10,13 @@ from tests.helpers import run_uvicorn
 
 
 def make_app(tmp_path, token=None):
-    overrides = {"link.source": "none", "viser.enabled": False,
-                 "recording.sessions_dir": str(tmp_path / "sessions"),
-                 "recording.auto_record_on_arm": False, "recording.min_free_mb": 0}
+    overrides = {
+        "link.source": "none",
+        "viser.enabled": False,
+        "recording.sessions_dir": str(tmp_path / "sessions"),
+        "recording.auto_record_on_arm": False,
+        "recording.min_free_mb": 0,
+    }
     if token:
         overrides["server.token"] = token
     return create_app(load_settings(environ={}, overrides=overrides))
@@ -26,6 +30,7 @@ def server(tmp_path):
 
 def record_session(base: str, seconds: float = 0.5) -> str:
     import time
+
     r = httpx.post(f"{base}/api/recording/start")
     assert r.status_code == 200 and r.json()["recording"] is True
     sid = r.json()["id"]
@@ -47,8 +52,13 @@ def test_record_list_meta_and_files(server):
     detail = httpx.get(f"{base}/api/sessions/{sid}").json()
     assert detail["meta"]["quality"]["telemetry_rate_hz"] == 30.0
     # The test app's cameras show NO SIGNAL (no source): no frame, but their frames.csv.
-    assert set(detail["files"]) == {"session.json", "telemetry.csv", "mavlink.tlog",
-                                    "front/frames.csv", "bottom/frames.csv"}
+    assert set(detail["files"]) == {
+        "session.json",
+        "telemetry.csv",
+        "mavlink.tlog",
+        "front/frames.csv",
+        "bottom/frames.csv",
+    }
     assert detail["frame_files"] == {}
     r = httpx.get(f"{base}/api/sessions/{sid}/files/telemetry.csv")
     assert r.status_code == 200 and r.content == (root / sid / "telemetry.csv").read_bytes()
@@ -66,7 +76,7 @@ def test_streamed_zip_unzips_to_the_same_bytes(server):
     with httpx.stream("GET", f"{base}/api/sessions/{sid}/download") as r:
         assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
         assert "content-length" not in r.headers  # streamed, not built first
-        chunks = [c for c in r.iter_bytes()]
+        chunks = list(r.iter_bytes())
     assert len(chunks) > 1
     zf = zipfile.ZipFile(io.BytesIO(b"".join(chunks)))
     assert zf.testzip() is None
@@ -95,13 +105,16 @@ def test_delete_and_refused_while_recording(server):
     assert httpx.get(f"{base}/api/sessions/{sid}").status_code == 404
 
 
-@pytest.mark.parametrize("path,status", [
-    ("/api/sessions/..%2F..%2Fetc", 404),  # a slash never matches the id: no route
-    ("/api/sessions/nope", 400),
-    ("/api/sessions/20200101T000000Z_sim", 404),
-    ("/api/sessions/20200101T000000Z_sim/download", 404),
-    ("/api/sessions/%00", 400),
-])
+@pytest.mark.parametrize(
+    "path,status",
+    [
+        ("/api/sessions/..%2F..%2Fetc", 404),  # a slash never matches the id: no route
+        ("/api/sessions/nope", 400),
+        ("/api/sessions/20200101T000000Z_sim", 404),
+        ("/api/sessions/20200101T000000Z_sim/download", 404),
+        ("/api/sessions/%00", 400),
+    ],
+)
 def test_bad_ids_rejected(server, path, status):
     base, _ = server
     r = httpx.get(base + path)
@@ -112,8 +125,14 @@ def test_traversal_rejected(server, tmp_path):
     base, root = server
     sid = record_session(base, 0.2)
     (tmp_path / "secret.txt").write_text("TOPSECRET")
-    for path in ("..%2F..%2Fsecret.txt", "%2E%2E/%2E%2E/secret.txt", "%2Fetc%2Fpasswd",
-                 "a%00b", "front/..%2F..%2F..%2Fsecret.txt", "..%5C..%5Csecret.txt"):
+    for path in (
+        "..%2F..%2Fsecret.txt",
+        "%2E%2E/%2E%2E/secret.txt",
+        "%2Fetc%2Fpasswd",
+        "a%00b",
+        "front/..%2F..%2F..%2Fsecret.txt",
+        "..%5C..%5Csecret.txt",
+    ):
         r = httpx.get(f"{base}/api/sessions/{sid}/files/{path}")
         assert r.status_code == 400, (path, r.status_code)
         assert b"TOPSECRET" not in r.content
@@ -148,10 +167,16 @@ def test_start_refused_with_a_clear_error_on_a_full_disk(tmp_path, monkeypatch):
 
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10**6, 10**6))
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "recording.sessions_dir": str(tmp_path / "sessions"),
-        "recording.auto_record_on_arm": False, "recording.min_free_mb": 100,
-        "viser.enabled": False})
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "recording.sessions_dir": str(tmp_path / "sessions"),
+            "recording.auto_record_on_arm": False,
+            "recording.min_free_mb": 100,
+            "viser.enabled": False,
+        },
+    )
     with run_uvicorn(create_app(settings)) as base:
         r = httpx.post(f"{base}/api/recording/start")
         assert r.status_code == 503 and r.json()["error"] == "Unavailable"
@@ -167,6 +192,7 @@ def test_start_refused_when_the_sessions_dir_is_unusable(tmp_path):
         (tmp_path / "sessions").mkdir()
         (tmp_path / "sessions").chmod(0o500)  # read-only: root ignores modes, so also
         import os
+
         if os.geteuid() == 0:  # make it a file behind the store's back
             (tmp_path / "sessions").chmod(0o700)
             os.rename(tmp_path / "sessions", tmp_path / "elsewhere")

@@ -58,12 +58,24 @@ def test_mode_names_both_families(autopilot, modes, mavlink1):
 def test_every_group_is_filled():
     tracker, v, feed = make()
     v.roll_rad, v.vx_mps, v.vz_mps = 0.25, 2.0, -0.5
-    feed("HEARTBEAT", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "VFR_HUD", "ATTITUDE",
-         "RC_CHANNELS", "SERVO_OUTPUT_RAW", "SYS_STATUS", "BATTERY_STATUS", "LOCAL_POSITION_NED")  # fmt: skip
+    feed(
+        "HEARTBEAT",
+        "GPS_RAW_INT",
+        "GLOBAL_POSITION_INT",
+        "VFR_HUD",
+        "ATTITUDE",
+        "RC_CHANNELS",
+        "SERVO_OUTPUT_RAW",
+        "SYS_STATUS",
+        "BATTERY_STATUS",
+        "LOCAL_POSITION_NED",
+    )
     s = tracker.state
     assert s.gps.fix_type == 3 and s.gps.satellites == 12 and s.gps.eph_m == pytest.approx(0.8)
     assert s.gps.lat_deg == pytest.approx(43.0021) and s.gps.alt_m == pytest.approx(180.0)
-    assert s.global_position.vx_mps == pytest.approx(2.0) and s.global_position.vz_mps == pytest.approx(-0.5)
+    assert s.global_position.vx_mps == pytest.approx(
+        2.0
+    ) and s.global_position.vz_mps == pytest.approx(-0.5)
     assert s.vfr_hud.climb_mps == pytest.approx(0.5)
     assert s.attitude.roll_rad == pytest.approx(0.25) and s.attitude.time_boot_ms is not None
     assert s.rc.pwm_us[:8] == (1500,) * 8 and len(s.rc.pwm_us) == 18 and s.rc.rssi == 200

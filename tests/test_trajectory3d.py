@@ -37,18 +37,29 @@ FIELD = default_field()
 ORIGIN = (FIELD.anchor_lat_deg, FIELD.anchor_lon_deg, FIELD.anchor_alt_m)
 
 
-def make_state(t_s: float, enu: tuple[float, float, float], fix_type: int = 3,
-               yaw_rad: float = 0.0, armed_origin: tuple | None = None) -> VehicleState:
+def make_state(
+    t_s: float,
+    enu: tuple[float, float, float],
+    fix_type: int = 3,
+    yaw_rad: float = 0.0,
+    armed_origin: tuple | None = None,
+) -> VehicleState:
     """A vehicle state at ENU position `enu` about the field's anchor."""
     lat, lon, alt = (float(v) for v in enu_to_geodetic(enu, *ORIGIN))
     altitude = PilotAltitude()
     if armed_origin is not None:
-        altitude = PilotAltitude(t_mono=t_s, reference="arming", home_lat_deg=armed_origin[0],
-                                 home_lon_deg=armed_origin[1], reference_alt_m=armed_origin[2])
+        altitude = PilotAltitude(
+            t_mono=t_s,
+            reference="arming",
+            home_lat_deg=armed_origin[0],
+            home_lon_deg=armed_origin[1],
+            reference_alt_m=armed_origin[2],
+        )
     return VehicleState(
         gps=GpsRaw(t_mono=t_s, fix_type=fix_type, lat_deg=lat, lon_deg=lon, alt_m=alt),
-        global_position=GlobalPosition(t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt,
-                                       vx_mps=1.0, vy_mps=0.5, vz_mps=0.0),
+        global_position=GlobalPosition(
+            t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.0, vy_mps=0.5, vz_mps=0.0
+        ),
         attitude=Attitude(t_mono=t_s, roll_rad=0.0, pitch_rad=0.0, yaw_rad=yaw_rad),
         altitude=altitude,
     )
@@ -56,8 +67,9 @@ def make_state(t_s: float, enu: tuple[float, float, float], fix_type: int = 3,
 
 @pytest.fixture
 def service():
-    svc = Trajectory3D(ViserSettings(port=0, chunk_segments=20), Latest(), host="127.0.0.1",
-                       field=FIELD)
+    svc = Trajectory3D(
+        ViserSettings(port=0, chunk_segments=20), Latest(), host="127.0.0.1", field=FIELD
+    )
     svc.start()
     try:
         yield svc
@@ -72,8 +84,7 @@ def test_attitude_maps_ned_frd_onto_enu_flu():
     fwd = np.array([1.0, 0.0, 0.0])
     # yaw 0 = nose north, yaw 90 deg = nose east (NED convention)
     np.testing.assert_allclose(R_enu_flu_from_euler(0, 0, 0) @ fwd, [0, 1, 0], atol=1e-12)
-    np.testing.assert_allclose(R_enu_flu_from_euler(0, 0, math.pi / 2) @ fwd, [1, 0, 0],
-                               atol=1e-12)
+    np.testing.assert_allclose(R_enu_flu_from_euler(0, 0, math.pi / 2) @ fwd, [1, 0, 0], atol=1e-12)
     # nose up (positive pitch) raises the forward axis
     assert (R_enu_flu_from_euler(0, 0.3, 0) @ fwd)[2] > 0.29
     # right wing down (positive roll) raises the left axis (+y of FLU)
@@ -94,8 +105,15 @@ def test_bottom_footprint_on_the_ground():
     np.testing.assert_allclose(np.ptp(c[:, 1]), 2 * 4.0, atol=1e-9)
     np.testing.assert_allclose(c[:, :2].mean(axis=0), [5.0, 0.0], atol=1e-9)
     # tilted towards the horizon, or on the ground: no footprint
-    assert bottom_footprint_enu(np.array([0, 0, 4.0]), R_enu_flu_from_euler(1.4, 0, 0),
-                                math.radians(90), math.radians(60)) is None
+    assert (
+        bottom_footprint_enu(
+            np.array([0, 0, 4.0]),
+            R_enu_flu_from_euler(1.4, 0, 0),
+            math.radians(90),
+            math.radians(60),
+        )
+        is None
+    )
     assert bottom_footprint_enu(np.array([0, 0, 0.0]), R, 1.0, 1.0) is None
 
 
@@ -237,8 +255,9 @@ def test_update_cost_stays_flat_over_a_30_minute_flight(service):
         ti, (lat, lon, alt) = float(t[i]), (float(v) for v in geo[i])
         state = VehicleState(
             gps=GpsRaw(t_mono=ti, fix_type=fix, lat_deg=lat, lon_deg=lon, alt_m=alt),
-            global_position=GlobalPosition(t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt,
-                                           vx_mps=1.0, vy_mps=0.0),
+            global_position=GlobalPosition(
+                t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.0, vy_mps=0.0
+            ),
             attitude=Attitude(t_mono=ti, roll_rad=0.0, pitch_rad=0.0, yaw_rad=ti / 10),
         )
         first_id = buffer.message_counter
@@ -281,7 +300,12 @@ def test_no_3d_flag():
     settings = load_settings(environ={}, overrides={"link.source": "none", "viser.enabled": False})
     with run_uvicorn(create_app(settings)) as base:
         assert httpx.get(f"{base}/api/viser").json() == {
-            "enabled": False, "port": None, "points": 0, "chunks": 0, "replay_port": None}
+            "enabled": False,
+            "port": None,
+            "points": 0,
+            "chunks": 0,
+            "replay_port": None,
+        }
 
 
 def test_field_comes_from_the_twin_scene():
@@ -295,21 +319,29 @@ def test_field_comes_from_the_twin_scene():
 def test_station_draws_a_field_file_and_survives_a_bad_one(tmp_path):
     scene = tmp_path / "field.toml"
     scene.write_text(
-        '[home]\nlat_deg = 43.0\nlon_deg = -78.8\nalt_m = 200.0\n'
-        '[field]\nsize_x_m = 30.0\nsize_y_m = 20.0\n'
+        "[home]\nlat_deg = 43.0\nlon_deg = -78.8\nalt_m = 200.0\n"
+        "[field]\nsize_x_m = 30.0\nsize_y_m = 20.0\n"
         '[[pads]]\nname = "start"\nx_m = -10.0\ny_m = 0.0\n'
         '[[obstacles]]\nname = "pole a"\nx_m = 2.0\ny_m = 3.0\nheight_m = 5.0\n'
     )
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "viser.port": 0, "viser.field_file": str(scene)})
+    settings = load_settings(
+        environ={},
+        overrides={"link.source": "none", "viser.port": 0, "viser.field_file": str(scene)},
+    )
     app = create_app(settings)
     with run_uvicorn(app) as base:
         assert httpx.get(f"{base}/api/viser").json()["enabled"]
         handles = app.state.station.trajectory3d.scene.field_handles
         assert set(handles) == {"pad:start", "obstacle:pole a"}
         assert np.allclose(handles["obstacle:pole a"].position, (2.0, 3.0, 2.5))
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "viser.port": 0, "viser.field_file": str(tmp_path / "nope.toml")})
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "viser.port": 0,
+            "viser.field_file": str(tmp_path / "nope.toml"),
+        },
+    )
     app = create_app(settings)
     with run_uvicorn(app) as base:  # no field, but the panel runs
         assert httpx.get(f"{base}/api/viser").json()["enabled"]
@@ -325,12 +357,27 @@ def test_cli_serves_the_panel_on_its_port_and_stops_it(tmp_path):
 
     port, viser_port = free_port(), free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "server", "serve", "--source", "none", "--host", "127.0.0.1",
-         "--port", str(port), "--viser-port", str(viser_port)],
-        cwd=Path(__file__).resolve().parents[1], stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL, env={**os.environ, "FPV_RECORDING__SESSIONS_DIR": str(tmp_path)},
+        [
+            sys.executable,
+            "-m",
+            "server",
+            "serve",
+            "--source",
+            "none",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--viser-port",
+            str(viser_port),
+        ],
+        cwd=Path(__file__).resolve().parents[1],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "FPV_RECORDING__SESSIONS_DIR": str(tmp_path)},
     )
     try:
+
         def panel():
             try:
                 return httpx.get(f"http://127.0.0.1:{port}/api/viser", timeout=1).json()

@@ -35,8 +35,9 @@ def state_at(t_s: float) -> VehicleState:
     lat, lon, alt = (float(v) for v in enu_to_geodetic([e, n, u], *ORIGIN))
     return VehicleState(
         gps=GpsRaw(t_mono=t_s, fix_type=3, lat_deg=lat, lon_deg=lon, alt_m=alt),
-        global_position=GlobalPosition(t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt,
-                                       vx_mps=1.0, vy_mps=1.0),
+        global_position=GlobalPosition(
+            t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.0, vy_mps=1.0
+        ),
         attitude=Attitude(t_mono=t_s, roll_rad=0.1, pitch_rad=0.0, yaw_rad=t_s / 4),
     )
 
@@ -59,10 +60,16 @@ def open_offline(pw, outside: list[str]):
 
 @pytest.fixture
 def station(sessions_dir):  # noqa: F811
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "viser.port": 0, "viser.update_hz": 60,
-        "recording.sessions_dir": str(sessions_dir), "recording.auto_record_on_arm": False,
-    })
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "viser.port": 0,
+            "viser.update_hz": 60,
+            "recording.sessions_dir": str(sessions_dir),
+            "recording.auto_record_on_arm": False,
+        },
+    )
     app = create_app(settings)
     with run_uvicorn(app) as base:
         yield base, app
@@ -145,12 +152,13 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
         page.wait_for_url(f"**/replay.html?session={SESSION_A}*")
         page.wait_for_function(
-            "document.getElementById('replay-status').textContent.includes('fixes')",
-            timeout=10_000)
+            "document.getElementById('replay-status').textContent.includes('fixes')", timeout=10_000
+        )
         page.locator("#replay-compare").select_option(SESSION_B)  # also turns alignment on
         page.wait_for_function(
             "document.getElementById('replay-status').textContent.includes('overlay')",
-            timeout=10_000)
+            timeout=10_000,
+        )
         slider = page.locator("#replay-slider")
         assert slider.is_visible() and int(slider.get_attribute("max")) > 300
         slider.evaluate("el => { el.value = 300; el.dispatchEvent(new Event('input')); }")
@@ -158,7 +166,8 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         page.wait_for_function(
             "['replay-front', 'replay-bottom']"
             ".every(id => document.getElementById(id).naturalWidth > 0)",
-            timeout=10_000)
+            timeout=10_000,
+        )
         front_src = page.locator("#replay-front").get_attribute("src")
         assert front_src.endswith("/files/front/00000150.jpg")  # frame of t = 30 s at 5 fps
         png = page.locator("#replay-top").screenshot(path=str(tmp_path / "replay.png"))
@@ -182,17 +191,24 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         replay3d = app.state.station.replay3d
         viser_url = f"http://127.0.0.1:{replay3d.port}/"
         assert page.locator("#replay-3d").get_attribute("src") == viser_url
-        assert wait_until(lambda: replay3d.primary is not None and replay3d.overlay is not None
-                          and (replay3d.primary.id, replay3d.overlay.id) == (SESSION_A, SESSION_B)
-                          and abs(replay3d.t_s - t_played) < 0.2, 10.0)
+        assert wait_until(
+            lambda: (
+                replay3d.primary is not None
+                and replay3d.overlay is not None
+                and (replay3d.primary.id, replay3d.overlay.id) == (SESSION_A, SESSION_B)
+                and abs(replay3d.t_s - t_played) < 0.2
+            ),
+            10.0,
+        )
         frame = next((f for f in page.frames if f.url.startswith(viser_url)), None)
         assert frame is not None, [f.url for f in page.frames]
         frame.locator("canvas").first.wait_for(timeout=90_000)
         # a narrow panel gets viser's bottom sheet: fold it away, as a user would
         frame.get_by_text("fpv-station replay 3D").first.click(timeout=90_000)
         page.wait_for_timeout(2500)  # let the software renderer draw the scene
-        png3d = page.locator("#replay-3d").screenshot(path=str(tmp_path / "replay3d.png"),
-                                                      timeout=90_000)
+        png3d = page.locator("#replay-3d").screenshot(
+            path=str(tmp_path / "replay3d.png"), timeout=90_000
+        )
         img = cv2.imdecode(np.frombuffer(png3d, np.uint8), cv2.IMREAD_COLOR).astype(int)
         b, g, r = img[..., 0], img[..., 1], img[..., 2]
         assert saturated(png3d).sum() > 500, "the 3D replay panel shows no path"

@@ -64,10 +64,15 @@ def sessions_dir(tmp_path):
 
 @pytest.fixture
 def base(sessions_dir):
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "viser.port": 0, "recording.sessions_dir": str(sessions_dir),
-        "recording.auto_record_on_arm": False,
-    })
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "viser.port": 0,
+            "recording.sessions_dir": str(sessions_dir),
+            "recording.auto_record_on_arm": False,
+        },
+    )
     with run_uvicorn(create_app(settings)) as url:
         yield url
 
@@ -128,8 +133,11 @@ def test_trajectory_endpoint_matches_the_flown_path(base):
 
 
 def test_trajectory_endpoint_rejects_bad_ids(base):
-    for bad, status in [("..%2F..%2Fetc", 400), ("20991122T040000Z_sim", 404),
-                        ("not-a-session", 400)]:
+    for bad, status in [
+        ("..%2F..%2Fetc", 400),
+        ("20991122T040000Z_sim", 404),
+        ("not-a-session", 400),
+    ]:
         r = httpx.get(f"{base}/api/sessions/{bad}/trajectory")
         assert r.status_code in (status, 404), (bad, r.status_code)
         assert "error" in r.json()

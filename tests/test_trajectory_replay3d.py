@@ -51,12 +51,16 @@ def test_replay_scene_draws_the_path_with_gaps_and_moves_the_vehicle(replay):
     assert segs.shape == (1198, 2, 3) and len(replay.scene.chunk_handles) == 3
     jumps = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
     assert jumps.max() < 0.06  # no segment drawn across the gap (it would be 0.05 m + 0)
-    assert not np.any(np.all(np.isclose(segs[:, 0, :1], 29.95, atol=1e-3), axis=1)
-                      & np.all(np.isclose(segs[:, 1, :1], 30.0, atol=1e-3), axis=1))
+    assert not np.any(
+        np.all(np.isclose(segs[:, 0, :1], 29.95, atol=1e-3), axis=1)
+        & np.all(np.isclose(segs[:, 1, :1], 30.0, atol=1e-3), axis=1)
+    )
     overlay_path = replay.overlay_handles[0]
     assert np.asarray(overlay_path.points).shape == (299, 2, 3)
     # time: the vehicle and the overlay's marker move to the instant, clamped to the flight
-    np.testing.assert_allclose(replay.scene.vehicle.position, [0, 0, 0], atol=0.01)  # origin: the first fix
+    np.testing.assert_allclose(
+        replay.scene.vehicle.position, [0, 0, 0], atol=0.01
+    )  # origin: the first fix
     assert replay.set_time(10.0) == 10.0
     np.testing.assert_allclose(replay.scene.vehicle.position, [5.0, 0, 0], atol=0.06)
     np.testing.assert_allclose(replay.overlay_vehicle.position, [5.0, 0, 0], atol=0.06)
@@ -77,10 +81,15 @@ def test_replay_scene_draws_the_path_with_gaps_and_moves_the_vehicle(replay):
 
 @pytest.fixture
 def base(sessions_dir):  # noqa: F811
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "viser.port": 0, "recording.sessions_dir": str(sessions_dir),
-        "recording.auto_record_on_arm": False,
-    })
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "viser.port": 0,
+            "recording.sessions_dir": str(sessions_dir),
+            "recording.auto_record_on_arm": False,
+        },
+    )
     app = create_app(settings)
     with run_uvicorn(app) as url:
         yield url, app
@@ -93,8 +102,11 @@ def test_replay3d_endpoints_load_sessions_and_set_time(base):
     assert info["replay_port"] == replay.port and info["replay_port"] != info["port"]
     # the replay panel serves its own viser client
     assert httpx.get(f"http://127.0.0.1:{info['replay_port']}/").status_code == 200
-    r = httpx.put(f"{url}/api/replay3d", json={"session": SESSION_A, "overlay": SESSION_B,
-                                                "align": "farthest"}, timeout=30)
+    r = httpx.put(
+        f"{url}/api/replay3d",
+        json={"session": SESSION_A, "overlay": SESSION_B, "align": "farthest"},
+        timeout=30,
+    )
     assert r.status_code == 200, r.text
     j = r.json()
     assert j["session"] == SESSION_A and j["overlay"] == SESSION_B and j["segments"] > 300
@@ -105,8 +117,9 @@ def test_replay3d_endpoints_load_sessions_and_set_time(base):
     t = httpx.put(f"{url}/api/replay3d/time", json={"t_s": 30.0})
     assert t.status_code == 200 and t.json()["t_s"] == 30.0
     i = max(k for k, ts in enumerate(traj["t_s"]) if ts - traj["t_s"][0] <= 30.0)
-    np.testing.assert_allclose(replay.scene.vehicle.position,
-                               [traj["x_m"][i], traj["y_m"][i], traj["z_m"][i]], atol=0.01)
+    np.testing.assert_allclose(
+        replay.scene.vehicle.position, [traj["x_m"][i], traj["y_m"][i], traj["z_m"][i]], atol=0.01
+    )
 
 
 def test_replay3d_endpoints_refuse_bad_input(base):
@@ -115,8 +128,9 @@ def test_replay3d_endpoints_refuse_bad_input(base):
     assert r.status_code == 400 and r.json()["error"] == "BadRequest"  # nothing loaded yet
     r = httpx.put(f"{url}/api/replay3d", json={"session": "20991122T040000Z_sim"})
     assert r.status_code == 404 and r.json()["error"] == "NotFound"
-    r = httpx.put(f"{url}/api/replay3d", json={"session": SESSION_A,
-                                                "overlay": "20991122T040000Z_sim"})
+    r = httpx.put(
+        f"{url}/api/replay3d", json={"session": SESSION_A, "overlay": "20991122T040000Z_sim"}
+    )
     assert r.status_code == 404 and r.json()["error"] == "NotFound"
     r = httpx.put(f"{url}/api/replay3d", json={"session": "../../etc/passwd"})
     assert r.status_code in (400, 404) and "error" in r.json()
@@ -128,10 +142,15 @@ def test_replay3d_endpoints_refuse_bad_input(base):
 
 
 def test_replay3d_is_off_with_no_3d(sessions_dir):  # noqa: F811
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none", "viser.enabled": False, "recording.sessions_dir": str(sessions_dir),
-        "recording.auto_record_on_arm": False,
-    })
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "viser.enabled": False,
+            "recording.sessions_dir": str(sessions_dir),
+            "recording.auto_record_on_arm": False,
+        },
+    )
     with run_uvicorn(create_app(settings)) as url:
         r = httpx.put(f"{url}/api/replay3d", json={"session": SESSION_A})
         assert r.status_code == 503 and r.json()["error"] == "Unavailable"

@@ -44,8 +44,10 @@ def test_twin_session_trajectory_matches_local_position(tmp_path):
     want = np.column_stack([np.interp(t, t_rows, enu_local[:, k]) for k in range(3)])
     err = got - want
     horizontal = np.hypot(err[:, 0], err[:, 1])
-    print(f"horizontal rms {np.sqrt(np.mean(horizontal**2)):.3f} m, vertical rms "
-          f"{np.sqrt(np.mean(err[:, 2] ** 2)):.3f} m over {len(t)} fixes")
+    print(
+        f"horizontal rms {np.sqrt(np.mean(horizontal**2)):.3f} m, vertical rms "
+        f"{np.sqrt(np.mean(err[:, 2] ** 2)):.3f} m over {len(t)} fixes"
+    )
     # GPS noise of the twin: 0.2 m horizontal drift, 0.4 m vertical drift, 0.05 m white,
     # plus up to one GPS period (5 Hz) of motion at cruise speed.
     assert np.sqrt(np.mean(horizontal**2)) < 1.0, horizontal.max()

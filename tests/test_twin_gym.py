@@ -43,8 +43,15 @@ def test_scripted_pilot_earns_the_landing_bonus() -> None:
     total, terminated, truncated = 0.0, False, False
     while not (terminated or truncated):
         p = env.sim.pose()
-        roll, pitch, yaw, thr = pilot.update(Observation(
-            env.sim.t_s, p.pos_enu_m, p.vel_enu_mps, p.yaw_enu_rad, bool(env.sim.commander.armed[0])))
+        roll, pitch, yaw, thr = pilot.update(
+            Observation(
+                env.sim.t_s,
+                p.pos_enu_m,
+                p.vel_enu_mps,
+                p.yaw_enu_rad,
+                bool(env.sim.commander.armed[0]),
+            )
+        )
         _, reward, terminated, truncated, info = env.step([roll, pitch, yaw, 2 * thr - 1])
         total += reward
     assert terminated and info["crash"] == ""

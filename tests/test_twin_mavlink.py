@@ -24,9 +24,20 @@ def sim_gcs():
     port = free_port(socket.SOCK_DGRAM)
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "server", "sim", "--mavlink", f"udpout:127.0.0.1:{port}",
-         "--speed", str(SPEED)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        [
+            sys.executable,
+            "-m",
+            "server",
+            "sim",
+            "--mavlink",
+            f"udpout:127.0.0.1:{port}",
+            "--speed",
+            str(SPEED),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         yield gcs
     finally:
@@ -55,7 +66,9 @@ def test_scripted_takeoff_hover_land_over_udp(sim_gcs) -> None:
                 seen["mode"].append(gcs.flightmode)
                 seen["armed"].append(bool(gcs.motors_armed()))
             elif kind == "GPS_RAW_INT":
-                seen["fix"].append((msg.fix_type, msg.lat / 1e7, msg.lon / 1e7, msg.satellites_visible))
+                seen["fix"].append(
+                    (msg.fix_type, msg.lat / 1e7, msg.lon / 1e7, msg.satellites_visible)
+                )
             elif kind == "RC_CHANNELS":
                 seen["rc3"].append(msg.chan3_raw)
             elif kind == "SERVO_OUTPUT_RAW":
@@ -75,8 +88,9 @@ def test_scripted_takeoff_hover_land_over_udp(sim_gcs) -> None:
     gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 3, 0, 0, 0, 0, 0)
     ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
     assert ack.command == mavutil.mavlink.MAV_CMD_DO_SET_MODE and ack.result == 0
-    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0,
-                              0, 0, 0)
+    gcs.mav.command_long_send(
+        1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0
+    )
     ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
     assert ack.command == 400 and ack.result == 0
 
@@ -93,10 +107,13 @@ def test_scripted_takeoff_hover_land_over_udp(sim_gcs) -> None:
             t_s=lp.time_boot_ms / 1000,
             pos_enu_m=np.array([start[0] + lp.y, start[1] + lp.x, -lp.z]),
             vel_enu_mps=np.array([lp.vy, lp.vx, -lp.vz]),
-            yaw_enu_rad=np.pi / 2 - att.yaw, armed=bool(gcs.motors_armed()))
+            yaw_enu_rad=np.pi / 2 - att.yaw,
+            armed=bool(gcs.motors_armed()),
+        )
         roll, pitch, yaw, thr = pilot.update(obs)
-        gcs.mav.manual_control_send(1, int(pitch * 1000), int(roll * 1000), int(thr * 1000),
-                                    int(yaw * 1000), 0)
+        gcs.mav.manual_control_send(
+            1, int(pitch * 1000), int(roll * 1000), int(thr * 1000), int(yaw * 1000), 0
+        )
     pump(0.5)
 
     assert {"ALTCTL", "POSCTL"} <= set(seen["mode"])
@@ -117,8 +134,19 @@ def test_set_message_interval_and_bad_bytes(sim_gcs) -> None:
     # Garbage must be counted and ignored, not kill the vehicle.
     for twin_addr in gcs.clients:
         gcs.port.sendto(b"\xfd\xff\x00garbage" * 20, twin_addr)
-    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                              mavutil.mavlink.MAVLINK_MSG_ID_ATTITUDE, 200_000, 0, 0, 0, 0, 0)
+    gcs.mav.command_long_send(
+        1,
+        1,
+        mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+        0,
+        mavutil.mavlink.MAVLINK_MSG_ID_ATTITUDE,
+        200_000,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
     ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
     assert ack.result == 0
     time.sleep(0.3)

@@ -90,8 +90,11 @@ def test_same_seed_same_flight_other_seed_differs() -> None:
     def flight(config: SimConfig) -> np.ndarray:
         sim = Sim(config=config)
         sim.run_for(2.5)
-        return fly(sim, Pilot([Leg("arm"), Leg("climb", alt_m=3.0),
-                               Leg("goto", (-15.0, 2.0), 3.0)]), timeout_s=40)
+        return fly(
+            sim,
+            Pilot([Leg("arm"), Leg("climb", alt_m=3.0), Leg("goto", (-15.0, 2.0), 3.0)]),
+            timeout_s=40,
+        )
 
     a, b = flight(windy), flight(windy)
     np.testing.assert_array_equal(a, b)
@@ -158,8 +161,9 @@ def test_task_two_lands_on_the_landing_pad() -> None:
 
 
 def test_position_mode_holds_against_steady_wind_with_gusts() -> None:
-    windy = SimConfig(sensors=SensorParams(enabled=False), seed=3,
-                      wind=Wind((3.0, -2.0, 0.0), gust_std_mps=0.8))
+    windy = SimConfig(
+        sensors=SensorParams(enabled=False), seed=3, wind=Wind((3.0, -2.0, 0.0), gust_std_mps=0.8)
+    )
     sim = hover_sim(config=windy)
     start = sim.state.pos_m[0].copy()
     worst = 0.0
@@ -213,7 +217,7 @@ def test_battery_energy_matches_the_power_drawn() -> None:
         sim.step(25)
         energy_j += float(s.voltage_v[0] * s.current_a[0]) * 0.1
     f = s.rotor_thrust_n[0]
-    power_w = af.power_coeff_w_per_n1_5 * float((f ** 1.5).sum()) + af.avionics_w
+    power_w = af.power_coeff_w_per_n1_5 * float((f**1.5).sum()) + af.avionics_w
     assert energy_j == pytest.approx(power_w * 10.0, rel=0.03)
     assert (q0 - float(s.charge_c[0])) == pytest.approx(energy_j / float(s.voltage_v[0]), rel=0.03)
 

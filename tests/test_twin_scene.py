@@ -28,14 +28,19 @@ def test_an_edited_scene_moves_the_vehicle_and_obstacles(tmp_path) -> None:
     assert sim.pose().pos_enu_m[0] == -10.0
 
 
-@pytest.mark.parametrize("text, words", [
-    ("[home]\nlat_deg = 123\n[[pads]]\nname='a'\nx_m=0\ny_m=0\n", "home.lat_deg"),
-    ("[[pads]]\nname='a'\nx_m=0\ny_m=0\n[[tasks]]\nid=1\nname='t'\nstart_pad='a'\nend_pad='b'\n",
-     "pad 'b'"),
-    ("name = \n", "not valid TOML"),
-    ("name = 'no pads'\n", "at least one pad"),
-    ("[[pads]]\nname='a'\nx_m=0\ny_m=0\ncolour='red'\n", "colour"),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("[home]\nlat_deg = 123\n[[pads]]\nname='a'\nx_m=0\ny_m=0\n", "home.lat_deg"),
+        (
+            "[[pads]]\nname='a'\nx_m=0\ny_m=0\n[[tasks]]\nid=1\nname='t'\nstart_pad='a'\nend_pad='b'\n",
+            "pad 'b'",
+        ),
+        ("name = \n", "not valid TOML"),
+        ("name = 'no pads'\n", "at least one pad"),
+        ("[[pads]]\nname='a'\nx_m=0\ny_m=0\ncolour='red'\n", "colour"),
+    ],
+)
 def test_bad_scene_files_say_what_is_wrong(tmp_path, text: str, words: str) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(text)
@@ -46,8 +51,12 @@ def test_bad_scene_files_say_what_is_wrong(tmp_path, text: str, words: str) -> N
 def test_sim_cli_refuses_a_bad_scene_cleanly(tmp_path) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 'no pads'\n")
-    out = subprocess.run([sys.executable, "-m", "server", "sim", "--scene", str(bad)],
-                         capture_output=True, text=True, timeout=30)
+    out = subprocess.run(
+        [sys.executable, "-m", "server", "sim", "--scene", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert out.returncode == 2
     assert "at least one pad" in out.stderr and "Traceback" not in out.stderr
 
@@ -57,8 +66,21 @@ def test_serve_refuses_a_bad_scene_in_settings_cleanly(tmp_path) -> None:
     bad.write_text("name = 'no pads'\n")
     config = tmp_path / "station.toml"
     config.write_text(f"[twin]\nscene = '{bad}'\n")
-    out = subprocess.run([sys.executable, "-m", "server", "serve", "--source", "sim",
-                          "--config", str(config), "--no-3d"],
-                         capture_output=True, text=True, timeout=30)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "server",
+            "serve",
+            "--source",
+            "sim",
+            "--config",
+            str(config),
+            "--no-3d",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert out.returncode == 2
     assert "twin.scene" in out.stderr and "at least one pad" in out.stderr

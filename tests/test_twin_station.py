@@ -15,10 +15,17 @@ from tests.helpers import run_uvicorn, wait_until
 
 
 def sim_app(**overrides):
-    settings = load_settings(None, {"link.source": "sim", "twin.realtime_factor": 2.0,
-                                    "recording.auto_record_on_arm": False, "viser.enabled": False,
-                                    **overrides},
-                             environ={})
+    settings = load_settings(
+        None,
+        {
+            "link.source": "sim",
+            "twin.realtime_factor": 2.0,
+            "recording.auto_record_on_arm": False,
+            "viser.enabled": False,
+            **overrides,
+        },
+        environ={},
+    )
     return create_app(settings)
 
 
@@ -47,8 +54,9 @@ def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None
         assert wait_until(lambda: state(app).heartbeat.armed, timeout=5)
         deadline = time.monotonic() + 10
         while twin.pose().pos_enu_m[2] < 2.0:  # full climb stick, as a gamepad sends it
-            ws.send(json.dumps({"type": "sticks", "roll": 0, "pitch": 0, "yaw": 0,
-                                "throttle": 1.0}))
+            ws.send(
+                json.dumps({"type": "sticks", "roll": 0, "pitch": 0, "yaw": 0, "throttle": 1.0})
+            )
             time.sleep(0.02)
             assert time.monotonic() < deadline, "the twin did not climb"
         assert state(app).rc.pwm_us[2] > 1900  # the station sees the stick as RC PWM
@@ -77,8 +85,17 @@ def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None
 
 
 def test_control_is_refused_without_the_twin(tmp_path) -> None:
-    app = create_app(load_settings(None, {"link.source": "none", "viser.enabled": False,
-                                          "recording.sessions_dir": str(tmp_path)}, environ={}))
+    app = create_app(
+        load_settings(
+            None,
+            {
+                "link.source": "none",
+                "viser.enabled": False,
+                "recording.sessions_dir": str(tmp_path),
+            },
+            environ={},
+        )
+    )
     with run_uvicorn(app) as url, connect(url.replace("http", "ws") + "/ws/control") as ws:
         reply = json.loads(ws.recv(timeout=5))
         assert reply["error"] == "Conflict" and "real vehicle" in reply["error_msg"]
@@ -132,11 +149,28 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
 
     port = free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "server", "serve", "--source", "sim", "--host", "127.0.0.1",
-         "--port", str(port), "--no-3d"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
-        env={**__import__("os").environ, "PYTHONPATH": str(__import__("pathlib").Path(
-            __file__).resolve().parents[1])})
+        [
+            sys.executable,
+            "-m",
+            "server",
+            "serve",
+            "--source",
+            "sim",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--no-3d",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
+        env={
+            **__import__("os").environ,
+            "PYTHONPATH": str(__import__("pathlib").Path(__file__).resolve().parents[1]),
+        },
+    )
     try:
         first = proc.stdout.readline()
         assert f"http://127.0.0.1:{port}/" in first
@@ -147,8 +181,13 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
             except httpx.HTTPError:
                 return None
 
-        assert wait_until(lambda: (s := status()) and s.get("state", {}).get("heartbeat", {})
-                          .get("autopilot") == "px4", timeout=20), status()
+        assert wait_until(
+            lambda: (
+                (s := status())
+                and s.get("state", {}).get("heartbeat", {}).get("autopilot") == "px4"
+            ),
+            timeout=20,
+        ), status()
         assert status()["source"] == "sim"
         page = httpx.get(f"http://127.0.0.1:{port}/", timeout=5).text
         assert "/control.js" in page and 'id="control-widget"' in page

@@ -19,8 +19,9 @@ from twin.sim import SimConfig
 def twin_and_gcs():
     port = free_port(socket.SOCK_DGRAM)
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
-    twin = Twin(config=SimConfig(sensors=SensorParams(enabled=False)),
-                mavlink=f"udpout:127.0.0.1:{port}")
+    twin = Twin(
+        config=SimConfig(sensors=SensorParams(enabled=False)), mavlink=f"udpout:127.0.0.1:{port}"
+    )
     twin.step_for(2.5)  # GPS fix; the vehicle's first packets make the GCS learn its address
     assert gcs.wait_heartbeat(timeout=5) is not None
     yield twin, gcs
@@ -58,17 +59,50 @@ def test_rc_override_moves_the_sticks_and_shows_in_rc_channels(twin_and_gcs) -> 
 
 def test_interval_disable_request_message_and_version(twin_and_gcs) -> None:
     twin, gcs = twin_and_gcs
-    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                              mavutil.mavlink.MAVLINK_MSG_ID_VFR_HUD, -1, 0, 0, 0, 0, 0)
+    gcs.mav.command_long_send(
+        1,
+        1,
+        mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+        0,
+        mavutil.mavlink.MAVLINK_MSG_ID_VFR_HUD,
+        -1,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
     twin.step_for(0.1)
     drain(gcs, timeout=0.2)
     twin.step_for(2.0)
     got = {m.get_type() for m in drain(gcs)}
     assert "VFR_HUD" not in got and "ATTITUDE" in got
-    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
-                              mavutil.mavlink.MAVLINK_MSG_ID_VFR_HUD, 0, 0, 0, 0, 0, 0)
-    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
-                              mavutil.mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0)
+    gcs.mav.command_long_send(
+        1,
+        1,
+        mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE,
+        0,
+        mavutil.mavlink.MAVLINK_MSG_ID_VFR_HUD,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
+    gcs.mav.command_long_send(
+        1,
+        1,
+        mavutil.mavlink.MAV_CMD_REQUEST_MESSAGE,
+        0,
+        mavutil.mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+    )
     twin.step_for(0.1)
     got = drain(gcs)
     assert sum(m.get_type() == "VFR_HUD" for m in got) == 1  # once, not re-enabled
@@ -81,8 +115,9 @@ def test_interval_disable_request_message_and_version(twin_and_gcs) -> None:
 def test_refused_arming_is_acked_denied_with_a_reason(twin_and_gcs) -> None:
     twin, gcs = twin_and_gcs
     twin.sim.state.crash[0] = 2  # as after hitting an obstacle
-    gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0,
-                              0, 0, 0)
+    gcs.mav.command_long_send(
+        1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0
+    )
     twin.step_for(0.1)
     got = drain(gcs)
     ack = [m for m in got if m.get_type() == "COMMAND_ACK"][0]
@@ -111,7 +146,8 @@ def test_parameters_load_like_px4_and_are_read_only(twin_and_gcs) -> None:
     values = {m.param_id: m for m in drain(gcs, "PARAM_VALUE")}
     count = next(iter(values.values())).param_count
     assert len(values) == count and sorted(m.param_index for m in values.values()) == list(
-        range(count))
+        range(count)
+    )
     assert values["MPC_XY_VEL_MAX"].param_value == pytest.approx(5.0)
     assert values["BAT1_N_CELLS"].param_value == 3
     gcs.mav.param_request_read_send(1, 1, b"MIS_TAKEOFF_ALT", -1)

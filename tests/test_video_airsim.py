@@ -45,7 +45,9 @@ class FakeAirSim:
                         kind, msgid, method, params = msg
                         assert kind == 0
                         error, result = fake.dispatch(method, params)
-                        self.request.sendall(msgpack.packb([1, msgid, error, result], use_bin_type=True))
+                        self.request.sendall(
+                            msgpack.packb([1, msgid, error, result], use_bin_type=True)
+                        )
 
         socketserver.ThreadingTCPServer.allow_reuse_address = True
         self.server = socketserver.ThreadingTCPServer(("127.0.0.1", port), Handler)
@@ -79,15 +81,22 @@ class FakeAirSim:
                 data = cv2.imencode(".png", image)[1].tobytes()
             else:
                 data = image.tobytes()
-            responses.append({
-                "image_data_uint8": data, "image_data_float": [],
-                "camera_name": camera,
-                "camera_position": {"x_val": 0.0, "y_val": 0.0, "z_val": -1.0},
-                "camera_orientation": {"w_val": 1.0, "x_val": 0.0, "y_val": 0.0, "z_val": 0.0},
-                "time_stamp": time.time_ns(), "message": "", "pixels_as_float": False,
-                "compress": req["compress"], "width": width, "height": height,
-                "image_type": req["image_type"],
-            })
+            responses.append(
+                {
+                    "image_data_uint8": data,
+                    "image_data_float": [],
+                    "camera_name": camera,
+                    "camera_position": {"x_val": 0.0, "y_val": 0.0, "z_val": -1.0},
+                    "camera_orientation": {"w_val": 1.0, "x_val": 0.0, "y_val": 0.0, "z_val": 0.0},
+                    "time_stamp": time.time_ns(),
+                    "message": "",
+                    "pixels_as_float": False,
+                    "compress": req["compress"],
+                    "width": width,
+                    "height": height,
+                    "image_type": req["image_type"],
+                }
+            )
         return None, responses
 
     def close(self) -> None:
@@ -146,8 +155,14 @@ def test_airsim_camera_streams_named_camera(port):
     assert frame.signal and (frame.width, frame.height) == (96, 64)
     assert np.allclose(_mean_bgr(frame.jpeg), COLORS["front_center"], atol=6)  # BGR kept
     requests, vehicle, external = fake.requests[0]
-    assert requests == [{"camera_name": "front_center", "image_type": 0,
-                         "pixels_as_float": False, "compress": False}]
+    assert requests == [
+        {
+            "camera_name": "front_center",
+            "image_type": 0,
+            "pixels_as_float": False,
+            "compress": False,
+        }
+    ]
     assert vehicle == "Drone1" and external is False
     assert 20 <= stats.delivered_fps <= 31
 
@@ -169,8 +184,12 @@ def test_cosys_airsim_two_argument_api_and_png(port):
 
 def test_airsim_unknown_camera_and_absent_simulator_show_no_signal_then_recover(port):
     fake = FakeAirSim(port)
-    bad = build_camera("front", CameraConfig(spec=f"airsim:127.0.0.1:{port}/nose_cam"),
-                       retry_min_s=0.1, retry_max_s=0.2)
+    bad = build_camera(
+        "front",
+        CameraConfig(spec=f"airsim:127.0.0.1:{port}/nose_cam"),
+        retry_min_s=0.1,
+        retry_max_s=0.2,
+    )
     bad.start()
     try:
         assert wait_until(lambda: bad.frames.get() is not None and bad.stats().reason, 2.0)
@@ -180,9 +199,12 @@ def test_airsim_unknown_camera_and_absent_simulator_show_no_signal_then_recover(
         fake.close()
 
     # Nothing listens on the port: NO SIGNAL with the reason, retried until AirSim appears.
-    camera = build_camera("front", CameraConfig(spec=f"airsim:127.0.0.1:{port}/front_center",
-                                                width=96, height=64),
-                          retry_min_s=0.1, retry_max_s=0.3)
+    camera = build_camera(
+        "front",
+        CameraConfig(spec=f"airsim:127.0.0.1:{port}/front_center", width=96, height=64),
+        retry_min_s=0.1,
+        retry_max_s=0.3,
+    )
     camera.start()
     try:
         assert wait_until(lambda: "not reachable" in (camera.stats().reason or ""), 2.0)
@@ -196,4 +218,3 @@ def test_airsim_unknown_camera_and_absent_simulator_show_no_signal_then_recover(
     finally:
         camera.stop()
         fake.close()
-

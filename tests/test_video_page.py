@@ -14,14 +14,20 @@ from tests.video_fixtures import write_images
 
 def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
     front = write_images(tmp_path / "front", 4, (320, 240))
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none",
-        "cameras.front.spec": f"folder:{front}?width=320&height=240",
-        "cameras.bottom.spec": "v4l2:/dev/video-unplugged",  # shows NO SIGNAL
-        "cameras.bottom.width": 320, "cameras.bottom.height": 240,
-    })
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "cameras.front.spec": f"folder:{front}?width=320&height=240",
+            "cameras.bottom.spec": "v4l2:/dev/video-unplugged",  # shows NO SIGNAL
+            "cameras.bottom.width": 320,
+            "cameras.bottom.height": 240,
+        },
+    )
     with run_uvicorn(create_app(settings)) as base, sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True)
+        browser = p.chromium.launch(
+            executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True
+        )
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 720})
             page.goto(base + "/")
@@ -29,16 +35,21 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
                 img = page.locator(f"#{name}-view img.video-stream")
                 page.wait_for_function(
                     f"() => document.querySelector('#{name}-view img.video-stream').naturalWidth === 320",
-                    timeout=10_000)
+                    timeout=10_000,
+                )
                 assert f"/video/{name}.mjpg" in img.get_attribute("src")
             readout = re.compile(r"^\d+\.\d fps · \d+ ms$")
             expect(page.locator("#front-readout")).to_have_text(readout, timeout=5000)
             expect(page.locator("#bottom-readout")).to_have_text("NO SIGNAL", timeout=5000)
-            expect(page.locator("#bottom-readout")).to_have_attribute("title", re.compile("does not exist"))
+            expect(page.locator("#bottom-readout")).to_have_attribute(
+                "title", re.compile("does not exist")
+            )
             # Paper's layout: the front view is large on the left, the bottom view on the right.
             front_box = page.locator("#front-view").bounding_box()
             bottom_box = page.locator("#bottom-view").bounding_box()
-            assert front_box["x"] < bottom_box["x"] and front_box["width"] > 1.5 * bottom_box["width"]
+            assert (
+                front_box["x"] < bottom_box["x"] and front_box["width"] > 1.5 * bottom_box["width"]
+            )
             figures = page.evaluate("() => window.fpv.cameras.front")
             assert figures["delivered_fps"] > 20 and 0 <= figures["latency_ms"] < 1000
             # The page holds exactly one stream per camera on the station.

@@ -50,11 +50,23 @@ def _rate(camera, seconds: float) -> tuple[float, list]:
 def test_specs_parse_and_bad_specs_are_clear(tmp_path):
     spec = parse_spec("v4l2:/dev/video0?width=640&height=480&fps=30&fourcc=MJPG")
     assert (spec.kind, spec.device, spec.width, spec.fps, spec.fourcc) == (
-        "v4l2", "/dev/video0", 640, 30.0, "MJPG")
+        "v4l2",
+        "/dev/video0",
+        640,
+        30.0,
+        "MJPG",
+    )
     assert parse_spec("v4l2:1").device == 1
     assert parse_spec("airsim:10.0.0.5:41452/front_center").airsim_address == (
-        "10.0.0.5", 41452, "front_center")
-    assert parse_spec("airsim:bottom_center").airsim_address == ("127.0.0.1", 41451, "bottom_center")
+        "10.0.0.5",
+        41452,
+        "front_center",
+    )
+    assert parse_spec("airsim:bottom_center").airsim_address == (
+        "127.0.0.1",
+        41451,
+        "bottom_center",
+    )
     assert parse_spec("none").kind == "none"
     for bad, words in [
         ("webcam", "no known source kind"),
@@ -84,7 +96,9 @@ def test_default_specs_follow_the_link_source():
 
 def test_folder_source_loops_at_configured_rate_and_encodes_once(tmp_path):
     folder = write_images(tmp_path / "png", 4, (320, 240))  # PNG at the wrong size: scaled
-    camera = build_camera("front", CameraConfig(spec=f"folder:{folder}", fps=20, width=160, height=120))
+    camera = build_camera(
+        "front", CameraConfig(spec=f"folder:{folder}", fps=20, width=160, height=120)
+    )
     camera.start()
     try:
         fps, frames = _rate(camera, 1.5)
@@ -93,7 +107,9 @@ def test_folder_source_loops_at_configured_rate_and_encodes_once(tmp_path):
     assert 17.0 <= fps <= 21.0, fps  # 20 configured
     # One sequence number per published frame: seq steps equal publish (version) steps.
     seq_steps = [b.seq - a.seq for a, b in zip(frames, frames[1:])]
-    version_steps = [frame_versions[id(b)] - frame_versions[id(a)] for a, b in zip(frames, frames[1:])]
+    version_steps = [
+        frame_versions[id(b)] - frame_versions[id(a)] for a, b in zip(frames, frames[1:])
+    ]
     assert seq_steps == version_steps and all(step >= 1 for step in seq_steps)
     assert _decode(frames[-1].jpeg).shape == (120, 160, 3)
     assert frames[-1].t_wall == pytest.approx(time.time(), abs=2.0)
@@ -105,7 +121,9 @@ def test_folder_source_loops_at_configured_rate_and_encodes_once(tmp_path):
 def test_folder_of_jpegs_at_camera_size_is_passed_through(tmp_path):
     folder = write_images(tmp_path / "jpg", 3, (160, 120), suffix=".jpg")
     originals = {p.read_bytes() for p in folder.iterdir()}
-    camera = build_camera("bottom", CameraConfig(spec=f"folder:{folder}", fps=30, width=160, height=120))
+    camera = build_camera(
+        "bottom", CameraConfig(spec=f"folder:{folder}", fps=30, width=160, height=120)
+    )
     camera.start()
     try:
         assert wait_until(lambda: camera.stats().frames >= 5, 3.0)
@@ -136,8 +154,12 @@ def test_video_file_source_loops(tmp_path):
 def test_sim_source_at_configured_rate_and_recovers_from_a_failing_twin():
     renderer = CountingRenderer(320, 240)
     camera = build_camera(
-        "bottom", CameraConfig(fps=30), link_source="sim", renderer=lambda: renderer,
-        retry_min_s=0.1, retry_max_s=0.2,
+        "bottom",
+        CameraConfig(fps=30),
+        link_source="sim",
+        renderer=lambda: renderer,
+        retry_min_s=0.1,
+        retry_max_s=0.2,
     )
     camera.start()
     try:
@@ -171,8 +193,10 @@ def test_sim_without_twin_shows_no_signal():
 
 def test_v4l2_device_that_does_not_exist_gives_no_signal_and_retries(tmp_path):
     camera = build_camera(
-        "bottom", CameraConfig(spec="v4l2:/dev/video-nonexistent-42?fourcc=MJPG", width=320, height=240),
-        retry_min_s=0.1, retry_max_s=0.2,
+        "bottom",
+        CameraConfig(spec="v4l2:/dev/video-nonexistent-42?fourcc=MJPG", width=320, height=240),
+        retry_min_s=0.1,
+        retry_max_s=0.2,
     )
     folder = write_images(tmp_path / "imgs", 3, (160, 120))
     other = build_camera("front", CameraConfig(spec=f"folder:{folder}", width=160, height=120))
@@ -210,8 +234,13 @@ def test_a_stalled_source_shows_no_signal_then_recovers():
             return super().render(camera)
 
     renderer = StallingRenderer()
-    camera = build_camera("front", CameraConfig(fps=30, width=160, height=120), link_source="sim",
-                          renderer=lambda: renderer, stall_s=0.4)
+    camera = build_camera(
+        "front",
+        CameraConfig(fps=30, width=160, height=120),
+        link_source="sim",
+        renderer=lambda: renderer,
+        stall_s=0.4,
+    )
     camera.start()
     try:
         assert wait_until(lambda: camera.stats().frames >= 3, 2.0)
@@ -232,7 +261,10 @@ def test_device_listing_reads_sysfs_and_says_when_there_are_none(tmp_path):
         (sysfs / name).mkdir(parents=True)
         (sysfs / name / "name").write_text(label + "\n")
     devices = list_devices(sysfs, dev=tmp_path / "dev")
-    assert [d.path for d in devices] == [str(tmp_path / "dev/video2"), str(tmp_path / "dev/video10")]
+    assert [d.path for d in devices] == [
+        str(tmp_path / "dev/video2"),
+        str(tmp_path / "dev/video10"),
+    ]
     assert devices[0].name == "USB2.0 PC CAMERA" and "missing in /dev" in devices[0].note
     # A /dev node that is no V4L2 device (a plain file): the query fails with a clear note.
     (tmp_path / "dev").mkdir()
@@ -245,8 +277,9 @@ def test_cameras_command_runs_here():
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-m", "server", "cameras"], capture_output=True,
-                         text=True, timeout=30)
+    out = subprocess.run(
+        [sys.executable, "-m", "server", "cameras"], capture_output=True, text=True, timeout=30
+    )
     assert out.returncode == 0, out.stderr
     assert "/dev/video" in out.stdout or "No V4L2 video devices found" in out.stdout
 
@@ -287,7 +320,10 @@ def test_v4l2_mjpeg_is_passed_through_untouched_and_a_lost_device_reopens():
     from companion.cameras.source import SourceConfig
     from companion.cameras.v4l2 import V4l2Source
 
-    jpegs = [cv2.imencode(".jpg", np.full((240, 320, 3), 40 * i, np.uint8))[1].tobytes() for i in range(3)]
+    jpegs = [
+        cv2.imencode(".jpg", np.full((240, 320, 3), 40 * i, np.uint8))[1].tobytes()
+        for i in range(3)
+    ]
     raw = [np.frombuffer(j + b"\0" * 64, np.uint8).reshape(1, -1) for j in jpegs]  # driver padding
     truncated = np.frombuffer(jpegs[0][:500], np.uint8).reshape(1, -1)
     devices = []
@@ -295,7 +331,9 @@ def test_v4l2_mjpeg_is_passed_through_untouched_and_a_lost_device_reopens():
     def factory(device, api):
         assert (device, api) == (0, cv2.CAP_V4L2)
         # The first device is pulled after 4 buffers; the second (re-plugged) one streams.
-        cap = FakeUvcCapture("MJPG", [raw[0], truncated, raw[1], raw[2]] if not devices else raw * 100)
+        cap = FakeUvcCapture(
+            "MJPG", [raw[0], truncated, raw[1], raw[2]] if not devices else raw * 100
+        )
         devices.append(cap)
         return cap
 
@@ -324,7 +362,9 @@ def test_v4l2_raw_format_device_is_encoded_once_per_frame():
 
     frames = [np.full((120, 160, 3), i, np.uint8) for i in range(5)]
     config = SourceConfig("bottom", 160, 120, 30.0, 80)
-    source = V4l2Source(config, 1, None, capture_factory=lambda d, a: FakeUvcCapture("YUYV", frames))
+    source = V4l2Source(
+        config, 1, None, capture_factory=lambda d, a: FakeUvcCapture("YUYV", frames)
+    )
     camera = Camera(parse_spec("v4l2:1"), config, source, retry_min_s=5.0)
     camera.start()
     try:
@@ -341,8 +381,10 @@ def test_sim_cameras_render_the_real_twin():
     from twin.runner import twin_from_settings
 
     twin = twin_from_settings(load_settings(environ={}).twin, None)
-    cams = [build_camera(name, CameraConfig(fps=10), link_source="sim", renderer=lambda: twin)
-            for name in ("front", "bottom")]
+    cams = [
+        build_camera(name, CameraConfig(fps=10), link_source="sim", renderer=lambda: twin)
+        for name in ("front", "bottom")
+    ]
     for cam in cams:
         cam.start()
     try:

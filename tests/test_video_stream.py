@@ -23,12 +23,18 @@ def server(tmp_path_factory):
     root = tmp_path_factory.mktemp("video")
     front = write_images(root / "front", 6, (320, 240))  # PNG: every frame is encoded here
     bottom = write_images(root / "bottom", 6, (320, 240))
-    settings = load_settings(environ={}, overrides={
-        "link.source": "none",
-        "cameras.front.spec": f"folder:{front}", "cameras.bottom.spec": f"folder:{bottom}",
-        "cameras.front.width": 320, "cameras.front.height": 240,
-        "cameras.bottom.width": 320, "cameras.bottom.height": 240,
-    })
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "cameras.front.spec": f"folder:{front}",
+            "cameras.bottom.spec": f"folder:{bottom}",
+            "cameras.front.width": 320,
+            "cameras.front.height": 240,
+            "cameras.bottom.width": 320,
+            "cameras.bottom.height": 240,
+        },
+    )
     app = create_app(settings)
     with run_uvicorn(app) as base:
         yield base
@@ -48,8 +54,11 @@ def _increasing(seqs: list[int]) -> bool:
 
 def test_ten_viewers_per_camera_get_increasing_frames_from_one_encode_each(server):
     before = _cameras(server)
-    viewers = [Viewer("127.0.0.1", _port(server), f"/video/{cam}.mjpg")
-               for cam in ("front", "bottom") for _ in range(10)]
+    viewers = [
+        Viewer("127.0.0.1", _port(server), f"/video/{cam}.mjpg")
+        for cam in ("front", "bottom")
+        for _ in range(10)
+    ]
     seen_clients: dict[str, int] = {}
 
     async def watch() -> None:
@@ -103,7 +112,11 @@ def test_a_viewer_that_stops_reading_does_not_delay_the_others(server):
         deadline = time.monotonic() + 2.0
         while time.monotonic() < deadline and data.count(b"X-Frame-Seq") < 30:
             data += stuck.recv(1 << 16)
-        seqs = [int(line.split(b":")[1]) for line in data.split(b"\r\n") if line.startswith(b"X-Frame-Seq")]
+        seqs = [
+            int(line.split(b":")[1])
+            for line in data.split(b"\r\n")
+            if line.startswith(b"X-Frame-Seq")
+        ]
         assert _increasing(seqs) and max(b - a for a, b in zip(seqs, seqs[1:])) > 1
     finally:
         stuck.close()

@@ -30,13 +30,23 @@ class RecordedFlight:
 
 @contextlib.contextmanager
 def recorded_twin_flight(
-    sessions_dir: Path, task_id: int, overrides: dict[str, Any] | None = None,
+    sessions_dir: Path,
+    task_id: int,
+    overrides: dict[str, Any] | None = None,
     timeout_s: float = 120.0,
 ) -> Iterator[RecordedFlight]:
-    settings = load_settings(None, {
-        "link.source": "sim", "viser.enabled": False,
-        "recording.sessions_dir": str(sessions_dir), "recording.post_disarm_tail_s": 1.0,
-        "recording.min_free_mb": 0, **(overrides or {})}, environ={})  # fmt: skip
+    settings = load_settings(
+        None,
+        {
+            "link.source": "sim",
+            "viser.enabled": False,
+            "recording.sessions_dir": str(sessions_dir),
+            "recording.post_disarm_tail_s": 1.0,
+            "recording.min_free_mb": 0,
+            **(overrides or {}),
+        },
+        environ={},
+    )
     app = create_app(settings)
     with run_uvicorn(app) as base:
         station = app.state.station
@@ -52,7 +62,11 @@ def recorded_twin_flight(
         fly_twin(station.twin, pilot, timeout_s=timeout_s)
         assert pilot.done, pilot.log
         # Landed: the commander disarms 2 s later, then the 1 s tail ends the session.
-        assert wait_until(lambda: station.recorder.last_stop is not None
-                          and station.recorder.recording_id is None, 20)  # fmt: skip
+        assert wait_until(
+            lambda: (
+                station.recorder.last_stop is not None and station.recorder.recording_id is None
+            ),
+            20,
+        )
         last = station.recorder.last_stop
         yield RecordedFlight(base, station, last.id, last.reason, Path(sessions_dir) / last.id)

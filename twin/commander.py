@@ -15,12 +15,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twin.control import (ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_TAKEOFF, MODE_NAMES, POSCTL,
-                          STABILIZED)
+from twin.control import (
+    ALTCTL,
+    AUTO_LAND,
+    AUTO_LOITER,
+    AUTO_TAKEOFF,
+    MODE_NAMES,
+    POSCTL,
+    STABILIZED,
+)
 from twin.dynamics import CRASH_REASONS
 
 LANDED_STATE_ON_GROUND, LANDED_STATE_IN_AIR, LANDED_STATE_TAKEOFF, LANDED_STATE_LANDING = (
-    1, 2, 3, 4)  # MAV_LANDED_STATE
+    1,
+    2,
+    3,
+    4,
+)  # MAV_LANDED_STATE
 
 
 @dataclass(frozen=True)
@@ -41,8 +52,9 @@ class Event:
 
 
 class Commander:
-    def __init__(self, n: int, params: CommanderParams | None = None,
-                 initial_mode: int = POSCTL) -> None:
+    def __init__(
+        self, n: int, params: CommanderParams | None = None, initial_mode: int = POSCTL
+    ) -> None:
         self.p = params or CommanderParams()
         self.n = n
         self.armed = np.zeros(n, bool)
@@ -80,8 +92,15 @@ class Commander:
         return LANDED_STATE_IN_AIR
 
     # ---- requests (from MAVLink commands or the API); each returns (accepted, reason) ----
-    def request_arm(self, i: int, arm: bool, crashed: bool, battery_pct: float,
-                    gps_fix: bool, force: bool = False) -> tuple[bool, str]:
+    def request_arm(
+        self,
+        i: int,
+        arm: bool,
+        crashed: bool,
+        battery_pct: float,
+        gps_fix: bool,
+        force: bool = False,
+    ) -> tuple[bool, str]:
         if not arm:
             if not self.armed[i]:
                 return True, "already disarmed"
@@ -130,9 +149,17 @@ class Commander:
         return True, ""
 
     # ---- periodic update (outer-loop rate) ----
-    def update(self, dt: float, sticks: np.ndarray, on_ground: np.ndarray, crash: np.ndarray,
-               pos_m: np.ndarray, vel_sp_z: np.ndarray, battery_pct: np.ndarray,
-               gps_fix: np.ndarray) -> None:
+    def update(
+        self,
+        dt: float,
+        sticks: np.ndarray,
+        on_ground: np.ndarray,
+        crash: np.ndarray,
+        pos_m: np.ndarray,
+        vel_sp_z: np.ndarray,
+        battery_pct: np.ndarray,
+        gps_fix: np.ndarray,
+    ) -> None:
         p = self.p
         low = sticks[:, 3] < 0.1
         gesture = low & ((sticks[:, 2] > 0.9) & ~self.armed | (sticks[:, 2] < -0.9) & self.armed)
@@ -143,8 +170,9 @@ class Commander:
                 if self.landed[i]:
                     self._set_armed(int(i), False, "disarmed by stick gesture")
             else:
-                ok, why = self.request_arm(int(i), True, bool(crash[i]), float(battery_pct[i]),
-                                           bool(gps_fix[i]))
+                ok, why = self.request_arm(
+                    int(i), True, bool(crash[i]), float(battery_pct[i]), bool(gps_fix[i])
+                )
                 if not ok:
                     self.events.append(Event(int(i), 4, why))
 
@@ -173,12 +201,21 @@ class Commander:
         # Auto-disarm and failsafes.
         self._since_arm_s = np.where(self.armed, self._since_arm_s + dt, 0.0)
         landed_long = self.armed & self.landed & (self._land_s >= p.disarm_land_s) & self._ever_flew
-        never_flew = (self.armed & self.landed & ~self._ever_flew
-                      & (self._since_arm_s >= p.disarm_preflight_s))
+        never_flew = (
+            self.armed
+            & self.landed
+            & ~self._ever_flew
+            & (self._since_arm_s >= p.disarm_preflight_s)
+        )
         for i in np.nonzero(landed_long | never_flew)[0]:
-            self._set_armed(int(i), False, "auto-disarmed after landing" if landed_long[i]
-                            else "auto-disarmed: no take-off")
-        low_batt = self.armed & ~self.landed & (battery_pct < p.battery_land_pct) & ~self._battery_failsafe
+            self._set_armed(
+                int(i),
+                False,
+                "auto-disarmed after landing" if landed_long[i] else "auto-disarmed: no take-off",
+            )
+        low_batt = (
+            self.armed & ~self.landed & (battery_pct < p.battery_land_pct) & ~self._battery_failsafe
+        )
         for i in np.nonzero(low_batt)[0]:
             self._battery_failsafe[i] = True
             self.events.append(Event(int(i), 2, "battery critical: landing"))
@@ -206,5 +243,14 @@ class Commander:
             self.events.append(Event(i, 6, f"mode {MODE_NAMES[mode]}"))
 
 
-__all__ = ["Commander", "CommanderParams", "Event", "ALTCTL", "POSCTL", "STABILIZED",
-           "AUTO_TAKEOFF", "AUTO_LOITER", "AUTO_LAND"]
+__all__ = [
+    "Commander",
+    "CommanderParams",
+    "Event",
+    "ALTCTL",
+    "POSCTL",
+    "STABILIZED",
+    "AUTO_TAKEOFF",
+    "AUTO_LOITER",
+    "AUTO_LAND",
+]

@@ -25,8 +25,14 @@ import numpy as np
 from twin.dynamics import GRAVITY_MPS2, Airframe, _clip
 
 STABILIZED, ALTCTL, POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND = range(6)
-MODE_NAMES = {STABILIZED: "STABILIZED", ALTCTL: "ALTCTL", POSCTL: "POSCTL",
-              AUTO_TAKEOFF: "TAKEOFF", AUTO_LOITER: "LOITER", AUTO_LAND: "LAND"}
+MODE_NAMES = {
+    STABILIZED: "STABILIZED",
+    ALTCTL: "ALTCTL",
+    POSCTL: "POSCTL",
+    AUTO_TAKEOFF: "TAKEOFF",
+    AUTO_LOITER: "LOITER",
+    AUTO_LAND: "LAND",
+}
 
 
 @dataclass(frozen=True)
@@ -95,8 +101,11 @@ class Controller:
         self._inv_w_max = np.ones((n, 4))
         self._zero1, self._zero4, self._w0 = np.zeros((n, 1)), np.zeros((n, 4)), self._wrench[:, :1]
         # [thrust, rate error] -> rotor speed^2: the rate P gain, mixer and 1/k_T in one matrix.
-        self._mix = (np.concatenate([[1.0], self._J_rate_p])[:, None] * self._A_inv_T
-                     / airframe.thrust_coeff_n_per_rad2)
+        self._mix = (
+            np.concatenate([[1.0], self._J_rate_p])[:, None]
+            * self._A_inv_T
+            / airframe.thrust_coeff_n_per_rad2
+        )
         self._R_src: np.ndarray | None = None
         self._R_flat = np.zeros((n, 1, 9))
         V = np.zeros((3, 3, 4))  # [i, j, c], c = 3 (the thrust projection) set separately
@@ -119,7 +128,6 @@ class Controller:
     def _set_setpoint(self, R_sp: np.ndarray, thrust_n: np.ndarray) -> None:
         # E.flat = (R_sp^T R).flat, so -att_p vee(E - E^T) / 2 = R.flat @ K with
         # K[(k, j), c] = sum_i R_sp[k, i] V[i, (j, c)]: one batched matmul.
-        n = R_sp.shape[0]
         np.matmul(R_sp, self._V, self._K3)
         self._K[:, 2::3, 3] = R_sp[:, :, 2]  # R.flat[(k, 2)] = body z: z_sp . z_body
         self._thrust_col[:, 0] = thrust_n
@@ -135,8 +143,16 @@ class Controller:
         self.yaw_sp_rad[mask] = yaw_of(R)[mask]
         self.vel_sp_mps[mask] = 0.0
 
-    def outer(self, dt: float, mode: np.ndarray, sticks: np.ndarray, pos_m: np.ndarray,
-              vel_mps: np.ndarray, R: np.ndarray, target_m: np.ndarray) -> None:
+    def outer(
+        self,
+        dt: float,
+        mode: np.ndarray,
+        sticks: np.ndarray,
+        pos_m: np.ndarray,
+        vel_mps: np.ndarray,
+        R: np.ndarray,
+        target_m: np.ndarray,
+    ) -> None:
         """Velocity and thrust-vector setpoints. `target_m` (N, 3) serves the AUTO modes.
 
         Written for numpy's per-call cost at N = 1 (~1-2 us a call): whole-row expressions,
@@ -163,8 +179,11 @@ class Controller:
         stick_active = posctl & ((roll != 0) | (pitch != 0))
         self.hold_xy_valid &= ~stick_active
         vel_xy = vel_mps[:, :2]
-        latch = ~self.hold_xy_valid & ~stick_active & (
-            (vel_xy * vel_xy).sum(axis=1) < g.brake_speed_mps ** 2)
+        latch = (
+            ~self.hold_xy_valid
+            & ~stick_active
+            & ((vel_xy * vel_xy).sum(axis=1) < g.brake_speed_mps**2)
+        )
         hold = self.hold_pos_m
         np.copyto(hold[:, :2], pos_m[:, :2], where=latch[:, None])
         self.hold_xy_valid |= latch
@@ -186,8 +205,7 @@ class Controller:
         if auto.any():
             pos_vz = where(mode == AUTO_TAKEOFF, np.minimum(pos_vz, g.takeoff_speed_mps), pos_vz)
             pos_vz = where(mode == AUTO_LAND, -g.land_speed_mps, pos_vz)
-        vel_sp[:, 2] = where(climb_active, climb_v,
-                             where(self.hold_z_valid | auto, pos_vz, 0.0))
+        vel_sp[:, 2] = where(climb_active, climb_v, where(self.hold_z_valid | auto, pos_vz, 0.0))
 
         # Velocity -> acceleration (PI) -> thrust vector with a tilt limit.
         err = vel_sp - vel_mps
@@ -207,8 +225,9 @@ class Controller:
         if manual_tilt.any():
             roll_a, pitch_a = roll * g.max_tilt_rad, pitch * g.max_tilt_rad
             # Body z tilted: forward tilt moves thrust towards the heading.
-            tilt_dir = np.column_stack([np.tan(pitch_a) * c + np.tan(roll_a) * s,
-                                        np.tan(pitch_a) * s - np.tan(roll_a) * c])
+            tilt_dir = np.column_stack(
+                [np.tan(pitch_a) * c + np.tan(roll_a) * s, np.tan(pitch_a) * s - np.tan(roll_a) * c]
+            )
             acc[manual_tilt, :2] = tilt_dir[manual_tilt] * acc[manual_tilt, 2:3]
             self.vel_int[manual_tilt, :2] = 0.0
         acc_norm = np.sqrt((acc * acc).sum(axis=1))
@@ -226,8 +245,11 @@ class Controller:
         y_d[:, 0], y_d[:, 1], y_d[:, 2] = -zz * s, zz * c, zx * s - zy * c
         y_d /= np.sqrt((y_d * y_d).sum(axis=1))[:, None]
         yx, yy, yz = y_d[:, 0], y_d[:, 1], y_d[:, 2]
-        R_sp[:, 0, 0], R_sp[:, 1, 0], R_sp[:, 2, 0] = yy * zz - yz * zy, yz * zx - yx * zz, \
-            yx * zy - yy * zx
+        R_sp[:, 0, 0], R_sp[:, 1, 0], R_sp[:, 2, 0] = (
+            yy * zz - yz * zy,
+            yz * zx - yx * zz,
+            yx * zy - yy * zx,
+        )
         R_sp[:, :, 2] = z_d
         self.R_sp = R_sp
         self._set_setpoint(R_sp, thrust)

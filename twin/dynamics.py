@@ -20,8 +20,12 @@ import numpy as np
 
 GRAVITY_MPS2 = 9.80665
 CRASH_NONE, CRASH_GROUND, CRASH_OBSTACLE, CRASH_NET = 0, 1, 2, 3
-CRASH_REASONS = {CRASH_NONE: "", CRASH_GROUND: "ground impact", CRASH_OBSTACLE: "obstacle",
-                 CRASH_NET: "boundary net"}
+CRASH_REASONS = {
+    CRASH_NONE: "",
+    CRASH_GROUND: "ground impact",
+    CRASH_OBSTACLE: "obstacle",
+    CRASH_NET: "boundary net",
+}
 
 
 @dataclass(frozen=True)
@@ -70,8 +74,9 @@ class Airframe:
 
 def ocv_per_cell_v(soc: np.ndarray) -> np.ndarray:
     """LiPo open-circuit voltage against state of charge (typical discharge curve)."""
-    return np.interp(soc, [0.0, 0.05, 0.1, 0.2, 0.5, 0.8, 1.0],
-                     [3.0, 3.45, 3.6, 3.7, 3.8, 3.95, 4.2])
+    return np.interp(
+        soc, [0.0, 0.05, 0.1, 0.2, 0.5, 0.8, 1.0], [3.0, 3.45, 3.6, 3.7, 3.8, 3.95, 4.2]
+    )
 
 
 @dataclass(frozen=True)
@@ -185,7 +190,7 @@ class Dynamics:
         eye = np.eye(3).ravel()
         G[0] = eye
         G[1:4] = self._skew_gen
-        G[4:13] = 0.5 * self.dt_s ** 2 * (np.eye(9) - np.outer(eye, eye))
+        G[4:13] = 0.5 * self.dt_s**2 * (np.eye(9) - np.outer(eye, eye))
         self._G = G
         self._ones33 = np.ones((3, 3))
         self._bound: tuple | None = None
@@ -200,10 +205,17 @@ class Dynamics:
         self._w_max_alive = _per_rotor(af.kv_rad_s_per_v * volt)
         self._grounded = True
         return BodyState(
-            pos_m=pos, vel_mps=np.zeros((n, 3)), R_world_body=yaw_matrix(np.full(n, yaw_rad)),
-            omega_rad_s=np.zeros((n, 3)), rotor_rad_s=np.zeros((n, 4)), charge_c=charge,
-            voltage_v=volt, current_a=np.zeros(n), rotor_thrust_n=np.zeros((n, 4)),
-            on_ground=np.ones(n, bool), crash=np.zeros(n, int),
+            pos_m=pos,
+            vel_mps=np.zeros((n, 3)),
+            R_world_body=yaw_matrix(np.full(n, yaw_rad)),
+            omega_rad_s=np.zeros((n, 3)),
+            rotor_rad_s=np.zeros((n, 4)),
+            charge_c=charge,
+            voltage_v=volt,
+            current_a=np.zeros(n),
+            rotor_thrust_n=np.zeros((n, 4)),
+            on_ground=np.ones(n, bool),
+            crash=np.zeros(n, int),
             wind_mps=np.tile(np.asarray(self.wind.mean_enu_mps, float), (n, 1)),
         )
 
@@ -254,8 +266,15 @@ class Dynamics:
         `slow_update` (~10 Hz: battery, gusts) run at lower rates from the caller.
         """
         b = self._bound
-        if (b is None or s is not b[0] or s.R_world_body is not b[1] or s.pos_m is not b[2]
-                or s.vel_mps is not b[3] or s.rotor_rad_s is not b[4] or s.wind_mps is not b[5]):
+        if (
+            b is None
+            or s is not b[0]
+            or s.R_world_body is not b[1]
+            or s.pos_m is not b[2]
+            or s.vel_mps is not b[3]
+            or s.rotor_rad_s is not b[4]
+            or s.wind_mps is not b[5]
+        ):
             self._bind(s)
         mul, add, sub, mm = np.multiply, np.add, np.subtract, np.matmul
         u, r, f = self._u, s.rotor_rad_s, s.rotor_thrust_n
@@ -318,7 +337,8 @@ class Dynamics:
             k = dt / self.wind.gust_tau_s
             gust = s.wind_mps - self.wind.mean_enu_mps
             gust += -gust * k + self.wind.gust_std_mps * np.sqrt(2 * k) * self._rng.standard_normal(
-                gust.shape)
+                gust.shape
+            )
             s.wind_mps = gust + self.wind.mean_enu_mps
         alive = (s.crash == 0) & (s.charge_c > 0)
         self._w_max_alive = _per_rotor(self.airframe.kv_rad_s_per_v * s.voltage_v * alive)
@@ -349,7 +369,8 @@ class Dynamics:
             r = self.airframe.frame_radius_m
             hx, hy = self.net_half_extent_m
             out = ((np.abs(p[:, 0]) > hx - r) | (np.abs(p[:, 1]) > hy - r)) & (
-                p[:, 2] < self.net_height_m)
+                p[:, 2] < self.net_height_m
+            )
             self._hit(s, out, CRASH_NET)  # caught in the net
 
     def _hit(self, s: BodyState, touching: np.ndarray, code: int) -> None:

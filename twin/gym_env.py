@@ -49,10 +49,17 @@ STATE_SIZE = 18
 class TwinEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, task: int = 2, scene: Scene | None = None, config: SimConfig | None = None,
-                 max_episode_s: float = 180.0, control_hz: float = 10.0,
-                 cameras: tuple[str, ...] = (), image_size: tuple[int, int] = (160, 120),
-                 render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        task: int = 2,
+        scene: Scene | None = None,
+        config: SimConfig | None = None,
+        max_episode_s: float = 180.0,
+        control_hz: float = 10.0,
+        cameras: tuple[str, ...] = (),
+        image_size: tuple[int, int] = (160, 120),
+        render_mode: str | None = None,
+    ) -> None:
         self.scene = scene or load_scene()
         self.task = self.scene.task(task)
         self.config = config or SimConfig()
@@ -66,7 +73,11 @@ class TwinEnv(gym.Env):
         if self.cameras:
             w, h = image_size
             self.observation_space = spaces.Dict(
-                {"state": state, **{c: spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras}})
+                {
+                    "state": state,
+                    **{c: spaces.Box(0, 255, (h, w, 3), np.uint8) for c in self.cameras},
+                }
+            )
         else:
             self.observation_space = state
         end = self.scene.pad(self.task.end_pad)
@@ -130,11 +141,21 @@ class TwinEnv(gym.Env):
         roll, pitch, _ = pose.euler_ned_rad
         yaw = pose.yaw_enu_rad
         rel = pose.pos_enu_m - self.target_m
-        return np.concatenate([
-            rel, pose.vel_enu_mps, [roll, pitch, np.sin(yaw), np.cos(yaw)], pose.omega_body_rad_s,
-            [sim.battery_pct() / 100.0, float(sim.commander.armed[0]),
-             float(sim.state.on_ground[0]), float(np.hypot(rel[0], rel[1])), float(rel[2])],
-        ]).astype(np.float32)
+        return np.concatenate(
+            [
+                rel,
+                pose.vel_enu_mps,
+                [roll, pitch, np.sin(yaw), np.cos(yaw)],
+                pose.omega_body_rad_s,
+                [
+                    sim.battery_pct() / 100.0,
+                    float(sim.commander.armed[0]),
+                    float(sim.state.on_ground[0]),
+                    float(np.hypot(rel[0], rel[1])),
+                    float(rel[2]),
+                ],
+            ]
+        ).astype(np.float32)
 
     def _observation(self):
         state = self._state_vector()
@@ -156,6 +177,10 @@ class TwinEnv(gym.Env):
 
     def _info(self) -> dict[str, Any]:
         sim = self.sim
-        return {"t_s": sim.t_s - self._t0, "crash": sim.crash_reason(),
-                "mode": sim.commander.mode_name(), "distance_m": self._dist,
-                "pos_enu_m": sim.state.pos_m[0].copy()}
+        return {
+            "t_s": sim.t_s - self._t0,
+            "crash": sim.crash_reason(),
+            "mode": sim.commander.mode_name(),
+            "distance_m": self._dist,
+            "pos_enu_m": sim.state.pos_m[0].copy(),
+        }

@@ -28,9 +28,15 @@ from twin.sim import Sim, SimConfig
 class TwinVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int = 64, task: int = 2, scene: Scene | None = None,
-                 config: SimConfig | None = None, max_episode_s: float = 180.0,
-                 control_hz: float = 10.0) -> None:
+    def __init__(
+        self,
+        num_envs: int = 64,
+        task: int = 2,
+        scene: Scene | None = None,
+        config: SimConfig | None = None,
+        max_episode_s: float = 180.0,
+        control_hz: float = 10.0,
+    ) -> None:
         self.num_envs = num_envs
         self.scene = scene or load_scene()
         self.task = self.scene.task(task)
@@ -110,10 +116,19 @@ class TwinVectorEnv(VectorEnv):
         R = s.R_world_body
         rel = s.pos_m - self.target_m
         yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-        return np.column_stack([
-            rel, s.vel_mps,
-            np.arctan2(R[:, 2, 1], R[:, 2, 2]), np.arcsin(np.clip(R[:, 2, 0], -1, 1)),
-            np.sin(yaw), np.cos(yaw), s.omega_rad_s,
-            sim.battery_pct_all() / 100.0, sim.commander.armed, s.on_ground,
-            np.hypot(rel[:, 0], rel[:, 1]), rel[:, 2],
-        ]).astype(np.float32)
+        return np.column_stack(
+            [
+                rel,
+                s.vel_mps,
+                np.arctan2(R[:, 2, 1], R[:, 2, 2]),
+                np.arcsin(np.clip(R[:, 2, 0], -1, 1)),
+                np.sin(yaw),
+                np.cos(yaw),
+                s.omega_rad_s,
+                sim.battery_pct_all() / 100.0,
+                sim.commander.armed,
+                s.on_ground,
+                np.hypot(rel[:, 0], rel[:, 1]),
+                rel[:, 2],
+            ]
+        ).astype(np.float32)

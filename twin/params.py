@@ -67,8 +67,11 @@ class ParamServer:
                 self._send(i)
         elif kind == "PARAM_REQUEST_READ":
             name = _name(msg.param_id)
-            index = msg.param_index if msg.param_index >= 0 else (
-                self.names.index(name) if name in self.names else -1)
+            index = (
+                msg.param_index
+                if msg.param_index >= 0
+                else (self.names.index(name) if name in self.names else -1)
+            )
             if 0 <= index < len(self.names):
                 self._send(index)
         elif kind == "PARAM_SET":

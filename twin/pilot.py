@@ -110,10 +110,15 @@ class Pilot:
         c, s = np.cos(obs.yaw_enu_rad), np.sin(obs.yaw_enu_rad)
         forward = v_world[0] * c + v_world[1] * s
         right = v_world[0] * s - v_world[1] * c
-        climb = float(np.clip(1.0 * (alt - obs.pos_enu_m[2]), -self.max_descent_mps,
-                              self.max_climb_mps))
-        return (_stick(right / self.max_vel_xy_mps), _stick(forward / self.max_vel_xy_mps), 0.0,
-                self._throttle(climb))
+        climb = float(
+            np.clip(1.0 * (alt - obs.pos_enu_m[2]), -self.max_descent_mps, self.max_climb_mps)
+        )
+        return (
+            _stick(right / self.max_vel_xy_mps),
+            _stick(forward / self.max_vel_xy_mps),
+            0.0,
+            self._throttle(climb),
+        )
 
     def _throttle(self, climb_mps: float) -> float:
         scale = self.max_climb_mps if climb_mps > 0 else self.max_descent_mps
@@ -142,8 +147,10 @@ def task_plan(scene: Scene, task_id: int) -> list[Leg]:
         o = scene.obstacle(task.circle_obstacle)
         r = 3.0
         angles = np.pi + np.linspace(0, 2 * np.pi, 13)  # start on the approach side
-        legs += [Leg("goto", (o.x_m + r * np.cos(a), o.y_m + r * np.sin(a)), cruise_alt,
-                     tolerance_m=0.7) for a in angles]
+        legs += [
+            Leg("goto", (o.x_m + r * np.cos(a), o.y_m + r * np.sin(a)), cruise_alt, tolerance_m=0.7)
+            for a in angles
+        ]
     if task_id == 4:
         xs = sorted(o.x_m for o in scene.obstacles)[:2] or [-7.0, 7.0]
         cx, half = (xs[0] + xs[-1]) / 2, (xs[-1] - xs[0]) / 2 + 3.0
@@ -152,13 +159,17 @@ def task_plan(scene: Scene, task_id: int) -> list[Leg]:
         pts = [(cx - half * np.sin(a), 0.6 * half * np.sin(a) * np.cos(a)) for a in t]
         legs += [Leg("goto", (cx, 0.0), cruise_alt, tolerance_m=0.7)]
         legs += [Leg("goto", p, cruise_alt, tolerance_m=0.8) for p in pts]
-    legs += [Leg("goto", (end.x_m, end.y_m), cruise_alt, tolerance_m=0.3),
-             Leg("hold", alt_m=cruise_alt, seconds=2.0), Leg("land")]
+    legs += [
+        Leg("goto", (end.x_m, end.y_m), cruise_alt, tolerance_m=0.3),
+        Leg("hold", alt_m=cruise_alt, seconds=2.0),
+        Leg("land"),
+    ]
     return legs
 
 
-def fly(sim, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0,
-        i: int = 0) -> np.ndarray:
+def fly(
+    sim, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0, i: int = 0
+) -> np.ndarray:
     """Fly an in-process `twin.sim.Sim` with `pilot` until its plan ends, a crash, or
     `timeout_s`; returns the true track (K, 4) of t_s, x, y, z."""
     n = max(1, int(round(1.0 / (rate_hz * sim.dt_s))))
@@ -166,15 +177,18 @@ def fly(sim, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0,
     while not pilot.done and sim.t_s < timeout_s and not sim.state.crash[i]:
         pose = sim.pose(i)
         yaw = float(np.arctan2(pose.R_world_body[1, 0], pose.R_world_body[0, 0]))
-        obs = Observation(sim.t_s, pose.pos_enu_m, pose.vel_enu_mps, yaw, bool(sim.commander.armed[i]))
+        obs = Observation(
+            sim.t_s, pose.pos_enu_m, pose.vel_enu_mps, yaw, bool(sim.commander.armed[i])
+        )
         sim.set_sticks(*pilot.update(obs), i=i)
         sim.step(n)
         track.append((sim.t_s, *pose.pos_enu_m))
     return np.array(track)
 
 
-def fly_twin(twin, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0,
-             stop=None) -> np.ndarray:
+def fly_twin(
+    twin, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0, stop=None
+) -> np.ndarray:
     """Fly a `twin.runner.Twin` with `pilot`; returns the true track (K, 4) of t_s, x, y, z.
 
     With the twin's real-time thread running (as in the station), the sticks go in at
@@ -196,8 +210,9 @@ def fly_twin(twin, pilot: Pilot, timeout_s: float = 600.0, rate_hz: float = 50.0
         if crashed or pose.t_s - t0 > timeout_s:
             break
         yaw = float(np.arctan2(pose.R_world_body[1, 0], pose.R_world_body[0, 0]))
-        twin.set_sticks(*pilot.update(Observation(pose.t_s, pose.pos_enu_m, pose.vel_enu_mps,
-                                                  yaw, armed)))
+        twin.set_sticks(
+            *pilot.update(Observation(pose.t_s, pose.pos_enu_m, pose.vel_enu_mps, yaw, armed))
+        )
         track.append((pose.t_s, *pose.pos_enu_m))
         if twin.running:
             time.sleep(period_s / twin.realtime_factor)

@@ -46,8 +46,9 @@ def front_camera(tilt_up_deg: float = 15.0, hfov_deg: float = 100.0) -> CameraMo
     x = np.array([0.0, -1.0, 0.0])
     # Offsets are from the body origin at the skids' bottom (pose z = 0 on the ground):
     # an F450 on its landing gear carries the cameras ~10-20 cm above the grass.
-    return CameraModel("front", np.column_stack([x, np.cross(z, x), z]),
-                       np.array([0.10, 0.0, 0.20]), hfov_deg)
+    return CameraModel(
+        "front", np.column_stack([x, np.cross(z, x), z]), np.array([0.10, 0.0, 0.20]), hfov_deg
+    )
 
 
 def bottom_camera(hfov_deg: float = 90.0) -> CameraModel:
@@ -64,7 +65,9 @@ def camera_pose(cam: CameraModel, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     return R_wc, t_wc
 
 
-def project(cam: CameraModel, pose: Pose, points_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project(
+    cam: CameraModel, pose: Pose, points_world: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixels (K, 2) of world points (K, 3) and their depth along the optical axis (K,)."""
     R_wc, t_wc = camera_pose(cam, pose)
     pc = (np.asarray(points_world, float) - t_wc) @ R_wc
@@ -73,9 +76,16 @@ def project(cam: CameraModel, pose: Pose, points_world: np.ndarray) -> tuple[np.
 
 
 class Renderer:
-    def __init__(self, scene: Scene, fpv_noise: bool = False, seed: int = 0,
-                 front: CameraModel | None = None, bottom: CameraModel | None = None,
-                 margin_m: float = 25.0, pad_px_per_m: int = 160) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        fpv_noise: bool = False,
+        seed: int = 0,
+        front: CameraModel | None = None,
+        bottom: CameraModel | None = None,
+        margin_m: float = 25.0,
+        pad_px_per_m: int = 160,
+    ) -> None:
         self.scene = scene
         self.cameras = {"front": front or front_camera(), "bottom": bottom or bottom_camera()}
         self.fpv_noise = fpv_noise
@@ -85,8 +95,9 @@ class Renderer:
         self.x0 = -f.size_x_m / 2 - margin_m
         self.y1 = f.size_y_m / 2 + margin_m
         self.ground = self._ground_texture(f.size_x_m + 2 * margin_m, f.size_y_m + 2 * margin_m)
-        self.A_world_tex = np.array([[1 / self.ppm, 0, self.x0], [0, -1 / self.ppm, self.y1],
-                                     [0, 0, 1.0]])
+        self.A_world_tex = np.array(
+            [[1 / self.ppm, 0, self.x0], [0, -1 / self.ppm, self.y1], [0, 0, 1.0]]
+        )
         self.pad_ppm = pad_px_per_m
         self.pads = [(pad, self._pad_texture(pad, pad_px_per_m)) for pad in scene.pads]
         for pad, tex in self.pads:  # coarse copy in the ground for distant views
@@ -104,18 +115,21 @@ class Renderer:
         fx0 = int((-f.size_x_m / 2 - self.x0) * ppm)
         fy0 = int((self.y1 - f.size_y_m / 2) * ppm)
         fw, fh = int(f.size_x_m * ppm), int(f.size_y_m * ppm)
-        field = tex[fy0:fy0 + fh, fx0:fx0 + fw]
+        field = tex[fy0 : fy0 + fh, fx0 : fx0 + fw]
         field[:] = f.grass_bgr
         stripe = int(5 * ppm)  # mowing stripes, 5 m wide: cues for speed and heading
         for x in range(0, fw, 2 * stripe):
-            field[:, x:x + stripe] = np.clip(np.array(f.grass_bgr) * 1.12, 0, 255).astype(np.uint8)
+            field[:, x : x + stripe] = np.clip(np.array(f.grass_bgr) * 1.12, 0, 255).astype(
+                np.uint8
+            )
         noise = rng.normal(0, 1, (h // 4 + 1, w // 4 + 1)).astype(np.float32)
         noise = cv2.resize(cv2.GaussianBlur(noise, (0, 0), 1.5), (w, h))[..., None]
         fine = rng.normal(0, 7, (h, w, 1)).astype(np.float32)
         tex = np.clip(tex.astype(np.float32) + 14 * noise + fine, 0, 255).astype(np.uint8)
         cv2.rectangle(tex, (fx0, fy0), (fx0 + fw, fy0 + fh), (235, 235, 235), max(2, ppm // 8))
-        cv2.line(tex, (fx0 + fw // 2, fy0), (fx0 + fw // 2, fy0 + fh), (210, 210, 210),
-                 max(1, ppm // 10))
+        cv2.line(
+            tex, (fx0 + fw // 2, fy0), (fx0 + fw // 2, fy0 + fh), (210, 210, 210), max(1, ppm // 10)
+        )
         return tex
 
     @staticmethod
@@ -149,8 +163,9 @@ class Renderer:
         u0 = int(round((pad.x_m - pad.size_m / 2 - self.x0) * self.ppm))
         v0 = int(round((self.y1 - pad.y_m - pad.size_m / 2) * self.ppm))
         east_right = cv2.rotate(tex, cv2.ROTATE_90_CLOCKWISE)  # ground texture: up = north
-        self.ground[v0:v0 + n, u0:u0 + n] = cv2.resize(east_right, (n, n),
-                                                       interpolation=cv2.INTER_AREA)
+        self.ground[v0 : v0 + n, u0 : u0 + n] = cv2.resize(
+            east_right, (n, n), interpolation=cv2.INTER_AREA
+        )
 
     def _net_segments(self) -> np.ndarray:
         f = self.scene.field
@@ -178,9 +193,14 @@ class Renderer:
         t_cw = -R_cw @ t_wc
         K, W, H = cam.K, cam.width, cam.height
         G = K @ np.column_stack([R_cw[:, 0], R_cw[:, 1], t_cw])  # world ground (x, y, 1) -> px
-        frame = cv2.warpPerspective(self.ground, G @ self.A_world_tex, (W, H),
-                                    flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                    borderValue=self.scene.field.outside_bgr)
+        frame = cv2.warpPerspective(
+            self.ground,
+            G @ self.A_world_tex,
+            (W, H),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=self.scene.field.outside_bgr,
+        )
         for pad, tex in self.pads:
             self._draw_pad(frame, cam, G, R_cw, t_cw, pad, tex)
         self._draw_sky(frame, K, R_wc)
@@ -192,8 +212,9 @@ class Renderer:
 
     def _draw_pad(self, frame, cam, G, R_cw, t_cw, pad: Pad, tex) -> None:
         half = pad.size_m / 2
-        corners = np.array([[pad.x_m + dx, pad.y_m + dy, 0.0] for dx in (-half, half)
-                            for dy in (-half, half)])
+        corners = np.array(
+            [[pad.x_m + dx, pad.y_m + dy, 0.0] for dx in (-half, half) for dy in (-half, half)]
+        )
         pc = corners @ R_cw.T + t_cw
         if (pc[:, 2] < NEAR_M).any():
             return  # partly behind the camera: the ground texture's coarse copy shows it
@@ -206,16 +227,24 @@ class Renderer:
             return  # too small to need more detail than the ground texture has
         T = np.array([[1, 0, -u0], [0, 1, -v0], [0, 0, 1.0]])
         roi = frame[v0:v1, u0:u1]
-        cv2.warpPerspective(tex, T @ G @ self._A_world_pad(pad), (u1 - u0, v1 - v0), dst=roi,
-                            flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_TRANSPARENT)
+        cv2.warpPerspective(
+            tex,
+            T @ G @ self._A_world_pad(pad),
+            (u1 - u0, v1 - v0),
+            dst=roi,
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_TRANSPARENT,
+        )
 
     @staticmethod
     def _draw_sky(frame, K, R_wc) -> None:
         # Pixels whose ray points up (d_z >= 0) see sky: a half-plane a u + b v + c >= 0.
         a, b, c = (R_wc @ np.linalg.inv(K))[2]
         H, W = frame.shape[:2]
-        poly = _clip_polygon(np.array([[0, 0], [W, 0], [W, H], [0, H]], float),
-                             lambda p: a * p[:, 0] + b * p[:, 1] + c)
+        poly = _clip_polygon(
+            np.array([[0, 0], [W, 0], [W, H], [0, H]], float),
+            lambda p: a * p[:, 0] + b * p[:, 1] + c,
+        )
         if len(poly) >= 3:
             cv2.fillPoly(frame, [np.round(poly).astype(np.int32)], SKY_BGR, cv2.LINE_AA)
 
@@ -234,18 +263,24 @@ class Renderer:
         pts = np.stack([a, b], axis=1) @ K.T
         px = pts[..., :2] / pts[..., 2:3]
         px = np.clip(px, -1e4, 1e4)
-        cv2.polylines(frame, list(np.round(px).astype(np.int32)), False, (60, 60, 60), 1,
-                      cv2.LINE_AA)
+        cv2.polylines(
+            frame, list(np.round(px).astype(np.int32)), False, (60, 60, 60), 1, cv2.LINE_AA
+        )
 
     def _draw_obstacles(self, frame, K, R_cw, t_cw, t_wc) -> None:
         light = np.array([0.4, -0.3, 0.85])
-        order = sorted(self.scene.obstacles,
-                       key=lambda o: -np.hypot(o.x_m - t_wc[0], o.y_m - t_wc[1]))
+        order = sorted(
+            self.scene.obstacles, key=lambda o: -np.hypot(o.x_m - t_wc[0], o.y_m - t_wc[1])
+        )
         for o in order:
             c = o.corners_m()
-            faces = [(c[[4, 5, 6, 7]], (0, 0, 1)), (c[[0, 1, 5, 4]], (0, -1, 0)),
-                     (c[[1, 2, 6, 5]], (1, 0, 0)), (c[[2, 3, 7, 6]], (0, 1, 0)),
-                     (c[[3, 0, 4, 7]], (-1, 0, 0))]
+            faces = [
+                (c[[4, 5, 6, 7]], (0, 0, 1)),
+                (c[[0, 1, 5, 4]], (0, -1, 0)),
+                (c[[1, 2, 6, 5]], (1, 0, 0)),
+                (c[[2, 3, 7, 6]], (0, 1, 0)),
+                (c[[3, 0, 4, 7]], (-1, 0, 0)),
+            ]
             for quad, normal in faces:
                 n = np.array(normal, float)
                 if n @ (t_wc - quad.mean(axis=0)) <= 0:
@@ -259,8 +294,14 @@ class Renderer:
                 shade = 0.55 + 0.45 * max(float(n @ light), 0.0)
                 color = tuple(int(v * shade) for v in o.bgr)
                 cv2.fillConvexPoly(frame, np.round(px).astype(np.int32), color, cv2.LINE_AA)
-                cv2.polylines(frame, [np.round(px).astype(np.int32)], True,
-                              tuple(int(v * 0.5) for v in o.bgr), 1, cv2.LINE_AA)
+                cv2.polylines(
+                    frame,
+                    [np.round(px).astype(np.int32)],
+                    True,
+                    tuple(int(v * 0.5) for v in o.bgr),
+                    1,
+                    cv2.LINE_AA,
+                )
 
     def _analog(self, frame: np.ndarray) -> np.ndarray:
         """600 TVL analog look: soft, grainy, less saturated, the odd torn line."""
@@ -269,7 +310,7 @@ class Renderer:
         out = np.clip(out.astype(np.int16) + noise, 0, 255).astype(np.uint8)
         if self._rng.random() < 0.15:
             row = int(self._rng.integers(0, out.shape[0] - 3))
-            out[row:row + 2] = np.roll(out[row:row + 2], int(self._rng.integers(5, 30)), axis=1)
+            out[row : row + 2] = np.roll(out[row : row + 2], int(self._rng.integers(5, 30)), axis=1)
         return out
 
 

@@ -28,10 +28,16 @@ log = logging.getLogger(__name__)
 
 
 class Twin:
-    def __init__(self, scene: Scene | None = None, config: SimConfig | None = None,
-                 mavlink: str | None = None, rates_hz: dict[str, float] | None = None,
-                 realtime_factor: float = 1.0, tick_hz: float = 100.0,
-                 render_options: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        scene: Scene | None = None,
+        config: SimConfig | None = None,
+        mavlink: str | None = None,
+        rates_hz: dict[str, float] | None = None,
+        realtime_factor: float = 1.0,
+        tick_hz: float = 100.0,
+        render_options: dict[str, Any] | None = None,
+    ) -> None:
         if realtime_factor <= 0:
             raise ValueError("realtime_factor must be > 0")
         self.scene = scene or load_scene()
@@ -141,8 +147,9 @@ class Twin:
         from analysis.geodesy import enu_to_geodetic
 
         home = self.scene.home
-        lat, lon, alt = enu_to_geodetic(self.pose().pos_enu_m, home.lat_deg, home.lon_deg,
-                                        home.alt_m)
+        lat, lon, alt = enu_to_geodetic(
+            self.pose().pos_enu_m, home.lat_deg, home.lon_deg, home.alt_m
+        )
         return float(lat), float(lon), float(alt)
 
     def set_sticks(self, roll: float, pitch: float, yaw: float, throttle: float) -> None:
@@ -185,12 +192,19 @@ def twin_from_settings(ts: Any, mavlink: str | None) -> Twin:
     from twin.sensors import SensorParams
 
     config = SimConfig(
-        physics_hz=ts.physics_hz, seed=ts.seed,
-        wind=Wind(mean_enu_mps=(ts.wind_east_mps, ts.wind_north_mps, 0.0),
-                  gust_std_mps=ts.gust_std_mps),
+        physics_hz=ts.physics_hz,
+        seed=ts.seed,
+        wind=Wind(
+            mean_enu_mps=(ts.wind_east_mps, ts.wind_north_mps, 0.0), gust_std_mps=ts.gust_std_mps
+        ),
         sensors=SensorParams(enabled=ts.sensor_noise, gps_rate_hz=ts.gps_rate_hz),
         gains=ControlGains(max_vel_xy_mps=ts.max_vel_xy_mps),
     )
-    return Twin(load_scene(ts.scene), config, mavlink=mavlink, rates_hz=dict(ts.rates_hz),
-                realtime_factor=ts.realtime_factor,
-                render_options={"fpv_noise": ts.fpv_noise, "seed": ts.seed})
+    return Twin(
+        load_scene(ts.scene),
+        config,
+        mavlink=mavlink,
+        rates_hz=dict(ts.rates_hz),
+        realtime_factor=ts.realtime_factor,
+        render_options={"fpv_noise": ts.fpv_noise, "seed": ts.seed},
+    )

@@ -133,8 +133,14 @@ class Scene(_Frozen):
             return np.zeros((0, 6))
         return np.array(
             [
-                [o.x_m - o.width_m / 2, o.y_m - o.depth_m / 2, 0.0,
-                 o.x_m + o.width_m / 2, o.y_m + o.depth_m / 2, o.height_m]
+                [
+                    o.x_m - o.width_m / 2,
+                    o.y_m - o.depth_m / 2,
+                    0.0,
+                    o.x_m + o.width_m / 2,
+                    o.y_m + o.depth_m / 2,
+                    o.height_m,
+                ]
                 for o in self.obstacles
             ]
         )

@@ -63,8 +63,13 @@ class Sensors:
         self.p, self.home, self.rng, self.n = params, home, rng, n
         scale = 1.0 if params.enabled else 0.0
         self._scale = scale
-        self.gps_drift_m = rng.standard_normal((n, 3)) * scale * np.array(
-            [params.gps_drift_std_m, params.gps_drift_std_m, params.gps_vert_drift_std_m])
+        self.gps_drift_m = (
+            rng.standard_normal((n, 3))
+            * scale
+            * np.array(
+                [params.gps_drift_std_m, params.gps_drift_std_m, params.gps_vert_drift_std_m]
+            )
+        )
         self.baro_drift_m = rng.standard_normal(n) * scale * params.baro_drift_std_m
         self.satellites = np.full(n, params.gps_satellites)
         self._next_gps_s = 0.0
@@ -88,10 +93,12 @@ class Sensors:
         k = dt / p.gps_drift_tau_s
         std = np.array([p.gps_drift_std_m, p.gps_drift_std_m, p.gps_vert_drift_std_m])
         self.gps_drift_m += -self.gps_drift_m * k + std * np.sqrt(2 * k) * self.rng.standard_normal(
-            (self.n, 3))
+            (self.n, 3)
+        )
         kb = dt / p.baro_drift_tau_s
         self.baro_drift_m += -self.baro_drift_m * kb + p.baro_drift_std_m * np.sqrt(
-            2 * kb) * self.rng.standard_normal(self.n)
+            2 * kb
+        ) * self.rng.standard_normal(self.n)
 
     def estimate(self, pos_m: np.ndarray, vel_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The autopilot's position and velocity estimate (ENU): GPS drift in x/y, baro in z."""
@@ -114,19 +121,28 @@ class Sensors:
         self._next_gps_s = max(self._next_gps_s + 1.0 / self.p.gps_rate_hz, t_s)
         p, s = self.p, self._scale
         fix = self.has_fix(t_s)
-        noisy = pos_m + self.gps_drift_m + self.rng.standard_normal((self.n, 3)) * (
-            p.gps_noise_std_m * s)
+        noisy = (
+            pos_m
+            + self.gps_drift_m
+            + self.rng.standard_normal((self.n, 3)) * (p.gps_noise_std_m * s)
+        )
         vel = vel_mps + self.rng.standard_normal((self.n, 3)) * p.gps_vel_noise_std_mps * s
         if s and self.rng.random() < 0.02:  # satellites come and go slowly
             self.satellites = np.clip(self.satellites + self.rng.integers(-1, 2, self.n), 8, 20)
         geo = enu_to_geodetic(noisy, self.home.lat_deg, self.home.lon_deg, self.home.alt_m)
         eph = p.gps_eph_m * 14.0 / self.satellites
         fixes = [
-            GpsFix(t_s=t_s, fix_type=3 if fix else 1,
-                   satellites=int(self.satellites[i]) if fix else 3,
-                   lat_deg=float(geo[i, 0]), lon_deg=float(geo[i, 1]), alt_m=float(geo[i, 2]),
-                   eph_m=float(eph[i]) if fix else 99.99, epv_m=float(eph[i] * 1.5) if fix else 99.99,
-                   vel_enu_mps=vel[i].copy())
+            GpsFix(
+                t_s=t_s,
+                fix_type=3 if fix else 1,
+                satellites=int(self.satellites[i]) if fix else 3,
+                lat_deg=float(geo[i, 0]),
+                lon_deg=float(geo[i, 1]),
+                alt_m=float(geo[i, 2]),
+                eph_m=float(eph[i]) if fix else 99.99,
+                epv_m=float(eph[i] * 1.5) if fix else 99.99,
+                vel_enu_mps=vel[i].copy(),
+            )
             for i in range(self.n)
         ]
         self.last_fix = list(fixes)

@@ -15,12 +15,19 @@ from twin.commander import Commander, CommanderParams, Event
 from twin.control import MODE_NAMES, POSCTL, STABILIZED, ControlGains, Controller
 from twin.dynamics import CRASH_REASONS, Airframe, BodyState, Dynamics, Wind
 from twin.scene import Scene, load_scene
-from twin.sensors import Sensors, SensorParams
+from twin.sensors import SensorParams, Sensors
 
 MODE_BY_NAME = {name: code for code, name in MODE_NAMES.items()}
-MODE_BY_NAME.update({"MANUAL": STABILIZED, "POSITION": POSCTL, "ALTITUDE": MODE_BY_NAME["ALTCTL"],
-                     "AUTO.TAKEOFF": MODE_BY_NAME["TAKEOFF"], "AUTO.LOITER": MODE_BY_NAME["LOITER"],
-                     "AUTO.LAND": MODE_BY_NAME["LAND"]})
+MODE_BY_NAME.update(
+    {
+        "MANUAL": STABILIZED,
+        "POSITION": POSCTL,
+        "ALTITUDE": MODE_BY_NAME["ALTCTL"],
+        "AUTO.TAKEOFF": MODE_BY_NAME["TAKEOFF"],
+        "AUTO.LOITER": MODE_BY_NAME["LOITER"],
+        "AUTO.LAND": MODE_BY_NAME["LAND"],
+    }
+)
 
 # FLU body / ENU world -> FRD body / NED world, for MAVLink's conventions.
 _ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -64,8 +71,11 @@ class Pose:
     def euler_ned_rad(self) -> tuple[float, float, float]:
         """(roll, pitch, yaw) as MAVLink ATTITUDE reports them; yaw clockwise from north."""
         R = self.R_ned_frd
-        return (float(np.arctan2(R[2, 1], R[2, 2])), float(-np.arcsin(np.clip(R[2, 0], -1, 1))),
-                float(np.arctan2(R[1, 0], R[0, 0])))
+        return (
+            float(np.arctan2(R[2, 1], R[2, 2])),
+            float(-np.arcsin(np.clip(R[2, 0], -1, 1))),
+            float(np.arctan2(R[1, 0], R[0, 0])),
+        )
 
 
 class Sim:
@@ -76,10 +86,14 @@ class Sim:
         self.dt_s = 1.0 / cfg.physics_hz
         half = (self.scene.field.size_x_m / 2, self.scene.field.size_y_m / 2)
         self.dynamics = Dynamics(
-            airframe=cfg.airframe, dt_s=self.dt_s, wind=cfg.wind,
+            airframe=cfg.airframe,
+            dt_s=self.dt_s,
+            wind=cfg.wind,
             obstacle_boxes_m=self.scene.obstacle_boxes_m(),
             net_half_extent_m=half if cfg.net_crashes else None,
-            net_height_m=self.scene.field.net_height_m, seed=cfg.seed)
+            net_height_m=self.scene.field.net_height_m,
+            seed=cfg.seed,
+        )
         self.rng = np.random.default_rng(cfg.seed + 1)
         self.reset()
 
@@ -94,7 +108,9 @@ class Sim:
         self.sticks = np.tile([0.0, 0.0, 0.0, 0.5], (self.n, 1))  # centred, throttle mid
         self.throttle = np.zeros((self.n, 4))
         self._idle = np.zeros(self.n, bool)
-        self.est_pos_m, self.est_vel_mps = self.sensors.estimate(self.state.pos_m, self.state.vel_mps)
+        self.est_pos_m, self.est_vel_mps = self.sensors.estimate(
+            self.state.pos_m, self.state.vel_mps
+        )
         self.controller.reset(np.ones(self.n, bool), self.est_pos_m, self.state.R_world_body)
 
     def reset_vehicles(self, mask: np.ndarray) -> None:
@@ -105,9 +121,20 @@ class Sim:
             return
         fresh = self.dynamics.initial_state(len(idx), self.scene.start_xy_m)
         s = self.state
-        for name in ("pos_m", "vel_mps", "R_world_body", "omega_rad_s", "rotor_rad_s",
-                     "charge_c", "voltage_v", "current_a", "rotor_thrust_n", "on_ground",
-                     "crash", "wind_mps"):
+        for name in (
+            "pos_m",
+            "vel_mps",
+            "R_world_body",
+            "omega_rad_s",
+            "rotor_rad_s",
+            "charge_c",
+            "voltage_v",
+            "current_a",
+            "rotor_thrust_n",
+            "on_ground",
+            "crash",
+            "wind_mps",
+        ):
             getattr(s, name)[idx] = getattr(fresh, name)
         self.dynamics.revive(s)
         self.commander.reset_vehicles(idx)
@@ -117,19 +144,29 @@ class Sim:
         self.controller.reset(mask, self.est_pos_m, s.R_world_body)
 
     # ---- inputs ----
-    def set_sticks(self, roll: float, pitch: float, yaw: float, throttle: float, i: int = 0) -> None:
+    def set_sticks(
+        self, roll: float, pitch: float, yaw: float, throttle: float, i: int = 0
+    ) -> None:
         """Normalized sticks: roll/pitch/yaw in [-1, 1], throttle in [0, 1] (0.5 = centred)."""
         self.sticks[i] = np.clip([roll, pitch, yaw, throttle], [-1, -1, -1, 0], [1, 1, 1, 1])
 
     def arm(self, arm: bool = True, i: int = 0, force: bool = False) -> tuple[bool, str]:
-        return self.commander.request_arm(i, arm, bool(self.state.crash[i]), self.battery_pct(i),
-                                          self.sensors.has_fix(self.t_s), force)
+        return self.commander.request_arm(
+            i,
+            arm,
+            bool(self.state.crash[i]),
+            self.battery_pct(i),
+            self.sensors.has_fix(self.t_s),
+            force,
+        )
 
     def set_mode(self, name: str, i: int = 0) -> tuple[bool, str]:
         code = MODE_BY_NAME.get(name.upper())
         if code is None:
             return False, f"unknown mode '{name}'; known: {', '.join(sorted(MODE_BY_NAME))}"
-        return self.commander.request_mode(i, code, self.est_pos_m[i], self.sensors.has_fix(self.t_s))
+        return self.commander.request_mode(
+            i, code, self.est_pos_m[i], self.sensors.has_fix(self.t_s)
+        )
 
     def takeoff(self, alt_m: float | None = None, i: int = 0) -> tuple[bool, str]:
         return self.commander.request_takeoff(i, self.est_pos_m[i], alt_m)
@@ -152,20 +189,37 @@ class Sim:
                 self.dynamics.slow_update(s, dt_slow)
                 self.sensors.update(dt_slow)
                 fix = np.full(self.n, self.sensors.has_fix(self.t_s))
-                com.update(dt_slow, self.sticks, s.on_ground, s.crash, self.est_pos_m,
-                           ctl.vel_sp_mps[:, 2], self.battery_pct_all(), fix)
+                com.update(
+                    dt_slow,
+                    self.sticks,
+                    s.on_ground,
+                    s.crash,
+                    self.est_pos_m,
+                    ctl.vel_sp_mps[:, 2],
+                    self.battery_pct_all(),
+                    fix,
+                )
             if steps % every == 0:  # 50 Hz: collisions, estimate, outer loop
                 self.dynamics.collisions(s)
                 self.sensors.poll_gps(self.t_s, s.pos_m, s.vel_mps)
                 self.est_pos_m, self.est_vel_mps = self.sensors.estimate(s.pos_m, s.vel_mps)
                 stab = com.mode == STABILIZED
-                grounded = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
-                                                 ctl.vel_sp_mps[:, 2] <= 0.2)
+                grounded = com.landed & np.where(
+                    stab, self.sticks[:, 3] < 0.15, ctl.vel_sp_mps[:, 2] <= 0.2
+                )
                 ctl.reset(grounded, self.est_pos_m, s.R_world_body)
-                ctl.outer(dt_outer, com.mode, self.sticks, self.est_pos_m, self.est_vel_mps,
-                          s.R_world_body, com.target_m)
-                self._idle = com.landed & np.where(stab, self.sticks[:, 3] < 0.15,
-                                                   ctl.vel_sp_mps[:, 2] <= 0.2)
+                ctl.outer(
+                    dt_outer,
+                    com.mode,
+                    self.sticks,
+                    self.est_pos_m,
+                    self.est_vel_mps,
+                    s.R_world_body,
+                    com.target_m,
+                )
+                self._idle = com.landed & np.where(
+                    stab, self.sticks[:, 3] < 0.15, ctl.vel_sp_mps[:, 2] <= 0.2
+                )
                 ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
             # Attitude/rate loop and rigid body at the physics rate, up to the next outer tick.
             run = min(every - steps % every, end - steps)
@@ -182,8 +236,13 @@ class Sim:
     # ---- outputs ----
     def pose(self, i: int = 0) -> Pose:
         s = self.state
-        return Pose(self.t_s, s.pos_m[i].copy(), s.vel_mps[i].copy(), s.R_world_body[i].copy(),
-                    s.omega_rad_s[i].copy())
+        return Pose(
+            self.t_s,
+            s.pos_m[i].copy(),
+            s.vel_mps[i].copy(),
+            s.R_world_body[i].copy(),
+            s.omega_rad_s[i].copy(),
+        )
 
     def battery_pct_all(self) -> np.ndarray:
         return 100.0 * self.state.charge_c / (self.config.airframe.capacity_ah * 3600.0)

@@ -14,8 +14,12 @@ from twin.sim import Sim
 
 # PX4 custom mode = main << 16 | sub << 24 (px4_custom_mode.h).
 PX4_MODES = {  # our mode -> (main, sub)
-    STABILIZED: (7, 0), ALTCTL: (2, 0), POSCTL: (3, 0),
-    AUTO_TAKEOFF: (4, 2), AUTO_LOITER: (4, 3), AUTO_LAND: (4, 6),
+    STABILIZED: (7, 0),
+    ALTCTL: (2, 0),
+    POSCTL: (3, 0),
+    AUTO_TAKEOFF: (4, 2),
+    AUTO_LOITER: (4, 3),
+    AUTO_LAND: (4, 6),
 }
 
 
@@ -53,37 +57,79 @@ class Telemetry:
             status = mavlink.MAV_STATE_EMERGENCY
         else:
             status = mavlink.MAV_STATE_ACTIVE if com.armed[0] else mavlink.MAV_STATE_STANDBY
-        self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base,
-                                px4_custom_mode(mode), status)
+        self.mav.heartbeat_send(
+            mavlink.MAV_TYPE_QUADROTOR,
+            mavlink.MAV_AUTOPILOT_PX4,
+            base,
+            px4_custom_mode(mode),
+            status,
+        )
 
     def _send_sys_status(self, sim: Sim, t_ms: int) -> None:
-        sensors = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-                   | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
-                   | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | mavlink.MAV_SYS_STATUS_SENSOR_GPS
-                   | mavlink.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY)
-        health = sensors if sim.sensors.has_fix(sim.t_s) else sensors & ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        sensors = (
+            mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+            | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+            | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+            | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+            | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+            | mavlink.MAV_SYS_STATUS_SENSOR_RC_RECEIVER
+            | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
+        )
+        health = (
+            sensors
+            if sim.sensors.has_fix(sim.t_s)
+            else sensors & ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        )
         s = sim.state
-        self.mav.sys_status_send(sensors, sensors, health, 250, int(s.voltage_v[0] * 1000),
-                                 int(s.current_a[0] * 100), int(sim.battery_pct()), 0, 0, 0, 0, 0, 0)
+        self.mav.sys_status_send(
+            sensors,
+            sensors,
+            health,
+            250,
+            int(s.voltage_v[0] * 1000),
+            int(s.current_a[0] * 100),
+            int(sim.battery_pct()),
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
 
     def _send_battery_status(self, sim: Sim, t_ms: int) -> None:
         s, af = sim.state, sim.config.airframe
         cell_mv = int(s.voltage_v[0] / af.cells * 1000)
         cells = [cell_mv] * af.cells + [65535] * (10 - af.cells)
         used_mah = int((af.capacity_ah * 3600 - s.charge_c[0]) / 3.6)
-        self.mav.battery_status_send(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
-                                     32767, cells, int(s.current_a[0] * 100), used_mah, -1,
-                                     int(sim.battery_pct()))
+        self.mav.battery_status_send(
+            0,
+            mavlink.MAV_BATTERY_FUNCTION_ALL,
+            mavlink.MAV_BATTERY_TYPE_LIPO,
+            32767,
+            cells,
+            int(s.current_a[0] * 100),
+            used_mah,
+            -1,
+            int(sim.battery_pct()),
+        )
 
     def _send_gps_raw_int(self, sim: Sim, t_ms: int) -> None:
         fix = sim.sensors.last_fix[0]
         if fix is None:
             return
-        self.mav.gps_raw_int_send(int(fix.t_s * 1e6), fix.fix_type, int(fix.lat_deg * 1e7),
-                                  int(fix.lon_deg * 1e7), int(fix.alt_m * 1000),
-                                  min(int(fix.eph_m * 100), 65535), min(int(fix.epv_m * 100), 65535),
-                                  int(fix.ground_speed_mps * 100), int(fix.course_deg * 100),
-                                  fix.satellites)
+        self.mav.gps_raw_int_send(
+            int(fix.t_s * 1e6),
+            fix.fix_type,
+            int(fix.lat_deg * 1e7),
+            int(fix.lon_deg * 1e7),
+            int(fix.alt_m * 1000),
+            min(int(fix.eph_m * 100), 65535),
+            min(int(fix.epv_m * 100), 65535),
+            int(fix.ground_speed_mps * 100),
+            int(fix.course_deg * 100),
+            fix.satellites,
+        )
 
     def _fused(self, sim: Sim) -> tuple[np.ndarray, np.ndarray]:
         home = sim.scene.home
@@ -99,9 +145,16 @@ class Telemetry:
             self.home_geo = geo
         yaw = sim.pose().euler_ned_rad[2]
         self.mav.global_position_int_send(
-            t_ms, int(geo[0] * 1e7), int(geo[1] * 1e7), int(geo[2] * 1000),
-            int((geo[2] - self.home_alt_m) * 1000), int(v[1] * 100), int(v[0] * 100),
-            int(-v[2] * 100), int(np.degrees(yaw) % 360 * 100))
+            t_ms,
+            int(geo[0] * 1e7),
+            int(geo[1] * 1e7),
+            int(geo[2] * 1000),
+            int((geo[2] - self.home_alt_m) * 1000),
+            int(v[1] * 100),
+            int(v[0] * 100),
+            int(-v[2] * 100),
+            int(np.degrees(yaw) % 360 * 100),
+        )
 
     def _send_local_position_ned(self, sim: Sim, t_ms: int) -> None:
         p = sim.est_pos_m[0] - np.append(sim.scene.start_xy_m, 0.0)  # EKF origin: power-on spot
@@ -120,14 +173,30 @@ class Telemetry:
         yaw = sim.pose().euler_ned_rad[2]
         thr = int(100 * sim.throttle[0].mean())
         alt = float(sim.sensors.baro_alt_m(sim.state.pos_m)[0])
-        self.mav.vfr_hud_send(float(np.linalg.norm(air[:2])), float(np.hypot(v[0], v[1])),
-                              int(np.degrees(yaw) % 360), thr, alt, float(v[2]))
+        self.mav.vfr_hud_send(
+            float(np.linalg.norm(air[:2])),
+            float(np.hypot(v[0], v[1])),
+            int(np.degrees(yaw) % 360),
+            thr,
+            alt,
+            float(v[2]),
+        )
 
     def _send_rc_channels(self, sim: Sim, t_ms: int) -> None:
         roll, pitch, yaw, thr = sim.sticks[0]
-        mode_pwm = {STABILIZED: 1100, ALTCTL: 1500, POSCTL: 1900}.get(int(sim.commander.mode[0]), 1500)
-        ch = [stick_to_pwm(roll), stick_to_pwm(pitch), int(round(1000 + 1000 * thr)),
-              stick_to_pwm(yaw), mode_pwm, 1000, 1000, 1000] + [65535] * 10
+        mode_pwm = {STABILIZED: 1100, ALTCTL: 1500, POSCTL: 1900}.get(
+            int(sim.commander.mode[0]), 1500
+        )
+        ch = [
+            stick_to_pwm(roll),
+            stick_to_pwm(pitch),
+            int(round(1000 + 1000 * thr)),
+            stick_to_pwm(yaw),
+            mode_pwm,
+            1000,
+            1000,
+            1000,
+        ] + [65535] * 10
         self.mav.rc_channels_send(t_ms, 8, *ch, 254)
 
     def _send_servo_output_raw(self, sim: Sim, t_ms: int) -> None:
@@ -136,20 +205,44 @@ class Telemetry:
         self.mav.servo_output_raw_send((t_ms * 1000) & 0xFFFFFFFF, 0, *motors, 0, 0, 0, 0)
 
     def _send_autopilot_version(self, sim: Sim, t_ms: int) -> None:
-        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
+        caps = (
+            mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+            | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+        )
         # flight_sw_version 1.14.0 release (0xFF), as PX4 packs it: major.minor.patch.type
-        self.mav.autopilot_version_send(caps, (1 << 24) | (14 << 16) | (0 << 8) | 0xFF, 0, 0, 0,
-                                        [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x7717)
+        self.mav.autopilot_version_send(
+            caps,
+            (1 << 24) | (14 << 16) | (0 << 8) | 0xFF,
+            0,
+            0,
+            0,
+            [0] * 8,
+            [0] * 8,
+            [0] * 8,
+            0,
+            0,
+            0x7717,
+        )
 
     def _send_extended_sys_state(self, sim: Sim, t_ms: int) -> None:
-        self.mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED,
-                                         sim.commander.landed_state(0))
+        self.mav.extended_sys_state_send(
+            mavlink.MAV_VTOL_STATE_UNDEFINED, sim.commander.landed_state(0)
+        )
 
     def _send_home_position(self, sim: Sim, t_ms: int) -> None:
         if self.home_geo is None:
             return  # no fix yet: PX4 has no home either
         lat, lon, alt = self.home_geo
-        self.mav.home_position_send(int(lat * 1e7), int(lon * 1e7), int(alt * 1000), 0.0, 0.0,
-                                    0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+        self.mav.home_position_send(
+            int(lat * 1e7),
+            int(lon * 1e7),
+            int(alt * 1000),
+            0.0,
+            0.0,
+            0.0,
+            [1.0, 0.0, 0.0, 0.0],
+            0.0,
+            0.0,
+            0.0,
+        )

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from twin.control import AUTO_LOITER, STABILIZED
-from twin.sim import Sim
 from twin.params import ParamServer, px4_params
+from twin.sim import Sim
 from twin.telemetry import PX4_MODES, Telemetry
 
 log = logging.getLogger(__name__)
@@ -30,9 +30,17 @@ PX4_MODE_FROM_MAIN_SUB[(4, 0)] = AUTO_LOITER
 
 # Telemetry rates (Hz), close to PX4's defaults on a companion (onboard) link.
 DEFAULT_RATES_HZ = {
-    "HEARTBEAT": 1.0, "SYS_STATUS": 2.0, "BATTERY_STATUS": 1.0, "GPS_RAW_INT": 5.0,
-    "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 10.0, "ATTITUDE": 20.0,
-    "VFR_HUD": 10.0, "RC_CHANNELS": 10.0, "SERVO_OUTPUT_RAW": 10.0, "EXTENDED_SYS_STATE": 1.0,
+    "HEARTBEAT": 1.0,
+    "SYS_STATUS": 2.0,
+    "BATTERY_STATUS": 1.0,
+    "GPS_RAW_INT": 5.0,
+    "GLOBAL_POSITION_INT": 10.0,
+    "LOCAL_POSITION_NED": 10.0,
+    "ATTITUDE": 20.0,
+    "VFR_HUD": 10.0,
+    "RC_CHANNELS": 10.0,
+    "SERVO_OUTPUT_RAW": 10.0,
+    "EXTENDED_SYS_STATE": 1.0,
     "HOME_POSITION": 0.5,
 }
 STICK_TIMEOUT_S = 1.0  # no MANUAL_CONTROL/override for this long = sticks centred
@@ -49,8 +57,13 @@ class VehicleStats:
 
 
 class MavlinkVehicle:
-    def __init__(self, connection: str, rates_hz: dict[str, float] | None = None,
-                 sysid: int = 1, compid: int = 1) -> None:
+    def __init__(
+        self,
+        connection: str,
+        rates_hz: dict[str, float] | None = None,
+        sysid: int = 1,
+        compid: int = 1,
+    ) -> None:
         self.sysid, self.compid = sysid, compid
         self.sock, self._peer = self._open(connection)
         self._listening = self._peer is None  # udpin: answer whoever spoke last
@@ -59,7 +72,7 @@ class MavlinkVehicle:
         self.defaults_hz = dict(DEFAULT_RATES_HZ)
         self.defaults_hz.update(rates_hz or {})
         self.interval_s = {k: (1.0 / v if v > 0 else None) for k, v in self.defaults_hz.items()}
-        self._next_s: dict[str, float] = {k: 0.0 for k in self.interval_s}
+        self._next_s: dict[str, float] = dict.fromkeys(self.interval_s, 0.0)
         self.stats = VehicleStats()
         self.telemetry = Telemetry(self.mav)
         self.params: ParamServer | None = None  # built from the sim's config on first use
@@ -70,8 +83,9 @@ class MavlinkVehicle:
         kind, _, rest = connection.partition(":")
         host, _, port = rest.rpartition(":")
         if kind not in ("udpout", "udpin") or not port.isdigit():
-            raise ValueError(f"MAVLink connection '{connection}' is not udpout:HOST:PORT or "
-                             "udpin:HOST:PORT.")
+            raise ValueError(
+                f"MAVLink connection '{connection}' is not udpout:HOST:PORT or udpin:HOST:PORT."
+            )
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setblocking(False)
         if kind == "udpin":
@@ -156,8 +170,9 @@ class MavlinkVehicle:
             if msg.target_system not in (0, self.sysid):
                 return
             result, text = self._command(sim, msg)
-            self.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(),
-                                      msg.get_srcComponent())
+            self.mav.command_ack_send(
+                msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+            )
             if text:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
         elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
@@ -173,8 +188,13 @@ class MavlinkVehicle:
                 return
             main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
             mode = PX4_MODE_FROM_MAIN_SUB.get((main, sub))
-            ok, why = (False, f"unsupported mode {main}/{sub}") if mode is None else \
-                sim.commander.request_mode(0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s))
+            ok, why = (
+                (False, f"unsupported mode {main}/{sub}")
+                if mode is None
+                else sim.commander.request_mode(
+                    0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s)
+                )
+            )
             if not ok:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, why.encode()[:50])
 
@@ -185,7 +205,11 @@ class MavlinkVehicle:
             ok, why = sim.arm(msg.param1 > 0.5, force=int(msg.param2) == 21196)
         elif c == mavlink.MAV_CMD_NAV_TAKEOFF:
             alt = msg.param7
-            rel = None if not math.isfinite(alt) else alt - (self.telemetry.home_alt_m or sim.scene.home.alt_m)
+            rel = (
+                None
+                if not math.isfinite(alt)
+                else alt - (self.telemetry.home_alt_m or sim.scene.home.alt_m)
+            )
             ok, why = sim.takeoff(rel)
         elif c == mavlink.MAV_CMD_NAV_LAND:
             ok, why = sim.land()
@@ -193,8 +217,9 @@ class MavlinkVehicle:
             mode = PX4_MODE_FROM_MAIN_SUB.get((int(msg.param2), int(msg.param3)))
             if mode is None:
                 return fail, f"unsupported mode {int(msg.param2)}/{int(msg.param3)}"
-            ok, why = sim.commander.request_mode(0, mode, sim.est_pos_m[0],
-                                                 sim.sensors.has_fix(sim.t_s))
+            ok, why = sim.commander.request_mode(
+                0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s)
+            )
         elif c == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             return self._set_interval(int(msg.param1), msg.param2)
         elif c == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:

@@ -105,7 +105,9 @@ class AirSimSource(FrameSource):
     def _get_images(self) -> Any:
         if self._with_external:
             try:
-                return self._client.call("simGetImages", [self.request], self.vehicle, self.external)
+                return self._client.call(
+                    "simGetImages", [self.request], self.vehicle, self.external
+                )
             except RpcError as exc:
                 if "argument" not in str(exc.error).lower():
                     raise

@@ -222,8 +222,14 @@ class Camera:
         with self._publish_lock:
             self._seq += 1
             frame = Frame(
-                self.name, self._seq, cached[1], self.config.width, self.config.height,
-                time.monotonic(), time.time(), signal=False,
+                self.name,
+                self._seq,
+                cached[1],
+                self.config.width,
+                self.config.height,
+                time.monotonic(),
+                time.time(),
+                signal=False,
             )
             self.frames.publish(frame)
             self._signal, self._reason = False, reason

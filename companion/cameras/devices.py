@@ -50,7 +50,9 @@ class VideoDevice:
     note: str = ""
 
 
-def list_devices(sysfs: Path = SYSFS, dev: Path = Path("/dev"), probe: bool = True) -> list[VideoDevice]:
+def list_devices(
+    sysfs: Path = SYSFS, dev: Path = Path("/dev"), probe: bool = True
+) -> list[VideoDevice]:
     if not sysfs.is_dir():
         return []
     devices = []
@@ -83,7 +85,9 @@ def _query(device: VideoDevice) -> None:
         if device.capture:
             device.formats = _formats(fd)
     except OSError as exc:
-        device.note = f"V4L2 query failed ({exc.strerror}); OpenCV says: {_opencv_probe(device.path)}"
+        device.note = (
+            f"V4L2 query failed ({exc.strerror}); OpenCV says: {_opencv_probe(device.path)}"
+        )
     finally:
         os.close(fd)
 
@@ -97,8 +101,10 @@ def _formats(fd: int) -> list[VideoFormat]:
         except OSError:
             break  # EINVAL: no more formats
         _i, _t, _flags, desc, pixfmt, _mbus = _FMTDESC.unpack(buf)
-        fmt = VideoFormat(pixfmt.to_bytes(4, "little").decode(errors="replace"),
-                          desc.rstrip(b"\0").decode(errors="replace"))
+        fmt = VideoFormat(
+            pixfmt.to_bytes(4, "little").decode(errors="replace"),
+            desc.rstrip(b"\0").decode(errors="replace"),
+        )
         for size_index in range(256):
             sbuf = bytearray(_FRMSIZE.pack(size_index, pixfmt, 0, 0, 0, 0, 0, 0, 0))
             try:
@@ -124,17 +130,21 @@ def _opencv_probe(path: str) -> str:
     try:
         if not cap.isOpened():
             return "cannot open it"
-        return (f"{fourcc_text(cap.get(cv2.CAP_PROP_FOURCC))} "
-                f"{int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))}x{int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))} "
-                f"@ {cap.get(cv2.CAP_PROP_FPS):g} fps")
+        return (
+            f"{fourcc_text(cap.get(cv2.CAP_PROP_FOURCC))} "
+            f"{int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))}x{int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))} "
+            f"@ {cap.get(cv2.CAP_PROP_FPS):g} fps"
+        )
     finally:
         cap.release()
 
 
 def format_devices(devices: list[VideoDevice]) -> str:
     if not devices:
-        return ("No V4L2 video devices found (nothing in /sys/class/video4linux). "
-                "Plug in a USB camera or grabber, or use file:, folder:, sim: or airsim: specs.")
+        return (
+            "No V4L2 video devices found (nothing in /sys/class/video4linux). "
+            "Plug in a USB camera or grabber, or use file:, folder:, sim: or airsim: specs."
+        )
     lines = []
     for d in devices:
         kind = {True: "capture", False: "not a capture device", None: ""}[d.capture]

@@ -75,7 +75,7 @@ class MsgpackRpcClient:
                 if not chunk:
                     raise RpcConnectionError(f"{self.host}:{self.port} closed the connection")
                 self._unpacker.feed(chunk)
-        except socket.timeout:
+        except TimeoutError:
             self.close()
             raise RpcConnectionError(
                 f"{method} got no answer from {self.host}:{self.port} in {self.timeout_s:g} s"

@@ -54,7 +54,10 @@ def make_source(
     if kind == "airsim":
         host, port, camera = spec.airsim_address
         return AirSimSource(
-            config, host, port, camera,
+            config,
+            host,
+            port,
+            camera,
             vehicle=spec.options.get("vehicle", ""),
             image_type=int(spec.options.get("image_type", "0")),
             compress=flag(spec, "compress"),

@@ -66,7 +66,7 @@ class FrameSource(abc.ABC):
     def read(self) -> Captured | None:
         """The next frame; None for a frame to skip (corrupt); SourceError when lost."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook: most sources hold nothing to release
         """Release what `open` acquired; must be safe to call after a failed open."""
 
 

@@ -171,7 +171,9 @@ def _opt_int(spec: CameraSpec, name: str, lo: int, hi: int) -> int | None:
     try:
         number = int(value)
     except ValueError:
-        raise CameraSpecError(f"Camera spec '{spec.raw}': {name}='{value}' is not a whole number.") from None
+        raise CameraSpecError(
+            f"Camera spec '{spec.raw}': {name}='{value}' is not a whole number."
+        ) from None
     if not lo <= number <= hi:
         raise CameraSpecError(f"Camera spec '{spec.raw}': {name}={number} is outside {lo}..{hi}.")
     return number
@@ -181,9 +183,13 @@ def _float(spec: CameraSpec, name: str, value: str, lo: float, hi: float) -> flo
     try:
         number = float(value)
     except ValueError:
-        raise CameraSpecError(f"Camera spec '{spec.raw}': {name}='{value}' is not a number.") from None
+        raise CameraSpecError(
+            f"Camera spec '{spec.raw}': {name}='{value}' is not a number."
+        ) from None
     if not lo <= number <= hi:
-        raise CameraSpecError(f"Camera spec '{spec.raw}': {name}={number:g} is outside {lo:g}..{hi:g}.")
+        raise CameraSpecError(
+            f"Camera spec '{spec.raw}': {name}={number:g} is outside {lo:g}..{hi:g}."
+        )
     return number
 
 

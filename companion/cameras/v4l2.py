@@ -57,7 +57,9 @@ class V4l2Source(FrameSource):
         cap = self._capture_factory(self.device, cv2.CAP_V4L2)
         if not cap.isOpened():
             cap.release()
-            raise SourceError(f"cannot open {self.device} (busy, not a capture device, or no permission)")
+            raise SourceError(
+                f"cannot open {self.device} (busy, not a capture device, or no permission)"
+            )
         cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*self.fourcc_wanted))
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.config.width)
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.config.height)

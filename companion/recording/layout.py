@@ -19,7 +19,7 @@ import dataclasses
 import re
 import time
 import typing
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 from companion.vehicle_state import VehicleState
 
@@ -89,7 +89,7 @@ def source_tag(source: str) -> str:
 
 def session_id_for(start_wall: float, source: str, suffix: int = 0) -> str:
     """The id (folder name) of a session that started at `start_wall` (Unix s)."""
-    stamp = datetime.fromtimestamp(start_wall, tz=timezone.utc).strftime(SESSION_TIME_FORMAT)
+    stamp = datetime.fromtimestamp(start_wall, tz=UTC).strftime(SESSION_TIME_FORMAT)
     tag = source_tag(source)
     return f"{stamp}_{tag}" + (f"-{suffix}" if suffix else "")
 
@@ -100,7 +100,7 @@ def session_start_from_id(session_id: str) -> float | None:
         stamp = datetime.strptime(session_id.split("_", 1)[0], SESSION_TIME_FORMAT)
     except ValueError:
         return None
-    return stamp.replace(tzinfo=timezone.utc).timestamp()
+    return stamp.replace(tzinfo=UTC).timestamp()
 
 
 def is_valid_session_id(session_id: str) -> bool:
@@ -137,9 +137,7 @@ def state_fields() -> list[tuple[str, str, int | None]]:
 
 def state_columns() -> tuple[str, ...]:
     """VehicleState flattened generically: `group.field`, tuples as `group.field.N`."""
-    return tuple(
-        f"{g}.{f}" if i is None else f"{g}.{f}.{i}" for g, f, i in state_fields()
-    )
+    return tuple(f"{g}.{f}" if i is None else f"{g}.{f}.{i}" for g, f, i in state_fields())
 
 
 def camera_columns(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
@@ -154,4 +152,4 @@ def telemetry_columns(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
 def utc_label(t_wall: float | None = None) -> str:
     """ISO 8601 UTC label for session.json (people read it; t_wall is kept alongside)."""
     t = time.time() if t_wall is None else t_wall
-    return datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds")
+    return datetime.fromtimestamp(t, tz=UTC).isoformat(timespec="milliseconds")

@@ -142,8 +142,14 @@ class Recorder:
                 f"{need / 1e6:.0f} MB minimum; free some space (delete old sessions)."
             )
         try:
-            return RecordingSession(root, self.state, self.cameras, self.options.session,
-                                    trigger, self._on_writer_failure)
+            return RecordingSession(
+                root,
+                self.state,
+                self.cameras,
+                self.options.session,
+                trigger,
+                self._on_writer_failure,
+            )
         except OSError as exc:
             raise RecorderError(
                 f"Cannot create a session in '{root}': {exc.strerror or exc}."

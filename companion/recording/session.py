@@ -89,12 +89,16 @@ class RecordingSession:
         self._consumers: list[asyncio.Task[None]] = []
         formatter = RowFormatter(self.cameras, self.t0_mono)
         self.writer = SessionWriter(
-            self.folder, formatter, config.limits, on_flush=self._on_flush,
+            self.folder,
+            formatter,
+            config.limits,
+            on_flush=self._on_flush,
             on_failure=self._writer_failed,
         )
         self._write_meta(layout.STATUS_RECORDING)
-        self._sampler = threading.Thread(target=self._sample_loop, name="recorder-sampler",
-                                         daemon=True)
+        self._sampler = threading.Thread(
+            target=self._sample_loop, name="recorder-sampler", daemon=True
+        )
 
     # -- lifecycle -----------------------------------------------------------------------
 

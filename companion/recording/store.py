@@ -80,8 +80,7 @@ class SessionStore:
             raise InvalidSessionId("A session id must be a string without NUL bytes.")
         if not layout.is_valid_session_id(session_id):
             raise InvalidSessionId(
-                f"'{session_id[:80]}' is not a session id (expected e.g. "
-                f"'20261122T035500Z_sim')."
+                f"'{session_id[:80]}' is not a session id (expected e.g. '20261122T035500Z_sim')."
             )
         path = self._real_root / session_id
         try:
@@ -240,7 +239,7 @@ def folder_size(folder: Path) -> int:
 def create_session_dir(root: Path, start_wall: float, source: str) -> tuple[str, Path]:
     """Create a new session folder under `root`; returns (id, path). Never reuses a folder."""
     root.mkdir(parents=True, exist_ok=True)
-    for suffix in range(0, 1000):
+    for suffix in range(1000):
         sid = layout.session_id_for(start_wall, source, suffix)
         path = root / sid
         try:

@@ -29,7 +29,6 @@ from companion.tlog import encode_record
 log = logging.getLogger(__name__)
 
 
-
 @dataclass
 class WriterStats:
     rows_written: int = 0
@@ -70,8 +69,8 @@ class SessionWriter:
         self.formatter = formatter
         self.limits = limits
         self.stats = WriterStats(
-            frames_written={c: 0 for c in self.cameras},
-            frames_dropped_queue={c: 0 for c in self.cameras},
+            frames_written=dict.fromkeys(self.cameras, 0),
+            frames_dropped_queue=dict.fromkeys(self.cameras, 0),
         )
         self.failure: str | None = None  # why writing stopped early, if it did
         self._on_flush = on_flush
@@ -186,7 +185,10 @@ class SessionWriter:
                         return
 
     def _write(
-        self, frames: dict[str, deque[Frame]], rows: deque[Sample], packets: deque[tuple[float, bytes]]
+        self,
+        frames: dict[str, deque[Frame]],
+        rows: deque[Sample],
+        packets: deque[tuple[float, bytes]],
     ) -> None:
         st = self.stats
         t0 = self.formatter.t0_mono
@@ -199,8 +201,15 @@ class SessionWriter:
                     out.write(frame.jpeg)
                 q.popleft()
                 writer.writerow(
-                    (frame.seq, rel, round(frame.t_mono - t0, 6), round(frame.t_wall, 6),
-                     frame.width, frame.height, len(frame.jpeg))
+                    (
+                        frame.seq,
+                        rel,
+                        round(frame.t_mono - t0, 6),
+                        round(frame.t_wall, 6),
+                        frame.width,
+                        frame.height,
+                        len(frame.jpeg),
+                    )
                 )
                 st.frames_written[cam] += 1
                 st.bytes_written += len(frame.jpeg)

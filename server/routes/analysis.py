@@ -137,8 +137,9 @@ def _cached(
     return analyze_tracks(tracks, task, reference, field, params)
 
 
-def _analyze(request: Request, session_ids: list[str], task: str, reference: str | None,
-             params: TaskParams) -> Analysis:  # fmt: skip
+def _analyze(
+    request: Request, session_ids: list[str], task: str, reference: str | None, params: TaskParams
+) -> Analysis:
     """Runs in a worker thread: file access, parsing and numpy."""
     settings = request.app.state.settings
     store = get_recorder(request).store  # the station's one SessionStore
@@ -148,12 +149,17 @@ def _analyze(request: Request, session_ids: list[str], task: str, reference: str
         files.append((sid, _stamp(data), _stamp(meta)))
     twin = getattr(settings, "twin", None)
     scene = getattr(twin, "scene", None)
-    return _cached(tuple(files), task, _reference(reference), str(scene) if scene else None,
-                   params)  # fmt: skip
+    return _cached(tuple(files), task, _reference(reference), str(scene) if scene else None, params)
 
 
-async def _run(request: Request, session_ids: list[str], task: str, reference: str | None,
-               params: TaskParams, plot: str | None = None) -> Analysis | bytes:  # fmt: skip
+async def _run(
+    request: Request,
+    session_ids: list[str],
+    task: str,
+    reference: str | None,
+    params: TaskParams,
+    plot: str | None = None,
+) -> Analysis | bytes:
     if not session_ids:
         raise BadRequest("Give at least one session (sessions=ID).")
     if len(session_ids) > MAX_SESSIONS:
@@ -204,7 +210,10 @@ _P = Depends(_thresholds)
 
 @router.get("/api/sessions/{session_id}/analysis", summary="Task metrics of one session")
 async def session_analysis(
-    request: Request, session_id: str, task: str = _TASK, reference: str | None = _REF,
+    request: Request,
+    session_id: str,
+    task: str = _TASK,
+    reference: str | None = _REF,
     params: TaskParams = _P,
 ) -> dict:
     an = await _run(request, [session_id], task, reference, params)
@@ -213,8 +222,12 @@ async def session_analysis(
 
 @router.get("/api/sessions/{session_id}/analysis/{plot}.png", summary="A figure of one session")
 async def session_plot(
-    request: Request, session_id: str, plot: str, task: str = _TASK,
-    reference: str | None = _REF, params: TaskParams = _P,
+    request: Request,
+    session_id: str,
+    plot: str,
+    task: str = _TASK,
+    reference: str | None = _REF,
+    params: TaskParams = _P,
 ) -> Response:
     png = await _run(request, [session_id], task, reference, params, plot)
     return Response(png, media_type="image/png")
@@ -222,8 +235,11 @@ async def session_plot(
 
 @router.get("/api/analysis", summary="One table comparing sessions of one task")
 async def compare_sessions(
-    request: Request, task: str = _TASK, sessions: list[str] | None = Query(None),
-    reference: str | None = _REF, params: TaskParams = _P,
+    request: Request,
+    task: str = _TASK,
+    sessions: list[str] | None = Query(None),
+    reference: str | None = _REF,
+    params: TaskParams = _P,
 ) -> dict:
     an = await _run(request, sessions or [], task, reference, params)
     return {"sessions": sessions or [], **an.comparison.to_dict()}
@@ -231,8 +247,12 @@ async def compare_sessions(
 
 @router.get("/api/analysis/{plot}.png", summary="A figure overlaying sessions of one task")
 async def compare_plot(
-    request: Request, plot: str, task: str = _TASK, sessions: list[str] | None = Query(None),
-    reference: str | None = _REF, params: TaskParams = _P,
+    request: Request,
+    plot: str,
+    task: str = _TASK,
+    sessions: list[str] | None = Query(None),
+    reference: str | None = _REF,
+    params: TaskParams = _P,
 ) -> Response:
     png = await _run(request, sessions or [], task, reference, params, plot)
     return Response(png, media_type="image/png")

@@ -73,8 +73,11 @@ async def _send_sticks(link, pilot: _Pilot, target: int) -> None:
     next_t = time.monotonic()
     while True:
         roll, pitch, yaw, thr = pilot.current(time.monotonic())
-        link.send(link.mav.manual_control_encode(
-            target, int(pitch * 1000), int(roll * 1000), int(thr * 1000), int(yaw * 1000), 0))
+        link.send(
+            link.mav.manual_control_encode(
+                target, int(pitch * 1000), int(roll * 1000), int(thr * 1000), int(yaw * 1000), 0
+            )
+        )
         next_t += period
         await asyncio.sleep(max(0.0, next_t - time.monotonic()))
 
@@ -86,13 +89,15 @@ def _command(station, cmd: Command) -> None:
         station.twin.reset()
         return
     if cmd.type in ("arm", "disarm"):
-        msg = mav.command_long_encode(1, 1, 400, 0, 1.0 if cmd.type == "arm" else 0.0,
-                                      0, 0, 0, 0, 0, 0)
+        msg = mav.command_long_encode(
+            1, 1, 400, 0, 1.0 if cmd.type == "arm" else 0.0, 0, 0, 0, 0, 0, 0
+        )
     elif cmd.type == "mode":
         main = PX4_MAIN_MODES.get((cmd.mode or "").upper())
         if main is None:
-            raise BadRequest(f"Mode '{cmd.mode}' is not one the pilot can choose: "
-                           f"{', '.join(PX4_MAIN_MODES)}.")
+            raise BadRequest(
+                f"Mode '{cmd.mode}' is not one the pilot can choose: {', '.join(PX4_MAIN_MODES)}."
+            )
         msg = mav.command_long_encode(1, 1, 176, 0, 1, main, 0, 0, 0, 0, 0)
     elif cmd.type == "takeoff":
         home = station.twin.scene.home.alt_m
@@ -114,9 +119,13 @@ async def ws_control(ws: WebSocket) -> None:
         await ws.close(code=4401)
         return
     if getattr(station, "twin", None) is None or station.link is None:
-        await ws.send_text(_error(
-            "Conflict", "Stick control exists only for the digital twin (--source sim); "
-            "the station never sends stick inputs to a real vehicle."))
+        await ws.send_text(
+            _error(
+                "Conflict",
+                "Stick control exists only for the digital twin (--source sim); "
+                "the station never sends stick inputs to a real vehicle.",
+            )
+        )
         await ws.close(code=4409)
         return
     if getattr(ws.app.state, "control_pilot", None) is not None:
@@ -127,8 +136,9 @@ async def ws_control(ws: WebSocket) -> None:
     ws.app.state.control_pilot = pilot
     sender = asyncio.ensure_future(_send_sticks(station.link, pilot, 1))
     try:
-        await ws.send_text(json.dumps({"type": "hello", "rate_hz": RATE_HZ,
-                                       "deadman_s": DEADMAN_S}))
+        await ws.send_text(
+            json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S})
+        )
         while True:
             text = await ws.receive_text()
             try:

@@ -51,14 +51,20 @@ def _service(request: Request):
 def _state(service) -> Replay3DState:
     a, b = service.primary, service.overlay
     return Replay3DState(
-        port=service.port, session=a.id if a else None, overlay=b.id if b else None,
-        t_s=service.t_s, duration_s=a.duration_s if a else None,
+        port=service.port,
+        session=a.id if a else None,
+        overlay=b.id if b else None,
+        t_s=service.t_s,
+        duration_s=a.duration_s if a else None,
         segments=int((~a.starts_run[1:]).sum()) if a else 0,
     )
 
 
-@router.put("/api/replay3d", response_model=Replay3DState,
-            summary="Show a session (and an overlay) in the 3D replay panel")
+@router.put(
+    "/api/replay3d",
+    response_model=Replay3DState,
+    summary="Show a session (and an overlay) in the 3D replay panel",
+)
 async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     service = _service(request)
     settings = request.app.state.settings
@@ -75,8 +81,11 @@ async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     return _state(service)
 
 
-@router.put("/api/replay3d/time", response_model=Replay3DState,
-            summary="Move the 3D replay panel's vehicle to an instant")
+@router.put(
+    "/api/replay3d/time",
+    response_model=Replay3DState,
+    summary="Move the 3D replay panel's vehicle to an instant",
+)
 async def put_replay3d_time(request: Request, body: Replay3DTime) -> Replay3DState:
     service = _service(request)
     if not math.isfinite(body.t_s):

@@ -52,8 +52,9 @@ class SessionDetailModel(BaseModel):
 
 
 def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummaryModel:
-    data: dict[str, Any] = {k: getattr(s, k) for k in SessionSummaryModel.model_fields
-                            if hasattr(s, k)}
+    data: dict[str, Any] = {
+        k: getattr(s, k) for k in SessionSummaryModel.model_fields if hasattr(s, k)
+    }
     data["start_utc"] = layout.utc_label(s.start_wall) if s.start_wall is not None else None
     data["recording_now"] = s.id == recording_id
     cams = s.meta.quality.cameras if s.meta is not None else {}
@@ -61,15 +62,22 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
     return SessionSummaryModel.model_validate(data)
 
 
-@router.get("/api/sessions", response_model=list[SessionSummaryModel], summary="Sessions, newest first")
+@router.get(
+    "/api/sessions", response_model=list[SessionSummaryModel], summary="Sessions, newest first"
+)
 async def list_sessions(recorder: Recorder = Depends(get_recorder)) -> list[SessionSummaryModel]:
     summaries = await asyncio.to_thread(recorder.store.list)
     return [_summary_model(s, recorder.recording_id) for s in summaries]
 
 
-@router.get("/api/sessions/{session_id}", response_model=SessionDetailModel,
-            summary="A session's metadata and quality report")
-async def get_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> SessionDetailModel:
+@router.get(
+    "/api/sessions/{session_id}",
+    response_model=SessionDetailModel,
+    summary="A session's metadata and quality report",
+)
+async def get_session(
+    session_id: str, recorder: Recorder = Depends(get_recorder)
+) -> SessionDetailModel:
     def load() -> SessionDetailModel:
         summary = recorder.store.summary(session_id)
         files, frames = [], {}
@@ -79,15 +87,24 @@ async def get_session(session_id: str, recorder: Recorder = Depends(get_recorder
                 frames[top] = frames.get(top, 0) + 1
             else:
                 files.append(rel)
-        return SessionDetailModel(summary=_summary_model(summary, recorder.recording_id),
-                                  meta=summary.meta, files=files, frame_files=frames)
+        return SessionDetailModel(
+            summary=_summary_model(summary, recorder.recording_id),
+            meta=summary.meta,
+            files=files,
+            frame_files=frames,
+        )
 
     return await asyncio.to_thread(load)
 
 
-@router.get("/api/sessions/{session_id}/download", summary="The whole session as a zip (streamed)",
-            response_class=StreamingResponse)
-async def download_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> StreamingResponse:
+@router.get(
+    "/api/sessions/{session_id}/download",
+    summary="The whole session as a zip (streamed)",
+    response_class=StreamingResponse,
+)
+async def download_session(
+    session_id: str, recorder: Recorder = Depends(get_recorder)
+) -> StreamingResponse:
     files = await asyncio.to_thread(recorder.store.files, session_id)
     entries = [(f"{session_id}/{rel}", path) for rel, path in files]
     return StreamingResponse(
@@ -97,17 +114,26 @@ async def download_session(session_id: str, recorder: Recorder = Depends(get_rec
     )
 
 
-@router.get("/api/sessions/{session_id}/files/{path:path}", summary="One file of a session",
-            response_class=FileResponse)
-async def session_file(session_id: str, path: str,
-                       recorder: Recorder = Depends(get_recorder)) -> FileResponse:
+@router.get(
+    "/api/sessions/{session_id}/files/{path:path}",
+    summary="One file of a session",
+    response_class=FileResponse,
+)
+async def session_file(
+    session_id: str, path: str, recorder: Recorder = Depends(get_recorder)
+) -> FileResponse:
     real = await asyncio.to_thread(recorder.store.file, session_id, path)
     return FileResponse(real, filename=real.name, content_disposition_type="inline")
 
 
-@router.delete("/api/sessions/{session_id}", dependencies=[Depends(require_control_token)],
-               summary="Delete a session (refused while it is recorded)")
-async def delete_session(session_id: str, recorder: Recorder = Depends(get_recorder)) -> dict[str, str]:
+@router.delete(
+    "/api/sessions/{session_id}",
+    dependencies=[Depends(require_control_token)],
+    summary="Delete a session (refused while it is recorded)",
+)
+async def delete_session(
+    session_id: str, recorder: Recorder = Depends(get_recorder)
+) -> dict[str, str]:
     await asyncio.to_thread(recorder.store.resolve, session_id)
     if recorder.recording_id == session_id:
         raise Conflict(f"Session '{session_id}' is being recorded; stop it first.")

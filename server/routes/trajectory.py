@@ -47,7 +47,10 @@ def _parse_reference(text: str | None) -> tuple[float, float] | None:
 
 
 def load_trajectory(
-    store: SessionStore, session_id: str, align: Align, reference: tuple[float, float] | None,
+    store: SessionStore,
+    session_id: str,
+    align: Align,
+    reference: tuple[float, float] | None,
     gap_s: float,
 ) -> TrajectoryReply:
     """Blocking: reads the session's files (run it in a thread)."""
@@ -65,9 +68,17 @@ def load_trajectory(
         cameras.append(parse_frames_csv(camera, frames_csv.read_bytes()))
     try:
         return build_trajectory(
-            session_id, track.t_s, track.lat_deg, track.lon_deg, track.alt_m,
-            armed=track.armed, speed_mps=track.ground_speed_mps, cameras=cameras,
-            gap_s=gap_s, align=align, reference_latlon=reference,
+            session_id,
+            track.t_s,
+            track.lat_deg,
+            track.lon_deg,
+            track.alt_m,
+            armed=track.armed,
+            speed_mps=track.ground_speed_mps,
+            cameras=cameras,
+            gap_s=gap_s,
+            align=align,
+            reference_latlon=reference,
         )
     except ValueError as exc:
         raise BadRequest(f"Session '{session_id}': {exc}") from None
@@ -82,8 +93,10 @@ async def get_trajectory(
     request: Request,
     session_id: str,
     align: Align = Query(
-        "none", description="rotate so that start-to-'end' (last point) or start-to-'farthest' "
-        "point lies along +x, as in the paper; 'none' keeps east-north-up"),
+        "none",
+        description="rotate so that start-to-'end' (last point) or start-to-'farthest' "
+        "point lies along +x, as in the paper; 'none' keeps east-north-up",
+    ),
     reference: str | None = Query(None, description="LAT,LON put on +x (the paper's alignment)"),
 ) -> TrajectoryReply:
     settings = request.app.state.settings

@@ -1,11 +1,11 @@
 """The 3D trajectory: a viser scene of the flight in East-North-Up, live and replayed.
 
-    pose.py       attitude (NED/FRD Euler) -> ENU/FLU rotation, camera footprint on the ground
-    colors.py     colour-coding of the trail by height or speed
-    field.py      the test field (ground, pads, obstacles) as a typed description
-    trail.py      the flown path as chunks of samples, with gaps and a movable origin
-    scene.py      draws field, vehicle, home, footprint and trail into a viser scene
-    controls.py   the GUI in the viser panel (follow, clear, colour-coding, field)
-    service.py    the viser server started with the station, fed from `station.state`
-    replay.py     a recorded session as ENU arrays with times and frame names
+pose.py       attitude (NED/FRD Euler) -> ENU/FLU rotation, camera footprint on the ground
+colors.py     colour-coding of the trail by height or speed
+field.py      the test field (ground, pads, obstacles) as a typed description
+trail.py      the flown path as chunks of samples, with gaps and a movable origin
+scene.py      draws field, vehicle, home, footprint and trail into a viser scene
+controls.py   the GUI in the viser panel (follow, clear, colour-coding, field)
+service.py    the viser server started with the station, fed from `station.state`
+replay.py     a recorded session as ENU arrays with times and frame names
 """

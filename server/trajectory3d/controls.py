@@ -35,10 +35,14 @@ class Controls:
         self._requests = Requests()
         gui = server.gui
         with gui.add_folder("Trajectory"):
-            self.follow = gui.add_checkbox("Follow vehicle", initial_value=follow,
-                                           hint="Keep the camera on the vehicle; off = free camera")
-            self.color_by = gui.add_dropdown("Colour by", options=COLOR_BY_CHOICES,
-                                             initial_value=color_by)
+            self.follow = gui.add_checkbox(
+                "Follow vehicle",
+                initial_value=follow,
+                hint="Keep the camera on the vehicle; off = free camera",
+            )
+            self.color_by = gui.add_dropdown(
+                "Colour by", options=COLOR_BY_CHOICES, initial_value=color_by
+            )
             self.show_field = gui.add_checkbox("Show field", initial_value=True)
             self.clear = gui.add_button("Clear trail")
             self.status = gui.add_markdown("waiting for a position fix")

@@ -51,9 +51,7 @@ class FieldScene:
 
     def anchor_in_enu(self, origin: tuple[float, float, float]) -> np.ndarray:
         """Where the field's (0, 0, 0) lies in the ENU frame about `origin` (lat, lon, alt)."""
-        return geodetic_to_enu(
-            self.anchor_lat_deg, self.anchor_lon_deg, self.anchor_alt_m, *origin
-        )
+        return geodetic_to_enu(self.anchor_lat_deg, self.anchor_lon_deg, self.anchor_alt_m, *origin)
 
 
 def field_from_scene(scene: Scene) -> FieldScene:

@@ -64,10 +64,14 @@ class ReplayPath:
             stop = min(start + _CHUNK_SEGMENTS + 1, n)
             runs = self.starts_run[start:stop].tolist()
             runs[0] = True  # a chunk's first point joins nothing before it
-            out.append(TrailChunk(
-                id=k, speed_mps=self.speed_mps[start:stop].tolist(), starts_run=runs,
-                enu_m=list(self.enu_m[start:stop]),
-            ))
+            out.append(
+                TrailChunk(
+                    id=k,
+                    speed_mps=self.speed_mps[start:stop].tolist(),
+                    starts_run=runs,
+                    enu_m=list(self.enu_m[start:stop]),
+                )
+            )
         return out
 
 
@@ -84,8 +88,9 @@ def _travel_heading_rad(enu_m: np.ndarray) -> np.ndarray:
 class Replay3D:
     """Owns the replay viser server and its scene; thread-safe load and set_time."""
 
-    def __init__(self, settings: ViserSettings, host: str = "0.0.0.0",
-                 field: FieldScene | None = None) -> None:
+    def __init__(
+        self, settings: ViserSettings, host: str = "0.0.0.0", field: FieldScene | None = None
+    ) -> None:
         self.settings = settings
         self.host = settings.host or host
         self.field = field
@@ -100,14 +105,22 @@ class Replay3D:
 
     def start(self) -> None:
         s = self.settings
-        self.server = viser.ViserServer(host=self.host, port=s.replay_port_resolved,
-                                        label="fpv-station replay 3D", verbose=False)
+        self.server = viser.ViserServer(
+            host=self.host,
+            port=s.replay_port_resolved,
+            label="fpv-station replay 3D",
+            verbose=False,
+        )
         self.server.scene.set_up_direction("+z")
         self.server.initial_camera.position = (-25.0, -30.0, 20.0)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
-        self.scene = LiveScene(self.server, height_range_m=s.height_range_m,
-                               speed_range_mps=s.speed_range_mps, color_by=s.color_by,
-                               field=self.field)
+        self.scene = LiveScene(
+            self.server,
+            height_range_m=s.height_range_m,
+            speed_range_mps=s.speed_range_mps,
+            color_by=s.color_by,
+            field=self.field,
+        )
         log.info("3D replay panel (viser) on port %d", self.port)
 
     @property
@@ -179,15 +192,25 @@ class Replay3D:
         joined = np.nonzero(~b.starts_run[1:])[0] + 1
         if len(joined):
             pts = np.stack([b.enu_m[joined - 1], b.enu_m[joined]], axis=1).astype(np.float32)
-            self.overlay_handles.append(self.server.scene.add_line_segments(
-                "/overlay/path", points=pts, colors=OVERLAY_RGB, thickness=3.0,
-                thickness_units="screen"))
+            self.overlay_handles.append(
+                self.server.scene.add_line_segments(
+                    "/overlay/path",
+                    points=pts,
+                    colors=OVERLAY_RGB,
+                    thickness=3.0,
+                    thickness_units="screen",
+                )
+            )
         self.overlay_vehicle = self.server.scene.add_icosphere(
-            "/overlay/vehicle", radius=0.35, color=OVERLAY_RGB,
-            position=tuple(float(v) for v in b.enu_m[0]))
+            "/overlay/vehicle",
+            radius=0.35,
+            color=OVERLAY_RGB,
+            position=tuple(float(v) for v in b.enu_m[0]),
+        )
         self.overlay_handles.append(self.overlay_vehicle)
-        self.overlay_handles.append(self.server.scene.add_label(
-            "/overlay/vehicle/label", b.id, position=(0.0, 0.0, 0.7)))
+        self.overlay_handles.append(
+            self.server.scene.add_label("/overlay/vehicle/label", b.id, position=(0.0, 0.0, 0.7))
+        )
 
     def set_time(self, t_rel_s: float) -> float:
         """Move the vehicle(s) to `t_rel_s` seconds after the primary's first fix (cheap:
@@ -218,9 +241,15 @@ class Replay3D:
         ground_up = 0.0
         if self.field is not None:
             ground_up = float(self.field.anchor_in_enu(a.origin)[2])
-        self.scene.set_footprint(bottom_footprint_enu(
-            pos, R, math.radians(s.bottom_hfov_deg), math.radians(s.bottom_vfov_deg),
-            ground_up_m=ground_up))
+        self.scene.set_footprint(
+            bottom_footprint_enu(
+                pos,
+                R,
+                math.radians(s.bottom_hfov_deg),
+                math.radians(s.bottom_vfov_deg),
+                ground_up_m=ground_up,
+            )
+        )
         if self.overlay is not None and self.overlay_vehicle is not None:
             b = self.overlay
             self.overlay_vehicle.position = tuple(float(v) for v in b.enu_m[b.index_at(t)])

@@ -56,22 +56,30 @@ class LiveScene:
     def _add_field(self, f: FieldScene | None) -> viser.FrameHandle:
         frame = self.scene.add_frame("/field", show_axes=False)
         if f is None:
-            self.scene.add_grid("/field/grid", width=100.0, height=100.0, cell_size=1.0,
-                                section_size=10.0)
+            self.scene.add_grid(
+                "/field/grid", width=100.0, height=100.0, cell_size=1.0, section_size=10.0
+            )
             return frame
         self.scene.add_grid(
-            "/field/grid", width=f.size_x_m, height=f.size_y_m, cell_size=1.0,
-            section_size=5.0, plane_color=(215, 235, 205), plane_opacity=0.6,
+            "/field/grid",
+            width=f.size_x_m,
+            height=f.size_y_m,
+            cell_size=1.0,
+            section_size=5.0,
+            plane_color=(215, 235, 205),
+            plane_opacity=0.6,
         )
         for pad in f.pads:
             self.field_handles[f"pad:{pad.name}"] = self.scene.add_box(
-                f"/field/pads/{_node(pad.name)}", color=pad.rgb,
+                f"/field/pads/{_node(pad.name)}",
+                color=pad.rgb,
                 dimensions=(pad.size_m, pad.size_m, 0.04),
                 position=(pad.x_m, pad.y_m, 0.02),
             )
         for ob in f.obstacles:
             self.field_handles[f"obstacle:{ob.name}"] = self.scene.add_box(
-                f"/field/obstacles/{_node(ob.name)}", color=ob.rgb,
+                f"/field/obstacles/{_node(ob.name)}",
+                color=ob.rgb,
                 dimensions=(ob.width_m, ob.depth_m, ob.height_m),
                 position=(ob.x_m, ob.y_m, ob.height_m / 2.0),
             )
@@ -83,12 +91,16 @@ class LiveScene:
         for i, angle in enumerate((np.pi / 4, -np.pi / 4)):
             wxyz = (np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2))
             self.scene.add_box(
-                f"/vehicle/arm{i}", color=(60, 60, 60), dimensions=(_ARM_M * s, 0.03 * s, 0.02 * s),
+                f"/vehicle/arm{i}",
+                color=(60, 60, 60),
+                dimensions=(_ARM_M * s, 0.03 * s, 0.02 * s),
                 wxyz=wxyz,
             )
         # The nose marks forward (+x of the body, FLU), as the front camera looks.
         self.scene.add_box(
-            "/vehicle/nose", color=(230, 30, 30), dimensions=(0.12 * s, 0.06 * s, 0.04 * s),
+            "/vehicle/nose",
+            color=(230, 30, 30),
+            dimensions=(0.12 * s, 0.06 * s, 0.04 * s),
             position=(0.12 * s, 0.0, 0.0),
         )
         return body
@@ -118,7 +130,10 @@ class LiveScene:
         pts = np.stack([lifted, np.roll(lifted, -1, axis=0)], axis=1)
         if self._footprint is None:
             self._footprint = self.scene.add_line_segments(
-                "/footprint", points=pts, colors=_FOOTPRINT_RGB, thickness=2.0,
+                "/footprint",
+                points=pts,
+                colors=_FOOTPRINT_RGB,
+                thickness=2.0,
                 thickness_units="screen",
             )
         else:
@@ -142,7 +157,10 @@ class LiveScene:
         handle = self.chunk_handles.get(chunk.id)
         if handle is None:
             self.chunk_handles[chunk.id] = self.scene.add_line_segments(
-                f"/trail/c{chunk.id:06d}", points=pts, colors=colors, thickness=4.0,
+                f"/trail/c{chunk.id:06d}",
+                points=pts,
+                colors=colors,
+                thickness=4.0,
                 thickness_units="screen",
             )
         else:

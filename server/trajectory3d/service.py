@@ -53,12 +53,22 @@ def sample_from_state(state: VehicleState) -> TrailSample | None:
             if gp.vx_mps is not None and gp.vy_mps is not None
             else math.nan
         )
-        return TrailSample(gp.t_mono, gp.lat_deg, gp.lon_deg, gp.alt_m,  # type: ignore[arg-type]
-                           speed)
+        return TrailSample(
+            gp.t_mono,
+            gp.lat_deg,
+            gp.lon_deg,
+            gp.alt_m,  # type: ignore[arg-type]
+            speed,
+        )
     if gps.t_mono is not None and _valid_fix(gps.lat_deg, gps.lon_deg, gps.alt_m):
         speed = gps.ground_speed_mps if gps.ground_speed_mps is not None else math.nan
-        return TrailSample(gps.t_mono, gps.lat_deg, gps.lon_deg,  # type: ignore[arg-type]
-                           gps.alt_m, speed)
+        return TrailSample(
+            gps.t_mono,
+            gps.lat_deg,
+            gps.lon_deg,  # type: ignore[arg-type]
+            gps.alt_m,
+            speed,
+        )
     return None
 
 
@@ -99,20 +109,25 @@ class Trajectory3D:
     def start(self) -> None:
         """Start the viser server (its own thread and event loop). Blocks briefly."""
         s = self.settings
-        self.server = viser.ViserServer(host=self.host, port=s.port, label="fpv-station 3D",
-                                        verbose=False)
+        self.server = viser.ViserServer(
+            host=self.host, port=s.port, label="fpv-station 3D", verbose=False
+        )
         self.server.scene.set_up_direction("+z")
         self.server.initial_camera.position = (-25.0, -30.0, 20.0)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
         self.scene = LiveScene(
-            self.server, height_range_m=s.height_range_m, speed_range_mps=s.speed_range_mps,
-            color_by=s.color_by, field=self.field,
+            self.server,
+            height_range_m=s.height_range_m,
+            speed_range_mps=s.speed_range_mps,
+            color_by=s.color_by,
+            field=self.field,
         )
         self.controls = Controls(self.server, s.color_by)
         if self.field is not None:
             # Before any fix, show the field about its own anchor.
-            self.scene.set_origin((self.field.anchor_lat_deg, self.field.anchor_lon_deg,
-                                   self.field.anchor_alt_m))
+            self.scene.set_origin(
+                (self.field.anchor_lat_deg, self.field.anchor_lon_deg, self.field.anchor_alt_m)
+            )
         log.info("3D panel (viser) on port %d", self.port)
 
     @property
@@ -193,19 +208,31 @@ class Trajectory3D:
         R = self._attitude(state)
         self.scene.set_vehicle_pose(pos, wxyz_from_matrix(R))
         s = self.settings
-        self.scene.set_footprint(bottom_footprint_enu(
-            pos, R, math.radians(s.bottom_hfov_deg), math.radians(s.bottom_vfov_deg),
-            ground_up_m=self._ground_up_m()))
+        self.scene.set_footprint(
+            bottom_footprint_enu(
+                pos,
+                R,
+                math.radians(s.bottom_hfov_deg),
+                math.radians(s.bottom_vfov_deg),
+                ground_up_m=self._ground_up_m(),
+            )
+        )
         if self.controls.follow.value:
             self._follow(pos)
-        self._status(state, f"{self.trail.n_points} points, {len(self.scene.chunk_handles)} "
-                            f"chunks; height {pos[2]:.1f} m")
+        self._status(
+            state,
+            f"{self.trail.n_points} points, {len(self.scene.chunk_handles)} "
+            f"chunks; height {pos[2]:.1f} m",
+        )
 
     def _attitude(self, state: VehicleState) -> np.ndarray:
         a = state.attitude
         if None not in (a.roll_rad, a.pitch_rad, a.yaw_rad):
-            return R_enu_flu_from_euler(a.roll_rad, a.pitch_rad,  # type: ignore[arg-type]
-                                        a.yaw_rad)
+            return R_enu_flu_from_euler(
+                a.roll_rad,
+                a.pitch_rad,  # type: ignore[arg-type]
+                a.yaw_rad,
+            )
         heading = state.global_position.heading_deg
         return R_enu_flu_from_euler(0.0, 0.0, math.radians(heading or 0.0))
 
