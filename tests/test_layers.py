@@ -1,0 +1,194 @@
+"""The import direction of the architecture, enforced.
+
+The packages form layers, lowest first (docs/ARCHITECTURE.md):
+
+    core  ->  companion  ->  twin  ->  analysis  ->  server
+
+A module may import from its own layer or any layer below it, never above, and modules
+may not import each other in a cycle. Imports under ``if TYPE_CHECKING:`` count too: a
+type that lives above you is a dependency on the layer above, even if only the type
+checker follows it. ``web/`` is the browser's and imports no Python.
+
+The walk is over the source (ast), not the import system, so a test run imports nothing
+it checks and a lazy import inside a function is caught like any other.
+"""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+LAYERS = ("core", "companion", "twin", "analysis", "server")
+RANK = {name: i for i, name in enumerate(LAYERS)}
+
+
+@dataclass(frozen=True)
+class Edge:
+    source: str  # importing module, dotted
+    target: str  # imported module (or package), dotted
+    line: int
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def resolve(module: str, is_package: bool, node: ast.ImportFrom) -> str:
+    """The absolute module an ``from ... import`` names (relative imports resolved)."""
+    if not node.level:
+        return node.module or ""
+    base = module.split(".")
+    # For a package's __init__, "." is the package itself; for a module, its parent.
+    base = base if is_package else base[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def project_modules() -> dict[str, Path]:
+    return {
+        module_name(path): path
+        for layer in LAYERS
+        for path in sorted((ROOT / layer).rglob("*.py"))
+        if ".venv" not in path.parts
+    }
+
+
+def import_edges(modules: dict[str, Path]) -> list[Edge]:
+    edges = []
+    for module, path in modules.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        is_package = path.name == "__init__.py"
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = resolve(module, is_package, node)
+                # "from pkg import name" may import the submodule pkg.name.
+                targets = [
+                    f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base
+                    for alias in node.names
+                ]
+            else:
+                continue
+            edges.extend(
+                Edge(module, target, node.lineno)
+                for target in targets
+                if target.split(".")[0] in RANK
+            )
+    return edges
+
+
+def known_target(target: str, modules: dict[str, Path]) -> str | None:
+    """The longest project module that ``target`` names or lies in."""
+    parts = target.split(".")
+    for n in range(len(parts), 0, -1):
+        name = ".".join(parts[:n])
+        if name in modules:
+            return name
+    return None
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[set[str]]:
+    """The strongly connected components of ``graph`` with more than one module
+    (Tarjan): each is a set of modules that import each other in a cycle."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles: list[set[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = set()
+            while True:
+                w = stack.pop()
+                component.add(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(component)
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return cycles
+
+
+# Debt that issue 10 is removing. Each entry must still exist (a fixed one fails the
+# test until it is struck from here), and nothing may be added.
+KNOWN_UPWARD = {
+    ("companion.link", "server.settings"),
+    ("twin.runner", "analysis.geodesy"),
+    ("twin.sensors", "analysis.geodesy"),
+    ("twin.telemetry", "analysis.geodesy"),
+}
+KNOWN_CYCLES = [{"analysis.tlog", "analysis.track"}, {"server.sim", "server.station"}]
+
+
+MODULES = project_modules()
+EDGES = import_edges(MODULES)
+
+
+def test_the_walk_sees_the_layers():
+    # Guards the test itself: an empty walk would pass everything.
+    assert {m.split(".")[0] for m in MODULES} == set(LAYERS)
+    assert len(EDGES) > 50
+
+
+def test_every_import_points_down_the_layers():
+    upward = [e for e in EDGES if RANK[e.target.split(".")[0]] > RANK[e.source.split(".")[0]]]
+    new = [
+        f"{MODULES[e.source].relative_to(ROOT)}:{e.line}: {e.source} imports {e.target}"
+        for e in upward
+        if (e.source, e.target) not in KNOWN_UPWARD
+    ]
+    assert not new, "imports that point up the layers:\n" + "\n".join(new)
+    fixed = KNOWN_UPWARD - {(e.source, e.target) for e in upward}
+    assert not fixed, f"fixed, strike from KNOWN_UPWARD: {sorted(fixed)}"
+
+
+def test_no_import_cycles_between_modules():
+    graph: dict[str, set[str]] = {m: set() for m in MODULES}
+    for e in EDGES:
+        target = known_target(e.target, MODULES)
+        # A package's __init__ importing its own submodules is how packages re-export.
+        if target and target != e.source and not target.startswith(e.source + "."):
+            graph[e.source].add(target)
+    cycles = import_cycles(graph)
+    new = [sorted(c) for c in cycles if c not in KNOWN_CYCLES]
+    assert not new, f"modules that import each other in a cycle: {new}"
+    fixed = [sorted(c) for c in KNOWN_CYCLES if c not in cycles]
+    assert not fixed, f"fixed, strike from KNOWN_CYCLES: {fixed}"
+
+
+@pytest.mark.parametrize(
+    ("source", "expected"),
+    [
+        ("from . import x", "server.routes"),
+        ("from .. import settings", "server"),
+        ("from ..station import Station", "server.station"),
+    ],
+)
+def test_relative_imports_resolve(source, expected):
+    node = ast.parse(source).body[0]
+    assert isinstance(node, ast.ImportFrom)
+    assert resolve("server.routes.control", False, node) == expected
+
+
+def test_a_cycle_is_found():
+    assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
+    assert import_cycles({"a": {"b"}, "b": set()}) == []
