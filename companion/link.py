@@ -268,7 +268,10 @@ class MavlinkLink:
         changed = False
         for msg in msgs:
             packet = bytes(msg.get_msgbuf())
-            self._meter.on_packet(msg.get_type(), packet)
+            mtype = msg.get_type()
+            self._meter.on_packet(mtype, msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq())
+            if mtype == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS:
+                self._meter.loss.note_gcs(msg.get_srcSystem(), msg.get_srcComponent())
             for cb in self._listeners:
                 try:
                     cb(t_wall, packet)
