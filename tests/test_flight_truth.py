@@ -4,6 +4,7 @@ compared with the truth each log was written from and with pymavlink's own tools
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -12,6 +13,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from companion.recording import layout
 from server.app import create_app
 from server.settings import load_settings
 from tests import shaped_tlog
@@ -95,3 +97,33 @@ def test_no_battery_monitor_is_unknown_not_zero_volts(tmp_path):
     battery = replay_status(path)["state"]["battery"]
     assert battery["t_mono"] is not None  # SYS_STATUS was heard
     assert battery["voltage_v"] is None
+
+
+@pytest.mark.timeout(120)
+def test_session_link_loss_is_the_autopilots_silence(tmp_path):
+    """45 s without the autopilot while the radio and a GCS talk on: one link-loss interval
+    of 45 s in the session, as /api/status showed link_lost."""
+    speed = 10  # the replay's pace; the session is recorded on the station's clock
+    log = shaped_tlog.silent_vehicle()
+    path = log.write(tmp_path / "silent.tlog")
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": f"replay:{path}?speed={speed}",
+            "viser.enabled": False,
+            "recording.sessions_dir": str(tmp_path / "sessions"),
+            "recording.auto_record_on_arm": False,
+            "recording.min_free_mb": 0,
+        },
+    )
+    with run_uvicorn(create_app(settings)) as base:
+        assert httpx.post(f"{base}/api/recording/start").status_code == 200
+        status = lambda: httpx.get(f"{base}/api/status").json()  # noqa: E731
+        assert wait_until(lambda: status()["link"]["link_lost"], timeout=20)
+        assert wait_until(lambda: status()["link"]["replay_done"], timeout=30)
+        session = httpx.post(f"{base}/api/recording/stop").json()["last_stop"]["id"]
+    meta = json.loads((tmp_path / "sessions" / session / layout.SESSION_JSON).read_text())
+    losses = meta["quality"]["link_loss"]
+    assert len(losses) == 1, losses
+    silence_log_s = (losses[0]["end_s"] - losses[0]["start_s"]) * speed
+    assert silence_log_s == pytest.approx(45.0, abs=2.0)
