@@ -6,6 +6,8 @@ csvcols    fast column cutting of the recorder's telemetry.csv
 tlog       Track from a bare .tlog (pymavlink decodes only what analysis reads)
 geodesy    WGS-84 -> ENU, the paper's start-to-reference alignment
 frame      align_track: ENU about the arming point, +x towards the reference
+flights    split_flights / track_flights: a track's flights (armed periods with a
+           take-off), with their arming, take-off, landing and disarming samples
 field      the twin scene's pads and obstacles, in a track's frame; contacts
 tasks      trial, windows and metrics of the four tasks (TaskParams, TaskResult)
 compare    one table in the paper's layout (Markdown, CSV, JSON)

@@ -1,0 +1,148 @@
+"""Flights split out of one recording: a real .tlog (packed by pymavlink's encoder) holding
+a motor test on the ground, three sorties with the vehicle walked between them, a GPS
+altitude blip on the pad, and a tail recorded after the last disarm."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis import synthetic as syn
+from analysis.flights import Flight, split_flights, track_flights
+from analysis.track import load_track
+
+DT = 0.02
+
+# (time s, x m, z m) keyframes, linearly interpolated; and the armed periods (s).
+KEYS = [
+    (0, 0, 0),
+    (17, 0, 0),  # motor test 5-10 s, then flight 1 armed at 15 s
+    (20, 0, 5),  # climb: crosses 0.5 m at 17.3 s
+    (30, 10, 5),
+    (33, 10, 0),  # landed at 33 s (last airborne ~32.7 s), disarmed at 35 s
+    (45, 20, 1),  # walked 10 m further, onto ground 1 m higher
+    (51, 20, 1),  # flight 2 armed at 48 s; a 0.4 s GPS blip to 2 m at 51 s (not a take-off)
+    (51.2, 20, 2),
+    (51.4, 20, 1),
+    (53, 20, 1),
+    (56, 20, 7),  # climb from 1 m: crosses 1.5 m at 53.25 s
+    (60, 30, 7),
+    (63, 30, 1),  # landed at 63 s, disarmed at 66 s
+    (72, 30, 1),
+    (74, 30, 3),  # flight 3 armed at 70 s on the 1 m ground: crosses 1.5 m at 72.5 s
+    (78, 30, 3),
+    (80, 30, 0),  # down into a 1 m dip: below 1.5 m after 79 s; disarmed at 82 s, tail to 95 s
+    (95, 30, 0),
+]
+ARMED = [(5, 10), (15, 35), (48, 66), (70, 82)]
+TRUTH = [  # arm, takeoff, landing, disarm (s)
+    (15.0, 17.3, 32.7, 35.0),
+    (48.0, 53.25, 62.75, 66.0),
+    (70.0, 72.5, 79.0, 82.0),
+]
+
+
+def _sorties() -> syn.Flight:
+    k = np.array(KEYS, dtype=float)
+    t = np.arange(0.0, k[-1, 0], DT)
+    xyz = np.stack(
+        [np.interp(t, k[:, 0], k[:, 1]), np.zeros_like(t), np.interp(t, k[:, 0], k[:, 2])], 1
+    )
+    armed = np.zeros(t.size, bool)
+    for a, d in ARMED:
+        armed |= (t >= a) & (t < d)
+    return syn.Flight(t_s=t, xyz_m=xyz, armed=armed)
+
+
+@pytest.fixture(scope="module")
+def tlog_track(tmp_path_factory):
+    path = tmp_path_factory.mktemp("flights") / "sorties.tlog"
+    syn.write_tlog(_sorties(), path, gps_hz=10.0)
+    return load_track(path)
+
+
+def test_tlog_with_several_sorties_splits_into_its_flights(tlog_track):
+    flights = track_flights(tlog_track)
+    assert [f.number for f in flights] == [1, 2, 3]  # the motor test is no flight
+    t = tlog_track.t_s
+    gps_period = 0.1
+    for f, (arm, takeoff, landing, disarm) in zip(flights, TRUTH):
+        # Armed state comes from 1 Hz HEARTBEATs sent on the second, as the vehicle armed.
+        assert f.arm_s == pytest.approx(arm, abs=1e-3)
+        assert f.disarm_s == pytest.approx(disarm - gps_period, abs=1e-3)  # last armed sample
+        # Take-off/landing: the first/last GPS sample more than 0.5 m up; the pilot's
+        # altitude (GLOBAL_POSITION_INT) is the one received before the GPS sample, so
+        # up to one GPS period late.
+        assert takeoff <= f.takeoff_s <= takeoff + 2 * gps_period + 1e-3
+        assert landing - gps_period - 1e-3 <= f.landing_s <= landing + gps_period + 1e-3
+        # Indices and times agree, and the slice is the armed period.
+        for i, s in ((f.arm, f.arm_s), (f.takeoff, f.takeoff_s), (f.landing, f.landing_s)):
+            assert t[i] == s
+        assert tlog_track.armed[f.samples].all()
+        assert not tlog_track.armed[f.arm - 1] and not tlog_track.armed[f.disarm + 1]
+    # The post-disarm tail belongs to no flight.
+    assert flights[-1].disarm < len(tlog_track) - 100
+
+
+def test_a_flight_selects_its_own_track(tlog_track):
+    second = track_flights(tlog_track)[1]
+    part = tlog_track.select(second.samples)
+    assert part.armed.all()
+    assert part.t_s[0] == second.arm_s and part.t_s[-1] == second.disarm_s
+    # Splitting the flight's own track finds the same flight, shifted by its start.
+    (again,) = track_flights(part)
+    assert again.takeoff == second.takeoff - second.arm
+    assert again.landing_s == second.landing_s
+
+
+def test_gps_altitude_alone_decides_when_there_is_no_pilot_altitude(tlog_track):
+    from dataclasses import replace
+
+    gps_only = replace(tlog_track, relative_alt_m=np.full(len(tlog_track), np.nan))
+    a = [(f.arm, f.disarm) for f in track_flights(gps_only)]
+    assert a == [(f.arm, f.disarm) for f in track_flights(tlog_track)]
+
+
+def test_times_are_on_the_clock_given():
+    # The vehicle's clock (say time_boot_ms) can run apart from the receive time.
+    t = np.arange(0, 30, 0.1)
+    armed = (t >= 2) & (t < 28)
+    h = np.clip(np.minimum(t - 5, 25 - t), 0, 3)
+    (f,) = split_flights(t + 1000.0, armed, h)
+    assert f.arm_s == pytest.approx(1002.0)
+    assert f.takeoff_s == pytest.approx(1005.6)  # first sample > 0.5 m
+    assert f.landing_s == pytest.approx(1024.4)
+    assert f.airborne_s == pytest.approx(18.8)
+
+
+def test_a_log_that_ends_armed_ends_its_flight_at_the_last_sample():
+    t = np.arange(0, 10, 0.1)
+    armed = t >= 1
+    h = np.where(t > 3, 2.0, 0.0)
+    (f,) = split_flights(t, armed, h)
+    assert (f.arm, f.disarm, f.landing) == (10, t.size - 1, t.size - 1)
+
+
+def test_without_heartbeat_height_alone_decides():
+    t = np.arange(0, 10, 0.1)
+    h = np.where((t > 3) & (t < 7), 2.0, 0.0)
+    (f,) = split_flights(t, np.zeros(t.size, bool), h)
+    assert (f.arm, f.disarm) == (0, t.size - 1)
+    assert f.takeoff_s == pytest.approx(3.1) and f.landing_s == pytest.approx(6.9)
+
+
+def test_unknown_heights_and_ground_only_give_no_flight():
+    t = np.arange(0, 10, 0.1)
+    armed = (t > 1) & (t < 9)
+    assert split_flights(t, armed, np.full(t.size, np.nan)) == []
+    assert split_flights(t, armed, np.full(t.size, 100.0)) == []  # armed on a hill: no climb
+    assert split_flights([], [], []) == []
+    with pytest.raises(ValueError):
+        split_flights(t, armed[:-1], t)
+
+
+def test_flight_is_a_small_frozen_record():
+    f = Flight(1, 0, 9, 2, 7, 0.0, 0.9, 0.2, 0.7)
+    assert f.samples == slice(0, 10)
+    with pytest.raises(AttributeError):
+        f.number = 2  # type: ignore[misc]
