@@ -19,6 +19,17 @@ _WINDOW_SNAPSHOTS = 5  # 4 intervals = 2 s window
 
 
 @dataclass(frozen=True, slots=True)
+class RateChange:
+    """Another ground station asked the autopilot for other rates of messages we need."""
+
+    t_wall: float  # Unix time, for people
+    sysid: int
+    compid: int
+    request: str  # what it asked, in words ("SET_MESSAGE_INTERVAL ATTITUDE 2 Hz")
+    via: str  # "forward" (a ground station we forward to) or "link" (one on the link)
+
+
+@dataclass(frozen=True, slots=True)
 class LinkHealth:
     source: str
     connected: bool  # transport open (serial port, TCP connection, socket, replay file)
@@ -41,6 +52,10 @@ class LinkHealth:
     last_error: str | None = None
     replay_done: bool = False
     stream_request: str = "none"  # "none", "message_interval", "data_stream"
+    rate_changes_by_others: int = 0  # requests by other ground stations that changed ours
+    last_rate_change: RateChange | None = None
+    rates_reasserted: int = 0  # times we asked for our rates again after such a change
+    gcs_identity_clash: bool = False  # another ground station uses our sysid/compid
 
 
 class HealthMeter:
@@ -57,6 +72,10 @@ class HealthMeter:
         self.last_error: str | None = None
         self.replay_done = False
         self.stream_request = "none"
+        self.rate_changes_by_others = 0
+        self.last_rate_change: RateChange | None = None
+        self.rates_reasserted = 0
+        self.gcs_identity_clash = False
         self._snapshots: collections.deque[tuple[float, dict[str, int], int]] = collections.deque(
             maxlen=_WINDOW_SNAPSHOTS
         )
@@ -125,4 +144,8 @@ class HealthMeter:
             last_error=self.last_error,
             replay_done=self.replay_done,
             stream_request=self.stream_request,
+            rate_changes_by_others=self.rate_changes_by_others,
+            last_rate_change=self.last_rate_change,
+            rates_reasserted=self.rates_reasserted,
+            gcs_identity_clash=self.gcs_identity_clash,
         )
