@@ -1,11 +1,14 @@
 """The MAVLink link to the vehicle: one thread owns the port, everyone else reads snapshots.
 
-The thread reads bytes, cuts them into packets (`MavFramer`), hands every raw packet to
-the packet listeners (recorder, forwarders), merges the autopilot's messages into the
+The thread reads bytes, cuts them into packets (`MavFramer`), hands every raw packet on
+the link to the packet listeners (the recorder: what the vehicle sent, what we sent, and
+what the ground stations we forward to sent, as QGroundControl's tlogs hold), merges the autopilot's messages into the
 `VehicleState` (`StateTracker`) and publishes each new state through `link.state`
 (`Latest`). It also sends the GCS heartbeat, asks for message rates, reconnects when the
 port or peer goes away, and flags `link_lost` after `link_lost_s` without an autopilot
-heartbeat. Nothing here ever runs on the event loop: `send()` only queues and wakes.
+heartbeat. When another ground station changes the rates we asked for, it says so in the
+health report and asks again. Nothing here ever runs on the event loop: `send()` only
+queues and wakes.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from typing import TYPE_CHECKING
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.latest import Latest
-from companion.link_health import HealthMeter, LinkHealth
+from companion.link_health import HealthMeter, LinkHealth, RateChange
 from companion.mav_framer import MavFramer
 from companion.state_tracker import StateTracker
 from companion.stream_request import StreamRequester
@@ -45,6 +48,10 @@ log = logging.getLogger(__name__)
 PacketListener = Callable[[float, bytes], None]
 _TICK_S = 0.05  # the longest the thread sleeps between housekeeping passes
 _OUTBOX_MAX = 256  # queued outgoing messages; the oldest go first when full
+# Ask for our rates again this long after another GCS changed them: after its burst of
+# requests has reached the autopilot, so that ours arrive last.
+_REASSERT_DELAY_S = 0.3
+_RATE_REQUESTS = frozenset({"COMMAND_LONG", "COMMAND_INT", "REQUEST_DATA_STREAM"})
 
 
 class MavlinkLink:
@@ -62,7 +69,7 @@ class MavlinkLink:
                     f"--forward '{spec.text}' must be udpout:HOST:PORT or udpin:HOST:PORT."
                 )
         self.mav = mavlink.MAVLink(
-            None, srcSystem=settings.gcs_sysid, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER
+            None, srcSystem=settings.gcs_sysid, srcComponent=settings.gcs_compid
         )
         self.state: Latest[VehicleState] = Latest(VehicleState())
         self._tracker = StateTracker(settings.sysid)
@@ -81,6 +88,8 @@ class MavlinkLink:
         self._thread: threading.Thread | None = None
         self._transport: Transport | None = None
         self._forwarders: list[UdpTransport] = []
+        self._forward_framers: dict[UdpTransport, MavFramer] = {}
+        self._reassert_at: float | None = None
         self._last_hb_mono: float | None = None
         self._next_gcs_hb = 0.0
         self._force_v1 = False
@@ -92,6 +101,7 @@ class MavlinkLink:
         if self._thread is not None:
             raise RuntimeError("MavlinkLink already started")
         self._forwarders = [UdpTransport(spec) for spec in self._forward_specs]
+        self._forward_framers = {fwd: MavFramer() for fwd in self._forwarders}
         self._thread = threading.Thread(
             target=self._run, name=f"mavlink {self.spec.text}", daemon=True
         )
@@ -212,6 +222,7 @@ class MavlinkLink:
                     data = r.read()  # type: ignore[attr-defined]
                     if data:
                         transport.write(data)
+                        self._on_forwarded(r, data, now)  # type: ignore[arg-type]
             while self._outbox:
                 self._write(transport, self._outbox.popleft())
             self._housekeeping(transport, now)
@@ -268,16 +279,13 @@ class MavlinkLink:
         changed = False
         for msg in msgs:
             packet = bytes(msg.get_msgbuf())
-            self._meter.on_packet(msg.get_type(), packet)
-            for cb in self._listeners:
-                try:
-                    cb(t_wall, packet)
-                except Exception:
-                    self._listener_errors += 1
-                    if self._listener_errors in (1, 10, 100, 1000):
-                        log.exception(
-                            "packet listener %r failed (%d times)", cb, self._listener_errors
-                        )
+            mtype = msg.get_type()
+            self._meter.on_packet(mtype, msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq())
+            if mtype == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS:
+                self._on_gcs_heartbeat(msg)
+            elif mtype in _RATE_REQUESTS:
+                self._check_rate_request(msg, now, "link")
+            self._notify(t_wall, packet)
             for fwd in self._forwarders:
                 fwd.write(packet)
             if tracker.update(msg, now):
@@ -289,6 +297,55 @@ class MavlinkLink:
                     self._write(self._transport, req)
         if changed:
             self.state.publish(tracker.state)
+
+    def _notify(self, t_wall: float, packet: bytes) -> None:
+        for cb in self._listeners:
+            try:
+                cb(t_wall, packet)
+            except Exception:
+                self._listener_errors += 1
+                if self._listener_errors in (1, 10, 100, 1000):
+                    log.exception("packet listener %r failed (%d times)", cb, self._listener_errors)
+
+    def _on_forwarded(self, peer: UdpTransport, data: bytes, now: float) -> None:
+        """What a ground station we forward to sent the vehicle: recorded, and watched for
+        requests that change our rates."""
+        t_wall = time.time()
+        for msg in self._forward_framers[peer].feed(data):
+            mtype = msg.get_type()
+            if mtype == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS:
+                self._on_gcs_heartbeat(msg)
+            elif mtype in _RATE_REQUESTS:
+                self._check_rate_request(msg, now, "forward")
+            self._notify(t_wall, bytes(msg.get_msgbuf()))
+
+    def _on_gcs_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
+        sysid, compid = msg.get_srcSystem(), msg.get_srcComponent()
+        self._meter.loss.note_gcs(sysid, compid)
+        if (sysid, compid) == (self.mav.srcSystem, self.mav.srcComponent):
+            if not self._meter.gcs_identity_clash:
+                log.warning(
+                    "another ground station uses our identity %d/%d: set link.gcs_sysid",
+                    sysid,
+                    compid,
+                )
+            self._meter.gcs_identity_clash = True
+
+    def _check_rate_request(self, msg: mavlink.MAVLink_message, now: float, via: str) -> None:
+        sysid, compid = msg.get_srcSystem(), msg.get_srcComponent()
+        if (sysid, compid) == (self.mav.srcSystem, self.mav.srcComponent):
+            return  # our own request, echoed by a shared network
+        autopilot = self._tracker.sysid if self._tracker.compid is not None else None
+        if sysid == autopilot:
+            return  # the vehicle's own components talking among themselves
+        what = self._streams.foreign_change(msg, autopilot)
+        if what is None:
+            return
+        self._meter.rate_changes_by_others += 1
+        self._meter.last_rate_change = RateChange(time.time(), sysid, compid, what, via)
+        log.warning("ground station %d/%d changed our rates: %s", sysid, compid, what)
+        if self.settings.request_streams:
+            self._reassert_at = now + _REASSERT_DELAY_S
 
     def _on_autopilot_heartbeat(self, now: float, mavlink1: bool) -> None:
         self._last_hb_mono = now
@@ -317,6 +374,12 @@ class MavlinkLink:
                 self._write(transport, hb)
             for req in self._streams.poll(now):
                 self._write(transport, req)
+            if self._reassert_at is not None and now >= self._reassert_at:
+                self._reassert_at = None
+                requests = self._streams.reassert()
+                for req in requests:
+                    self._write(transport, req)
+                self._meter.rates_reasserted += bool(requests)
         self._meter.stream_request = self._streams.mode
         lost = self._last_hb_mono is None or now - self._last_hb_mono > self.settings.link_lost_s
         if lost and not self._tracker.state.link.link_lost:
@@ -326,5 +389,7 @@ class MavlinkLink:
         self._meter.tick(now)
 
     def _write(self, transport: Transport, msg: mavlink.MAVLink_message) -> None:
-        transport.write(msg.pack(self.mav, force_mavlink1=self._force_v1))
+        packet = bytes(msg.pack(self.mav, force_mavlink1=self._force_v1))
+        transport.write(packet)
         self.mav.seq = (self.mav.seq + 1) % 256
+        self._notify(time.time(), packet)  # what we sent belongs in the recording too

@@ -11,10 +11,22 @@ import collections
 import time
 from dataclasses import dataclass, field
 
-from companion.mav_framer import MAGIC_V1, FramerCounters
+from companion.mav_framer import FramerCounters
+from companion.stream_loss import StreamLoss, StreamLossCounter
 
 _SNAPSHOT_EVERY_S = 0.5
 _WINDOW_SNAPSHOTS = 5  # 4 intervals = 2 s window
+
+
+@dataclass(frozen=True, slots=True)
+class RateChange:
+    """Another ground station asked the autopilot for other rates of messages we need."""
+
+    t_wall: float  # Unix time, for people
+    sysid: int
+    compid: int
+    request: str  # what it asked, in words ("SET_MESSAGE_INTERVAL ATTITUDE 2 Hz")
+    via: str  # "forward" (a ground station we forward to) or "link" (one on the link)
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,8 +39,9 @@ class LinkHealth:
     autopilot_compid: int | None
     rates_hz: dict[str, float] = field(default_factory=dict)  # per message type, ~2 s window
     packets: int = 0  # good packets received (all systems)
-    lost_packets: int = 0  # gaps in MAVLink sequence numbers, per (sysid, compid)
-    loss_ratio: float = 0.0  # lost / (lost + received)
+    lost_packets: int = 0  # the autopilot's: gaps in its sequence numbers (0 before it is heard)
+    loss_ratio: float = 0.0  # the autopilot's: lost / (lost + received)
+    streams: tuple[StreamLoss, ...] = ()  # loss of every sender on the link, autopilot included
     bytes_per_s: float = 0.0
     bytes_total: int = 0
     garbage_bytes: int = 0
@@ -39,6 +52,10 @@ class LinkHealth:
     last_error: str | None = None
     replay_done: bool = False
     stream_request: str = "none"  # "none", "message_interval", "data_stream"
+    rate_changes_by_others: int = 0  # requests by other ground stations that changed ours
+    last_rate_change: RateChange | None = None
+    rates_reasserted: int = 0  # times we asked for our rates again after such a change
+    gcs_identity_clash: bool = False  # another ground station uses our sysid/compid
 
 
 class HealthMeter:
@@ -48,14 +65,17 @@ class HealthMeter:
         self.source = source
         self.counts: dict[str, int] = collections.defaultdict(int)
         self.bytes_total = 0
-        self.lost_packets = 0
+        self.loss = StreamLossCounter()
         self.truncated_records = 0
         self.reconnects = 0
         self.connected = False
         self.last_error: str | None = None
         self.replay_done = False
         self.stream_request = "none"
-        self._last_seq: dict[tuple[int, int], int] = {}
+        self.rate_changes_by_others = 0
+        self.last_rate_change: RateChange | None = None
+        self.rates_reasserted = 0
+        self.gcs_identity_clash = False
         self._snapshots: collections.deque[tuple[float, dict[str, int], int]] = collections.deque(
             maxlen=_WINDOW_SNAPSHOTS
         )
@@ -65,20 +85,12 @@ class HealthMeter:
     def on_bytes(self, n: int) -> None:
         self.bytes_total += n
 
-    def on_packet(self, mtype: str, packet: bytes) -> None:
+    def on_packet(self, mtype: str, sysid: int, compid: int, seq: int) -> None:
         self.counts[mtype] += 1
-        if packet[0] == MAGIC_V1:
-            seq, sysid, compid = packet[2], packet[3], packet[4]
-        else:
-            seq, sysid, compid = packet[4], packet[5], packet[6]
-        key = (sysid, compid)
-        last = self._last_seq.get(key)
-        if last is not None:
-            self.lost_packets += (seq - last - 1) % 256
-        self._last_seq[key] = seq
+        self.loss.on_packet(sysid, compid, seq)
 
     def on_reconnect(self) -> None:
-        self._last_seq.clear()  # a new connection starts new sequences
+        self.loss.restart()  # a new connection starts new sequences
 
     def tick(self, t_mono: float) -> None:
         """Take a counter snapshot if due and refresh the rates from the window."""
@@ -104,8 +116,10 @@ class HealthMeter:
         sysid: int | None,
         compid: int | None,
     ) -> LinkHealth:
-        packets = framer.packets
-        lost = self.lost_packets
+        streams = self.loss.report(
+            (sysid, compid) if sysid is not None and compid is not None else None
+        )
+        autopilot = next((s for s in streams if s.role == "autopilot"), None)
         return LinkHealth(
             source=self.source,
             connected=self.connected,
@@ -116,9 +130,10 @@ class HealthMeter:
             autopilot_sysid=sysid,
             autopilot_compid=compid,
             rates_hz=self._rates,
-            packets=packets,
-            lost_packets=lost,
-            loss_ratio=lost / (lost + packets) if lost + packets else 0.0,
+            packets=framer.packets,
+            lost_packets=autopilot.lost if autopilot else 0,
+            loss_ratio=autopilot.loss_ratio if autopilot else 0.0,
+            streams=streams,
             bytes_per_s=round(self._bytes_per_s, 1),
             bytes_total=self.bytes_total,
             garbage_bytes=framer.garbage_bytes,
@@ -129,4 +144,8 @@ class HealthMeter:
             last_error=self.last_error,
             replay_done=self.replay_done,
             stream_request=self.stream_request,
+            rate_changes_by_others=self.rate_changes_by_others,
+            last_rate_change=self.last_rate_change,
+            rates_reasserted=self.rates_reasserted,
+            gcs_identity_clash=self.gcs_identity_clash,
         )

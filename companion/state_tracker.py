@@ -251,12 +251,17 @@ class StateTracker:
 
     def _sys_status(self, m: mavlink.MAVLink_message, t: float) -> None:
         b = self.state.battery
+        # A vehicle with no battery monitor sends 0 mV (and 0 A), not the "unknown" value:
+        # no flying pack reads 0 V, so 0 means unknown, and its current with it.
+        no_monitor = m.voltage_battery == 0
         self.state = replace(
             self.state,
             battery=Battery(
                 t_mono=t,
-                voltage_v=_scaled(m.voltage_battery, 1e-3, _UINT16_UNKNOWN),
-                current_a=None if m.current_battery == -1 else m.current_battery * 0.01,
+                voltage_v=None if no_monitor else _scaled(m.voltage_battery, 1e-3, _UINT16_UNKNOWN),
+                current_a=None
+                if m.current_battery == -1 or (no_monitor and m.current_battery == 0)
+                else m.current_battery * 0.01,
                 remaining_pct=float(m.battery_remaining)
                 if m.battery_remaining != -1
                 else b.remaining_pct,
@@ -267,6 +272,8 @@ class StateTracker:
         if m.id != 0:  # the first battery is the flight pack; SYS_STATUS mirrors it
             return
         cells_mv = [v for v in m.voltages if v != _UINT16_UNKNOWN]
+        if not any(cells_mv):  # 0 mV: no monitor (as in SYS_STATUS), not an empty pack
+            cells_mv = []
         b = self.state.battery
         self.state = replace(
             self.state,

@@ -177,3 +177,23 @@ class VehicleState:
     local_position: LocalPosition = field(default_factory=LocalPosition)
     altitude: PilotAltitude = field(default_factory=PilotAltitude)
     link: LinkStatus = field(default_factory=LinkStatus)
+
+    def last_heard_mono(self) -> float | None:
+        """When the autopilot's newest message arrived (station clock), None if never.
+        Only the autopilot's own messages count: `link` and `altitude` are the station's."""
+        times = [
+            g.t_mono
+            for g in (
+                self.heartbeat,
+                self.gps,
+                self.global_position,
+                self.vfr_hud,
+                self.attitude,
+                self.rc,
+                self.servo,
+                self.battery,
+                self.local_position,
+            )
+            if g.t_mono is not None
+        ]
+        return max(times) if times else None

@@ -40,7 +40,11 @@ class LinkSettings(_Section):
     link_lost_s: float = Field(2.0, gt=0)
     heartbeat_hz: float = Field(1.0, gt=0)
     reconnect_s: float = Field(1.0, gt=0)
-    gcs_sysid: int = Field(255, ge=1, le=255)  # our own system id on the link (GCS convention)
+    # Our own identity on the link. Not QGroundControl's or Mission Planner's 255/190 (nor
+    # MAVProxy's 255): with --forward both talk to one vehicle, and a shared identity
+    # sends one's command acknowledgements and sequence numbers to the other.
+    gcs_sysid: int = Field(254, ge=1, le=255)
+    gcs_compid: int = Field(190, ge=1, le=255)  # MAV_COMP_ID_MISSIONPLANNER: a GCS
     # What the station asks the autopilot for (SET_MESSAGE_INTERVAL, or REQUEST_DATA_STREAM
     # on older firmware); 0 leaves a message at the autopilot's own rate.
     message_rates_hz: dict[str, float] = Field(

@@ -54,7 +54,9 @@ def test_state_over_udp_and_tcp(transport):
         # The station introduces itself as a GCS at ~1 Hz.
         assert wait_until(lambda: v.received_types().count("HEARTBEAT") >= 2, timeout=3)
         hb = next(m for m in v.received if m.get_type() == "HEARTBEAT")
-        assert hb.type == mavlink.MAV_TYPE_GCS and hb.get_srcSystem() == 255
+        assert hb.type == mavlink.MAV_TYPE_GCS
+        # Not QGroundControl's (or Mission Planner's) 255/190: both may talk to this vehicle.
+        assert (hb.get_srcSystem(), hb.get_srcComponent()) == (254, 190)
 
 
 def test_message_intervals_requested_and_rates_measured():

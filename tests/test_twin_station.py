@@ -194,3 +194,22 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+@pytest.mark.timeout(90)
+def test_reset_after_minutes_of_flight_keeps_telemetry_flowing(tmp_path) -> None:
+    """Reset puts the twin back on the pad; its telemetry must go on at once. It used to
+    rewind the sim clock, and the twin stayed silent for as long as it had run."""
+    app = sim_app(**{"recording.sessions_dir": str(tmp_path), "twin.realtime_factor": 10.0})
+    with run_uvicorn(app) as url:
+        twin = app.state.station.twin
+        assert wait_until(lambda: twin.sim.t_s > 120.0, timeout=40)  # two minutes flown
+        with connect(url.replace("http", "ws") + "/ws/control") as ws:
+            json.loads(ws.recv(timeout=5))  # hello
+            ws.send(json.dumps({"type": "reset"}))
+            assert json.loads(ws.recv(timeout=5)) == {"type": "ack", "cmd": "reset", "ok": True}
+        after = time.monotonic()
+        assert wait_until(lambda: (state(app).attitude.t_mono or 0) > after + 0.5, timeout=3)
+        assert wait_until(lambda: (state(app).heartbeat.t_mono or 0) > after, timeout=3)
+        assert not state(app).link.link_lost
+        assert twin.sim.t_s > 120.0  # carried back, not rebooted: its clock ran on

@@ -172,3 +172,15 @@ def test_home_position_is_where_it_armed(twin_and_gcs) -> None:
     assert home.latitude / 1e7 == pytest.approx(lat, abs=2e-7)
     assert home.longitude / 1e7 == pytest.approx(lon, abs=2e-7)
     assert home.altitude / 1000 == pytest.approx(alt, abs=0.05)
+
+
+def test_telemetry_goes_on_when_the_sim_clock_goes_back(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    twin.step_for(20.0)
+    drain(gcs, timeout=0.5)
+    with twin.lock:
+        twin.sim.reset()  # a rebooted vehicle: its clock starts again at 0
+    twin.step_for(1.5)
+    assert len(drain(gcs, "HEARTBEAT")) >= 1
+    twin.step_for(1.0)
+    assert len(drain(gcs, "ATTITUDE")) >= 10

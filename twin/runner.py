@@ -165,9 +165,13 @@ class Twin:
             return self.sim.set_mode(name)
 
     def reset(self) -> None:
-        """Back on the start pad, disarmed, battery full (after a crash, for another try)."""
+        """Back on the start pad, disarmed, battery full (after a crash, for another try).
+
+        The vehicle is carried back, not rebooted: its clock runs on. Rewinding the sim
+        clock to 0 left the real-time loop and the telemetry schedule (both in sim time)
+        waiting until the clock caught up again: silent for as long as the twin had run."""
         with self.lock:
-            self.sim.reset()
+            self.sim.reset_vehicles(np.ones(self.sim.n, bool))
             self.poses.publish(self.sim.pose())
 
     # ---- cameras ----

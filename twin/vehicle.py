@@ -77,6 +77,7 @@ class MavlinkVehicle:
         self.telemetry = Telemetry(self.mav)
         self.params: ParamServer | None = None  # built from the sim's config on first use
         self._pending_once: list[str] = []
+        self._last_poll_s = 0.0
 
     @staticmethod
     def _open(connection: str) -> tuple[socket.socket, tuple[str, int] | None]:
@@ -138,6 +139,9 @@ class MavlinkVehicle:
             self.stats.last_input_s = -1e9
         for event in sim.drain_events():
             self.mav.statustext_send(event.severity, event.text.encode()[:50])
+        if now_s < self._last_poll_s:  # the sim clock went back: restart the schedule
+            self._next_s = dict.fromkeys(self._next_s, now_s)
+        self._last_poll_s = now_s
         for name in self._pending_once:
             self._send(sim, name, now_s)
         self._pending_once.clear()

@@ -42,7 +42,7 @@ class SkewStats:
 
 
 class LinkLossTracker:
-    """Intervals (session clock) with no MAVLink for longer than `lost_after_s`."""
+    """Intervals (session clock) with nothing from the autopilot for longer than `lost_after_s`."""
 
     def __init__(self, t0_mono: float, lost_after_s: float) -> None:
         self.t0_mono = t0_mono
@@ -51,7 +51,7 @@ class LinkLossTracker:
         self._lost = False
 
     def update(self, now_mono: float, last_seen_mono: float | None) -> None:
-        """Call at every sample with the newest time anything arrived from the vehicle."""
+        """Call at every sample with the time of the autopilot's newest message."""
         # Before the first packet the silence counts from the session start.
         since = last_seen_mono if last_seen_mono is not None else self.t0_mono
         silent = now_mono - since > self.lost_after_s

@@ -76,7 +76,6 @@ class RecordingSession:
         self.id, self.folder = create_session_dir(root, self.t0_wall, config.source)
         self._tracks = {c: _CameraTrack() for c in self.cameras}
         self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
-        self._last_packet_mono: float | None = None
         self._arming: Arming | None = None
         self._was_armed: bool | None = None
         self.ticks_late = 0  # sample instants skipped because the sampler ran late
@@ -147,7 +146,6 @@ class RecordingSession:
 
     def on_packet(self, t_wall: float, packet: bytes) -> None:
         """The link's packet listener (link thread): never blocks."""
-        self._last_packet_mono = time.monotonic()
         self.writer.put_packet(t_wall, packet)
 
     def _offer_frame(self, cam: str, frame: Frame) -> FrameRef | None:
@@ -216,10 +214,9 @@ class RecordingSession:
             if ref is not None:
                 self._tracks[cam].skew.add(now_mono - ref.t_mono)
         self.writer.put_row(Sample(now_mono, time.time(), state, tuple(refs)))
-        last_seen = self._last_packet_mono
-        if state is not None and state.heartbeat.t_mono is not None:
-            last_seen = max(last_seen or 0.0, state.heartbeat.t_mono)
-        self._links.update(now_mono, last_seen)
+        # Link loss is about the autopilot: a radio's or another ground station's packets
+        # keep arriving while the vehicle is silent, so only the autopilot's messages count.
+        self._links.update(now_mono, state.last_heard_mono() if state is not None else None)
         if state is not None:
             self._note_arming(state, now_mono)
 
