@@ -147,6 +147,23 @@ def add_analyze_parser(sub: Any) -> None:
     p.set_defaults(func=analysis_cli.run)
 
 
+def add_learn_parsers(sub: Any) -> None:
+    """export / demos: need the `learn` extra only when run (imports are in the commands)."""
+    from learn import cli as learn_cli
+
+    p = sub.add_parser(
+        "export",
+        help="sessions, zips or .tlogs to LeRobot, Minari or MCAP (one episode per flight)",
+        description=learn_cli.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    learn_cli.add_export_arguments(p)
+    p.set_defaults(func=learn_cli.run_export)
+    p = sub.add_parser("demos", help="fly the twin's scripted pilot K times into ordinary sessions")
+    learn_cli.add_demos_arguments(p)
+    p.set_defaults(func=learn_cli.run_demos)
+
+
 def add_camera_flags(p: Any) -> None:
     specs = "v4l2:/dev/video0[?width=640&height=480&fps=30&fourcc=MJPG], v4l2:0, file:X.mp4, "
     specs += "folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none"
@@ -214,6 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_serve_parser(sub)
     add_sim_parser(sub)
     add_analyze_parser(sub)
+    add_learn_parsers(sub)
     add_cameras_parser(sub)
     return parser
 

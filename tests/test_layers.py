@@ -2,7 +2,7 @@
 
 The packages form layers, lowest first (docs/ARCHITECTURE.md):
 
-    core  ->  companion  ->  twin  ->  analysis  ->  server
+    core  ->  companion  ->  twin  ->  analysis  ->  learn  ->  server
 
 A module may import from its own layer or any layer below it, never above, and modules
 may not import each other in a cycle. Imports under ``if TYPE_CHECKING:`` count too: a
@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-LAYERS = ("core", "companion", "twin", "analysis", "server")
+LAYERS = ("core", "companion", "twin", "analysis", "learn", "server")
 RANK = {name: i for i, name in enumerate(LAYERS)}
 
 

@@ -40,10 +40,35 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from twin.scene import Scene, load_scene
+from twin.scene import Scene, Task, load_scene
 from twin.sim import Sim, SimConfig
 
-STATE_SIZE = 18
+# What each element of the state vector is; exporters name dataset features with these.
+STATE_NAMES: tuple[str, ...] = (
+    "x_to_target_m",
+    "y_to_target_m",
+    "z_to_target_m",
+    "vel_east_mps",
+    "vel_north_mps",
+    "vel_up_mps",
+    "roll_rad",
+    "pitch_rad",
+    "sin_heading",
+    "cos_heading",
+    "rate_roll_rad_s",
+    "rate_pitch_rad_s",
+    "rate_yaw_rad_s",
+    "battery_fraction",
+    "armed",
+    "on_ground",
+    "horizontal_distance_m",
+    "height_above_target_m",
+)
+STATE_SIZE = len(STATE_NAMES)
+# Registered with Gymnasium on import: `gym.make(ENV_ID, task=1)`; datasets (Minari) store
+# this id and entry point so the env can be rebuilt from them.
+ENV_ID = "fpv_station/TwinEnv-v0"
+ACTION_NAMES: tuple[str, ...] = ("roll", "pitch", "yaw", "throttle")
 
 
 class TwinEnv(gym.Env):
@@ -95,8 +120,8 @@ class TwinEnv(gym.Env):
         if not ok:
             raise RuntimeError(f"the twin refused to arm at reset: {why}")
         self._t0 = self.sim.t_s
-        self._hover_s = 0.0
-        self._dist = self._distance()
+        self.reward_fn = TaskReward(self.task, self.target_m, self.control_hz)
+        self.reward_fn.reset(self.sim.state.pos_m[0])
         return self._observation(), self._info()
 
     def step(self, action):
@@ -108,16 +133,7 @@ class TwinEnv(gym.Env):
         sim.step(max(1, int(round(1.0 / (self.control_hz * sim.dt_s)))))
         crashed = bool(sim.state.crash[0])
         landed = not sim.commander.armed[0] and not crashed
-        dist = self._distance()
-        reward = (self._dist - dist) - 0.01
-        self._dist = dist
-        horizontal = float(np.hypot(*(sim.state.pos_m[0, :2] - self.target_m[:2])))
-        if self.task.id == 1 and abs(sim.state.pos_m[0, 2] - self.task.altitude_m) < 0.3:
-            self._hover_s += 1.0 / self.control_hz
-        if crashed:
-            reward -= 10.0
-        elif landed and horizontal < 0.5:
-            reward += 10.0
+        reward = self.reward_fn.step(sim.state.pos_m[0], crashed, landed)
         terminated = crashed or landed
         truncated = not terminated and sim.t_s - self._t0 >= self.max_episode_s
         return self._observation(), float(reward), terminated, truncated, self._info()
@@ -128,13 +144,6 @@ class TwinEnv(gym.Env):
         return self._camera("front", full_size=True)
 
     # ---- helpers ----
-    def _distance(self) -> float:
-        """To the target; task 1 first wants the hover point 4 m over the pad for 10 s."""
-        target = self.target_m
-        if self.task.id == 1 and self._hover_s < (self.task.hold_s or 10.0):
-            target = target + [0.0, 0.0, self.task.altitude_m]
-        return float(np.linalg.norm(self.sim.state.pos_m[0] - target))
-
     def _state_vector(self) -> np.ndarray:
         sim = self.sim
         pose = sim.pose()
@@ -181,6 +190,52 @@ class TwinEnv(gym.Env):
             "t_s": sim.t_s - self._t0,
             "crash": sim.crash_reason(),
             "mode": sim.commander.mode_name(),
-            "distance_m": self._dist,
+            "distance_m": self.reward_fn.distance_m,
             "pos_enu_m": sim.state.pos_m[0].copy(),
         }
+
+
+class TaskReward:
+    """The env's reward, from the vehicle's position alone, so that the rewards of a
+    recorded flight can be recomputed exactly as the env gives them (exporters do).
+
+    Progress: the decrease of the distance to the target each step; -0.01 per step;
+    +10 on landing within 0.5 m of the target pad; -10 on a crash. Task 1's target is
+    first the point `altitude_m` over the pad, until the vehicle has held within 0.3 m
+    of that height for `hold_s` (steps of `1 / control_hz`), then the pad.
+    """
+
+    def __init__(self, task: Task, target_m: np.ndarray, control_hz: float) -> None:
+        self.task = task
+        self.target_m = np.asarray(target_m, float)
+        self.step_s = 1.0 / control_hz
+        self.hover_s = 0.0
+        self.distance_m = 0.0
+
+    def reset(self, pos_m: np.ndarray) -> None:
+        self.hover_s = 0.0
+        self.distance_m = self._distance(pos_m)
+
+    def step(self, pos_m: np.ndarray, crashed: bool, landed: bool) -> float:
+        dist = self._distance(pos_m)
+        reward = (self.distance_m - dist) - 0.01
+        self.distance_m = dist
+        horizontal = float(np.hypot(*(pos_m[:2] - self.target_m[:2])))
+        if self.task.id == 1 and abs(pos_m[2] - self.task.altitude_m) < 0.3:
+            self.hover_s += self.step_s
+        if crashed:
+            reward -= 10.0
+        elif landed and horizontal < 0.5:
+            reward += 10.0
+        return float(reward)
+
+    def _distance(self, pos_m: np.ndarray) -> float:
+        """To the target; task 1 first wants the hover point over the pad for `hold_s`."""
+        target = self.target_m
+        if self.task.id == 1 and self.hover_s < (self.task.hold_s or 10.0):
+            target = target + [0.0, 0.0, self.task.altitude_m]
+        return float(np.linalg.norm(np.asarray(pos_m, float) - target))
+
+
+if ENV_ID not in gym.registry:
+    gym.register(id=ENV_ID, entry_point="twin.gym_env:TwinEnv")

@@ -119,6 +119,14 @@ class SessionWriter:
     def start(self) -> None:
         self._thread.start()
 
+    def write_now(self) -> None:
+        """Write what is queued, on the caller's thread. For a producer on its own clock
+        that runs faster than real time (the twin's demonstrations, `learn.demos`): it
+        never starts the thread, and calls this after each step so the queues stay short."""
+        with self._cond:
+            taken = self._take()
+        self._write_or_count(*taken)
+
     @property
     def native_id(self) -> int | None:
         return self._thread.native_id
@@ -161,20 +169,9 @@ class SessionWriter:
                     if wait_s <= 0:
                         break
                     self._cond.wait(wait_s)
-                rows, self._rows = self._rows, deque()
-                packets, self._packets = self._packets, deque()
-                frames = {c: q for c, q in self._frames.items() if q}
-                for c in frames:
-                    self._frames[c] = deque()
+                taken = self._take()
                 closing = self._closing
-            if self.failure is None:
-                try:
-                    self._write(frames, rows, packets)
-                except OSError as exc:
-                    self._fail(_describe_os_error(exc))
-                    self._count_lost(frames, rows, packets)  # what the failed write left
-            else:
-                self._count_lost(frames, rows, packets)
+            self._write_or_count(*taken)
             now = time.monotonic()
             if closing or now >= next_flush:
                 next_flush = now + interval
@@ -183,6 +180,25 @@ class SessionWriter:
                 with self._cond:
                     if not self._rows and not self._packets and not any(self._frames.values()):
                         return
+
+    def _take(self) -> tuple[dict[str, deque[Frame]], deque[Sample], deque[tuple[float, bytes]]]:
+        """Everything queued, leaving the queues empty (call holding `_cond`)."""
+        rows, self._rows = self._rows, deque()
+        packets, self._packets = self._packets, deque()
+        frames = {c: q for c, q in self._frames.items() if q}
+        for c in frames:
+            self._frames[c] = deque()
+        return frames, rows, packets
+
+    def _write_or_count(self, frames, rows, packets) -> None:
+        if self.failure is None:
+            try:
+                self._write(frames, rows, packets)
+            except OSError as exc:
+                self._fail(_describe_os_error(exc))
+                self._count_lost(frames, rows, packets)  # what the failed write left
+        else:
+            self._count_lost(frames, rows, packets)
 
     def _write(
         self,

@@ -1,0 +1,104 @@
+"""`fpv-station export`, `fpv-station demos` and `fpv-station learn` (the `learn` extra).
+
+    fpv-station export SESSION [SESSION ...] --format lerobot|minari|mcap --out DIR
+                       [--task N] [--description TEXT] [--fps N] [--channel-map MAP]
+                       [--cameras front,bottom|none] [--dataset-id ID]
+    fpv-station demos --task N --count K --out DIR [--seed S] [--cameras]
+    fpv-station learn bc DATASET --out POLICY
+    fpv-station learn eval POLICY --task N --episodes E [--seed S]
+
+SESSION is a session folder, a downloaded session zip, or a bare .tlog; each flight in
+it (armed, with a take-off) becomes one episode.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def add_export_arguments(p: argparse.ArgumentParser) -> None:
+    from learn.export import DEFAULT_FPS, FORMATS
+
+    p.add_argument("sessions", nargs="+", type=Path, metavar="SESSION")
+    p.add_argument("--format", required=True, choices=FORMATS)
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--task", type=int, default=1, help="the scene's task id (1-4)")
+    p.add_argument("--description", help="free-text task description stored with episodes")
+    p.add_argument("--fps", type=int, default=DEFAULT_FPS, help="frames per second")
+    p.add_argument(
+        "--channel-map",
+        default="AETR",
+        help="RC channels of the sticks: AETR, TAER, AERT or roll=1,pitch=2,throttle=3,yaw=4",
+    )
+    p.add_argument("--cameras", help="cameras to export: front,bottom or none (default: all)")
+    p.add_argument("--dataset-id", default=None, help="dataset name (LeRobot repo id, Minari id)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from learn.episodes import ChannelMap
+    from learn.export import ExportOptions, export_recordings, tqdm_progress
+    from learn.recording import RecordingError
+    from twin.scene import SceneError
+
+    try:
+        cmap = ChannelMap.parse(args.channel_map)
+    except ValueError as exc:
+        print(f"fpv-station export: {exc}", file=sys.stderr)
+        return 2
+    cams = None
+    if args.cameras is not None:
+        cams = () if args.cameras == "none" else tuple(c for c in args.cameras.split(",") if c)
+    opts = ExportOptions(
+        task_id=args.task,
+        description=args.description,
+        fps=args.fps,
+        channel_map=cmap,
+        cameras=cams,
+        **({"dataset_id": args.dataset_id} if args.dataset_id else {}),
+    )
+    progress = None if args.no_progress else tqdm_progress(len(args.sessions))
+    try:
+        s = export_recordings(args.sessions, args.format, args.out, opts, progress)
+    except (RecordingError, SceneError, ValueError, KeyError) as exc:
+        print(f"fpv-station export: {exc}", file=sys.stderr)
+        return 1
+    print(
+        f"{s.format}: {s.episodes} episodes ({s.frames} frames, {s.camera_frames} camera "
+        f"frames) from {s.recordings} recordings -> {s.out}"
+    )
+    for why in s.skipped:
+        print(f"skipped {why}", file=sys.stderr)
+    return 0
+
+
+def add_demos_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--task", type=int, required=True, help="the scene's task id (1-4)")
+    p.add_argument("--count", type=int, required=True, help="how many flights")
+    p.add_argument("--out", type=Path, required=True, help="sessions folder to write into")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first flight")
+    p.add_argument("--cameras", action="store_true", help="record both cameras")
+    p.add_argument("--camera-fps", type=float, default=15.0)
+
+
+def run_demos(args: argparse.Namespace) -> int:
+    from learn.demos import DemoConfig, fly_demos
+
+    if args.count < 1:
+        print("fpv-station demos: --count must be at least 1", file=sys.stderr)
+        return 2
+    config = DemoConfig(task_id=args.task, cameras=args.cameras, camera_fps=args.camera_fps)
+
+    def progress(done: int, total: int) -> None:
+        print(f"demos: {done}/{total}", file=sys.stderr)
+
+    try:
+        folders = fly_demos(args.out, args.count, args.seed, config, progress)
+    except KeyError as exc:
+        print(f"fpv-station demos: {exc}", file=sys.stderr)
+        return 2
+    for f in folders:
+        print(f)
+    return 0

@@ -1,0 +1,210 @@
+"""Synthetic demonstrations: the twin's scripted pilot flies a task K times, faster than
+real time, and each flight is written as an ordinary session (the recorder's format).
+
+Everything goes the way the station records a real flight: the twin sends real MAVLink
+over a loopback UDP socket, the link's framer and `StateTracker` make the vehicle state
+from those bytes, the recorder's `RowFormatter`/`SessionWriter` write telemetry.csv, the
+tlog and the camera frames. Only the clock differs: the twin runs on its own (sim) clock,
+and everything recorded is stamped with it (`wall = start + sim time`).
+
+Pilot variability, seeded per flight: a reaction lag (sticks reach the vehicle
+`lag_s` late), stick noise (Gaussian, per stick), and small path errors (each waypoint
+and the hover height off by a few tens of centimetres).
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections import deque
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.frames import Frame
+from companion.mav_framer import MavFramer
+from companion.recording import layout
+from companion.recording.meta import CameraQuality, Quality, SessionMeta, write_meta
+from companion.recording.rows import FrameRef, RowFormatter, Sample
+from companion.recording.store import create_session_dir
+from companion.recording.writer import SessionWriter, WriterLimits
+from companion.state_tracker import StateTracker
+from twin.pilot import Leg, Observation, Pilot, task_plan
+from twin.runner import Twin
+from twin.scene import Scene, load_scene
+from twin.sim import SimConfig
+
+TICK_S = 0.02  # the pilot's 50 Hz, as the pilot page sends sticks
+GPS_WARMUP_S = 2.5  # on the pad, disarmed, until the GPS has a fix
+TAIL_S = 2.0  # recorded after the disarm, as the recorder's post-disarm tail
+WALL_T0 = 1.79e9  # 2026-09: the demonstrations' wall clock starts here, flight k at +1 h k
+
+
+@dataclass(frozen=True)
+class Variability:
+    lag_s: tuple[float, float] = (0.05, 0.25)  # reaction lag, uniform per flight
+    stick_noise: float = 0.03  # std of the noise added to each stick
+    path_error_m: float = 0.3  # std of each waypoint's offset (and of the hover height)
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    task_id: int = 1
+    rate_hz: float = 30.0  # telemetry rows
+    cameras: bool = False
+    camera_fps: float = 15.0
+    jpeg_quality: int = 80
+    timeout_s: float = 300.0
+    variability: Variability = Variability()
+
+
+def noisy_plan(scene: Scene, task_id: int, rng: np.random.Generator, err_m: float) -> list[Leg]:
+    """The task's legs with each waypoint and cruise height off by a little, as a person's."""
+    legs = []
+    for leg in task_plan(scene, task_id):
+        if leg.kind == "goto" and leg.xy_m is not None and leg.tolerance_m > 0.5:
+            dx, dy = rng.normal(0.0, err_m, 2)
+            leg = replace(leg, xy_m=(leg.xy_m[0] + dx, leg.xy_m[1] + dy))
+        if leg.kind in ("climb", "hold") and leg.alt_m > 0:
+            leg = replace(
+                leg, alt_m=float(leg.alt_m + np.clip(rng.normal(0, err_m / 3), -0.2, 0.2))
+            )
+        legs.append(leg)
+    return legs
+
+
+def fly_demo(
+    root: Path, seed: int, config: DemoConfig = DemoConfig(), scene: Scene | None = None
+) -> Path:
+    """Fly one demonstration and write it as a session under `root`; returns its folder."""
+    scene = scene or load_scene()
+    rng = np.random.default_rng(seed)
+    v = config.variability
+    lag_ticks = int(round(rng.uniform(*v.lag_s) / TICK_S))
+    pilot = Pilot(noisy_plan(scene, config.task_id, rng, v.path_error_m))
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.setblocking(False)
+    twin = Twin(scene, SimConfig(seed=seed), mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}")
+    cams = layout.CAMERAS if config.cameras else ()
+    wall0 = WALL_T0 + 3600.0 * seed
+    sid, folder = create_session_dir(Path(root), wall0, "sim")
+    t0 = twin.sim.t_s
+    writer = SessionWriter(
+        folder,
+        RowFormatter(cams, t0),
+        WriterLimits(min_free_bytes=0),
+    )
+    framer, tracker = MavFramer(), StateTracker()
+    seqs = dict.fromkeys(cams, 0)
+    refs: dict[str, FrameRef | None] = dict.fromkeys(cams)
+    sticks: deque[tuple[float, float, float, float]] = deque([(0.0, 0.0, 0.0, 0.0)] * lag_ticks)
+    next_row, next_frame = t0, t0
+    disarmed_at: float | None = None
+    started = time.perf_counter()
+    try:
+        while True:
+            now = twin.sim.t_s
+            elapsed = now - t0
+            while True:  # what the twin sent during the last step, as the link reads it
+                try:
+                    data = rx.recv(65535)
+                except BlockingIOError:
+                    break
+                for msg in framer.feed(data):
+                    writer.put_packet(wall0 + now - t0, bytes(msg.get_msgbuf()))
+                    tracker.update(msg, now)
+            if cams and now >= next_frame - 1e-9:
+                next_frame += 1.0 / config.camera_fps
+                for cam in cams:
+                    bgr = twin.render(cam)
+                    ok, jpeg = cv2.imencode(
+                        ".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality]
+                    )
+                    seqs[cam] += 1
+                    h, w = bgr.shape[:2]
+                    frame = Frame(cam, seqs[cam], jpeg.tobytes(), w, h, now, wall0 + now - t0)
+                    writer.put_frame(cam, frame)
+                    refs[cam] = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
+            if now >= next_row - 1e-9:
+                next_row += 1.0 / config.rate_hz
+                state = tracker.state
+                writer.put_row(Sample(now, wall0 + now - t0, state, tuple(refs[c] for c in cams)))
+            writer.write_now()
+
+            armed = bool(twin.sim.commander.armed[0])
+            if twin.sim.state.crash[0] or elapsed > config.timeout_s:
+                break
+            if elapsed >= GPS_WARMUP_S and not pilot.done:
+                pose = twin.pose()
+                yaw = float(np.arctan2(pose.R_world_body[1, 0], pose.R_world_body[0, 0]))
+                obs = Observation(pose.t_s, pose.pos_enu_m, pose.vel_enu_mps, yaw, armed)
+                stick = np.array(pilot.update(obs), float)
+                stick[:3] += rng.normal(0.0, v.stick_noise, 3) * (np.abs(stick[:3]) > 0)
+                sticks.append(tuple(np.clip(stick, [-1, -1, -1, 0], 1)))
+                twin.set_sticks(*sticks.popleft())
+            elif pilot.done:
+                twin.set_sticks(0.0, 0.0, 0.0, 0.0)
+                if disarmed_at is None and not armed:
+                    disarmed_at = now
+                if disarmed_at is not None and now - disarmed_at >= TAIL_S:
+                    break
+            twin.step_for(TICK_S)
+    finally:
+        if twin.vehicle is not None:
+            twin.vehicle.close()
+        rx.close()
+        writer.close()
+    end = twin.sim.t_s
+    st = writer.stats
+    meta = SessionMeta(
+        id=sid,
+        status=layout.STATUS_COMPLETE,
+        stop_reason="crash"
+        if twin.sim.state.crash[0]
+        else ("disarmed" if pilot.done else "timeout"),
+        start_wall=wall0,
+        start_utc=layout.utc_label(wall0),
+        end_wall=wall0 + end - t0,
+        end_utc=layout.utc_label(wall0 + end - t0),
+        duration_s=round(end - t0, 3),
+        source="sim",
+        cameras=list(cams),
+        settings={
+            "demo": {"task": config.task_id, "seed": seed, "lag_s": lag_ticks * TICK_S},
+            "wall_s_to_fly": round(time.perf_counter() - started, 3),
+        },
+        trigger="demos",
+        quality=Quality(
+            telemetry_rate_hz=config.rate_hz,
+            telemetry_rows=st.rows_written,
+            tlog_packets=st.packets_written,
+            cameras={
+                c: CameraQuality(
+                    configured_fps=config.camera_fps,
+                    frames_captured=st.frames_written.get(c, 0),
+                    frames_written=st.frames_written.get(c, 0),
+                    first_seq=st.first_seq.get(c),
+                    last_seq=st.last_seq.get(c),
+                )
+                for c in cams
+            },
+        ),
+    )
+    write_meta(folder / layout.SESSION_JSON, meta)
+    return folder
+
+
+def fly_demos(
+    root: Path, count: int, seed: int = 0, config: DemoConfig = DemoConfig(), progress=None
+) -> list[Path]:
+    """`count` demonstrations with seeds `seed`, `seed + 1`, ..."""
+    scene = load_scene()
+    out = []
+    for k in range(count):
+        out.append(fly_demo(root, seed + k, config, scene))
+        if progress is not None:
+            progress(k + 1, count)
+    return out

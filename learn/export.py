@@ -1,0 +1,126 @@
+"""`fpv-station export`: recordings to a learning format, one episode per flight.
+
+    export_recordings(paths, "lerobot", out_dir, ExportOptions(task_id=1))
+
+Recordings are opened one at a time (`learn.recording.open_recording`) and their episodes
+streamed into the format's writer, so memory stays flat in the number of sessions. The
+formats: `lerobot` (`learn.lerobot`), `minari` (`learn.minari_export`), `mcap`
+(`learn.mcap_export`).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from learn.episodes import ChannelMap, episodes
+from learn.recording import Recording, RecordingError, open_recording
+from twin.scene import Scene, load_scene
+
+FORMATS = ("lerobot", "minari", "mcap")
+DEFAULT_FPS = 10  # the twin env's control rate: a dataset step is an env step
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    task_id: int = 1
+    description: str | None = None  # free text; default: the scene's task name and procedure
+    fps: int = DEFAULT_FPS
+    channel_map: ChannelMap = field(default_factory=ChannelMap)
+    cameras: tuple[str, ...] | None = None  # None: the cameras of the first recording
+    dataset_id: str = "fpv-station/demonstrations"
+    scene: Scene | None = None
+
+
+@dataclass
+class ExportSummary:
+    out: Path
+    format: str
+    recordings: int = 0
+    episodes: int = 0
+    frames: int = 0  # dataset frames (rows)
+    camera_frames: int = 0  # video frames written (or JPEGs copied, for MCAP)
+    skipped: list[str] = field(default_factory=list)  # recordings without a flight, and why
+
+
+def task_description(scene: Scene, task_id: int) -> str:
+    t = scene.task(task_id)
+    return " ".join([f"{t.name}:", *t.procedure]) if t.procedure else t.name
+
+
+def export_recordings(
+    paths: Sequence[Path],
+    fmt: str,
+    out: Path,
+    options: ExportOptions = ExportOptions(),
+    progress: Callable[[int, int, str], None] | None = None,
+) -> ExportSummary:
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown format '{fmt}'; use one of: {', '.join(FORMATS)}")
+    scene = options.scene or load_scene()
+    scene.task(options.task_id)  # a wrong task fails before anything is written
+    task = options.description or task_description(scene, options.task_id)
+    summary = ExportSummary(Path(out), fmt)
+    writer = None
+    cameras = options.cameras
+    for k, path in enumerate(paths):
+        with open_recording(path) as rec:
+            if cameras is None:
+                cameras = tuple(rec.cameras)
+            missing = [c for c in cameras if c not in rec.cameras]
+            if missing:
+                raise RecordingError(
+                    f"'{rec.source}' has no frames of camera {', '.join(missing)}; export "
+                    "recordings with the same cameras, or choose them with --cameras."
+                )
+            if writer is None:
+                writer = _writer(fmt, Path(out), options, scene, rec, cameras, task)
+            found = 0
+            for ep in episodes(
+                rec, scene, options.task_id, options.fps, options.channel_map, cameras
+            ):
+                writer.add(rec, ep)
+                found += 1
+                summary.episodes += 1
+                summary.frames += len(ep)
+                summary.camera_frames += writer.camera_frames(rec, ep)
+            if not found:
+                summary.skipped.append(f"{rec.source}: no flight (armed with a take-off)")
+            summary.recordings += 1
+        if progress is not None:
+            progress(k + 1, len(paths), str(path))
+    if writer is None:
+        raise RecordingError("no recording to export")
+    writer.close(summary)
+    return summary
+
+
+def _writer(fmt, out, options, scene, rec: Recording, cameras, task):
+    if fmt == "lerobot":
+        from learn.lerobot import LeRobotExport
+
+        return LeRobotExport(out, options, scene, rec, cameras, task)
+    if fmt == "minari":
+        from learn.minari_export import MinariExport
+
+        return MinariExport(out, options, scene, task)
+    from learn.mcap_export import McapExport
+
+    return McapExport(out, options, scene, cameras, task)
+
+
+def tqdm_progress(total: int):
+    """A progress bar on stderr (tqdm), as a `progress` callback."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, unit="recording", file=sys.stderr, dynamic_ncols=True)
+
+    def update(done: int, n: int, name: str) -> None:
+        bar.set_postfix_str(Path(name).name[-40:])
+        bar.update(done - bar.n)
+        if done == n:
+            bar.close()
+
+    return update

@@ -1,0 +1,395 @@
+"""A LeRobot dataset (format v3.0), written with pyarrow and PyAV (no `lerobot`, no torch).
+
+The layout is LeRobot's v3.0 (`LeRobotDataset(repo_id, root=DIR)` loads it):
+
+    meta/info.json                       codebase_version "v3.0", fps, features, path templates
+    meta/stats.json                      per feature: min, max, mean, std, count, q01..q99
+    meta/tasks.parquet                   task text (the pandas index) -> task_index
+    meta/episodes/chunk-000/file-000.parquet   one row per episode: length, tasks, where its
+                                         rows and video frames are, its own stats
+    data/chunk-000/file-000.parquet      one row per frame, one row group per episode
+    videos/observation.images.front/chunk-000/file-000.mp4   all episodes, back to back
+    videos/observation.images.bottom/chunk-000/file-000.mp4
+    README.md                            the dataset card
+
+Rows: `observation.state` (the twin env's state vector, `twin.gym_env.STATE_NAMES`),
+`action` (roll, pitch, yaw, throttle in [-1, 1]), `timestamp` (s since the episode's
+first frame, as LeRobot needs to find video frames: `from_timestamp + timestamp`),
+`session_time_s` (the same instant on the recording's session clock), `frame_index`,
+`episode_index`, `index` (over the dataset), `task_index`, `next.done`.
+
+Video: each camera is one stream per file at the dataset's fps; frame k of the dataset
+is the recorded JPEG shown at that instant (`learn.episodes`), decoded once and encoded
+to H.264 (yuv420p, a keyframe every 2 frames as LeRobot's encoder uses, so random access
+stays cheap). Episodes stream through: one encoder per camera and one parquet writer stay
+open, so memory does not grow with the number of episodes. Files do not roll over at
+LeRobot's size limits (100 MB data, 200 MB video): each stays `file-000`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from learn import stats as st
+from learn.episodes import Episode
+from twin.gym_env import ACTION_NAMES, STATE_NAMES
+
+CODEBASE_VERSION = "v3.0"
+CHUNKS_SIZE = 1000
+DATA_FILES_SIZE_IN_MB = 100
+VIDEO_FILES_SIZE_IN_MB = 200
+DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+EPISODES_PATH = "meta/episodes/chunk-000/file-000.parquet"
+VIDEO_CODEC = "libx264"
+VIDEO_OPTIONS = {"g": "2", "crf": "23", "preset": "veryfast"}
+ROBOT_TYPE = "f450_quadcopter"
+IMAGE_STATS_FRAMES = 8  # frames per episode sampled for image stats (downscaled 1/4)
+
+FrameSource = Callable[[str, int], bytes]  # (camera, recorded frame index) -> JPEG bytes
+
+
+def video_key(camera: str) -> str:
+    return f"observation.images.{camera}"
+
+
+class LeRobotWriter:
+    def __init__(
+        self,
+        root: Path,
+        fps: int,
+        cameras: dict[str, tuple[int, int]],  # camera -> (width, height)
+        robot_type: str = ROBOT_TYPE,
+    ) -> None:
+        self.root = Path(root)
+        self.fps = int(fps)
+        self.cameras = dict(cameras)
+        self.robot_type = robot_type
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.features = self._features()
+        self._schema = pa.schema(
+            [
+                ("observation.state", pa.list_(pa.float32(), len(STATE_NAMES))),
+                ("action", pa.list_(pa.float32(), len(ACTION_NAMES))),
+                ("timestamp", pa.float32()),
+                ("session_time_s", pa.float64()),
+                ("frame_index", pa.int64()),
+                ("episode_index", pa.int64()),
+                ("index", pa.int64()),
+                ("task_index", pa.int64()),
+                ("next.done", pa.bool_()),
+            ]
+        )
+        path = self.root / DATA_PATH.format(chunk_index=0, file_index=0)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._data = pq.ParquetWriter(path, self._schema, compression="snappy")
+        self._videos = {c: _VideoFile(self.root, c, wh, self.fps) for c, wh in self.cameras.items()}
+        self.tasks: dict[str, int] = {}
+        self.episodes: list[dict] = []
+        self._episode_stats: list[dict[str, st.Stats]] = []
+        self.total_frames = 0
+
+    # ------------------------------------------------------------------ episodes
+
+    def add_episode(self, ep: Episode, task: str, frame_bytes: FrameSource) -> None:
+        n = len(ep)
+        if n == 0:
+            return
+        index = len(self.episodes)
+        task_index = self.tasks.setdefault(task, len(self.tasks))
+        frame_index = np.arange(n, dtype=np.int64)
+        timestamp = (frame_index / self.fps).astype(np.float32)
+        done = np.zeros(n, bool)
+        done[-1] = True
+        columns = {
+            "observation.state": _fixed_list(ep.state),
+            "action": _fixed_list(ep.action),
+            "timestamp": pa.array(timestamp),
+            "session_time_s": pa.array(ep.t_s),
+            "frame_index": pa.array(frame_index),
+            "episode_index": pa.array(np.full(n, index, np.int64)),
+            "index": pa.array(self.total_frames + frame_index),
+            "task_index": pa.array(np.full(n, task_index, np.int64)),
+            "next.done": pa.array(done),
+        }
+        self._data.write_table(pa.table(columns, schema=self._schema))
+        ep_stats = {
+            "observation.state": st.vector_stats(ep.state),
+            "action": st.vector_stats(ep.action),
+            "timestamp": st.vector_stats(timestamp[:, None]),
+            "session_time_s": st.vector_stats(ep.t_s[:, None]),
+            "frame_index": st.vector_stats(frame_index[:, None]),
+            "episode_index": st.vector_stats(np.full((n, 1), index)),
+            "index": st.vector_stats((self.total_frames + frame_index)[:, None]),
+            "task_index": st.vector_stats(np.full((n, 1), task_index)),
+            "next.done": st.vector_stats(done[:, None]),
+        }
+        meta = {
+            "episode_index": index,
+            "tasks": [task],
+            "length": n,
+            "data/chunk_index": 0,
+            "data/file_index": 0,
+            "dataset_from_index": self.total_frames,
+            "dataset_to_index": self.total_frames + n,
+        }
+        for cam, video in self._videos.items():
+            start = video.frames
+            ep_stats[video_key(cam)] = video.add(ep.frames[cam], lambda k, c=cam: frame_bytes(c, k))
+            meta.update(
+                {
+                    f"videos/{video_key(cam)}/chunk_index": 0,
+                    f"videos/{video_key(cam)}/file_index": 0,
+                    f"videos/{video_key(cam)}/from_timestamp": start / self.fps,
+                    f"videos/{video_key(cam)}/to_timestamp": video.frames / self.fps,
+                }
+            )
+        meta["meta/episodes/chunk_index"] = 0
+        meta["meta/episodes/file_index"] = 0
+        for feature, s in ep_stats.items():
+            for key, value in s.items():
+                meta[f"stats/{feature}/{key}"] = np.asarray(value).tolist()
+        meta["source/recording"] = ep.recording
+        meta["source/flight"] = ep.number
+        meta["source/landed"] = ep.landed
+        self.episodes.append(meta)
+        self._episode_stats.append(ep_stats)
+        self.total_frames += n
+
+    # ------------------------------------------------------------------ closing
+
+    def close(self, card: str = "") -> None:
+        self._data.close()
+        for video in self._videos.values():
+            video.close()
+        meta = self.root / "meta"
+        (meta / "episodes" / "chunk-000").mkdir(parents=True, exist_ok=True)
+        if self.episodes:
+            pq.write_table(pa.Table.from_pylist(self.episodes), self.root / EPISODES_PATH)
+        _write_tasks(meta / "tasks.parquet", self.tasks)
+        merged = {
+            f: st.merge([s[f] for s in self._episode_stats]) for f in self.features if self.episodes
+        }
+        (meta / "stats.json").write_text(json.dumps(st.to_json(merged), indent=2))
+        (meta / "info.json").write_text(json.dumps(self.info(), indent=2))
+        (self.root / "README.md").write_text(card)
+
+    def info(self) -> dict:
+        return {
+            "codebase_version": CODEBASE_VERSION,
+            "robot_type": self.robot_type,
+            "total_episodes": len(self.episodes),
+            "total_frames": self.total_frames,
+            "total_tasks": len(self.tasks),
+            "chunks_size": CHUNKS_SIZE,
+            "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
+            "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
+            "fps": self.fps,
+            "splits": {"train": f"0:{len(self.episodes)}"},
+            "data_path": DATA_PATH,
+            "video_path": VIDEO_PATH if self.cameras else None,
+            "features": self.features,
+        }
+
+    def _features(self) -> dict[str, dict]:
+        f: dict[str, dict] = {
+            "observation.state": {
+                "dtype": "float32",
+                "shape": [len(STATE_NAMES)],
+                "names": list(STATE_NAMES),
+            },
+            "action": {
+                "dtype": "float32",
+                "shape": [len(ACTION_NAMES)],
+                "names": list(ACTION_NAMES),
+            },
+        }
+        for cam, (w, h) in self.cameras.items():
+            f[video_key(cam)] = {
+                "dtype": "video",
+                "shape": [h, w, 3],
+                "names": ["height", "width", "channels"],
+                "info": {
+                    "video.height": h,
+                    "video.width": w,
+                    "video.codec": "h264",
+                    "video.pix_fmt": "yuv420p",
+                    "video.is_depth_map": False,
+                    "video.fps": self.fps,
+                    "video.channels": 3,
+                    "has_audio": False,
+                },
+            }
+        f["timestamp"] = {"dtype": "float32", "shape": [1], "names": None}
+        f["session_time_s"] = {"dtype": "float64", "shape": [1], "names": None}
+        for k in ("frame_index", "episode_index", "index", "task_index"):
+            f[k] = {"dtype": "int64", "shape": [1], "names": None}
+        f["next.done"] = {"dtype": "bool", "shape": [1], "names": None}
+        return f
+
+
+class LeRobotExport:
+    """`learn.export`'s adapter: recordings' episodes into one `LeRobotWriter`."""
+
+    def __init__(self, out: Path, options, scene, rec, cameras: tuple[str, ...], task: str):
+        self.task = task
+        self.options = options
+        size = {c: (rec.cameras[c].width, rec.cameras[c].height) for c in cameras}
+        self.writer = LeRobotWriter(out, options.fps, size)
+
+    def add(self, rec, ep: Episode) -> None:
+        self.writer.add_episode(ep, self.task, rec.frame_bytes)
+
+    def camera_frames(self, rec, ep: Episode) -> int:
+        return len(ep) * len(self.writer.cameras)
+
+    def close(self, summary) -> None:
+        self.writer.close(dataset_card(self.writer, self.options, summary, self.task))
+
+
+def dataset_card(w: LeRobotWriter, options, summary, task: str) -> str:
+    """README.md in the shape of LeRobot's cards (YAML front matter, then the layout)."""
+    state = "\n".join(f"| {i} | `{n}` |" for i, n in enumerate(STATE_NAMES))
+    cams = ", ".join(f"`{video_key(c)}` ({wh[0]}x{wh[1]})" for c, wh in w.cameras.items())
+    return f"""---
+license: cc-by-4.0
+task_categories:
+- robotics
+tags:
+- LeRobot
+- fpv-station
+- quadcopter
+configs:
+- config_name: default
+  data_files: data/*/*.parquet
+---
+
+# {options.dataset_id}
+
+Human-style FPV flight demonstrations of an F450 quadcopter, exported by fpv-station from
+{summary.recordings} recording(s): {len(w.episodes)} episodes (one per flight: arming to
+disarming), {w.total_frames} frames at {w.fps} fps. Cameras: {cams or "none"}.
+
+- Task {options.task_id}: {task}
+- `observation.state`: the state vector of the twin's Gymnasium env (`TwinEnv`), so a
+  policy trained here flies `TwinEnv(task={options.task_id})` directly.
+- `action`: the pilot's sticks (roll, pitch, yaw, throttle) in [-1, 1], from the RC
+  channels; throttle -1 is full descent, 0 holds altitude (Position mode).
+- `timestamp`: seconds since the episode's first frame; `session_time_s`: the same
+  instant on the recording's session clock.
+
+Load it with `LeRobotDataset("{options.dataset_id}", root=DIR)`.
+
+| index | `observation.state` element |
+| ---: | --- |
+{state}
+
+[meta/info.json](meta/info.json) holds the features, shapes and path templates.
+"""
+
+
+class _VideoFile:
+    """One camera's video: every episode's frames appended to one H.264 stream."""
+
+    def __init__(self, root: Path, camera: str, size: tuple[int, int], fps: int) -> None:
+        path = root / VIDEO_PATH.format(video_key=video_key(camera), chunk_index=0, file_index=0)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.size = size
+        self.container = av.open(str(path), mode="w")
+        self.stream = self.container.add_stream(VIDEO_CODEC, rate=fps, options=VIDEO_OPTIONS)
+        self.stream.width, self.stream.height = size
+        self.stream.pix_fmt = "yuv420p"
+        self.time_base = Fraction(1, fps)
+        self.frames = 0
+
+    def add(self, picks: np.ndarray, jpeg: Callable[[int], bytes]) -> st.Stats:
+        """Encode the recorded frames `picks` (one per dataset frame); returns the image
+        stats of a few of them."""
+        sample_at = set(np.linspace(0, len(picks) - 1, IMAGE_STATS_FRAMES).astype(int).tolist())
+        sampled = []
+        last, frame = None, None
+        for i, k in enumerate(picks):
+            if k != last:  # a recorded frame held over several dataset frames: decode once
+                bgr = cv2.imdecode(np.frombuffer(jpeg(int(k)), np.uint8), cv2.IMREAD_COLOR)
+                if bgr is None or bgr.shape[1::-1] != self.size:
+                    bgr = _fit(bgr, self.size)
+                frame = av.VideoFrame.from_ndarray(bgr, format="bgr24")
+                last = k
+            if i in sample_at:
+                small = frame.to_ndarray(format="rgb24")[::4, ::4]
+                sampled.append(small)
+            out = frame.reformat(format="yuv420p")
+            out.pts = self.frames
+            out.time_base = self.time_base
+            self.container.mux(self.stream.encode(out))
+            self.frames += 1
+        return st.image_stats(np.stack(sampled))
+
+    def close(self) -> None:
+        self.container.mux(self.stream.encode(None))
+        self.container.close()
+
+
+def _fit(bgr: np.ndarray | None, size: tuple[int, int]) -> np.ndarray:
+    """A frame of another size scaled to the video's; an undecodable one is black."""
+    if bgr is None:
+        return np.zeros((size[1], size[0], 3), np.uint8)
+    return cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
+
+
+def _fixed_list(a: np.ndarray) -> pa.FixedSizeListArray:
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    return pa.FixedSizeListArray.from_arrays(pa.array(a.ravel()), a.shape[1])
+
+
+def _write_tasks(path: Path, tasks: dict[str, int]) -> None:
+    """tasks.parquet as pandas writes a frame indexed by "task" (LeRobot reads it with
+    `pd.read_parquet` and looks tasks up by that index)."""
+    names = list(tasks)
+    table = pa.table(
+        {
+            "task_index": pa.array([tasks[t] for t in names], pa.int64()),
+            "task": pa.array(names, pa.string()),
+        }
+    )
+    pandas_meta = {
+        "index_columns": ["task"],
+        "column_indexes": [
+            {
+                "name": None,
+                "field_name": None,
+                "pandas_type": "unicode",
+                "numpy_type": "object",
+                "metadata": {"encoding": "UTF-8"},
+            }
+        ],
+        "columns": [
+            {
+                "name": "task_index",
+                "field_name": "task_index",
+                "pandas_type": "int64",
+                "numpy_type": "int64",
+                "metadata": None,
+            },
+            {
+                "name": "task",
+                "field_name": "task",
+                "pandas_type": "unicode",
+                "numpy_type": "object",
+                "metadata": None,
+            },
+        ],
+        "creator": {"library": "pyarrow", "version": pa.__version__},
+        "pandas_version": "2.2.0",
+    }
+    table = table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
+    pq.write_table(table, path)

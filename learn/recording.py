@@ -1,0 +1,265 @@
+"""A recording opened for learning exports: the telemetry columns the exporters need, on
+the session clock, the camera frames by their recorded times, and the raw MAVLink log.
+
+Inputs are what `fpv-station analyze` takes: a session folder (the recorder's format,
+`docs/SESSION_FORMAT.md`), a downloaded session zip (unpacked into a temporary folder
+while it is open), or a bare `.tlog`. A tlog has no telemetry.csv: its packets go
+through the link's own `StateTracker`, sampled at `TLOG_ROW_HZ` on the log's clock, so
+both give the same columns. Recordings are opened one at a time and closed after use,
+so an export's memory does not grow with the number of sessions.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import tempfile
+import zipfile
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from operator import attrgetter
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from analysis.csvcols import CsvColumns, to_float
+from analysis.track import parse_meta
+from companion.recording import layout
+from companion.state_tracker import StateTracker
+from companion.tlog import TlogReader
+
+Array = NDArray[np.float64]
+
+TLOG_ROW_HZ = 30.0  # the recorder's default row rate
+RC_CHANNELS = 18
+
+# The telemetry columns the exporters read (telemetry.csv names); missing ones are NaN.
+COLUMNS: tuple[str, ...] = (
+    "heartbeat.armed",
+    "gps.lat_deg",
+    "gps.lon_deg",
+    "gps.alt_m",
+    "gps.fix_type",
+    "global_position.lat_deg",
+    "global_position.lon_deg",
+    "global_position.alt_m",
+    "global_position.relative_alt_m",
+    "global_position.vx_mps",
+    "global_position.vy_mps",
+    "global_position.vz_mps",
+    "altitude.relative_alt_m",
+    "attitude.roll_rad",
+    "attitude.pitch_rad",
+    "attitude.yaw_rad",
+    "attitude.rollspeed_rad_s",
+    "attitude.pitchspeed_rad_s",
+    "attitude.yawspeed_rad_s",
+    "battery.remaining_pct",
+    "vfr_hud.climb_mps",
+    *(f"rc.pwm_us.{i}" for i in range(RC_CHANNELS)),
+)
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be exported, with a message for the user."""
+
+
+@dataclass(frozen=True)
+class CameraFrames:
+    """The frames written for one camera, in capture order (its frames.csv)."""
+
+    name: str
+    seq: NDArray[np.int64]
+    t_s: Array  # capture time, session clock
+    files: list[str]  # relative to the recording's folder
+    width: int
+    height: int
+
+    def __len__(self) -> int:
+        return int(self.seq.size)
+
+
+@dataclass
+class Recording:
+    name: str  # the session id, or the file's stem
+    source: str  # what the user gave
+    folder: Path | None  # the session folder (None for a bare tlog)
+    tlog: Path | None
+    meta: dict
+    t_s: Array  # row times, session clock (s)
+    wall_time: Array
+    columns: dict[str, Array]
+    cameras: dict[str, CameraFrames] = field(default_factory=dict)
+
+    def column(self, name: str) -> Array:
+        return self.columns[name]
+
+    def frame_bytes(self, camera: str, k: int) -> bytes:
+        """The recorded JPEG bytes of frame `k` (an index into `cameras[camera]`)."""
+        return (self.folder / self.cameras[camera].files[k]).read_bytes()
+
+    @property
+    def is_twin(self) -> bool:
+        src = str(self.meta.get("source") or self.meta.get("platform") or "").lower()
+        return src.startswith(("sim", "twin"))
+
+
+@contextlib.contextmanager
+def open_recording(path: str | Path) -> Iterator[Recording]:
+    """Open a session folder, session zip or bare tlog for the duration of a `with`."""
+    p = Path(path)
+    if not p.exists():
+        raise RecordingError(f"'{p}' does not exist; give a session folder, zip or .tlog.")
+    if p.is_dir():
+        yield _read_session(p, str(p))
+    elif p.suffix.lower() == ".zip":
+        with tempfile.TemporaryDirectory(prefix="fpv-export-") as tmp:
+            yield _read_session(_unzip(p, Path(tmp)), str(p))
+    elif p.suffix.lower() == ".tlog":
+        yield _read_tlog(p, str(p), None, {})
+    else:
+        raise RecordingError(f"'{p}' is not a session folder, .zip or .tlog.")
+
+
+def _unzip(zip_path: Path, into: Path) -> Path:
+    """Unpack a session zip; returns the folder that holds its session files."""
+    try:
+        with zipfile.ZipFile(zip_path) as zf:
+            for name in zf.namelist():
+                target = (into / name).resolve()
+                if not target.is_relative_to(into.resolve()):
+                    raise RecordingError(f"'{zip_path}' has an unsafe member path '{name}'.")
+            zf.extractall(into)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise RecordingError(f"'{zip_path}' is not a readable zip: {exc}") from None
+    marks = sorted(
+        (
+            f.parent
+            for f in into.rglob("*")
+            if f.name in (layout.TELEMETRY_CSV, layout.SESSION_JSON)
+        ),
+        key=lambda d: len(d.parts),
+    )
+    if marks:
+        return marks[0]
+    tlogs = sorted(into.rglob("*.tlog"), key=lambda f: len(f.parts))
+    if tlogs:
+        return tlogs[0].parent
+    raise RecordingError(f"'{zip_path}' holds no session (no telemetry.csv or .tlog).")
+
+
+def _read_session(folder: Path, source: str) -> Recording:
+    meta_file = folder / layout.SESSION_JSON
+    meta = parse_meta(meta_file.read_bytes()) if meta_file.is_file() else {}
+    tlog = folder / layout.MAVLINK_TLOG
+    if not tlog.is_file():
+        tlog = next(iter(sorted(folder.glob("*.tlog"))), None)
+    csv_path = folder / layout.TELEMETRY_CSV
+    if not csv_path.is_file():
+        if tlog is None:
+            raise RecordingError(f"'{source}' has neither {layout.TELEMETRY_CSV} nor a .tlog.")
+        return _read_tlog(tlog, source, folder, meta)
+    t_s, wall, columns = _read_csv(csv_path, source)
+    cams = {}
+    for cam in meta.get("cameras") or layout.CAMERAS:
+        frames = _read_frames_csv(folder, str(cam))
+        if frames is not None and len(frames):
+            cams[str(cam)] = frames
+    name = str(meta.get("id") or folder.name)
+    return Recording(name, source, folder, tlog, meta, t_s, wall, columns, cams)
+
+
+def _read_csv(path: Path, source: str) -> tuple[Array, Array, dict[str, Array]]:
+    raw = path.read_bytes()
+    header_line, _, body = raw.partition(b"\n")
+    header = [h.strip().strip('"') for h in header_line.decode("utf-8", "replace").split(",")]
+    index = {n: i for i, n in enumerate(header)}
+    if "t_s" not in index:
+        raise RecordingError(f"'{source}': telemetry.csv has no t_s column.")
+    table = CsvColumns(body, len(header))
+    if table.rows == 0:
+        raise RecordingError(f"'{source}': telemetry.csv has no rows.")
+
+    def col(name: str) -> Array:
+        if name not in index:
+            return np.full(table.rows, np.nan)
+        try:
+            return to_float(table.column(index[name]))
+        except ValueError as exc:
+            raise RecordingError(f"'{source}': column {name}: {exc}") from None
+
+    return col("t_s"), col("wall_time"), {n: col(n) for n in COLUMNS}
+
+
+def _read_frames_csv(folder: Path, camera: str) -> CameraFrames | None:
+    path = folder / layout.frames_csv_relpath(camera)
+    if not path.is_file():
+        return None
+    rows = list(csv.DictReader(io.StringIO(path.read_text(errors="replace"))))
+    rows = [r for r in rows if r.get("file") and (folder / r["file"]).is_file()]
+    if not rows:
+        return None
+    return CameraFrames(
+        name=camera,
+        seq=np.array([int(r["seq"]) for r in rows], dtype=np.int64),
+        t_s=np.array([float(r["t_s"]) for r in rows]),
+        files=[r["file"] for r in rows],
+        width=int(rows[0]["width"]),
+        height=int(rows[0]["height"]),
+    )
+
+
+# ---------------------------------------------------------------- bare tlog
+
+
+_GETTERS = {
+    n: attrgetter(n.rsplit(".", 1)[0] if n.startswith("rc.pwm_us.") else n) for n in COLUMNS
+}
+
+
+def _value(state, name: str) -> float:
+    v = _GETTERS[name](state)
+    if name.startswith("rc.pwm_us."):
+        v = v[int(name.rsplit(".", 1)[1])]
+    if v is None:
+        return np.nan
+    return float(v)
+
+
+def _read_tlog(path: Path, source: str, folder: Path | None, meta: dict) -> Recording:
+    """Rows of the state the link would have shown, every 1/TLOG_ROW_HZ of log time."""
+    tracker = StateTracker()
+    decoder = mavlink.MAVLink(None)
+    decoder.robust_parsing = True
+    period = 1.0 / TLOG_ROW_HZ
+    times: list[float] = []
+    rows: list[list[float]] = []
+    t0: float | None = None
+    next_row = 0.0
+    try:
+        for t, packet in TlogReader(path):
+            if t0 is None:
+                t0 = t
+                next_row = t
+            while t >= next_row:  # rows are the state just before each row instant
+                times.append(next_row)
+                rows.append([_value(tracker.state, n) for n in COLUMNS])
+                next_row += period
+            try:
+                msg = decoder.decode(bytearray(packet))
+            except Exception:  # a corrupted packet (bad CRC, cut short): skip it
+                continue
+            if msg is not None:
+                tracker.update(msg, t)
+    except OSError as exc:
+        raise RecordingError(f"'{source}' cannot be read: {exc}") from None
+    if t0 is None or not rows:
+        raise RecordingError(f"'{source}' holds no MAVLink packet.")
+    wall = np.array(times)
+    table = np.array(rows, dtype=np.float64)
+    columns = {n: table[:, i] for i, n in enumerate(COLUMNS)}
+    name = str(meta.get("id") or (folder.name if folder else path.stem))
+    return Recording(name, source, folder, path, meta, wall - t0, wall, columns)

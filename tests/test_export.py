@@ -1,0 +1,297 @@
+"""`fpv-station export` on a recorded twin flight (the scripted pilot flown by `demos`: real
+MAVLink over UDP, the recorder's writer, both cameras) and on a bare tlog with several
+sorties. Expected values are computed here from the session's own files (csv module,
+pymavlink, PyAV), not through the exporter's code."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from analysis import synthetic as syn
+from learn.demos import DemoConfig, fly_demo
+from learn.episodes import ChannelMap
+from learn.export import ExportOptions, export_recordings
+from server.cli import main as cli_main
+from tests.test_flights import _sorties
+
+FPS = 10
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Path:
+    return fly_demo(tmp_path_factory.mktemp("demo"), 3, DemoConfig(task_id=1, cameras=True))
+
+
+@pytest.fixture(scope="module")
+def rows(session) -> list[dict]:
+    with open(session / "telemetry.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _f(v: str) -> float:
+    return float(v) if v not in ("", None) else math.nan
+
+
+def _armed_span(rows) -> tuple[float, float]:
+    """Session times of the first and last armed rows (the demo has one flight)."""
+    armed = [r for r in rows if r["heartbeat.armed"] == "1"]
+    return float(armed[0]["t_s"]), float(armed[-1]["t_s"])
+
+
+@pytest.fixture(scope="module")
+def lerobot(session, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("lerobot")
+    s = export_recordings([session], "lerobot", out, ExportOptions(task_id=1, fps=FPS))
+    assert (s.episodes, s.recordings) == (1, 1)
+    return out
+
+
+def test_lerobot_layout_and_schema_match_info(lerobot):
+    info = json.loads((lerobot / "meta/info.json").read_text())
+    assert info["codebase_version"] == "v3.0" and info["fps"] == FPS
+    for f in (
+        "meta/stats.json",
+        "meta/tasks.parquet",
+        "meta/episodes/chunk-000/file-000.parquet",
+        "data/chunk-000/file-000.parquet",
+        "videos/observation.images.front/chunk-000/file-000.mp4",
+        "videos/observation.images.bottom/chunk-000/file-000.mp4",
+        "README.md",
+    ):
+        assert (lerobot / f).is_file(), f
+    assert (
+        info["data_path"].format(chunk_index=0, file_index=0) == "data/chunk-000/file-000.parquet"
+    )
+    schema = pq.read_schema(lerobot / "data/chunk-000/file-000.parquet")
+    features = info["features"]
+    tabular = {k: f for k, f in features.items() if f["dtype"] != "video"}
+    assert set(schema.names) == set(tabular)
+    for name, ft in tabular.items():
+        t = schema.field(name).type
+        if ft["shape"] == [1]:
+            assert str(t) == {"float32": "float", "float64": "double"}.get(ft["dtype"], ft["dtype"])
+        else:
+            assert t.list_size == ft["shape"][0] and str(t.value_type) == "float"
+            assert len(ft["names"]) == ft["shape"][0]
+    assert features["observation.state"]["shape"] == [18]
+    assert features["action"]["names"] == ["roll", "pitch", "yaw", "throttle"]
+    # tasks.parquet reads back (pandas) indexed by the task text, as LeRobot looks it up.
+    tasks = pq.read_table(lerobot / "meta/tasks.parquet")
+    pandas_meta = json.loads(tasks.schema.metadata[b"pandas"])
+    assert pandas_meta["index_columns"] == ["task"]
+    assert tasks.column("task_index").to_pylist() == [0]
+    assert "Take off" in tasks.column("task").to_pylist()[0]
+
+
+def test_lerobot_rows_are_fps_times_duration_on_the_session_clock(lerobot, rows):
+    arm, disarm = _armed_span(rows)
+    data = pq.read_table(lerobot / "data/chunk-000/file-000.parquet").to_pydict()
+    n = len(data["index"])
+    assert n == math.floor((disarm - arm) * FPS + 1e-6) + 1
+    assert data["session_time_s"][0] == pytest.approx(arm)
+    assert np.allclose(np.diff(data["session_time_s"]), 1 / FPS)
+    assert np.allclose(data["timestamp"], np.arange(n) / FPS, atol=1e-5)
+    assert data["frame_index"] == list(range(n)) and data["index"] == list(range(n))
+    assert set(data["episode_index"]) == {0} and set(data["task_index"]) == {0}
+    assert data["next.done"][-1] and not any(data["next.done"][:-1])
+    ep = pq.read_table(lerobot / "meta/episodes/chunk-000/file-000.parquet").to_pylist()[0]
+    assert (ep["dataset_from_index"], ep["dataset_to_index"], ep["length"]) == (0, n, n)
+    assert ep["videos/observation.images.front/to_timestamp"] == pytest.approx(n / FPS)
+
+
+def test_lerobot_actions_are_the_recorded_sticks(lerobot, rows):
+    data = pq.read_table(lerobot / "data/chunk-000/file-000.parquet").to_pydict()
+    t_rows = np.array([float(r["t_s"]) for r in rows])
+    pwm = np.array([[_f(r[f"rc.pwm_us.{c}"]) for c in range(4)] for r in rows])
+    moved = 0
+    for t, action in zip(data["session_time_s"], data["action"]):
+        r = int(np.searchsorted(t_rows, t + 1e-9, side="right") - 1)
+        roll, pitch, throttle, yaw = pwm[r]  # the twin's RC map: AETR
+        want = [
+            (roll - 1500) / 500,
+            (pitch - 1500) / 500,
+            (yaw - 1500) / 500,
+            (throttle - 1500) / 500,
+        ]
+        assert np.allclose(action, want, atol=1e-6), (t, action, want)
+        moved += abs(want[1]) > 0.05
+    assert moved > 5  # the pilot did move the sticks: the comparison is not all zeros
+
+
+def test_lerobot_state_follows_the_flight(lerobot, rows):
+    data = pq.read_table(lerobot / "data/chunk-000/file-000.parquet").to_pydict()
+    state = np.array(data["observation.state"])
+    height = state[:, 17]
+    assert height.max() == pytest.approx(4.0, abs=0.4)  # the hover at 4 m over the pad
+    assert np.abs(state[:, 0:2]).max() < 1.5  # task 1: the target is the start pad
+    assert state[0, 14] == 1.0 and state[0, 15] == 1.0  # armed, on the ground
+    assert (state[:, 15] == 0).any()  # airborne at some point
+    assert np.allclose(state[:, 8] ** 2 + state[:, 9] ** 2, 1.0, atol=1e-5)
+
+
+def test_lerobot_videos_decode_to_the_declared_frames(lerobot, session):
+    info = json.loads((lerobot / "meta/info.json").read_text())
+    data = pq.read_table(lerobot / "data/chunk-000/file-000.parquet").to_pydict()
+    for cam in ("front", "bottom"):
+        key = f"observation.images.{cam}"
+        h, w, _ = info["features"][key]["shape"]
+        path = lerobot / info["video_path"].format(video_key=key, chunk_index=0, file_index=0)
+        with av.open(str(path)) as c:
+            frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+        assert len(frames) == info["total_frames"]
+        assert frames[0].shape == (h, w, 3)
+        # Frame k is the JPEG recorded at or before its instant, not merely some frame.
+        with open(session / cam / "frames.csv", newline="") as f:
+            recorded = list(csv.DictReader(f))
+        t_rec = np.array([float(r["t_s"]) for r in recorded])
+        for k in (5, len(frames) // 2, len(frames) - 3):
+            j = int(np.searchsorted(t_rec, data["session_time_s"][k] + 1e-9, side="right") - 1)
+            jpeg = cv2.imread(str(session / recorded[j]["file"]))
+            far = cv2.imread(
+                str(session / recorded[(j + len(recorded) // 2) % len(recorded)]["file"])
+            )
+            err = np.abs(frames[k].astype(int) - jpeg.astype(int)).mean()
+            assert err < 6.0, (cam, k, err)
+            if cam == "front":  # the bottom view of grass can look alike at any time
+                assert err < np.abs(frames[k].astype(int) - far.astype(int)).mean()
+
+
+def test_lerobot_stats_agree_with_the_data(lerobot):
+    stats = json.loads((lerobot / "meta/stats.json").read_text())
+    data = pq.read_table(lerobot / "data/chunk-000/file-000.parquet").to_pydict()
+    for key in ("observation.state", "action"):
+        v = np.array(data[key], dtype=np.float64)
+        s = stats[key]
+        assert np.allclose(s["mean"], v.mean(0), atol=1e-6)
+        assert np.allclose(s["std"], v.std(0), atol=1e-6)
+        assert np.allclose(s["min"], v.min(0)) and np.allclose(s["max"], v.max(0))
+        assert np.allclose(s["q50"], np.quantile(v, 0.5, axis=0), atol=1e-6)
+        assert s["count"] == [len(v)]
+    img = stats["observation.images.front"]
+    assert np.array(img["mean"]).shape == (3, 1, 1)
+    assert all(0 <= m <= 1 for m in np.ravel(img["mean"]))
+
+
+def test_mcap_holds_every_frame_row_and_packet_with_foxglove_schemas(session, rows, tmp_path):
+    from mcap.reader import make_reader
+    from pymavlink import mavutil
+
+    out = tmp_path / "mcap"
+    s = export_recordings([session], "mcap", out, ExportOptions(task_id=1))
+    (path,) = sorted(out.glob("*.mcap"))
+    arm, disarm = _armed_span(rows)
+    meta = json.loads((session / "session.json").read_text())
+    wall0 = meta["start_wall"]
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        counts = {
+            summary.channels[cid].topic: n
+            for cid, n in summary.statistics.channel_message_counts.items()
+        }
+        schemas = {
+            summary.channels[cid].topic: summary.schemas[summary.channels[cid].schema_id].name
+            for cid in summary.channels
+        }
+        first_image = None
+        for _schema, _channel, message in reader.iter_messages(topics=["/front/image/compressed"]):
+            first_image = message.data  # a protobuf foxglove.CompressedImage
+            break
+    n_rows = sum(arm <= float(r["t_s"]) <= disarm for r in rows)
+    for cam in ("front", "bottom"):
+        with open(session / cam / "frames.csv", newline="") as f:
+            frames = [r for r in csv.DictReader(f) if arm <= float(r["t_s"]) <= disarm]
+        assert counts[f"/{cam}/image/compressed"] == len(frames)
+        assert schemas[f"/{cam}/image/compressed"] == "foxglove.CompressedImage"
+        if cam == "front":
+            first_file = (session / frames[0]["file"]).read_bytes()
+    assert counts["/telemetry"] == counts["/gps"] == counts["/pose"] == counts["/tf"] == n_rows
+    assert schemas["/gps"] == "foxglove.LocationFix"
+    assert schemas["/pose"] == "foxglove.PoseInFrame"
+    assert schemas["/tf"] == "foxglove.FrameTransform"
+    # Raw MAVLink: every tlog packet received between arming and disarming.
+    log = mavutil.mavlink_connection(str(session / "mavlink.tlog"))
+    packets = 0
+    while (m := log.recv_match()) is not None:
+        packets += arm - 1e-6 <= m._timestamp - wall0 <= disarm + 1e-6
+    assert counts["/mavlink"] == packets > 100
+    # The recorded JPEG, byte for byte, inside the message: no re-encode.
+    assert first_file.startswith(b"\xff\xd8") and first_file in first_image
+    assert len(first_image) - len(first_file) < 64
+    assert s.camera_frames == counts["/front/image/compressed"] + counts["/bottom/image/compressed"]
+
+
+def test_minari_dataset_loads_and_recovers_the_twin(session, tmp_path, monkeypatch):
+    import minari
+
+    out = tmp_path / "minari"
+    export_recordings([session, session], "minari", out, ExportOptions(task_id=1, fps=FPS))
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(out))
+    ds = minari.load_dataset("fpv-station/twin-task1/demos-v0")
+    assert ds.total_episodes == 2
+    ep = next(ds.iterate_episodes())
+    assert ep.observations.shape[1] == 18
+    assert ep.actions.shape == (ep.observations.shape[0] - 1, 4)
+    assert ep.terminations[-1] and not ep.truncations[-1]  # landed
+    assert ep.rewards[-1] > 9  # the env's +10 for landing on the pad
+    # Progress steps are small, but for the one where the held hover (10 s within 0.3 m of
+    # 4 m) moves the env's target from 4 m over the pad down to the pad: about -4.
+    big = np.flatnonzero(abs(ep.rewards[:-1]) > 1.0)
+    assert big.size == 1 and ep.rewards[big[0]] == pytest.approx(-4.0, abs=0.6)
+    assert ep.observations[big[0], 17] == pytest.approx(4.0, abs=0.3)
+    env = ds.recover_environment()
+    assert env.unwrapped.task.id == 1 and env.unwrapped.control_hz == FPS
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == ds.observation_space.shape
+    obs, reward, *_ = env.step(np.zeros(4, np.float32))
+    assert np.isfinite(reward)
+    assert os.environ["MINARI_DATASETS_PATH"] == str(out)
+
+
+def test_a_bare_tlog_with_several_sorties_gives_one_episode_per_flight(tmp_path):
+    tlog = syn.write_tlog(_sorties(), tmp_path / "sorties.tlog")
+    out = tmp_path / "lerobot"
+    s = export_recordings([tlog], "lerobot", out, ExportOptions(task_id=2, fps=5))
+    assert s.episodes == 3  # the motor test and the post-disarm tail are no episodes
+    eps = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pydict()
+    assert eps["length"] == [math.floor(d * 5 + 1e-6) + 1 for d in (19.9, 17.9, 11.9)]
+    info = json.loads((out / "meta/info.json").read_text())
+    assert info["video_path"] is None and not (out / "videos").exists()
+
+
+def test_channel_maps():
+    pwm = np.full((1, 18), 1500.0)
+    pwm[0, :4] = [2000, 1000, 1250, 1750]
+    assert ChannelMap().sticks(pwm).tolist() == [[1.0, -1.0, 0.5, -0.5]]
+    assert ChannelMap.parse("TAER").sticks(pwm).tolist() == [[-1.0, -0.5, 0.5, 1.0]]
+    assert ChannelMap.parse("roll=1,pitch=-2,throttle=3,yaw=4").sticks(pwm)[0, 1] == 1.0
+    unused = np.zeros((1, 18))
+    assert ChannelMap().sticks(unused).tolist() == [[0.0, 0.0, 0.0, 0.0]]
+    with pytest.raises(ValueError):
+        ChannelMap.parse("roll=1,pitch=2")
+    with pytest.raises(ValueError):
+        ChannelMap.parse("roll=1,pitch=2,throttle=3,yaw=40")
+
+
+def test_cli_export_and_its_errors(session, tmp_path, capsys):
+    out = tmp_path / "cli"
+    argv = ["export", str(session), "--format", "mcap", "--out", str(out), "--no-progress"]
+    assert cli_main(argv) == 0
+    assert "mcap: 1 episodes" in capsys.readouterr().out
+    assert len(list(out.glob("*.mcap"))) == 1
+    assert cli_main([*argv, "--cameras", "left"]) == 1
+    assert "no frames of camera left" in capsys.readouterr().err
+    assert cli_main([*argv, "--channel-map", "XYZ"]) == 2
+    assert cli_main([*argv[:2], str(tmp_path / "missing"), *argv[2:]]) == 1
+    assert "does not exist" in capsys.readouterr().err
+    assert cli_main([*argv, "--task", "9"]) == 1
