@@ -19,6 +19,7 @@ from twin.control import (
     ALTCTL,
     AUTO_LAND,
     AUTO_LOITER,
+    AUTO_MISSION,
     AUTO_TAKEOFF,
     MODE_NAMES,
     POSCTL,
@@ -124,11 +125,11 @@ class Commander:
     def request_mode(self, i: int, mode: int, pos_m: np.ndarray, gps_fix: bool) -> tuple[bool, str]:
         if mode not in MODE_NAMES:
             return False, f"unsupported mode {mode}"
-        if mode in (POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND) and not gps_fix:
+        if mode in (POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND, AUTO_MISSION) and not gps_fix:
             return False, f"{MODE_NAMES[mode]} refused: no GPS fix"
         if mode == AUTO_TAKEOFF:
             return self.request_takeoff(i, pos_m, None)
-        if mode in (AUTO_LOITER, AUTO_LAND):
+        if mode in (AUTO_LOITER, AUTO_LAND, AUTO_MISSION):  # hold until told where to go
             self.target_m[i] = pos_m
         self._switch(i, mode)
         return True, ""
@@ -253,4 +254,5 @@ __all__ = [
     "AUTO_TAKEOFF",
     "AUTO_LOITER",
     "AUTO_LAND",
+    "AUTO_MISSION",
 ]

@@ -10,7 +10,8 @@ physics step). Modes follow PX4's behaviour for the pilot:
 - Altitude (ALTCTL): horizontal sticks command tilt angles, throttle commands climb rate;
   centred throttle holds altitude.
 - Stabilized (MANUAL/STABILIZED): sticks command tilt angles, throttle is collective thrust.
-- AUTO takeoff / loiter / land: position setpoints from the commander; sticks ignored.
+- AUTO takeoff / loiter / land / mission: position setpoints from the commander (the
+  mission's from `twin.mission`); sticks ignored.
 
 Sticks are (N, 4) of roll (right +), pitch (forward +), yaw (clockwise +) in [-1, 1] and
 throttle in [0, 1], the normalized form of MANUAL_CONTROL / RC PWM.
@@ -24,7 +25,7 @@ import numpy as np
 
 from twin.dynamics import GRAVITY_MPS2, Airframe, _clip
 
-STABILIZED, ALTCTL, POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND = range(6)
+STABILIZED, ALTCTL, POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND, AUTO_MISSION = range(7)
 MODE_NAMES = {
     STABILIZED: "STABILIZED",
     ALTCTL: "ALTCTL",
@@ -32,6 +33,7 @@ MODE_NAMES = {
     AUTO_TAKEOFF: "TAKEOFF",
     AUTO_LOITER: "LOITER",
     AUTO_LAND: "LAND",
+    AUTO_MISSION: "MISSION",
 }
 
 

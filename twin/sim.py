@@ -26,6 +26,7 @@ MODE_BY_NAME.update(
         "AUTO.TAKEOFF": MODE_BY_NAME["TAKEOFF"],
         "AUTO.LOITER": MODE_BY_NAME["LOITER"],
         "AUTO.LAND": MODE_BY_NAME["LAND"],
+        "AUTO.MISSION": MODE_BY_NAME["MISSION"],
     }
 )
 

@@ -9,7 +9,15 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from analysis.geodesy import enu_to_geodetic
-from twin.control import ALTCTL, AUTO_LAND, AUTO_LOITER, AUTO_TAKEOFF, POSCTL, STABILIZED
+from twin.control import (
+    ALTCTL,
+    AUTO_LAND,
+    AUTO_LOITER,
+    AUTO_MISSION,
+    AUTO_TAKEOFF,
+    POSCTL,
+    STABILIZED,
+)
 from twin.sim import Sim
 
 # PX4 custom mode = main << 16 | sub << 24 (px4_custom_mode.h).
@@ -20,6 +28,7 @@ PX4_MODES = {  # our mode -> (main, sub)
     AUTO_TAKEOFF: (4, 2),
     AUTO_LOITER: (4, 3),
     AUTO_LAND: (4, 6),
+    AUTO_MISSION: (4, 4),
 }
 
 

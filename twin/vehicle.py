@@ -1,5 +1,15 @@
 """The twin as a MAVLink vehicle: PX4 identity and mode encoding, Pixhawk-like telemetry
-rates, and the commands a ground station or a pilot's radio sends.
+rates, and the commands a ground station or a pilot's radio sends: arming, modes,
+take-off, landing, DO_REPOSITION (COMMAND_LONG or COMMAND_INT), the mission protocol
+(`twin.mission_protocol`) and AUTO.MISSION flights (`twin.mission`).
+
+Take-off altitude: PX4's MAV_CMD_NAV_TAKEOFF takes param7 above mean sea level, and
+QGroundControl sends home + height to PX4; ArduPilot's ground stations (MAVProxy's
+"takeoff 10", Mission Planner, QGroundControl on ArduPilot) send the height above home.
+In COMMAND_INT the frame says which. In COMMAND_LONG, a value below home's altitude
+cannot be an altitude above sea level to climb to, so it is read as the height above
+home; any other value as above sea level (ambiguous only on a field whose home is lower
+than the requested height above it, i.e. near sea level).
 
 It owns one UDP socket (`udpout:HOST:PORT` sends to a ground station as PX4 SITL does;
 `udpin:HOST:PORT` listens and answers whoever spoke last) and pymavlink's MAVLink 2
@@ -16,7 +26,9 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from twin.control import AUTO_LOITER, STABILIZED
+from twin.control import AUTO_LOITER, AUTO_MISSION, STABILIZED
+from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu
+from twin.mission_protocol import MissionProtocol
 from twin.params import ParamServer, px4_params
 from twin.sim import Sim
 from twin.telemetry import PX4_MODES, Telemetry
@@ -42,8 +54,46 @@ DEFAULT_RATES_HZ = {
     "SERVO_OUTPUT_RAW": 10.0,
     "EXTENDED_SYS_STATE": 1.0,
     "HOME_POSITION": 0.5,
+    "MISSION_CURRENT": 1.0,
 }
 STICK_TIMEOUT_S = 1.0  # no MANUAL_CONTROL/override for this long = sticks centred
+_MISSION_MESSAGES = frozenset(
+    {
+        "MISSION_REQUEST_LIST",
+        "MISSION_REQUEST_INT",
+        "MISSION_REQUEST",
+        "MISSION_COUNT",
+        "MISSION_ITEM_INT",
+        "MISSION_ITEM",
+        "MISSION_ACK",
+        "MISSION_CLEAR_ALL",
+        "MISSION_SET_CURRENT",
+    }
+)
+_INT32_UNSET = 2**31 - 1  # COMMAND_INT x/y "not given"
+
+
+@dataclass(frozen=True)
+class CommandArgs:
+    """COMMAND_LONG and COMMAND_INT in one shape: params 5-7 are x, y, z (degrees for a
+    COMMAND_INT's global frames); `frame` is None for COMMAND_LONG, which has none."""
+
+    command: int
+    params: tuple[float, float, float, float, float, float, float]
+    frame: int | None
+
+    @staticmethod
+    def of(msg) -> CommandArgs:
+        if msg.get_type() == "COMMAND_LONG":
+            p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6)
+            return CommandArgs(msg.command, (*p, msg.param7), None)
+        scale = 1e-7 if msg.frame in AMSL_FRAMES | RELATIVE_FRAMES else 1.0
+
+        def xy(v: int) -> float:
+            return math.nan if v == _INT32_UNSET else v * scale
+
+        p4 = (msg.param1, msg.param2, msg.param3, msg.param4)
+        return CommandArgs(msg.command, (*p4, xy(msg.x), xy(msg.y), msg.z), msg.frame)
 
 
 @dataclass
@@ -78,6 +128,17 @@ class MavlinkVehicle:
         self.params: ParamServer | None = None  # built from the sim's config on first use
         self._pending_once: list[str] = []
         self._last_poll_s = 0.0
+        self.mission = MissionRunner(
+            reached=lambda seq: self.mav.mission_item_reached_send(seq),
+            current_changed=lambda seq: self._pending_once.append("MISSION_CURRENT"),
+            say=lambda text: self.mav.statustext_send(mavlink.MAV_SEVERITY_INFO, text.encode()),
+        )
+        self.mission_protocol = MissionProtocol(
+            self.mav,
+            get_items=lambda: self.mission.items,
+            set_items=self.mission.load,
+            set_current=self.mission.set_current,
+        )
 
     @staticmethod
     def _open(connection: str) -> tuple[socket.socket, tuple[str, int] | None]:
@@ -137,6 +198,8 @@ class MavlinkVehicle:
         if now_s - self.stats.last_input_s > STICK_TIMEOUT_S and self.stats.last_input_s > -1e8:
             sim.set_sticks(0.0, 0.0, 0.0, 0.5)
             self.stats.last_input_s = -1e9
+        self.mission_protocol.poll()
+        self.mission.update(sim, now_s, self._home_alt_m(sim))
         for event in sim.drain_events():
             self.mav.statustext_send(event.severity, event.text.encode()[:50])
         if now_s < self._last_poll_s:  # the sim clock went back: restart the schedule
@@ -170,10 +233,10 @@ class MavlinkVehicle:
                     vals[k] = (pwm - 1500) / 500.0 if k != 2 else (pwm - 1000) / 1000.0
             sim.set_sticks(vals[0], vals[1], vals[3], vals[2])
             self.stats.last_input_s = now_s
-        elif kind == "COMMAND_LONG":
+        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             if msg.target_system not in (0, self.sysid):
                 return
-            result, text = self._command(sim, msg)
+            result, text = self._command(sim, CommandArgs.of(msg))
             self.mav.command_ack_send(
                 msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
             )
@@ -187,52 +250,98 @@ class MavlinkVehicle:
             note = self.params.handle(msg)
             if note:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, note.encode()[:50])
+        elif kind in _MISSION_MESSAGES:
+            if msg.target_system not in (0, self.sysid):
+                return
+            self.mission_protocol.handle(msg)
         elif kind == "SET_MODE":
             if msg.target_system not in (0, self.sysid):
                 return
             main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
-            mode = PX4_MODE_FROM_MAIN_SUB.get((main, sub))
-            ok, why = (
-                (False, f"unsupported mode {main}/{sub}")
-                if mode is None
-                else sim.commander.request_mode(
-                    0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s)
-                )
-            )
+            ok, why = self._set_mode(sim, main, sub)
             if not ok:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, why.encode()[:50])
 
-    def _command(self, sim: Sim, msg) -> tuple[int, str]:
-        c = msg.command
+    def _set_mode(self, sim: Sim, main: int, sub: int) -> tuple[bool, str]:
+        mode = PX4_MODE_FROM_MAIN_SUB.get((main, sub))
+        if mode is None:
+            return False, f"unsupported mode {main}/{sub}"
+        if mode == AUTO_MISSION and not self.mission.items:
+            return False, "mission mode refused: no mission"
+        return sim.commander.request_mode(0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s))
+
+    def _home_alt_m(self, sim: Sim) -> float:
+        """PX4's home altitude (set on the ground at arming), the scene's before a fix."""
+        return self.telemetry.home_alt_m or sim.scene.home.alt_m
+
+    def _takeoff_height_m(self, sim: Sim, args: CommandArgs) -> float | None:
+        """The take-off height above home that a ground station meant (module docstring)."""
+        alt = args.params[6]
+        if not math.isfinite(alt):
+            return None
+        home = self._home_alt_m(sim)
+        if args.frame in RELATIVE_FRAMES:
+            return alt
+        if args.frame in AMSL_FRAMES or alt >= home:
+            return alt - home
+        return alt
+
+    def _reposition(self, sim: Sim, args: CommandArgs) -> tuple[bool, str]:
+        """MAV_CMD_DO_REPOSITION: hold (AUTO.LOITER) at the given place, as PX4 does; an
+        unset (NaN) latitude/longitude or altitude keeps the current one."""
+        com = sim.commander
+        if not com.armed[0] or com.landed[0]:
+            return False, "reposition refused: not flying"
+        lat, lon, alt = args.params[4:7]
+        frame = mavlink.MAV_FRAME_GLOBAL if args.frame is None else args.frame
+        if frame not in AMSL_FRAMES | RELATIVE_FRAMES:
+            return False, f"reposition refused: frame {frame}"
+        pos = sim.est_pos_m[0]
+        target = pos.copy()
+        home = self._home_alt_m(sim)
+        if math.isfinite(lat) and math.isfinite(lon):
+            target[:2] = target_enu(sim, lat, lon, 0.0, frame, home)[:2]
+        if math.isfinite(alt):
+            target[2] = max(
+                target_enu(sim, sim.scene.home.lat_deg, sim.scene.home.lon_deg, alt, frame, home)[
+                    2
+                ],
+                0.5,
+            )
+        ok, why = com.request_mode(0, AUTO_LOITER, pos, sim.sensors.has_fix(sim.t_s))
+        if ok:
+            com.target_m[0] = target
+        return ok, why
+
+    def _command(self, sim: Sim, args: CommandArgs) -> tuple[int, str]:
+        c, p = args.command, args.params
         ok_, fail = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_DENIED
         if c == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
-            ok, why = sim.arm(msg.param1 > 0.5, force=int(msg.param2) == 21196)
+            ok, why = sim.arm(p[0] > 0.5, force=int(p[1]) == 21196)
         elif c == mavlink.MAV_CMD_NAV_TAKEOFF:
-            alt = msg.param7
-            rel = (
-                None
-                if not math.isfinite(alt)
-                else alt - (self.telemetry.home_alt_m or sim.scene.home.alt_m)
-            )
-            ok, why = sim.takeoff(rel)
+            ok, why = sim.takeoff(self._takeoff_height_m(sim, args))
         elif c == mavlink.MAV_CMD_NAV_LAND:
             ok, why = sim.land()
+        elif c == mavlink.MAV_CMD_DO_REPOSITION:
+            ok, why = self._reposition(sim, args)
+        elif c == mavlink.MAV_CMD_MISSION_START:
+            first = int(p[0]) if math.isfinite(p[0]) and p[0] > 0 else self.mission.current
+            if not self.mission.set_current(first) or not self.mission.items:
+                return fail, "mission start refused: no such item"
+            ok, why = self._set_mode(sim, 4, 4)
+        elif c == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
+            ok, why = self.mission.set_current(int(p[0])), "no such mission item"
         elif c == mavlink.MAV_CMD_DO_SET_MODE:
-            mode = PX4_MODE_FROM_MAIN_SUB.get((int(msg.param2), int(msg.param3)))
-            if mode is None:
-                return fail, f"unsupported mode {int(msg.param2)}/{int(msg.param3)}"
-            ok, why = sim.commander.request_mode(
-                0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s)
-            )
+            ok, why = self._set_mode(sim, int(p[1]), int(p[2]))
         elif c == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            return self._set_interval(int(msg.param1), msg.param2)
+            return self._set_interval(int(p[0]), p[1])
         elif c == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             self._pending_once.append("AUTOPILOT_VERSION")
             return ok_, ""
         elif c == mavlink.MAV_CMD_REQUEST_MESSAGE:
-            name = _msg_name(int(msg.param1))
+            name = _msg_name(int(p[0]))
             if name not in self.interval_s and name != "AUTOPILOT_VERSION":
-                return fail, f"message {int(msg.param1)} not supported"
+                return fail, f"message {int(p[0])} not supported"
             self._pending_once.append(name)
             return ok_, ""
         else:
@@ -254,6 +363,10 @@ class MavlinkVehicle:
 
     # ---- outputs ----
     def _send(self, sim: Sim, name: str, now_s: float) -> None:
+        if name == "MISSION_CURRENT":
+            m = self.mission
+            self.mav.mission_current_send(m.current, len(m.items))
+            return
         self.telemetry.send(name, sim, int(now_s * 1000) & 0xFFFFFFFF)
 
 

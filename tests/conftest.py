@@ -1,0 +1,28 @@
+"""Fixtures shared by several test modules."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+from pymavlink import mavutil
+
+from tests.helpers import free_port
+from twin.runner import Twin
+from twin.sensors import SensorParams
+from twin.sim import SimConfig
+
+
+@pytest.fixture()
+def twin_and_gcs():
+    """An in-process twin (no sensor noise) and a pymavlink ground station on real UDP."""
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    twin = Twin(
+        config=SimConfig(sensors=SensorParams(enabled=False)), mavlink=f"udpout:127.0.0.1:{port}"
+    )
+    twin.step_for(2.5)  # GPS fix; the vehicle's first packets make the GCS learn its address
+    assert gcs.wait_heartbeat(timeout=5) is not None
+    yield twin, gcs
+    twin.stop()
+    gcs.close()
