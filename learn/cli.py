@@ -102,3 +102,81 @@ def run_demos(args: argparse.Namespace) -> int:
     for f in folders:
         print(f)
     return 0
+
+
+def add_learn_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="learn_command", required=True)
+    bc = sub.add_parser("bc", help="train a behaviour-cloning policy on a LeRobot dataset")
+    bc.add_argument("dataset", type=Path, metavar="DATASET", help="a LeRobot dataset folder")
+    bc.add_argument("--out", type=Path, required=True, metavar="POLICY", help="policy file")
+    bc.add_argument("--k", type=int, default=5, help="neighbours averaged (default 5)")
+    bc.set_defaults(func=run_bc)
+    ev = sub.add_parser("eval", help="fly a policy in the twin; the paper's table for the task")
+    ev.add_argument("policy", type=Path, metavar="POLICY")
+    ev.add_argument("--task", type=int, required=True, help="the scene's task id (1-4)")
+    ev.add_argument("--episodes", type=int, default=10)
+    ev.add_argument("--seed", type=int, default=1000, help="seed of the first episode")
+    ev.add_argument(
+        "--demos", type=Path, nargs="*", default=[], help="demonstration sessions to score too"
+    )
+    ev.add_argument(
+        "--no-baselines", action="store_true", help="without the scripted and random rows"
+    )
+    ev.set_defaults(func=run_eval)
+
+
+def run_bc(args: argparse.Namespace) -> int:
+    from learn.bc import train
+
+    try:
+        policy = train(args.dataset, args.k)
+    except (ValueError, OSError) as exc:
+        print(f"fpv-station learn bc: {exc}", file=sys.stderr)
+        return 1
+    path = policy.save(args.out)
+    print(f"policy: {len(policy.inputs)} frames, k={policy.k}, task {policy.task_id} -> {path}")
+    return 0
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    from learn import evaluate as ev
+    from learn.bc import BcPolicy
+    from twin.scene import load_scene
+
+    try:
+        policy = BcPolicy.load(args.policy)
+        scene = load_scene()
+        scene.task(args.task)
+    except (ValueError, OSError, KeyError) as exc:
+        print(f"fpv-station learn eval: {exc}", file=sys.stderr)
+        return 1
+    if policy.task_id not in (0, args.task):
+        print(
+            f"note: the policy learned task {policy.task_id}, evaluated on task {args.task}",
+            file=sys.stderr,
+        )
+    rows = [
+        ev.evaluate(
+            "behaviour cloning",
+            lambda s: ev.policy_act(policy),
+            args.task,
+            args.episodes,
+            args.seed,
+        )
+    ]
+    if not args.no_baselines:
+        rows.append(
+            ev.evaluate(
+                "scripted pilot",
+                lambda s: ev.scripted_pilot(scene, args.task),
+                args.task,
+                args.episodes,
+                args.seed,
+            )
+        )
+        rows.append(ev.evaluate("random", ev.random_policy, args.task, args.episodes, args.seed))
+    if args.demos:
+        rows.append(ev.demonstrations(args.demos, args.task))
+    print(f"Task {args.task} ({ev.TASK_NAMES[args.task]}), twin, seeds {args.seed}+:")
+    print(ev.table(rows, args.task))
+    return 0

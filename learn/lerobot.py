@@ -69,8 +69,10 @@ class LeRobotWriter:
         fps: int,
         cameras: dict[str, tuple[int, int]],  # camera -> (width, height)
         robot_type: str = ROBOT_TYPE,
+        task_id: int = 0,
     ) -> None:
         self.root = Path(root)
+        self.task_id = task_id  # the scene's task, kept per episode for the baseline
         self.fps = int(fps)
         self.cameras = dict(cameras)
         self.robot_type = robot_type
@@ -161,6 +163,7 @@ class LeRobotWriter:
         meta["source/recording"] = ep.recording
         meta["source/flight"] = ep.number
         meta["source/landed"] = ep.landed
+        meta["source/task_id"] = self.task_id
         self.episodes.append(meta)
         self._episode_stats.append(ep_stats)
         self.total_frames += n
@@ -244,7 +247,7 @@ class LeRobotExport:
         self.task = task
         self.options = options
         size = {c: (rec.cameras[c].width, rec.cameras[c].height) for c in cameras}
-        self.writer = LeRobotWriter(out, options.fps, size)
+        self.writer = LeRobotWriter(out, options.fps, size, task_id=options.task_id)
 
     def add(self, rec, ep: Episode) -> None:
         self.writer.add_episode(ep, self.task, rec.frame_bytes)

@@ -162,6 +162,8 @@ def add_learn_parsers(sub: Any) -> None:
     p = sub.add_parser("demos", help="fly the twin's scripted pilot K times into ordinary sessions")
     learn_cli.add_demos_arguments(p)
     p.set_defaults(func=learn_cli.run_demos)
+    p = sub.add_parser("learn", help="behaviour cloning: train (bc) and fly in the twin (eval)")
+    learn_cli.add_learn_arguments(p)
 
 
 def add_camera_flags(p: Any) -> None:

@@ -1,0 +1,121 @@
+"""Behaviour cloning: a small policy from the state (and the time since arming) to the
+pilot's four sticks, trained on a LeRobot dataset exported by `fpv-station export`.
+
+The model is scikit-learn's k-nearest-neighbours regressor on standardized inputs
+(distance-weighted mean of the `k` closest demonstrated frames' sticks). It is CPU-only,
+has nothing to tune but `k`, and needs no torch. The time since arming is an input
+because the state alone cannot say when a timed task phase is over (task 1 holds the
+hover for 10 s, then lands): a demonstration's `timestamp` column is exactly that time,
+and `TwinEnv` reports it as `info["t_s"]`.
+
+A policy file is an `.npz` of plain arrays (the training inputs and sticks, the
+standardization, `k`): no pickle, so loading a policy file runs no code from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+from numpy.typing import NDArray
+
+FORMAT = "fpv-station-bc-knn-1"
+DEFAULT_K = 5
+# The state elements the policy reads (`twin.gym_env.STATE_NAMES`): position to the
+# target, velocity, roll, pitch, heading, on the ground. Left out: body rates (noise at
+# this rate), battery, armed (constant in flight: standardizing a nearly constant input
+# blows its noise up into the distance), and the two distances the position repeats.
+FEATURES = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 15)
+
+
+@dataclass
+class BcPolicy:
+    inputs: NDArray[np.float32]  # (n, len(FEATURES) + 1): state features, seconds since arming
+    sticks: NDArray[np.float32]  # (n, 4)
+    mean: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    k: int = DEFAULT_K
+    task_id: int = 0  # the task of the demonstrations (0 = unknown)
+
+    def __post_init__(self) -> None:
+        from sklearn.neighbors import KNeighborsRegressor
+
+        self._model = KNeighborsRegressor(
+            n_neighbors=min(self.k, len(self.inputs)), weights="distance"
+        )
+        self._model.fit((self.inputs - self.mean) / self.scale, self.sticks)
+
+    def act(self, state: np.ndarray, t_s: float) -> np.ndarray:
+        x = np.append(np.asarray(state, np.float64)[list(FEATURES)], t_s)[None, :]
+        a = self._model.predict((x - self.mean) / self.scale)[0]
+        return np.clip(a, -1.0, 1.0).astype(np.float32)
+
+    def save(self, path: Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as f:  # a file object: numpy would append ".npz" to a name
+            np.savez_compressed(
+                f,
+                format=np.array(FORMAT),
+                features=np.array(FEATURES),
+                inputs=self.inputs,
+                sticks=self.sticks,
+                mean=self.mean,
+                scale=self.scale,
+                k=np.array(self.k),
+                task_id=np.array(self.task_id),
+            )
+        return path
+
+    @classmethod
+    def load(cls, path: Path) -> BcPolicy:
+        with np.load(Path(path), allow_pickle=False) as z:
+            if "format" not in z or str(z["format"]) != FORMAT:
+                raise ValueError(f"'{path}' is not an fpv-station behaviour-cloning policy")
+            if tuple(z["features"].tolist()) != FEATURES:
+                raise ValueError(f"'{path}' reads other state features; train it again")
+            return cls(
+                inputs=z["inputs"],
+                sticks=z["sticks"],
+                mean=z["mean"],
+                scale=z["scale"],
+                k=int(z["k"]),
+                task_id=int(z["task_id"]),
+            )
+
+
+def read_lerobot(root: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """(inputs, sticks, task_id) of every frame of a LeRobot dataset from `export`."""
+    root = Path(root)
+    files = sorted((root / "data").glob("*/*.parquet"))
+    if not files:
+        raise ValueError(f"'{root}' is not a LeRobot dataset (no data/*/*.parquet)")
+    cols = ["observation.state", "action", "timestamp"]
+    tables = [pq.read_table(f, columns=cols) for f in files]
+    state = np.concatenate([_matrix(t.column("observation.state")) for t in tables])
+    action = np.concatenate([_matrix(t.column("action")) for t in tables])
+    t = np.concatenate([t.column("timestamp").to_numpy() for t in tables])
+    task_id = 0
+    episodes = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+    if episodes and "source/task_id" in pq.read_schema(episodes[0]).names:
+        task_id = int(pq.read_table(episodes[0], columns=["source/task_id"])[0][0].as_py())
+    inputs = np.column_stack([state[:, list(FEATURES)], t]).astype(np.float32)
+    return inputs, action.astype(np.float32), task_id
+
+
+def train(dataset: Path, k: int = DEFAULT_K) -> BcPolicy:
+    inputs, sticks, task_id = read_lerobot(dataset)
+    if len(inputs) < 2:
+        raise ValueError(f"'{dataset}' has {len(inputs)} frames; behaviour cloning needs more")
+    mean = inputs.mean(0).astype(np.float64)
+    scale = inputs.std(0).astype(np.float64)
+    scale[scale < 1e-6] = 1.0  # constant inputs (armed, always 1) carry no distance
+    return BcPolicy(inputs, sticks, mean, scale, k, task_id)
+
+
+def _matrix(col) -> np.ndarray:
+    """A fixed-size-list column as an (n, size) array, without a Python loop."""
+    arr = col.combine_chunks()
+    return arr.values.to_numpy(zero_copy_only=False).reshape(len(arr), arr.type.list_size)

@@ -1,0 +1,73 @@
+"""The learning loop on task 1 (hover), small enough for CI: `demos` flies the scripted
+pilot into sessions, `export` makes a LeRobot dataset of them, `learn bc` trains a policy,
+and `learn eval` flies it in the twin next to the scripted pilot, a random policy and the
+demonstrations, scored with the paper's metrics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from learn.bc import FEATURES, BcPolicy
+from server.cli import main as cli_main
+
+
+def _table(text: str) -> dict[str, list[str]]:
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) > 3 and cells[0] not in ("policy", "---"):
+            rows[cells[0]] = cells[1:]
+    return rows
+
+
+def test_demos_bc_eval_on_the_hover(tmp_path: Path, capsys):
+    demos = tmp_path / "demos"
+    assert (
+        cli_main(["demos", "--task", "1", "--count", "4", "--seed", "50", "--out", str(demos)]) == 0
+    )
+    sessions = sorted(p for p in demos.iterdir() if p.is_dir())
+    assert len(sessions) == 4
+    dataset = tmp_path / "dataset"
+    argv = ["export", *map(str, sessions), "--format", "lerobot", "--out", str(dataset)]
+    assert cli_main([*argv, "--task", "1", "--no-progress"]) == 0
+    policy = tmp_path / "policy.npz"
+    assert cli_main(["learn", "bc", str(dataset), "--out", str(policy)]) == 0
+    capsys.readouterr()
+    p = BcPolicy.load(policy)
+    assert p.task_id == 1 and p.inputs.shape[1] == len(FEATURES) + 1
+    assert np.allclose(p.act(np.zeros(18), 0.0).shape, (4,))
+
+    argv = ["learn", "eval", str(policy), "--task", "1", "--episodes", "3", "--seed", "1000"]
+    assert cli_main([*argv, "--demos", *map(str, sessions)]) == 0
+    rows = _table(capsys.readouterr().out)
+    # columns: episodes, success, crashes, hover distance, height dev., trial time, time
+    bc, scripted, rnd, demo = (
+        rows["behaviour cloning"],
+        rows["scripted pilot"],
+        rows["random"],
+        rows["demonstrations"],
+    )
+    assert bc[0] == "3" and demo[0] == "4"
+    success = {k: int(v[1].rstrip("%")) for k, v in rows.items()}
+    assert success["behaviour cloning"] >= 66  # at least 2 of 3 landed on the pad
+    assert success["random"] == 0  # the clear margin
+    assert success["scripted pilot"] == 100 and success["demonstrations"] == 100
+    assert bc[2] == "0"  # no crash
+    # The paper's hover metrics: the clone hovers over the pad, like its teachers.
+    assert float(bc[3]) < 0.5 and float(demo[3]) < 0.5
+    assert 10.0 < float(bc[5]) < 40.0  # trial time: climb, 10 s hold, descent
+    assert float(scripted[5]) == pytest.approx(19.0, abs=1.5)
+    assert float(rnd[-1]) == pytest.approx(60.0)  # random never lands: the time limit
+
+
+def test_learn_errors_are_clear(tmp_path: Path, capsys):
+    assert cli_main(["learn", "bc", str(tmp_path), "--out", str(tmp_path / "p.npz")]) == 1
+    assert "not a LeRobot dataset" in capsys.readouterr().err
+    bogus = tmp_path / "bogus.npz"
+    np.savez(bogus, x=np.zeros(3))
+    assert cli_main(["learn", "eval", str(bogus), "--task", "1", "--episodes", "1"]) == 1
+    assert "not an fpv-station behaviour-cloning policy" in capsys.readouterr().err
+    assert cli_main(["demos", "--task", "1", "--count", "0", "--out", str(tmp_path)]) == 2
