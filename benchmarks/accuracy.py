@@ -28,9 +28,8 @@ from pymavlink import mavutil  # noqa: E402
 
 from companion.recording import layout  # noqa: E402
 from server.app import create_app  # noqa: E402
-from server.settings import load_settings  # noqa: E402
 from tests import shaped_tlog  # noqa: E402
-from tests.helpers import free_port, run_uvicorn, wait_until  # noqa: E402
+from tests.helpers import free_port, run_uvicorn, station_settings, wait_until  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
 from tests.test_flight_truth import by_stream, mavloss, replay_status  # noqa: E402
 from tests.test_twin_mission import MISSION, REL, take_off, upload  # noqa: E402
@@ -66,16 +65,7 @@ def loss_cases(tmp: Path) -> None:
 def silence_case(tmp: Path) -> None:
     speed = 10
     path = shaped_tlog.silent_vehicle().write(tmp / "silent.tlog")
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": f"replay:{path}?speed={speed}",
-            "viser.enabled": False,
-            "recording.sessions_dir": str(tmp / "sessions"),
-            "recording.auto_record_on_arm": False,
-            "recording.min_free_mb": 0,
-        },
-    )
+    settings = station_settings(f"replay:{path}?speed={speed}", tmp / "sessions")
     with run_uvicorn(create_app(settings)) as base:
         httpx.post(f"{base}/api/recording/start")
         wait_until(lambda: httpx.get(f"{base}/api/status").json()["link"]["replay_done"], 60)
@@ -98,14 +88,8 @@ def forward_rate_case() -> None:
     port = free_port(socket.SOCK_DGRAM)
     other = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     with MavVehicle("udp") as v:
-        settings = load_settings(
-            environ={},
-            overrides={
-                "link.source": v.station_source,
-                "link.forward": [f"udpout:127.0.0.1:{port}"],
-                "viser.enabled": False,
-                "recording.auto_record_on_arm": False,
-            },
+        settings = station_settings(
+            v.station_source, **{"link.forward": [f"udpout:127.0.0.1:{port}"]}
         )
         with run_uvicorn(create_app(settings)) as base:
             status = lambda: httpx.get(f"{base}/api/status").json()["link"]  # noqa: E731
@@ -171,12 +155,7 @@ def twin_cases() -> None:
 
 
 def reset_case() -> None:
-    settings = load_settings(
-        environ={},
-        overrides={"link.source": "sim", "twin.realtime_factor": 10.0, "viser.enabled": False,
-                   "recording.auto_record_on_arm": False},
-    )  # fmt: skip
-    app = create_app(settings)
+    app = create_app(station_settings("sim", **{"twin.realtime_factor": 10.0}))
     with run_uvicorn(app):
         station = app.state.station
         wait_until(lambda: station.twin.sim.t_s > 120.0, 60)
