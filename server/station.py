@@ -60,7 +60,8 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             # exactly as a real vehicle below (server/sim.py).
             from server.sim import open_sim
 
-            open_sim(station, stack)
+            station.twin, station.link = open_sim(settings, stack)
+            station.state = station.link.state
         elif source != "none":
             link = MavlinkLink(settings.link)
             link.start()
