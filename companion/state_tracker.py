@@ -29,6 +29,7 @@ from companion.vehicle_state import (
     VfrHud,
 )
 from core.mavlink.framing import packet_version
+from core.mavlink.px4_modes import px4_main_sub, px4_mode_name
 
 _AUTOPILOT_NAMES = {
     mavlink.MAV_AUTOPILOT_PX4: "px4",
@@ -58,7 +59,10 @@ def _enum_name(enum: str, value: int, prefix: str) -> str:
 
 def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: int) -> str:
     """The flight mode in the autopilot family's own words (PX4 'POSCTL', ArduCopter
-    'LOITER'); pymavlink keeps the tables of both families up to date."""
+    'LOITER'): PX4's from the code base's one table (core.mavlink.px4_modes), ArduPilot's
+    from pymavlink's tables per vehicle type."""
+    if autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        return px4_mode_name(*px4_main_sub(custom_mode)) or "UNKNOWN"
 
     class _Hb:  # mode_string_v10 reads these attributes from a HEARTBEAT
         def get_type(self) -> str:

@@ -11,19 +11,22 @@ import contextlib
 import logging
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from companion.latest import Latest
 from companion.link import MavlinkLink
 from companion.recording.recorder import Recorder
 from companion.vehicle_state import VehicleState
+from server.pilot import Pilot
 from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up time
+    from companion.cameras.capture import Camera
     from server.trajectory3d.replay_scene import Replay3D
     from server.trajectory3d.service import Trajectory3D
+    from twin.runner import Twin
 
 
 log = logging.getLogger(__name__)
@@ -39,12 +42,12 @@ class Station:
     state: Latest[VehicleState] = field(default_factory=Latest)
     telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
     recorder: Recorder | None = None
-    # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
-    cameras: dict[str, Any] = field(default_factory=dict)
+    # front and bottom; readers use `.frames` (a Latest[Frame])
+    cameras: dict[str, Camera] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
     replay3d: Replay3D | None = None  # the replay's viser panel; None with --no-3d
-    # The digital twin (twin.runner.Twin) when link.source is "sim", else None.
-    twin: Any = None
+    twin: Twin | None = None  # the digital twin when link.source is "sim"
+    pilot: Pilot | None = None  # who has the twin's sticks (/ws/control), one at a time
 
 
 @contextlib.asynccontextmanager
