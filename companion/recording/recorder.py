@@ -16,7 +16,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable, Coroutine, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -261,8 +261,3 @@ class Recorder:
             loop.call_soon_threadsafe(self._spawn_stop, reason, session_id)
         except RuntimeError:  # the loop is closed: shutdown finalizes
             pass
-
-
-def with_session_config(options: RecorderOptions, **changes: Any) -> RecorderOptions:
-    """A copy of `options` with some SessionConfig fields changed."""
-    return replace(options, session=replace(options.session, **changes))
