@@ -7,8 +7,10 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 from server.listen import listening_socket, uvicorn_server
+from server.settings import Settings, load_settings
 
 # Flags that let Debian's chromium run headless as root on this closed network.
 CHROMIUM_PATH = "/usr/bin/chromium"
@@ -61,3 +63,16 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.02) -> bool:
         if value or time.monotonic() > deadline:
             return value
         time.sleep(interval)
+
+
+def station_settings(source: str, sessions_dir: Path | None = None, **overrides) -> Settings:
+    """A test station on `source`: no 3D panel, no recording on arming, and sessions (when
+    it records) in `sessions_dir` whatever the disk's free space."""
+    base: dict = {
+        "link.source": source,
+        "viser.enabled": False,
+        "recording.auto_record_on_arm": False,
+    }
+    if sessions_dir is not None:
+        base |= {"recording.sessions_dir": str(sessions_dir), "recording.min_free_mb": 0}
+    return load_settings(environ={}, overrides={**base, **overrides})

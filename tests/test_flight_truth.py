@@ -15,22 +15,13 @@ import pytest
 
 from companion.recording import layout
 from server.app import create_app
-from server.settings import load_settings
 from tests import shaped_tlog
-from tests.helpers import run_uvicorn, wait_until
+from tests.helpers import run_uvicorn, station_settings, wait_until
 
 
 def replay_status(path: Path, speed: str = "max", **overrides) -> dict:
     """Replay `path` through a real station and return /api/status once it is done."""
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": f"replay:{path}?speed={speed}",
-            "viser.port": 0,
-            "recording.auto_record_on_arm": False,
-            **overrides,
-        },
-    )
+    settings = station_settings(f"replay:{path}?speed={speed}", **overrides)
     with run_uvicorn(create_app(settings)) as base:
 
         def status() -> dict:
@@ -106,16 +97,7 @@ def test_session_link_loss_is_the_autopilots_silence(tmp_path):
     speed = 10  # the replay's pace; the session is recorded on the station's clock
     log = shaped_tlog.silent_vehicle()
     path = log.write(tmp_path / "silent.tlog")
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": f"replay:{path}?speed={speed}",
-            "viser.enabled": False,
-            "recording.sessions_dir": str(tmp_path / "sessions"),
-            "recording.auto_record_on_arm": False,
-            "recording.min_free_mb": 0,
-        },
-    )
+    settings = station_settings(f"replay:{path}?speed={speed}", tmp_path / "sessions")
     with run_uvicorn(create_app(settings)) as base:
         assert httpx.post(f"{base}/api/recording/start").status_code == 200
         status = lambda: httpx.get(f"{base}/api/status").json()  # noqa: E731

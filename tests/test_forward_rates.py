@@ -14,8 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.recording import layout
 from server.app import create_app
-from server.settings import load_settings
-from tests.helpers import free_port, run_uvicorn, wait_until
+from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
 
 
@@ -27,16 +26,8 @@ def test_forwarded_gcs_cuts_attitude_rate_station_restores_it_and_records_it(tmp
     )
     root = tmp_path / "sessions"
     with MavVehicle("udp") as v:
-        settings = load_settings(
-            environ={},
-            overrides={
-                "link.source": v.station_source,
-                "link.forward": [f"udpout:127.0.0.1:{mavproxy_port}"],
-                "viser.enabled": False,
-                "recording.sessions_dir": str(root),
-                "recording.auto_record_on_arm": False,
-                "recording.min_free_mb": 0,
-            },
+        settings = station_settings(
+            v.station_source, root, **{"link.forward": [f"udpout:127.0.0.1:{mavproxy_port}"]}
         )
         with run_uvicorn(create_app(settings)) as base:
             status = lambda: httpx.get(f"{base}/api/status").json()["link"]  # noqa: E731

@@ -173,7 +173,7 @@ def test_takeoff_height_as_either_family_of_ground_stations_sends_it(twin_and_gc
             g.mav.command_int_send(1, 1, mav.MAV_FRAME_GLOBAL_INT, cmd, 0, 0, 0, 0, 0,
                                    math.nan, 0, 0, home_amsl + 3.0)  # fmt: skip
 
-    assert take_off(twin, gcs, send) == pytest.approx(3.0, abs=0.3)
+    assert take_off(twin, gcs, send) == pytest.approx(3.0, abs=0.1)
 
 
 def test_do_reposition_by_command_int_flies_there_and_holds(twin_and_gcs) -> None:

@@ -195,8 +195,8 @@ class Commander:
         # AUTO transitions.
         reached = (self.mode == AUTO_TAKEOFF) & (pos_m[:, 2] > self.target_m[:, 2] - 0.2)
         for i in np.nonzero(reached)[0]:
-            self.target_m[i] = pos_m[i]
-            self.target_m[i, 2] = self.target_m[i, 2]
+            # Hold here, at the take-off altitude (not the 0.2 m short of it we are at).
+            self.target_m[i, :2] = pos_m[i, :2]
             self._switch(int(i), AUTO_LOITER)
 
         # Auto-disarm and failsafes.

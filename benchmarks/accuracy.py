@@ -1,0 +1,191 @@
+"""Flight truth: what the station reports against what really happened, per shaped case.
+
+    python benchmarks/accuracy.py
+
+Each case is a log or a vehicle whose truth is known because we wrote it
+(tests/shaped_tlog.py, tests/mav_vehicle.py, the twin): shaped tlogs go through the real
+`replay:` source into a real server and are read over HTTP, the way the tests do
+(tests/test_flight_truth.py, test_forward_rates.py, test_twin_mission.py). Prints one
+markdown table for docs/ACCURACY.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import httpx  # noqa: E402
+import numpy as np  # noqa: E402
+from pymavlink import mavutil  # noqa: E402
+
+from companion.recording import layout  # noqa: E402
+from server.app import create_app  # noqa: E402
+from tests import shaped_tlog  # noqa: E402
+from tests.helpers import free_port, run_uvicorn, station_settings, wait_until  # noqa: E402
+from tests.mav_vehicle import MavVehicle  # noqa: E402
+from tests.test_flight_truth import by_stream, mavloss, replay_status  # noqa: E402
+from tests.test_twin_mission import MISSION, REL, take_off, upload  # noqa: E402
+from twin.runner import Twin  # noqa: E402
+from twin.sensors import SensorParams  # noqa: E402
+from twin.sim import SimConfig  # noqa: E402
+
+mav = mavutil.mavlink
+ROWS: list[tuple[str, str, str, str, str]] = []
+
+
+def row(case: str, quantity: str, truth: str, station: str, error: str) -> None:
+    ROWS.append((case, quantity, truth, station, error))
+    print(f"{case} | {quantity} | {truth} | {station} | {error}", file=sys.stderr)
+
+
+def loss_cases(tmp: Path) -> None:
+    for name, gap in (("SiK radio, 2 GCSs, 2 % loss, 1.8 s fade", (60.0, 62.3)),
+                      ("same, 3.8 s fade (> 255 packets)", (60.0, 64.3))):  # fmt: skip
+        log = shaped_tlog.sik_radio_link(gap=gap)
+        path = log.write(tmp / "loss.tlog")
+        link = replay_status(path)["link"]
+        truth = 100 * log.truth[(1, 1)].loss_ratio
+        station = 100 * link["loss_ratio"]
+        ref = mavloss(path)[(1, 1)]
+        row(name, "autopilot loss %", f"{truth:.2f}", f"{station:.2f} (mavloss {ref:.1f})",
+            f"{station - truth:+.2f} pp (vs mavloss {station - ref:+.2f} pp)")  # fmt: skip
+        radio = by_stream(link)[(51, 68)]
+        row(name, "radio lost / duplicates", f"0 / {log.truth[(51, 68)].duplicates}",
+            f"{radio['lost']} / {radio['duplicates']}", f"{radio['lost']} lost")  # fmt: skip
+
+
+def silence_case(tmp: Path) -> None:
+    speed = 10
+    path = shaped_tlog.silent_vehicle().write(tmp / "silent.tlog")
+    settings = station_settings(f"replay:{path}?speed={speed}", tmp / "sessions")
+    with run_uvicorn(create_app(settings)) as base:
+        httpx.post(f"{base}/api/recording/start")
+        wait_until(lambda: httpx.get(f"{base}/api/status").json()["link"]["replay_done"], 60)
+        session = httpx.post(f"{base}/api/recording/stop").json()["last_stop"]["id"]
+    meta = json.loads((tmp / "sessions" / session / layout.SESSION_JSON).read_text())
+    losses = meta["quality"]["link_loss"]
+    got = sum((iv["end_s"] - iv["start_s"]) * speed for iv in losses)
+    row("autopilot silent 45 s, radio + QGC talking (replay x10)", "session link_loss (log s)",
+        "45.0", f"{got:.1f} in {len(losses)} interval(s)", f"{got - 45.0:+.1f} s")  # fmt: skip
+
+
+def battery_case(tmp: Path) -> None:
+    path = shaped_tlog.no_battery_monitor().write(tmp / "nobatt.tlog")
+    volts = replay_status(path)["state"]["battery"]["voltage_v"]
+    row("no battery monitor (SYS_STATUS 0 mV)", "battery voltage", "unknown", str(volts),
+        "none" if volts is None else "wrong")  # fmt: skip
+
+
+def forward_rate_case() -> None:
+    port = free_port(socket.SOCK_DGRAM)
+    other = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    with MavVehicle("udp") as v:
+        settings = station_settings(
+            v.station_source, **{"link.forward": [f"udpout:127.0.0.1:{port}"]}
+        )
+        with run_uvicorn(create_app(settings)) as base:
+            status = lambda: httpx.get(f"{base}/api/status").json()["link"]  # noqa: E731
+            wait_until(lambda: status()["stream_request"] == "message_interval", 15)
+            other.wait_heartbeat(timeout=10)
+            other.mav.command_long_send(1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                        mav.MAVLINK_MSG_ID_ATTITUDE, 500_000, 0, 0, 0, 0, 0)  # fmt: skip
+            time.sleep(3.0)  # a full rate window after the change
+            hz = status()["rates_hz"].get("ATTITUDE", 0.0)
+    other.close()
+    row("MAVProxy on --forward asks ATTITUDE at 2 Hz", "ATTITUDE rate heard (Hz)", "50 (asked)",
+        f"{hz:.1f}", f"{hz - 50:+.1f} Hz")  # fmt: skip
+
+
+def twin() -> tuple[Twin, object]:
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    t = Twin(config=SimConfig(sensors=SensorParams(enabled=False)),
+             mavlink=f"udpout:127.0.0.1:{port}")  # fmt: skip
+    t.step_for(2.5)
+    gcs.wait_heartbeat(timeout=5)
+    return t, gcs
+
+
+def twin_cases() -> None:
+    kinds = {
+        "QGC on PX4 (COMMAND_LONG, AMSL)": lambda g, h: g.mav.command_long_send(
+            1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, -1, 0, 0, math.nan, math.nan, math.nan, h + 3.0),
+        "MAVProxy `takeoff 3` (COMMAND_LONG, above home)": lambda g, h: g.mav.command_long_send(
+            1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 3.0),
+        "COMMAND_INT, GLOBAL_RELATIVE_ALT_INT": lambda g, h: g.mav.command_int_send(
+            1, 1, REL, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, math.nan, 0, 0, 3.0),
+    }  # fmt: skip
+    for name, send in kinds.items():
+        t, gcs = twin()
+        height = take_off(t, gcs, send)
+        t.stop()
+        gcs.close()
+        row(f"twin take-off, {name}", "height reached (m)", "3.0", f"{height:.2f}",
+            f"{height - 3.0:+.2f} m")  # fmt: skip
+
+    t, gcs = twin()
+    upload(t, gcs, MISSION)
+    gcs.mav.set_mode_send(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, (4 << 16) | (4 << 24))
+    gcs.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    track = []
+    for _ in range(240):
+        t.step_for(0.25)
+        track.append(t.pose().pos_enu_m.copy())
+        while gcs.recv_match(blocking=False) is not None:
+            pass
+        if len(track) > 20 and not t.sim.commander.armed[0]:
+            break
+    track = np.array(track)
+    for east, north in ((-8.0, 0.0), (-8.0, 6.0)):
+        miss = float(np.min(np.hypot(track[:, 0] - east, track[:, 1] - north)))
+        row("twin AUTO.MISSION (uploaded by MISSION_ITEM_INT)", f"closest to waypoint "
+            f"({east:g}, {north:g}) m", "0 (accept radius 1 m)", f"{miss:.2f} m", f"{miss:.2f} m")  # fmt: skip
+    home = float(np.hypot(*(track[-1, :2] - t.scene.start_xy_m)))
+    row("twin AUTO.MISSION", "landing point from home (m)", "0", f"{home:.2f}", f"{home:.2f} m")
+    t.stop()
+    gcs.close()
+
+
+def reset_case() -> None:
+    app = create_app(station_settings("sim", **{"twin.realtime_factor": 10.0}))
+    with run_uvicorn(app):
+        station = app.state.station
+        wait_until(lambda: station.twin.sim.t_s > 120.0, 60)
+        station.twin.reset()
+        t0 = last = time.monotonic()
+        gap = 0.0  # the longest wait for an ATTITUDE over the 5 s after Reset
+        while (now := time.monotonic()) < t0 + 5.0:
+            heard = station.state.get().value.attitude.t_mono or 0.0
+            last = max(last, heard)
+            gap = max(gap, now - last)
+            time.sleep(0.005)
+    row("twin Reset after 120 s of sim time (x10)", "longest telemetry silence in 5 s after "
+        "Reset (s)", "0.02 (50 Hz ATTITUDE)", f"{gap:.2f}", f"{gap - 0.02:+.2f} s")  # fmt: skip
+
+
+def main() -> None:
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        loss_cases(tmp)
+        silence_case(tmp)
+        battery_case(tmp)
+    forward_rate_case()
+    twin_cases()
+    reset_case()
+    print(f"load average {os.getloadavg()[0]:.1f}")
+    print("| case | quantity | truth | station | error |")
+    print("| --- | --- | --- | --- | --- |")
+    for r in ROWS:
+        print("| " + " | ".join(r) + " |")
+
+
+if __name__ == "__main__":
+    main()
