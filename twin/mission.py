@@ -135,17 +135,21 @@ class MissionRunner:
 
     def load(self, items: list[MissionItem]) -> None:
         self.items = list(items)
-        self.set_current(0)
+        self._start_item(0)
 
     def set_current(self, seq: int) -> bool:
-        if self.items and not 0 <= seq < len(self.items):
+        """Make item `seq` the next to fly; False if there is no such item."""
+        if not 0 <= seq < len(self.items):
             return False
+        self._start_item(seq)
+        return True
+
+    def _start_item(self, seq: int) -> None:
         self.current = seq
         self._entered_s = self._arrived_s = None
         self._target = None
         self._landing = False
         self._current_changed(seq)
-        return True
 
     def update(self, sim: Sim, now_s: float, home_alt_m: float) -> None:
         com = sim.commander
@@ -173,7 +177,7 @@ class MissionRunner:
                     self._reached(item.seq)
                     self._say("mission finished, landed")
                     self.finished = True
-                    self.set_current(0)  # PX4 rewinds a finished mission for the next flight
+                    self._start_item(0)  # PX4 rewinds a finished mission for the next flight
             return
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             arrived = pos[2] >= target[2] - ACCEPT_ALT_M

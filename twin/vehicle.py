@@ -326,8 +326,8 @@ class MavlinkVehicle:
             ok, why = self._reposition(sim, args)
         elif c == mavlink.MAV_CMD_MISSION_START:
             first = int(p[0]) if math.isfinite(p[0]) and p[0] > 0 else self.mission.current
-            if not self.mission.set_current(first) or not self.mission.items:
-                return fail, "mission start refused: no such item"
+            if not self.mission.set_current(first):
+                return fail, "mission start refused: no mission or no such item"
             ok, why = self._set_mode(sim, 4, 4)
         elif c == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
             ok, why = self.mission.set_current(int(p[0])), "no such mission item"
