@@ -95,6 +95,12 @@ class MissionItem:
         return None
 
 
+def up_m(sim: Sim, alt_m: float, frame: int, home_alt_m: float) -> float:
+    """An altitude in `frame` as the height in the sim's world (above the scene's home)."""
+    base = home_alt_m if frame in RELATIVE_FRAMES else 0.0
+    return alt_m + base - sim.scene.home.alt_m
+
+
 def target_enu(
     sim: Sim, lat_deg: float, lon_deg: float, alt_m: float, frame: int, home_alt_m: float
 ) -> np.ndarray:
@@ -104,8 +110,7 @@ def target_enu(
     e, n, _ = pymap3d.geodetic2enu(
         lat_deg, lon_deg, home.alt_m, home.lat_deg, home.lon_deg, home.alt_m
     )
-    up = alt_m + home_alt_m - home.alt_m if frame in RELATIVE_FRAMES else alt_m - home.alt_m
-    return np.array([float(e), float(n), float(up)])
+    return np.array([float(e), float(n), up_m(sim, alt_m, frame, home_alt_m)])
 
 
 class MissionRunner:
@@ -220,7 +225,7 @@ class MissionRunner:
         else:
             t = pos.copy()
             if item.frame in RELATIVE_FRAMES | AMSL_FRAMES:
-                t[2] = target_enu(sim, 0.0, 0.0, item.alt_m, item.frame, home_alt_m)[2]
+                t[2] = up_m(sim, item.alt_m, item.frame, home_alt_m)
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             t[:2] = pos[:2]  # a multicopter climbs straight up where it stands
             t[2] = max(t[2], 0.5)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from twin.control import AUTO_LOITER, AUTO_MISSION, STABILIZED
-from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu
+from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu, up_m
 from twin.mission_protocol import MissionProtocol
 from twin.params import ParamServer, px4_params
 from twin.sim import Sim
@@ -302,12 +302,7 @@ class MavlinkVehicle:
         if math.isfinite(lat) and math.isfinite(lon):
             target[:2] = target_enu(sim, lat, lon, 0.0, frame, home)[:2]
         if math.isfinite(alt):
-            target[2] = max(
-                target_enu(sim, sim.scene.home.lat_deg, sim.scene.home.lon_deg, alt, frame, home)[
-                    2
-                ],
-                0.5,
-            )
+            target[2] = max(up_m(sim, alt, frame, home), 0.5)
         ok, why = com.request_mode(0, AUTO_LOITER, pos, sim.sensors.has_fix(sim.t_s))
         if ok:
             com.target_m[0] = target
