@@ -19,19 +19,14 @@ from typing import Any
 
 from analysis.errors import AnalysisError
 from analysis.tasks import TASKS, TaskParams
+from core.geodesy import LatLonError, parse_latlon
 
 
-def parse_latlon(text: str) -> tuple[float, float]:
+def _latlon_arg(text: str) -> tuple[float, float]:
     try:
-        lat_s, lon_s = text.split(",")
-        lat, lon = float(lat_s), float(lon_s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"'{text}' is not LAT,LON in degrees (for example 43.0021,-78.7870)."
-        ) from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
-        raise argparse.ArgumentTypeError(f"'{text}' is outside latitude/longitude range.")
-    return lat, lon
+        return parse_latlon(text)
+    except LatLonError as exc:  # argparse shows an ArgumentTypeError's own message
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--task", required=True, help=f"one of: {', '.join(TASKS)}")
     p.add_argument(
         "--reference",
-        type=parse_latlon,
+        type=_latlon_arg,
         metavar="LAT,LON",
         help="point that sets +x (default: the scene's landing pad, else the landing point)",
     )

@@ -124,7 +124,7 @@ def track_flights(
 ) -> list[Flight]:
     """The flights of a loaded track, on its `t_s` clock. Height: the pilot's altitude
     where the track has it, else GPS altitude (as analysis decides events, see
-    `analysis.frame`); one or the other for the whole track, as their zeros differ."""
+    `analysis.flight_frame`); one or the other for the whole track, as their zeros differ."""
     rel = track.relative_alt_m
     height = rel if np.isfinite(rel).any() else track.alt_m
     return split_flights(track.t_s, track.armed, height, takeoff_height_m, min_airborne_s)

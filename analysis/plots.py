@@ -18,8 +18,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon, Rectangle
 
-from analysis.field import FieldLayout, Obstacle
-from analysis.frame import AlignedTrack
+from analysis.field_layout import FieldLayout, Obstacle
+from analysis.flight_frame import AlignedTrack
 from analysis.tasks import TASK_TITLES, TaskResult
 
 PLOTS = ("trajectory3d", "birdseye", "history")

@@ -19,11 +19,11 @@ import numpy as np
 
 from analysis import plots
 from analysis.compare import Comparison, compare
-from analysis.field import FieldLayout, load_scene
-from analysis.frame import AlignedTrack, align_track
-from analysis.geodesy import geodetic_to_enu
+from analysis.field_layout import FieldLayout, load_field_layout
+from analysis.flight_frame import AlignedTrack, align_track
 from analysis.tasks import TaskParams, TaskResult, analyze, check_task
 from analysis.track import Track, load_track
+from core.geodesy import geodetic_to_enu
 
 SCENE_RADIUS_M = 150.0
 
@@ -107,10 +107,10 @@ def analyze_paths(
     params: TaskParams | None = None,
     labels: Sequence[str] | None = None,
 ) -> Analysis:
-    """`scene`: True = the repository's default twin scene if present, False = none,
-    or a path to a scene file."""
+    """`scene`: True = the default field (core.scene.DEFAULT_SCENE), False = none, or a
+    path to a scene file."""
     check_task(task)
-    field = None if scene is False else load_scene(None if scene is True else scene)
+    field = None if scene is False else load_field_layout(None if scene is True else scene)
     names = list(labels or [])
     tracks = [
         load_track(path, names[i] if i < len(names) else None) for i, path in enumerate(paths)

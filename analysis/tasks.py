@@ -26,8 +26,8 @@ from typing import Literal, get_args
 import numpy as np
 
 from analysis.errors import TaskWindowError, TooFewPointsError, UnknownTaskError
-from analysis.field import obstacle_contacts
-from analysis.frame import AlignedTrack, HeightSource
+from analysis.field_layout import obstacle_contacts
+from analysis.flight_frame import AlignedTrack, HeightSource
 
 TaskName = Literal["hover", "a-to-b", "obstacle", "figure8"]
 TASKS: tuple[str, ...] = get_args(TaskName)

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from analysis.csvcols import CsvColumns, to_bool, to_float
 from analysis.errors import NoGpsFixError, TrackLoadError
+from analysis.tlog_samples import read_tlog_samples
 from companion.recording import layout
 
 Array = NDArray[np.float64]
@@ -274,7 +275,7 @@ def _first_of_each_message(table: CsvColumns, key_cols: list[int]) -> NDArray[np
 
 
 def load_tlog(path: Path, label: str | None = None, min_fix_type: int = MIN_FIX_3D) -> Track:
-    """A bare MAVLink telemetry log; see `analysis.tlog` (imported late: it imports us)."""
-    from analysis.tlog import read_tlog
-
-    return read_tlog(Path(path), label or Path(path).stem, min_fix_type)
+    """A bare MAVLink telemetry log; see `analysis.tlog_samples`."""
+    path = Path(path)
+    samples = read_tlog_samples(path, min_fix_type)
+    return Track(label=label or path.stem, source=str(path), **samples)

@@ -19,9 +19,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.geodesy import enu_to_geodetic  # noqa: E402
+from core.geodesy import enu_to_geodetic  # noqa: E402
+from core.scene import load_scene  # noqa: E402
 from server.settings import ViserSettings  # noqa: E402
-from server.trajectory3d.field import default_field  # noqa: E402
 from server.trajectory3d.replay import build_trajectory  # noqa: E402
 from server.trajectory3d.replay_scene import Replay3D  # noqa: E402
 
@@ -32,10 +32,10 @@ def main() -> None:
     ap.add_argument("--hz", type=float, default=10.0)
     ap.add_argument("--steps", type=int, default=2000)
     args = ap.parse_args()
-    f = default_field()
+    f = load_scene()
     t = np.arange(0, args.minutes * 60, 1 / args.hz)
     enu = np.column_stack([12 * np.sin(t / 8), 6 * np.sin(t / 4), 3 + np.sin(t / 30)])
-    lat, lon, alt = enu_to_geodetic(enu, f.anchor_lat_deg, f.anchor_lon_deg, f.anchor_alt_m).T
+    lat, lon, alt = enu_to_geodetic(enu, *f.home_llh).T
     reply = build_trajectory("bench", t, lat, lon, alt, speed_mps=np.full(t.size, 1.5))
     svc = Replay3D(ViserSettings(port=0), host="127.0.0.1", field=f)
     svc.start()

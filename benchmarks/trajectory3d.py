@@ -21,11 +21,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.geodesy import enu_to_geodetic  # noqa: E402
 from companion.latest import Latest  # noqa: E402
 from companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState  # noqa: E402
+from core.geodesy import enu_to_geodetic  # noqa: E402
+from core.scene import load_scene  # noqa: E402
 from server.settings import ViserSettings  # noqa: E402
-from server.trajectory3d.field import default_field  # noqa: E402
 from server.trajectory3d.replay import build_trajectory  # noqa: E402
 from server.trajectory3d.service import Trajectory3D  # noqa: E402
 
@@ -45,8 +45,8 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--hz", type=float, default=10.0)
     args = ap.parse_args()
-    field = default_field()
-    origin = (field.anchor_lat_deg, field.anchor_lon_deg, field.anchor_alt_m)
+    field = load_scene()
+    origin = field.home_llh
     n = int(args.minutes * 60 * args.hz)
     t = np.arange(n) / args.hz
     rng = np.random.default_rng(0)

@@ -27,10 +27,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.latest import Latest
 from companion.link_health import HealthMeter, LinkHealth, RateChange
-from companion.mav_framer import MavFramer
 from companion.state_tracker import StateTracker
 from companion.stream_request import StreamRequester
-from companion.tlog import TlogReader
 from companion.transports import (
     ConnectionStringError,
     Transport,
@@ -39,6 +37,8 @@ from companion.transports import (
     parse_connection,
 )
 from companion.vehicle_state import VehicleState
+from core.mavlink.framing import MavFramer, packet_version
+from core.mavlink.tlog_records import TlogReader
 
 if TYPE_CHECKING:  # the settings model lives with the others in server.settings
     from server.settings import LinkSettings
@@ -291,7 +291,7 @@ class MavlinkLink:
             if tracker.update(msg, now):
                 changed = True
                 if msg.get_type() == "HEARTBEAT":
-                    self._on_autopilot_heartbeat(now, packet[0] == 0xFE)
+                    self._on_autopilot_heartbeat(now, packet_version(msg) == 1)
             elif msg.get_type() == "COMMAND_ACK" and self._transport is not None:
                 for req in self._streams.on_ack(msg, now):
                     self._write(self._transport, req)

@@ -11,8 +11,8 @@ import collections
 import time
 from dataclasses import dataclass, field
 
-from companion.mav_framer import FramerCounters
 from companion.stream_loss import StreamLoss, StreamLossCounter
+from core.mavlink.framing import FramerCounters
 
 _SNAPSHOT_EVERY_S = 0.5
 _WINDOW_SNAPSHOTS = 5  # 4 intervals = 2 s window

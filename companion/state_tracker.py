@@ -14,7 +14,6 @@ from dataclasses import fields, replace
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mav_framer import packet_version
 from companion.vehicle_state import (
     Attitude,
     Battery,
@@ -29,6 +28,7 @@ from companion.vehicle_state import (
     VehicleState,
     VfrHud,
 )
+from core.mavlink.framing import packet_version
 
 _AUTOPILOT_NAMES = {
     mavlink.MAV_AUTOPILOT_PX4: "px4",

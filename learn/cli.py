@@ -38,10 +38,10 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from core.scene import SceneError
     from learn.episodes import ChannelMap
     from learn.export import ExportOptions, export_recordings, tqdm_progress
     from learn.recording import RecordingError
-    from twin.scene import SceneError
 
     try:
         cmap = ChannelMap.parse(args.channel_map)
@@ -139,9 +139,9 @@ def run_bc(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
+    from core.scene import load_scene
     from learn import evaluate as ev
     from learn.bc import BcPolicy
-    from twin.scene import load_scene
 
     try:
         policy = BcPolicy.load(args.policy)

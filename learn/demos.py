@@ -24,16 +24,16 @@ import cv2
 import numpy as np
 
 from companion.frames import Frame
-from companion.mav_framer import MavFramer
 from companion.recording import layout
 from companion.recording.meta import CameraQuality, Quality, SessionMeta, write_meta
 from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.store import create_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits
 from companion.state_tracker import StateTracker
+from core.mavlink.framing import MavFramer
+from core.scene import Scene, load_scene
 from twin.pilot import Leg, Observation, Pilot, task_plan
 from twin.runner import Twin
-from twin.scene import Scene, load_scene
 from twin.sim import SimConfig
 
 TICK_S = 0.02  # the pilot's 50 Hz, as the pilot page sends sticks

@@ -31,10 +31,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from analysis.flights import Flight, split_flights
-from analysis.geodesy import geodetic_to_enu
+from core.geodesy import geodetic_to_enu
+from core.scene import Scene
 from learn.recording import RC_CHANNELS, Recording
 from twin.gym_env import ACTION_NAMES, STATE_NAMES
-from twin.scene import Scene
 
 Array = NDArray[np.float64]
 

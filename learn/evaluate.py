@@ -25,16 +25,16 @@ from pathlib import Path
 import numpy as np
 
 from analysis.errors import AnalysisError
-from analysis.field import load_scene as load_field
-from analysis.geodesy import enu_to_geodetic
+from analysis.field_layout import load_field_layout as load_field
 from analysis.report import analyze_tracks
 from analysis.tasks import TaskParams, TaskResult
 from analysis.track import Track, load_track
+from core.geodesy import enu_to_geodetic
+from core.scene import Scene, load_scene
 from learn.episodes import episodes as recording_episodes
 from learn.recording import open_recording
 from twin.gym_env import TwinEnv
 from twin.pilot import Observation, Pilot, task_plan
-from twin.scene import Scene, load_scene
 
 TASK_NAMES = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
 # The hover's "reached 4 m" tolerance: the scripted pilot levels off just under 4 m (see

@@ -15,9 +15,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from core.scene import Scene, load_scene
 from learn.episodes import ChannelMap, episodes
 from learn.recording import Recording, RecordingError, open_recording
-from twin.scene import Scene, load_scene
 
 FORMATS = ("lerobot", "minari", "mcap")
 DEFAULT_FPS = 10  # the twin env's control rate: a dataset step is an env step

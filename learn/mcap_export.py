@@ -43,7 +43,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from companion.tlog import TlogReader
+from core.mavlink.tlog_records import TlogReader
 from learn.episodes import Episode, scene_xyz
 from learn.recording import COLUMNS, Recording
 

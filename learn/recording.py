@@ -29,7 +29,7 @@ from analysis.csvcols import CsvColumns, to_float
 from analysis.track import parse_meta
 from companion.recording import layout
 from companion.state_tracker import StateTracker
-from companion.tlog import TlogReader
+from core.mavlink.tlog_records import TlogReader
 
 Array = NDArray[np.float64]
 

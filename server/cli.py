@@ -108,8 +108,8 @@ def run_sim(args: argparse.Namespace) -> int:
     import signal
     import threading
 
+    from core.scene import SceneError
     from twin.runner import twin_from_settings
-    from twin.scene import SceneError
 
     settings = settings_from_args(args)
     try:

@@ -151,7 +151,7 @@ class TwinSettings(_Section):
     @classmethod
     def _scene_loads(cls, value: Path | None) -> Path | None:
         if value is not None:
-            from twin.scene import load_scene
+            from core.scene import load_scene
 
             load_scene(value)  # SceneError (a ValueError) says which file and key
         return value

@@ -3,35 +3,30 @@
 The twin listens on an ephemeral UDP port (`udpin:127.0.0.1:0`, so there is no port race)
 and the station's ordinary `MavlinkLink` connects to it with `udpout:`, exactly as it
 would to a vehicle: the link's first GCS heartbeat tells the twin where to send its
-telemetry. `station.twin` is the running `twin.runner.Twin` (cameras render from it).
+telemetry. `open_sim` returns both; the station keeps them (`station.twin` is what the
+sim cameras render from).
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
-from typing import TYPE_CHECKING
 
 from companion.link import MavlinkLink
+from server.settings import Settings
 from twin.runner import Twin, twin_from_settings
-
-if TYPE_CHECKING:
-    from server.station import Station
 
 log = logging.getLogger(__name__)
 
 
-def open_sim(station: Station, stack: contextlib.AsyncExitStack) -> Twin:
+def open_sim(settings: Settings, stack: contextlib.AsyncExitStack) -> tuple[Twin, MavlinkLink]:
     """Start the twin and the link to it; both stop with `stack`, the link first."""
-    twin = twin_from_settings(station.settings.twin, "udpin:127.0.0.1:0")
+    twin = twin_from_settings(settings.twin, "udpin:127.0.0.1:0")
     twin.start()
     stack.callback(twin.stop)
     port = twin.vehicle.sock.getsockname()[1]
-    link = MavlinkLink(station.settings.link, source=f"udpout:127.0.0.1:{port}")
+    link = MavlinkLink(settings.link, source=f"udpout:127.0.0.1:{port}")
     link.start()
     stack.callback(link.stop)
-    station.twin = twin
-    station.link = link
-    station.state = link.state
     log.info("digital twin '%s' on udp 127.0.0.1:%d", twin.scene.name, port)
-    return twin
+    return twin, link

@@ -60,7 +60,8 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             # exactly as a real vehicle below (server/sim.py).
             from server.sim import open_sim
 
-            open_sim(station, stack)
+            station.twin, station.link = open_sim(settings, stack)
+            station.state = station.link.state
         elif source != "none":
             link = MavlinkLink(settings.link)
             link.start()
@@ -115,9 +116,8 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
 
 
 async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
-    from server.trajectory3d.field import load_field
+    from core.scene import SceneError, load_scene
     from server.trajectory3d.service import open_trajectory3d
-    from twin.scene import SceneError
 
     s = station.settings
     # The field: an explicit scene file, else the twin's own scene when flying the twin;
@@ -125,9 +125,9 @@ async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack
     field = None
     try:
         if s.viser.field_file is not None:
-            field = load_field(s.viser.field_file)
+            field = load_scene(s.viser.field_file)
         elif s.link.source.strip() == "sim":
-            field = load_field(s.twin.scene)
+            field = load_scene(s.twin.scene)
     except SceneError as exc:  # the panel still shows the flight, on a plain grid
         log.error("3D panel: no field drawn: %s", exc)
     service = await open_trajectory3d(s.viser, station.state, s.server.host, field)

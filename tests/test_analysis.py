@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis import synthetic as syn
 from analysis.errors import (
     NoGpsFixError,
     TaskWindowError,
@@ -24,11 +23,12 @@ from analysis.errors import (
     TrackLoadError,
     UnknownTaskError,
 )
-from analysis.field import FieldLayout, Obstacle, Pad
-from analysis.geodesy import enu_to_geodetic
+from analysis.field_layout import FieldLayout, Obstacle, Pad
 from analysis.plots import SIZE_PX
 from analysis.report import analyze_paths, analyze_tracks
 from analysis.track import load_track
+from core.geodesy import enu_to_geodetic
+from tests import synthetic as syn
 
 ROOT = Path(__file__).resolve().parents[1]
 HEADING = 35.0  # +x of the synthetic flights points north-east: alignment must undo it
@@ -205,13 +205,28 @@ def test_obstacle_contacts_and_field_in_track_frame(tmp_path):
     )
 
 
-def test_default_scene_file_is_read_when_present():
-    from analysis.field import DEFAULT_SCENE, load_scene
+def test_default_scene_is_the_one_scene_model():
+    from analysis.field_layout import load_field_layout
+    from core.scene import DEFAULT_PAD_SIZE_M, load_scene
 
-    if not DEFAULT_SCENE.exists():
-        pytest.skip("twin/scenes/field.toml is not on this branch yet")
-    field = load_scene()
-    assert field.pad("landing") is not None and len(field.obstacles) == 2
+    field, scene = load_field_layout(), load_scene()
+    assert field.home == scene.home_llh and field.name == scene.name
+    assert [(p.name, p.x_m, p.size_m) for p in field.pads] == [
+        (p.name, p.x_m, p.size_m) for p in scene.pads
+    ]
+    assert field.pad("landing").size_m == DEFAULT_PAD_SIZE_M
+    assert len(field.obstacles) == 2
+
+
+def test_a_bad_scene_file_is_a_track_load_error(tmp_path):
+    from analysis.field_layout import load_field_layout
+
+    bad = tmp_path / "scene.toml"
+    bad.write_text(
+        '[[pads]]\nname = "start"\nx_m = 0.0\ny_m = 0.0\n[[obstacles]]\nname = "o"\nx_m = 1.0\ny_m = 1.0\nyaw_deg = 30.0\n'
+    )
+    with pytest.raises(TrackLoadError, match="yaw_deg"):
+        load_field_layout(bad)
 
 
 # ------------------------------------------------------------------ errors

@@ -12,10 +12,10 @@ from pathlib import Path
 import httpx
 import pytest
 
-from analysis import synthetic as syn
 from analysis.plots import SIZE_PX
 from server.app import create_app
 from server.settings import load_settings
+from tests import synthetic as syn
 from tests.helpers import run_uvicorn
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from analysis.report import analyze_paths
-from companion.tlog import encode_record
+from core.mavlink.tlog_records import encode_record
 from twin.pilot import Observation, Pilot, task_plan
 from twin.runner import Twin
 

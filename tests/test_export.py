@@ -17,11 +17,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from analysis import synthetic as syn
 from learn.demos import DemoConfig, fly_demo
 from learn.episodes import ChannelMap
 from learn.export import ExportOptions, export_recordings
 from server.cli import main as cli_main
+from tests import synthetic as syn
 from tests.test_flights import _sorties
 
 FPS = 10

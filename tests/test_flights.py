@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis import synthetic as syn
 from analysis.flights import Flight, split_flights, track_flights
 from analysis.track import load_track
+from tests import synthetic as syn
 
 DT = 0.02
 

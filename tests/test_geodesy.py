@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from analysis import geodesy as g
+from core import geodesy as g
 
 HOME = (43.0021, -78.7875, 180.0)
 

@@ -12,7 +12,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.link import MavlinkLink
-from companion.tlog import write_record
+from core.mavlink.tlog_records import write_record
 from server.settings import LinkSettings
 from tests.helpers import free_port
 from tests.helpers import wait_until as _wait_until

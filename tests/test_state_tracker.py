@@ -5,8 +5,8 @@ import dataclasses
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mav_framer import MavFramer
 from companion.state_tracker import StateTracker
+from core.mavlink.framing import MavFramer
 from tests.mav_vehicle import MavVehicle
 
 

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import viser.transforms as vtf
 
-from analysis.geodesy import enu_to_geodetic
 from companion.latest import Latest
 from companion.vehicle_state import (
     Attitude,
@@ -24,17 +23,18 @@ from companion.vehicle_state import (
     PilotAltitude,
     VehicleState,
 )
+from core.geodesy import enu_to_geodetic
+from core.scene import load_scene
 from server.app import create_app
 from server.settings import ViserSettings, load_settings
 from server.trajectory3d.colors import ramp_rgb
-from server.trajectory3d.field import default_field
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.service import Trajectory3D
 from server.trajectory3d.trail import Trail, TrailSample
 from tests.helpers import run_uvicorn
 
-FIELD = default_field()
-ORIGIN = (FIELD.anchor_lat_deg, FIELD.anchor_lon_deg, FIELD.anchor_alt_m)
+FIELD = load_scene()
+ORIGIN = FIELD.home_llh
 
 
 def make_state(
@@ -309,8 +309,8 @@ def test_no_3d_flag():
 
 
 def test_field_comes_from_the_twin_scene():
-    f = default_field()  # twin/scenes/field.toml
-    assert (f.size_x_m, f.size_y_m) == (60.0, 37.0)
+    f = load_scene()  # core/scenes/field.toml
+    assert (f.field.size_x_m, f.field.size_y_m) == (60.0, 37.0)
     assert {p.name: p.x_m for p in f.pads} == {"start": -20.0, "landing": 20.0}
     assert sorted(o.x_m for o in f.obstacles) == [-7.0, 7.0]
     assert all(o.height_m == 3.0 for o in f.obstacles)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from playwright.sync_api import sync_playwright
 
-from analysis.geodesy import enu_to_geodetic
 from companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
+from core.geodesy import enu_to_geodetic
 from server.app import create_app
 from server.settings import load_settings
 from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, wait_until

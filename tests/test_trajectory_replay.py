@@ -1,9 +1,10 @@
 """Replay: GET /api/sessions/{id}/trajectory on real session folders (written in the
-recorder's format by analysis.synthetic, with real JPEG frames), through real uvicorn."""
+recorder's format by tests.synthetic, with real JPEG frames), through real uvicorn."""
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 
 import cv2
@@ -11,12 +12,12 @@ import httpx
 import numpy as np
 import pytest
 
-from analysis.synthetic import a_to_b_flight, figure8_flight, write_session
 from companion.recording import layout
 from server.app import create_app
 from server.settings import load_settings
 from server.trajectory3d.replay import CameraFrames, build_trajectory, frames_at
 from tests.helpers import run_uvicorn
+from tests.synthetic import a_to_b_flight, figure8_flight, write_session
 
 SESSION_A = "20261122T040000Z_sim"
 SESSION_B = "20261122T041000Z_serial"
@@ -83,7 +84,7 @@ def test_frames_at_picks_the_newest_frame_at_or_before():
 
 
 def test_build_trajectory_origin_gaps_and_alignment():
-    from analysis.geodesy import enu_to_geodetic
+    from core.geodesy import enu_to_geodetic
 
     t = np.arange(0.0, 10.0, 0.5)
     enu = np.column_stack([t, 2 * t, np.full(t.size, 3.0)])  # along a 63 deg bearing from east
@@ -91,7 +92,12 @@ def test_build_trajectory_origin_gaps_and_alignment():
     t[10:] += 5.0  # a 5 s silence
     armed = t >= 1.0
     r = build_trajectory("x", t, lat, lon, alt, armed=armed, gap_s=1.0)
-    np.testing.assert_allclose([r.x_m[2], r.y_m[2], r.z_m[2]], [0, 0, 0], atol=1e-3)  # armed at i=2
+    # armed first seen at i=2: the origin is the sample before, on the ground
+    np.testing.assert_allclose([r.x_m[1], r.y_m[1], r.z_m[1]], [0, 0, 0], atol=1e-3)
+    # ... stepped back to ground level when the pilot's altitude already shows a climb
+    rel = np.where(t < 0.5, 0.0, 1.0)
+    r0 = build_trajectory("x", t, lat, lon, alt, armed=armed, relative_alt_m=rel)
+    np.testing.assert_allclose([r0.x_m[0], r0.y_m[0]], [0, 0], atol=1e-3)
     assert r.starts_run[0] and r.starts_run[10] and sum(r.starts_run) == 2
     a = build_trajectory("x", t, lat, lon, alt, armed=armed, align="end")
     np.testing.assert_allclose(a.y_m[-1], 0.0, atol=0.01)  # start-to-end on +x
@@ -130,6 +136,33 @@ def test_trajectory_endpoint_matches_the_flown_path(base):
     # aligned as in the paper: start-to-end on +x, whatever the compass heading flown
     al = httpx.get(f"{base}/api/sessions/{SESSION_A}/trajectory?align=end").json()
     assert abs(al["y_m"][-1]) < 0.05 and al["x_m"][-1] > 35
+
+
+def test_replay_and_analysis_share_the_flight_frame(base, sessions_dir):
+    """The replay draws the frame the analysis measures in: same origin, same turn."""
+    from analysis.flight_frame import align_track
+    from analysis.track import load_track
+
+    # A third flight whose arming is first seen in the air (HEARTBEAT at 1 Hz, a quick
+    # pilot): the first armed sample is off the point where the vehicle was armed.
+    f = a_to_b_flight(heading_deg=200.0)
+    late = f.armed & (f.xyz_m[:, 2] > 0.8)
+    late_id = "20261122T042000Z_serial"
+    write_session(dataclasses.replace(f, armed=late), sessions_dir / late_id)
+    for sid in (SESSION_A, SESSION_B, late_id):
+        track = load_track(sessions_dir / sid)
+        k = len(track) // 3  # any point off the origin sets +x
+        lat, lon = float(track.lat_deg[k]), float(track.lon_deg[k])
+        a = align_track(track, reference_latlon=(lat, lon))
+        ref = f"{lat!r},{lon!r}"
+        r = httpx.get(f"{base}/api/sessions/{sid}/trajectory", params={"reference": ref})
+        assert r.status_code == 200, r.text
+        j = r.json()
+        o = j["origin"]
+        assert (o["lat_deg"], o["lon_deg"], o["alt_m"]) == pytest.approx(a.origin, abs=1e-9)
+        assert j["align_rad"] == pytest.approx(a.rotation_rad, abs=1e-9)
+        got = np.column_stack([j["x_m"], j["y_m"], j["z_m"]])
+        np.testing.assert_allclose(got, a.xyz_m, atol=2e-3)  # the reply is rounded to mm
 
 
 def test_trajectory_endpoint_rejects_bad_ids(base):

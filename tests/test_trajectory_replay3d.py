@@ -7,9 +7,9 @@ import httpx
 import numpy as np
 import pytest
 
+from core.scene import load_scene
 from server.app import create_app
 from server.settings import ViserSettings, load_settings
-from server.trajectory3d.field import default_field
 from server.trajectory3d.replay import build_trajectory
 from server.trajectory3d.replay_scene import Replay3D
 from tests.helpers import run_uvicorn
@@ -18,12 +18,12 @@ from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # n
 
 def straight_line(session_id: str, n: int = 1200, gap_at: int | None = None):
     """A 0.5 m/s east flight at 2 m, 10 Hz, as a trajectory reply (optionally a 3 s gap)."""
-    from analysis.geodesy import enu_to_geodetic
+    from core.geodesy import enu_to_geodetic
 
-    f = default_field()
+    f = load_scene()
     t = np.arange(n) * 0.1
     enu = np.column_stack([0.5 * t, np.zeros(n), np.full(n, 2.0)])
-    lat, lon, alt = enu_to_geodetic(enu, f.anchor_lat_deg, f.anchor_lon_deg, f.anchor_alt_m).T
+    lat, lon, alt = enu_to_geodetic(enu, *f.home_llh).T
     if gap_at is not None:
         t[gap_at:] += 3.0
     return build_trajectory(session_id, t, lat, lon, alt, speed_mps=np.full(n, 0.5))
@@ -31,7 +31,7 @@ def straight_line(session_id: str, n: int = 1200, gap_at: int | None = None):
 
 @pytest.fixture
 def replay():
-    svc = Replay3D(ViserSettings(port=0), host="127.0.0.1", field=default_field())
+    svc = Replay3D(ViserSettings(port=0), host="127.0.0.1", field=load_scene())
     svc.start()
     try:
         yield svc
@@ -164,12 +164,12 @@ def test_replay_port_defaults_to_live_port_plus_one():
 
 def test_replay_scene_turns_the_field_with_the_papers_alignment(replay):
     """A flight due north, aligned start-to-end on +x: the field turns with it (-90 deg)."""
-    from analysis.geodesy import enu_to_geodetic
+    from core.geodesy import enu_to_geodetic
 
-    f = default_field()
+    f = load_scene()
     t = np.arange(100) * 0.1
     enu = np.column_stack([np.full(100, 5.0), t, np.full(100, 2.0)])  # 5 m east of the anchor
-    lat, lon, alt = enu_to_geodetic(enu, f.anchor_lat_deg, f.anchor_lon_deg, f.anchor_alt_m).T
+    lat, lon, alt = enu_to_geodetic(enu, *f.home_llh).T
     replay.load(build_trajectory("n", t, lat, lon, alt, align="end"))
     assert replay.primary.align_rad == pytest.approx(-np.pi / 2, abs=1e-3)
     frame = replay.scene._field_frame

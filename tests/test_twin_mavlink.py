@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from core.scene import load_scene
 from tests.helpers import free_port
 from twin.pilot import Leg, Observation, Pilot
-from twin.scene import load_scene
 
 SPEED = 2.0  # real-time factor: the flight takes ~25 s of sim time
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from core.scene import load_scene
 from twin.dynamics import yaw_matrix
 from twin.render import SKY_BGR, Renderer, project
 from twin.runner import Twin
-from twin.scene import load_scene
 from twin.sim import Pose
 
 SCENE = load_scene()

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from twin.scene import DEFAULT_SCENE, SceneError, load_scene
+from core.scene import DEFAULT_SCENE, SceneError, load_scene
 from twin.sim import Sim
 
 

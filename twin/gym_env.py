@@ -40,7 +40,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from twin.scene import Scene, Task, load_scene
+from core.scene import Scene, Task, load_scene
 from twin.sim import Sim, SimConfig
 
 # What each element of the state vector is; exporters name dataset features with these.

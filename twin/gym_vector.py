@@ -20,8 +20,8 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from core.scene import Scene, load_scene
 from twin.gym_env import STATE_SIZE
-from twin.scene import Scene, load_scene
 from twin.sim import Sim, SimConfig
 
 

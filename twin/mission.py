@@ -14,9 +14,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import pymap3d
 from pymavlink.dialects.v20 import common as mavlink
 
+from core.geodesy import geodetic_to_enu
 from twin.control import AUTO_LOITER, AUTO_MISSION
 from twin.sim import Sim
 
@@ -106,10 +106,7 @@ def target_enu(
 ) -> np.ndarray:
     """A global position in `frame` as an ENU target in the sim's world (m)."""
     home = sim.scene.home
-    # pymap3d directly: the twin may not import analysis.geodesy (layer order).
-    e, n, _ = pymap3d.geodetic2enu(
-        lat_deg, lon_deg, home.alt_m, home.lat_deg, home.lon_deg, home.alt_m
-    )
+    e, n, _ = geodetic_to_enu(lat_deg, lon_deg, home.alt_m, *sim.scene.home_llh)
     return np.array([float(e), float(n), up_m(sim, alt_m, frame, home_alt_m)])
 
 

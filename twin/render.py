@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from twin.scene import Pad, Scene
+from core.scene import Pad, Scene
 from twin.sim import Pose
 
 SKY_BGR = (235, 200, 150)

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from companion.latest import Latest
-from twin.scene import Scene, load_scene
+from core.scene import Scene, load_scene
 from twin.sim import Pose, Sim, SimConfig
 from twin.vehicle import MavlinkVehicle
 
@@ -144,7 +144,7 @@ class Twin:
     def true_geodetic(self) -> tuple[float, float, float]:
         """The true position as (lat_deg, lon_deg, alt_m MSL), georeferenced at the scene's
         home: compare recorded GPS tracks with it through the same geodesy."""
-        from analysis.geodesy import enu_to_geodetic
+        from core.geodesy import enu_to_geodetic
 
         home = self.scene.home
         lat, lon, alt = enu_to_geodetic(

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.geodesy import enu_to_geodetic
-from twin.scene import Home
+from core.geodesy import enu_to_geodetic
+from core.scene import Home
 
 
 @dataclass(frozen=True)

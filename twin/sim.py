@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from core.scene import Scene, load_scene
 from twin.commander import Commander, CommanderParams, Event
 from twin.control import MODE_NAMES, POSCTL, STABILIZED, ControlGains, Controller
 from twin.dynamics import CRASH_REASONS, Airframe, BodyState, Dynamics, Wind
-from twin.scene import Scene, load_scene
 from twin.sensors import SensorParams, Sensors
 
 MODE_BY_NAME = {name: code for code, name in MODE_NAMES.items()}

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from analysis.geodesy import enu_to_geodetic
+from core.geodesy import enu_to_geodetic
 from twin.control import (
     ALTCTL,
     AUTO_LAND,

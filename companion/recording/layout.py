@@ -55,7 +55,7 @@ CAMERA_COLUMN_FIELDS: tuple[str, ...] = ("seq", "file", "t_wall", "skew_s")
 FRAME_COLUMNS: tuple[str, ...] = ("seq", "file", "t_s", "t_wall", "width", "height", "bytes")
 
 # tlog: each packet is preceded by its receive time, big-endian uint64 microseconds
-# (written and read by companion.tlog, which the link's replay source uses too).
+# (written and read by core.mavlink.tlog_records, which the link's replay source uses too).
 
 
 def frame_file(seq: int) -> str:

@@ -24,7 +24,7 @@ from pathlib import Path
 from companion.frames import Frame
 from companion.recording import diskspace, layout
 from companion.recording.rows import RowFormatter, Sample
-from companion.tlog import encode_record
+from core.mavlink.tlog_records import encode_record
 
 log = logging.getLogger(__name__)
 

@@ -26,7 +26,7 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import Response
 
 from analysis import errors as ae
-from analysis.field import load_scene
+from analysis.field_layout import load_field_layout
 from analysis.plots import PLOTS
 from analysis.report import Analysis, analyze_tracks
 from analysis.tasks import TaskParams
@@ -35,6 +35,7 @@ from companion.recording import layout
 from companion.recording import store as st
 from server.errors import ApiError, BadRequest, NotFound
 from server.routes.recording import get_recorder
+from server.routes.trajectory import reference_param
 
 router = APIRouter(tags=["analysis"])
 MAX_SESSIONS = 8
@@ -82,17 +83,6 @@ def _api_error(exc: Exception) -> ApiError:
     return Unprocessable(str(exc))
 
 
-def _reference(text: str | None) -> tuple[float, float] | None:
-    if text is None or text == "":
-        return None
-    from analysis.cli import parse_latlon
-
-    try:
-        return parse_latlon(text)
-    except Exception as exc:  # argparse's ArgumentTypeError carries the message
-        raise BadRequest(str(exc)) from None
-
-
 def _session_files(store: st.SessionStore, session_id: str) -> tuple[Path, Path | None]:
     """The telemetry file (CSV, else the tlog) and session.json, through the store."""
     store.resolve(session_id)
@@ -133,7 +123,7 @@ def _cached(
         track = load_track(Path(data), label=session_id)
         m = parse_meta(Path(meta[0]).read_bytes()) if meta else {}
         tracks.append(replace(track, meta=m, source=str(Path(data).parent)))
-    field = load_scene(scene) if scene else load_scene()
+    field = load_field_layout(scene)
     return analyze_tracks(tracks, task, reference, field, params)
 
 
@@ -147,9 +137,10 @@ def _analyze(
     for sid in session_ids:
         data, meta = _session_files(store, sid)
         files.append((sid, _stamp(data), _stamp(meta)))
-    twin = getattr(settings, "twin", None)
-    scene = getattr(twin, "scene", None)
-    return _cached(tuple(files), task, _reference(reference), str(scene) if scene else None, params)
+    scene = settings.twin.scene
+    return _cached(
+        tuple(files), task, reference_param(reference), str(scene) if scene else None, params
+    )
 
 
 async def _run(

@@ -15,7 +15,7 @@ from pydantic import BaseModel, Field
 
 from server.errors import BadRequest, Unavailable
 from server.routes.recording import get_recorder
-from server.routes.trajectory import _parse_reference, load_trajectory
+from server.routes.trajectory import load_trajectory, reference_param
 from server.trajectory3d.replay import Align
 
 router = APIRouter(tags=["trajectory"])
@@ -69,7 +69,7 @@ async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     service = _service(request)
     settings = request.app.state.settings
     store = get_recorder(request).store  # the station's one SessionStore
-    ref = _parse_reference(body.reference)
+    ref = reference_param(body.reference)
     gap_s = settings.viser.gap_s
 
     def work() -> None:  # file reads, geodesy and the scene batch: off the event loop

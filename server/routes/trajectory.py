@@ -20,6 +20,7 @@ from companion.recording.store import (
     SessionFileNotFound,
     SessionStore,
 )
+from core.geodesy import LatLonError, parse_latlon
 from server.errors import BadRequest
 from server.routes.recording import get_recorder
 from server.trajectory3d.replay import (
@@ -33,17 +34,14 @@ from server.trajectory3d.replay import (
 router = APIRouter(tags=["trajectory"])
 
 
-def _parse_reference(text: str | None) -> tuple[float, float] | None:
-    if text is None or not text.strip():
+def reference_param(text: str | None) -> tuple[float, float] | None:
+    """A `reference=LAT,LON` query value (None when absent); bad text is a 400."""
+    if not text:
         return None
     try:
-        lat_s, lon_s = text.split(",")
-        lat, lon = float(lat_s), float(lon_s)
-    except ValueError:
-        raise BadRequest(f"reference '{text[:60]}' is not LAT,LON in degrees.") from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
-        raise BadRequest(f"reference '{text[:60]}' is outside -90..90, -180..180.")
-    return lat, lon
+        return parse_latlon(text)
+    except LatLonError as exc:
+        raise BadRequest(f"reference: {exc}") from None
 
 
 def load_trajectory(
@@ -74,6 +72,7 @@ def load_trajectory(
             track.lon_deg,
             track.alt_m,
             armed=track.armed,
+            relative_alt_m=track.relative_alt_m,
             speed_mps=track.ground_speed_mps,
             cameras=cameras,
             gap_s=gap_s,
@@ -101,7 +100,7 @@ async def get_trajectory(
 ) -> TrajectoryReply:
     settings = request.app.state.settings
     store = get_recorder(request).store  # the station's one SessionStore
-    ref = _parse_reference(reference)
+    ref = reference_param(reference)
     return await asyncio.to_thread(
         load_trajectory, store, session_id, align, ref, settings.viser.gap_s
     )

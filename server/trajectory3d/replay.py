@@ -21,7 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
-from analysis.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
+from analysis.flight_frame import arming_origin_index, rotation_to
+from core.geodesy import geodetic_to_enu, rotate_about_up
 
 Align = Literal["none", "end", "farthest"]
 
@@ -92,19 +93,20 @@ def build_trajectory(
     lon_deg: NDArray[np.float64],
     alt_m: NDArray[np.float64],
     armed: NDArray[np.bool_] | None = None,
+    relative_alt_m: NDArray[np.float64] | None = None,
     speed_mps: NDArray[np.float64] | None = None,
     cameras: list[CameraFrames] | None = None,
     gap_s: float = 1.0,
     align: Align = "none",
     reference_latlon: tuple[float, float] | None = None,
 ) -> TrajectoryReply:
-    """The reply for one session's fixes (rows without a fix already dropped)."""
+    """The reply for one session's fixes (rows without a fix already dropped), in the
+    analysis' flight frame (`analysis.flight_frame`: same origin, same turn)."""
     t = np.asarray(t_s, float)
     lat, lon, alt = (np.asarray(a, float) for a in (lat_deg, lon_deg, alt_m))
     if t.size == 0:
         raise ValueError("The session has no GPS fix to draw.")
-    armed_idx = np.nonzero(np.asarray(armed, bool))[0] if armed is not None else []
-    i0 = int(armed_idx[0]) if len(armed_idx) else 0
+    i0 = arming_origin_index(armed, relative_alt_m) if armed is not None else 0
     origin = (float(lat[i0]), float(lon[i0]), float(alt[i0]))
     enu = geodetic_to_enu(lat, lon, alt, *origin)
     reference: GeoPoint | None = None
@@ -116,11 +118,7 @@ def build_trajectory(
             k = -1 if align == "end" else int(np.argmax(np.hypot(enu[:, 0], enu[:, 1])))
             ref_lat, ref_lon = float(lat[k]), float(lon[k])
         reference = GeoPoint(lat_deg=ref_lat, lon_deg=ref_lon)
-        ref_enu = geodetic_to_enu(ref_lat, ref_lon, origin[2], *origin)
-        try:
-            angle = heading_alignment_rad((0.0, 0.0), ref_enu)
-        except ValueError:
-            angle = 0.0  # the reference is the origin (a pure hover): nothing to align
+        angle = rotation_to(geodetic_to_enu(ref_lat, ref_lon, origin[2], *origin))
         enu = rotate_about_up(enu, angle)
     starts = np.ones(t.size, bool)
     starts[1:] = (np.diff(t) > gap_s) | (np.diff(t) < 0)

@@ -20,11 +20,11 @@ import threading
 import numpy as np
 import viser
 
+from core.scene import Scene
 from server.settings import ViserSettings
-from server.trajectory3d.field import FieldScene
+from server.trajectory3d.live_scene import LiveScene
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.replay import TrajectoryReply
-from server.trajectory3d.scene import LiveScene
 from server.trajectory3d.trail import TrailChunk
 
 log = logging.getLogger(__name__)
@@ -89,7 +89,7 @@ class Replay3D:
     """Owns the replay viser server and its scene; thread-safe load and set_time."""
 
     def __init__(
-        self, settings: ViserSettings, host: str = "0.0.0.0", field: FieldScene | None = None
+        self, settings: ViserSettings, host: str = "0.0.0.0", field: Scene | None = None
     ) -> None:
         self.settings = settings
         self.host = settings.host or host
@@ -181,7 +181,7 @@ class Replay3D:
         assert self.scene is not None
         if self.field is None:
             return
-        anchor = self.field.anchor_in_enu(a.origin)
+        anchor = self.field.origin_in_enu(a.origin)
         c, s = math.cos(a.align_rad), math.sin(a.align_rad)
         frame = self.scene._field_frame
         frame.position = (c * anchor[0] - s * anchor[1], s * anchor[0] + c * anchor[1], anchor[2])
@@ -240,7 +240,7 @@ class Replay3D:
         s = self.settings
         ground_up = 0.0
         if self.field is not None:
-            ground_up = float(self.field.anchor_in_enu(a.origin)[2])
+            ground_up = float(self.field.origin_in_enu(a.origin)[2])
         self.scene.set_footprint(
             bottom_footprint_enu(
                 pos,

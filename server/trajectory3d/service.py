@@ -16,14 +16,14 @@ import time
 import numpy as np
 import viser
 
-from analysis.geodesy import geodetic_to_enu
 from companion.latest import Latest
 from companion.vehicle_state import VehicleState
+from core.geodesy import geodetic_to_enu
+from core.scene import Scene
 from server.settings import ViserSettings
 from server.trajectory3d.controls import Controls
-from server.trajectory3d.field import FieldScene
+from server.trajectory3d.live_scene import LiveScene
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
-from server.trajectory3d.scene import LiveScene
 from server.trajectory3d.trail import Origin, Trail, TrailSample
 
 log = logging.getLogger(__name__)
@@ -88,7 +88,7 @@ class Trajectory3D:
         settings: ViserSettings,
         state: Latest[VehicleState],
         host: str = "0.0.0.0",
-        field: FieldScene | None = None,
+        field: Scene | None = None,
     ) -> None:
         self.settings = settings
         self.state = state
@@ -125,9 +125,7 @@ class Trajectory3D:
         self.controls = Controls(self.server, s.color_by)
         if self.field is not None:
             # Before any fix, show the field about its own anchor.
-            self.scene.set_origin(
-                (self.field.anchor_lat_deg, self.field.anchor_lon_deg, self.field.anchor_alt_m)
-            )
+            self.scene.set_origin(self.field.home_llh)
         log.info("3D panel (viser) on port %d", self.port)
 
     @property
@@ -242,7 +240,7 @@ class Trajectory3D:
             return 0.0
         if self._ground_for != self.trail.origin:
             self._ground_for = self.trail.origin
-            self._ground_up = float(self.field.anchor_in_enu(self.trail.origin)[2])
+            self._ground_up = float(self.field.origin_in_enu(self.trail.origin)[2])
         return self._ground_up
 
     def _follow(self, pos: np.ndarray) -> None:
@@ -262,7 +260,7 @@ class Trajectory3D:
 
 
 async def open_trajectory3d(
-    settings: ViserSettings, state: Latest[VehicleState], host: str, field: FieldScene | None
+    settings: ViserSettings, state: Latest[VehicleState], host: str, field: Scene | None
 ) -> Trajectory3D:
     """Build and start the service off the event loop (viser binds and spawns a thread)."""
     service = Trajectory3D(settings, state, host=host, field=field)

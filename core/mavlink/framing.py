@@ -1,4 +1,12 @@
-"""Cut a raw byte stream into MAVLink 1 and 2 packets, skipping and counting junk.
+"""Cut a raw byte stream into MAVLink 1 and 2 packets, skipping and counting junk; read
+a packet's header fields. The only header parser in the code base: the link, the tlog
+records and analysis all use these rules.
+
+A MAVLink 1 frame is 0xFE, length, seq, sysid, compid, msgid, payload, 2-byte checksum
+(length + 8). A MAVLink 2 frame is 0xFD, length, incompat flags, compat flags, seq,
+sysid, compid, 3-byte msgid, payload, checksum (length + 12), plus a 13-byte signature
+when incompat flag 0x01 is set. Any other incompat flag is unknown to the protocol, so a
+0xFD followed by one is not a frame start.
 
 pymavlink's own `parse_buffer` (even with `robust_parsing`) drops a whole frame's worth
 of bytes when a stray 0xFD/0xFE in garbage starts a false frame, which can swallow a
@@ -56,7 +64,7 @@ class MavFramer:
             if start:
                 self.counters.garbage_bytes += start
                 del buf[:start]
-            total = _frame_length(buf)
+            total = frame_length(buf)
             if total is None or len(buf) < total:
                 if total == -1:  # impossible header: not a frame start
                     self._skip_one()
@@ -89,7 +97,7 @@ class MavFramer:
         j = _find_magic(buf, 1)
         undecided = False
         while 0 < j < total:
-            length = _frame_length(buf[j : j + 3])
+            length = frame_length(buf[j : j + 3])
             if length is None or (length > 0 and j + length > len(buf)):
                 undecided = True
             elif length > 0:
@@ -123,19 +131,29 @@ def _find_magic(buf: bytearray, start: int = 0) -> int:
     return min(a, b)
 
 
-def _frame_length(buf: bytearray) -> int | None:
-    """Total frame length from its header, None if the header is incomplete,
-    -1 if the header is impossible."""
+def frame_length(buf: bytes | bytearray) -> int | None:
+    """Total frame length from the header at the start of `buf` (which starts with a
+    marker): None if the header is incomplete, -1 if it is impossible (or no marker)."""
     if buf[0] == MAGIC_V1:
         if len(buf) < 2:
             return None
         return buf[1] + 8
+    if buf[0] != MAGIC_V2:
+        return -1
     if len(buf) < 3:
         return None
     incompat = buf[2]
     if incompat & ~_SIGNED:
         return -1
     return buf[1] + 12 + (13 if incompat & _SIGNED else 0)
+
+
+def message_id(packet: bytes | bytearray) -> int:
+    """The message id from a whole packet's header (v1: byte 5; v2: bytes 7-9,
+    little-endian), without decoding the payload."""
+    if packet[0] == MAGIC_V1:
+        return packet[5]
+    return packet[7] | (packet[8] << 8) | (packet[9] << 16)
 
 
 def packet_version(msg: mavlink.MAVLink_message) -> int:

@@ -1,8 +1,11 @@
-"""The .tlog format (QGroundControl, MAVProxy): records of an 8-byte big-endian Unix time
-in microseconds followed by one raw MAVLink packet.
+"""The .tlog format (QGroundControl, MAVProxy, our recorder): records of an 8-byte
+big-endian Unix time in microseconds followed by one raw MAVLink packet.
 
-A log cut off by a power loss ends in a partial record; `read_tlog` reports it through
-`TlogReader.truncated` instead of failing, and everything before it still plays.
+A record's length is its packet's, read from the packet header by `framing.frame_length`
+(MAVLink 1 and 2 mixed, signed packets). A log cut off by a power loss ends in a partial
+record; `TlogReader` counts it in `truncated` instead of failing, and everything before
+it still plays. Bytes that do not start a record (a corrupted log) are stepped over one
+at a time and counted in `skipped_bytes`. Checksums are left to the decoder.
 """
 
 from __future__ import annotations
@@ -13,9 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
-from companion.mav_framer import MAGIC_V1, MAGIC_V2
+from core.mavlink.framing import frame_length
 
 _TIME = struct.Struct(">Q")
+_HEAD = 3  # packet bytes needed to know its length (v2: marker, length, incompat flags)
 
 
 def encode_record(t_wall_s: float, packet: bytes) -> bytes:
@@ -24,15 +28,6 @@ def encode_record(t_wall_s: float, packet: bytes) -> bytes:
 
 def write_record(f: BinaryIO, t_wall_s: float, packet: bytes) -> None:
     f.write(encode_record(t_wall_s, packet))
-
-
-def _packet_length(head: bytes) -> int | None:
-    """Packet length from its first three bytes, None if they do not start a packet."""
-    if head[0] == MAGIC_V1:
-        return head[1] + 8
-    if head[0] == MAGIC_V2:
-        return head[1] + 12 + (13 if head[2] & 0x01 else 0)
-    return None
 
 
 @dataclass
@@ -46,20 +41,20 @@ class TlogReader:
     def __iter__(self) -> Iterator[tuple[float, bytes]]:
         with open(self.path, "rb") as f:
             while True:
-                head = f.read(_TIME.size + 3)
+                head = f.read(_TIME.size + _HEAD)
                 if not head:
                     return
-                if len(head) < _TIME.size + 3:
+                if len(head) < _TIME.size + _HEAD:
                     self.truncated += 1
                     return
-                length = _packet_length(head[_TIME.size :])
-                if length is None:
+                length = frame_length(head[_TIME.size :])
+                if length is None or length < 0:
                     # Not a record boundary (a corrupted log): step one byte and look again.
                     self.skipped_bytes += 1
                     f.seek(-(len(head) - 1), 1)
                     continue
-                rest = f.read(length - 3)
-                if len(rest) < length - 3:
+                rest = f.read(length - _HEAD)
+                if len(rest) < length - _HEAD:
                     self.truncated += 1
                     return
                 (t_us,) = _TIME.unpack(head[: _TIME.size])

@@ -96,3 +96,23 @@ def track_to_aligned_enu(
         return enu
     ref = geodetic_to_enu(reference_latlon[0], reference_latlon[1], origin[2], *origin)
     return rotate_about_up(enu, heading_alignment_rad((0.0, 0.0), ref))
+
+
+class LatLonError(ValueError):
+    """Text that is not a `LAT,LON` pair in degrees; the message says why."""
+
+
+def parse_latlon(text: str) -> tuple[float, float]:
+    """`"43.0021,-78.7870"` -> (43.0021, -78.787): the one parser of a LAT,LON pair (CLI
+    flags and query parameters alike)."""
+    shown = text[:60]
+    try:
+        lat_s, lon_s = text.split(",")
+        lat, lon = float(lat_s), float(lon_s)
+    except ValueError:
+        raise LatLonError(
+            f"'{shown}' is not LAT,LON in degrees (for example 43.0021,-78.7870)."
+        ) from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise LatLonError(f"'{shown}' is outside latitude -90..90, longitude -180..180.")
+    return lat, lon

@@ -1,6 +1,7 @@
-"""A `Track` from a bare MAVLink telemetry log (`.tlog`: 8-byte big-endian microsecond
-timestamp before every packet, as QGroundControl, MAVProxy and our recorder write),
-framed by the link's `companion.tlog.TlogReader` (which survives a cut or corrupted log).
+"""The flight samples of a bare MAVLink telemetry log (`.tlog`: 8-byte big-endian
+microsecond timestamp before every packet, as QGroundControl, MAVProxy and our recorder
+write), read with `core.mavlink.tlog_records.TlogReader` (which survives a cut or
+corrupted log). `analysis.track.load_tlog` makes them a `Track`.
 
 One sample per GPS_RAW_INT with a fix (GLOBAL_POSITION_INT when the log has no raw GPS);
 the armed state, relative altitude and speeds are the latest values received before the
@@ -16,9 +17,8 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from analysis.errors import NoGpsFixError, TrackLoadError
-from analysis.track import Track
-from companion.mav_framer import MAGIC_V1
-from companion.tlog import TlogReader
+from core.mavlink.framing import message_id
+from core.mavlink.tlog_records import TlogReader
 
 _WANTED = {
     mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT,
@@ -31,14 +31,8 @@ _NOT_AUTOPILOT = (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER)
 _UINT16_UNKNOWN = 65535
 
 
-def _msgid(packet: bytes) -> int:
-    """The message id from the packet header (v1: byte 5; v2: bytes 7-9, little-endian)."""
-    if packet[0] == MAGIC_V1:
-        return packet[5]
-    return packet[7] | (packet[8] << 8) | (packet[9] << 16)
-
-
-def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
+def read_tlog_samples(path: Path, min_fix_type: int = 3) -> dict[str, np.ndarray]:
+    """The per-sample arrays of a `Track` (its fields from `t_s` to `climb_mps`)."""
     if not path.is_file():
         raise TrackLoadError(f"'{path}' does not exist.")
     gps: list[tuple[float, ...]] = []
@@ -53,7 +47,7 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
         for t, packet in reader:
             # Decode only the four messages analysis reads: a real log holds hundreds of
             # packets per second, and pymavlink's decode is the slow part.
-            if _msgid(packet) not in _WANTED:
+            if message_id(packet) not in _WANTED:
                 continue
             try:
                 msg = decoder.decode(bytearray(packet))
@@ -89,20 +83,18 @@ def read_tlog(path: Path, label: str, min_fix_type: int = 3) -> Track:
     hud_a = _by_time(np.array(hud, dtype=np.float64).reshape(-1, 3))
     if np.isnan(speed).all() and hud_a.shape[0]:
         speed = _latest(hud_a[:, 0], hud_a[:, 1], t)
-    return Track(
-        label=label,
-        source=str(path),
-        t_s=t - t0,
-        wall_time=t,
-        lat_deg=lat,
-        lon_deg=lon,
-        alt_m=alt,
-        fix_type=fix.astype(np.int16),
-        armed=_latest_bool(hb, t),
-        relative_alt_m=_latest(*_cols(rel, 2), t),
-        ground_speed_mps=speed,
-        climb_mps=_latest(hud_a[:, 0], hud_a[:, 2], t),
-    )
+    return {
+        "t_s": t - t0,
+        "wall_time": t,
+        "lat_deg": lat,
+        "lon_deg": lon,
+        "alt_m": alt,
+        "fix_type": fix.astype(np.int16),
+        "armed": _latest_bool(hb, t),
+        "relative_alt_m": _latest(*_cols(rel, 2), t),
+        "ground_speed_mps": speed,
+        "climb_mps": _latest(hud_a[:, 0], hud_a[:, 2], t),
+    }
 
 
 def _by_time(a: np.ndarray) -> np.ndarray:

@@ -1,6 +1,12 @@
-"""A track in the paper's frame: ENU about the arming point (the last sample before the
-vehicle reports armed; or the first point), rotated so that the line from the start to a
-reference point is +x. x = longitudinal, y = lateral, z = height above the start.
+"""The flight frame: ENU about the arming point, rotated so that the line from the start
+to a reference point is +x (the paper's frame). x = longitudinal, y = lateral, z = height
+above the start. The analysis (`align_track`) and the replay view
+(`server.trajectory3d.replay`) both place the origin with `arming_origin_index` and turn
+with `rotation_to`, so the replay draws the frame the analysis measures in.
+
+The origin is the vehicle on the ground where it was armed: the last sample before the
+vehicle reports armed, stepped back to the last sample at ground level if the pilot's
+altitude already shows a climb there (or the first sample of a track never armed).
 
 The reference, in order of preference: the one given (`--reference LAT,LON`); the scene's
 landing pad (when the flight is on a known field); the landing point; the point farthest
@@ -19,12 +25,12 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from analysis.errors import TooFewPointsError
-from analysis.field import FieldLayout
-from analysis.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
+from analysis.field_layout import FieldLayout
 from analysis.track import Track
+from core.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
 
 Array = NDArray[np.float64]
 ReferenceKind = Literal["given", "scene", "landing", "farthest", "none"]
@@ -55,6 +61,36 @@ class AlignedTrack:
         return self.track.label
 
 
+def arming_origin_index(
+    armed: NDArray[np.bool_], relative_alt_m: Array | None = None, ground_height_m: float = 0.5
+) -> int:
+    """Index of the flight frame's origin sample (see the module's docstring)."""
+    armed = np.asarray(armed, bool)
+    if not armed.any():
+        return 0
+    # The last sample before the arming is seen: a disarmed vehicle is on the ground,
+    # while the first armed sample can already be in the air (HEARTBEAT comes at 1 Hz
+    # and a pilot climbs right after arming).
+    i0 = max(int(np.argmax(armed)) - 1, 0)
+    if relative_alt_m is None:
+        return i0
+    # Still late when the pilot's altitude already shows a climb: step back to the
+    # last sample at ground level.
+    rel = np.asarray(relative_alt_m, float)[: i0 + 1]
+    grounded = np.flatnonzero(np.isfinite(rel) & (rel <= ground_height_m))
+    if np.isfinite(rel[-1]) and rel[-1] > ground_height_m and grounded.size:
+        i0 = int(grounded[-1])
+    return i0
+
+
+def rotation_to(reference_en: ArrayLike | None) -> float:
+    """The turn about Up (rad) that puts the East-North point `reference_en` (about the
+    origin) on +x; 0 with no reference or one at the origin (a pure hover)."""
+    if reference_en is None or np.hypot(*np.asarray(reference_en, float)[:2]) <= 1e-6:
+        return 0.0
+    return heading_alignment_rad((0.0, 0.0), np.asarray(reference_en, float)[:2])
+
+
 def align_track(
     track: Track,
     reference_latlon: tuple[float, float] | None = None,
@@ -70,18 +106,11 @@ def align_track(
             f"'{track.source}' has {len(track)} GPS samples with a fix; at least "
             f"{min_points} are needed to analyse a flight."
         )
-    i0 = 0
-    if origin == "arming" and track.armed.any():
-        # The last sample before the arming is seen: a disarmed vehicle is on the ground,
-        # while the first armed sample can already be in the air (HEARTBEAT comes at 1 Hz
-        # and a pilot climbs right after arming).
-        i0 = max(int(np.argmax(track.armed)) - 1, 0)
-        # Still late when the pilot's altitude already shows a climb: step back to the
-        # last sample at ground level.
-        rel = track.relative_alt_m[: i0 + 1]
-        grounded = np.flatnonzero(np.isfinite(rel) & (rel <= ground_height_m))
-        if np.isfinite(rel[-1]) and rel[-1] > ground_height_m and grounded.size:
-            i0 = int(grounded[-1])
+    i0 = (
+        arming_origin_index(track.armed, track.relative_alt_m, ground_height_m)
+        if origin == "arming"
+        else 0
+    )
     o = (float(track.lat_deg[i0]), float(track.lon_deg[i0]), float(track.alt_m[i0]))
     enu = geodetic_to_enu(track.lat_deg, track.lon_deg, track.alt_m, *o)
 
@@ -102,9 +131,7 @@ def align_track(
             kind, ref_en = "landing", enu[last, :2]
         elif dist.max() >= min_reference_m:
             kind, ref_en = "farthest", enu[int(np.argmax(dist)), :2]
-    rotation = 0.0
-    if ref_en is not None and np.hypot(*ref_en) > 1e-6:
-        rotation = heading_alignment_rad((0.0, 0.0), ref_en)
+    rotation = rotation_to(ref_en)
     xyz = rotate_about_up(enu, rotation)
     rel = track.relative_alt_m
     return AlignedTrack(

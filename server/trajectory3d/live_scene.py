@@ -13,8 +13,8 @@ import numpy as np
 import viser
 from numpy.typing import NDArray
 
+from core.scene import Scene, bgr_to_rgb
 from server.trajectory3d.colors import ColorBy, ramp_rgb
-from server.trajectory3d.field import FieldScene
 from server.trajectory3d.trail import Origin, Trail, TrailChunk
 
 # The F450 drawn three times its size, so that it stays visible over a 60 m field.
@@ -33,7 +33,7 @@ class LiveScene:
         height_range_m: tuple[float, float],
         speed_range_mps: tuple[float, float],
         color_by: ColorBy = "height",
-        field: FieldScene | None = None,
+        field: Scene | None = None,
     ) -> None:
         self.server = server
         self.scene = server.scene
@@ -53,7 +53,7 @@ class LiveScene:
 
     # -- static parts -------------------------------------------------------------
 
-    def _add_field(self, f: FieldScene | None) -> viser.FrameHandle:
+    def _add_field(self, f: Scene | None) -> viser.FrameHandle:
         frame = self.scene.add_frame("/field", show_axes=False)
         if f is None:
             self.scene.add_grid(
@@ -62,8 +62,8 @@ class LiveScene:
             return frame
         self.scene.add_grid(
             "/field/grid",
-            width=f.size_x_m,
-            height=f.size_y_m,
+            width=f.field.size_x_m,
+            height=f.field.size_y_m,
             cell_size=1.0,
             section_size=5.0,
             plane_color=(215, 235, 205),
@@ -72,14 +72,14 @@ class LiveScene:
         for pad in f.pads:
             self.field_handles[f"pad:{pad.name}"] = self.scene.add_box(
                 f"/field/pads/{_node(pad.name)}",
-                color=pad.rgb,
+                color=bgr_to_rgb(pad.bgr),
                 dimensions=(pad.size_m, pad.size_m, 0.04),
                 position=(pad.x_m, pad.y_m, 0.02),
             )
         for ob in f.obstacles:
             self.field_handles[f"obstacle:{ob.name}"] = self.scene.add_box(
                 f"/field/obstacles/{_node(ob.name)}",
-                color=ob.rgb,
+                color=bgr_to_rgb(ob.bgr),
                 dimensions=(ob.width_m, ob.depth_m, ob.height_m),
                 position=(ob.x_m, ob.y_m, ob.height_m / 2.0),
             )
@@ -108,7 +108,7 @@ class LiveScene:
     def set_origin(self, origin: Origin) -> None:
         """Place the field for a new ENU origin (the home marker stays at 0, 0, 0)."""
         if self.field is not None:
-            self._field_frame.position = tuple(self.field.anchor_in_enu(origin))
+            self._field_frame.position = tuple(self.field.origin_in_enu(origin))
 
     def set_field_visible(self, visible: bool) -> None:
         self._field_frame.visible = visible

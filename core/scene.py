@@ -1,8 +1,15 @@
-"""The twin's world: the field, its pads, obstacles and flight tasks, loaded from a TOML file.
+"""The flying field as one typed model: its size, pads, obstacles and flight tasks,
+loaded from a TOML scene file. The twin simulates and renders it, analysis measures
+against it, the 3D panels and the pilot's map draw it; each keeps only its own view.
 
 World frame: x east, y north, z up (m), origin at the field's centre, georeferenced at
-`home`. The default scene (`twin/scenes/field.toml`) is the field of MISSION.md; users
-edit a copy and point `twin.scene` at it. Validation errors name the offending key.
+`home`. The default scene (`core/scenes/field.toml`) is the paper's netted outdoor field
+(its section on the flight tests); users edit a copy and point the `twin.scene` or
+`viser.field_file` setting at it. Validation errors name the offending key.
+
+Obstacles are upright boxes aligned with the world axes: the schema has no yaw and
+refuses unknown keys (a `yaw_deg` is an error, not silently ignored), so the twin's
+collisions, the analysis' contact count and every drawing agree on the same boxes.
 """
 
 from __future__ import annotations
@@ -12,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from core.geodesy import geodetic_to_enu
 
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "field.toml"
@@ -36,11 +45,21 @@ class FieldArea(_Frozen):
     texture_px_per_m: int = Field(16, ge=2, le=64)
 
 
+def bgr_to_rgb(bgr: tuple[int, int, int]) -> tuple[int, int, int]:
+    """Scene colours are OpenCV's BGR (the twin renders with OpenCV); browsers and viser
+    want RGB."""
+    return int(bgr[2]), int(bgr[1]), int(bgr[0])
+
+
+# The one default pad size: the paper's pads are about 1.5 m squares.
+DEFAULT_PAD_SIZE_M = 1.5
+
+
 class Pad(_Frozen):
     name: str
     x_m: float
     y_m: float
-    size_m: float = Field(1.5, gt=0)
+    size_m: float = Field(DEFAULT_PAD_SIZE_M, gt=0)
     marker: str = Field("H", max_length=2)
     bgr: tuple[int, int, int] = (40, 40, 40)
     marker_bgr: tuple[int, int, int] = (240, 240, 240)
@@ -124,6 +143,15 @@ class Scene(_Frozen):
         raise KeyError(f"No task {task_id} in scene '{self.name}'.")
 
     @property
+    def home_llh(self) -> tuple[float, float, float]:
+        """The world origin as (lat_deg, lon_deg, alt_m)."""
+        return self.home.lat_deg, self.home.lon_deg, self.home.alt_m
+
+    def origin_in_enu(self, origin_llh: tuple[float, float, float]) -> np.ndarray:
+        """Where the field's (0, 0, 0) lies in the ENU frame about `origin_llh`."""
+        return geodetic_to_enu(*self.home_llh, *origin_llh)
+
+    @property
     def start_xy_m(self) -> np.ndarray:
         return self.pads[0].xy_m
 
@@ -151,7 +179,7 @@ class SceneError(ValueError):
 
 
 def load_scene(path: Path | str | None = None) -> Scene:
-    """Load and validate a scene file (default: the field of MISSION.md)."""
+    """Load and validate a scene file (default: the paper's field, DEFAULT_SCENE)."""
     path = Path(path) if path is not None else DEFAULT_SCENE
     try:
         data = tomllib.loads(path.read_text())

@@ -1,16 +1,15 @@
-"""The flying field's pads and obstacles, read from the twin's scene file, and placed in a
-track's aligned frame so plots can draw them and the twin's obstacle contacts can be
-counted.
+"""Analysis' view of the field (`core.scene`): pads and obstacles placed in a track's
+aligned frame so that plots can draw them and the twin's obstacle contacts can be counted.
 
-The scene (`twin/scenes/field.toml`) gives a geodetic `[home]` and pads/obstacles in a
-world frame x east, y north, z up about it. A track's frame has its own origin (the
-arming point) and is rotated so start-to-reference is +x; `FieldLayout.in_track_frame`
-does that conversion through latitude/longitude, so the two need not share an origin.
+The scene gives a geodetic `home` and pads/obstacles in a world frame x east, y north,
+z up about it. A track's frame has its own origin (the arming point) and is rotated so
+start-to-reference is +x; `FieldLayout.in_track_frame` does that conversion through
+latitude/longitude, so the two need not share an origin. `Obstacle.yaw_rad` is that
+rotation (scene obstacles are axis-aligned in the scene's frame).
 """
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -18,9 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from analysis.errors import TrackLoadError
-from analysis.geodesy import enu_to_geodetic, geodetic_to_enu, rotate_about_up
-
-DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "twin" / "scenes" / "field.toml"
+from core.geodesy import enu_to_geodetic, geodetic_to_enu, rotate_about_up
+from core.scene import DEFAULT_PAD_SIZE_M, Scene, SceneError, load_scene
 
 
 @dataclass(frozen=True)
@@ -28,7 +26,7 @@ class Pad:
     name: str
     x_m: float
     y_m: float
-    size_m: float = 1.5
+    size_m: float = DEFAULT_PAD_SIZE_M
 
 
 @dataclass(frozen=True)
@@ -89,41 +87,26 @@ class FieldLayout:
         return FieldLayout(home=origin, pads=pads, obstacles=obstacles, name=self.name)
 
 
-def load_scene(path: str | Path | None = None) -> FieldLayout | None:
-    """The twin's scene file as a `FieldLayout`; None when no path is given and the
-    default scene does not exist. A given path that cannot be read is an error."""
-    p = Path(path) if path is not None else DEFAULT_SCENE
-    if not p.is_file():
-        if path is None:
-            return None
-        raise TrackLoadError(f"Scene file '{p}' does not exist.")
+def layout_from_scene(scene: Scene) -> FieldLayout:
+    """The scene as analysis measures against it, in the scene's own world frame."""
+    return FieldLayout(
+        home=scene.home_llh,
+        pads=tuple(Pad(p.name, p.x_m, p.y_m, p.size_m) for p in scene.pads),
+        obstacles=tuple(
+            Obstacle(o.name, o.x_m, o.y_m, o.width_m, o.depth_m, o.height_m)
+            for o in scene.obstacles
+        ),
+        name=scene.name,
+    )
+
+
+def load_field_layout(path: str | Path | None = None) -> FieldLayout:
+    """A scene file (None: the default field, core.scene.DEFAULT_SCENE) as a
+    `FieldLayout`; a file that cannot be used is a TrackLoadError naming file and key."""
     try:
-        data = tomllib.loads(p.read_text())
-        home = data["home"]
-        pads = tuple(
-            Pad(str(d["name"]), float(d["x_m"]), float(d["y_m"]), float(d.get("size_m", 1.5)))
-            for d in data.get("pads", [])
-        )
-        obstacles = tuple(
-            Obstacle(
-                str(d["name"]),
-                float(d["x_m"]),
-                float(d["y_m"]),
-                float(d.get("width_m", 1.0)),
-                float(d.get("depth_m", d.get("width_m", 1.0))),
-                float(d["height_m"]),
-                float(np.radians(d.get("yaw_deg", 0.0))),
-            )
-            for d in data.get("obstacles", [])
-        )
-        return FieldLayout(
-            home=(float(home["lat_deg"]), float(home["lon_deg"]), float(home["alt_m"])),
-            pads=pads,
-            obstacles=obstacles,
-            name=str(data.get("name", p.stem)),
-        )
-    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise TrackLoadError(f"Scene file '{p}' is not a usable scene: {exc!r}") from None
+        return layout_from_scene(load_scene(path))
+    except SceneError as exc:
+        raise TrackLoadError(str(exc)) from None
 
 
 def obstacle_contacts(

@@ -1,0 +1,119 @@
+"""Cutting byte streams into packets (garbage, bad checksums, unknown ids, resync) and the
+.tlog records built on the same header rules (MAVLink 1 and 2 mixed, signed packets)."""
+
+import random
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from core.mavlink.framing import MavFramer, frame_length, message_id
+from core.mavlink.tlog_records import TlogReader, encode_record, write_record
+
+ENC = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+
+
+def packets(n):
+    out = []
+    for i in range(n):
+        ENC.seq = i % 256
+        out.append(bytes(ENC.attitude_encode(i, 0.1, 0.2, 0.3, 0, 0, 0).pack(ENC)))
+    return out
+
+
+def test_bad_crc_and_unknown_id_are_counted_and_skipped():
+    good = packets(2)
+    bad = bytearray(good[0])
+    bad[-1] ^= 0xFF  # checksum no longer holds
+    unknown = bytearray(good[1])
+    unknown[7:10] = (60000).to_bytes(3, "little")  # msgid our dialect lacks
+    f = MavFramer()
+    msgs = f.feed(bytes(bad) + good[1] + bytes(unknown) + b"hello" + good[0])
+    types = [m.get_type() for m in msgs]
+    assert types == ["ATTITUDE", "UNKNOWN_60000", "ATTITUDE"]
+    assert f.counters.bad_crc >= 1 and f.counters.unknown_ids == 1
+    assert f.counters.garbage_bytes >= 5
+
+
+def test_false_start_marker_in_garbage_does_not_swallow_a_packet():
+    good = packets(1)[0]
+    # 0xFD, length 200: a false frame that would eat the real packet behind it.
+    junk = bytes([0xFD, 200, 0, 0, 0, 0, 0, 0, 0, 0])
+    f = MavFramer()
+    msgs = f.feed(junk + good + b"\x00" * 250)
+    assert [m.get_type() for m in msgs] == ["ATTITUDE"]
+
+
+def test_random_garbage_interleaved_byte_by_byte():
+    rng = random.Random(7)
+    good = packets(300)
+    stream = bytearray()
+    for p in good:
+        stream += bytes(rng.randrange(256) for _ in range(rng.randrange(0, 40)))
+        stream += p
+    stream += b"\x00" * 300  # flush a false frame started by trailing junk
+    f = MavFramer()
+    got = []
+    i = 0
+    while i < len(stream):  # odd chunk sizes: packets split across reads
+        n = rng.randrange(1, 64)
+        got += f.feed(bytes(stream[i : i + n]))
+        i += n
+    seqs = [m.get_seq() for m in got if m.get_type() == "ATTITUDE"]
+    assert seqs == [i % 256 for i in range(300)]
+    assert f.counters.garbage_bytes > 0
+
+
+def test_mavlink1_packets():
+    ENC.seq = 3
+    p = bytes(ENC.heartbeat_encode(2, 12, 0, 0, 3).pack(ENC, force_mavlink1=True))
+    assert p[0] == 0xFE
+    (m,) = MavFramer().feed(p)
+    assert m.get_type() == "HEARTBEAT" and m.get_seq() == 3
+
+
+def signed_packet(seq):
+    enc = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    enc.signing.secret_key = bytes(range(32))
+    enc.signing.sign_outgoing = True
+    enc.signing.link_id = 1
+    enc.signing.timestamp = 1
+    enc.seq = seq
+    return bytes(enc.gps_raw_int_encode(0, 3, 1, 2, 3, 0, 0, 0, 0, 9).pack(enc))
+
+
+def test_header_fields_of_v1_v2_and_signed_packets():
+    v1 = bytes(ENC.heartbeat_encode(2, 12, 0, 0, 3).pack(ENC, force_mavlink1=True))
+    v2 = packets(1)[0]
+    signed = signed_packet(0)
+    assert signed[2] & 0x01 and len(signed) == signed[1] + 12 + 13  # signed indeed
+    assert [frame_length(p) for p in (v1, v2, signed)] == [len(v1), len(v2), len(signed)]
+    assert [message_id(p) for p in (v1, v2, signed)] == [
+        mavlink.MAVLINK_MSG_ID_HEARTBEAT,
+        mavlink.MAVLINK_MSG_ID_ATTITUDE,
+        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+    ]
+    assert frame_length(bytes([0xFD, 9, 0x02])) == -1  # unknown incompat flag: no frame
+    assert frame_length(bytes([0x00, 9, 0])) == -1  # no start marker
+    assert frame_length(bytes([0xFD, 9])) is None  # header not complete yet
+    (m,) = MavFramer().feed(signed)
+    assert m.get_type() == "GPS_RAW_INT"
+
+
+def test_tlog_records_mixed_versions_signed_garbage_and_cut_tail(tmp_path):
+    v1 = bytes(ENC.heartbeat_encode(2, 12, 0, 0, 3).pack(ENC, force_mavlink1=True))
+    v2 = packets(1)[0]
+    signed = signed_packet(5)
+    path = tmp_path / "mixed.tlog"
+    with open(path, "wb") as f:
+        write_record(f, 1000.000001, v1)
+        write_record(f, 1000.5, signed)
+        f.write(b"\x00\x01\x02")  # junk between records (a corrupted log)
+        f.write(encode_record(1001.25, v2))
+        f.write(bytes([0, 0, 0, 0, 0, 0, 0, 1, 0xFD, 4, 0x80]))  # impossible v2 header
+        write_record(f, 1002.0, v2)
+        f.write(encode_record(1003.0, v2)[:-5])  # cut by a power loss
+    reader = TlogReader(path)
+    got = list(reader)
+    assert [p for _, p in got] == [v1, signed, v2, v2]
+    assert [round(t, 6) for t, _ in got] == [1000.000001, 1000.5, 1001.25, 1002.0]
+    assert reader.truncated == 1
+    assert reader.skipped_bytes == 3 + 11
