@@ -42,6 +42,7 @@ class LinkHealth:
     lost_packets: int = 0  # the autopilot's: gaps in its sequence numbers (0 before it is heard)
     loss_ratio: float = 0.0  # the autopilot's: lost / (lost + received)
     streams: tuple[StreamLoss, ...] = ()  # loss of every sender on the link, autopilot included
+    streams_untracked: int = 0  # packets of senders beyond the first 64 (a flood of identities)
     bytes_per_s: float = 0.0
     bytes_total: int = 0
     garbage_bytes: int = 0
@@ -134,6 +135,7 @@ class HealthMeter:
             lost_packets=autopilot.lost if autopilot else 0,
             loss_ratio=autopilot.loss_ratio if autopilot else 0.0,
             streams=streams,
+            streams_untracked=self.loss.untracked,
             bytes_per_s=round(self._bytes_per_s, 1),
             bytes_total=self.bytes_total,
             garbage_bytes=framer.garbage_bytes,

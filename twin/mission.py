@@ -95,14 +95,19 @@ class MissionItem:
         return None
 
 
+def up_m(sim: Sim, alt_m: float, frame: int, home_alt_m: float) -> float:
+    """An altitude in `frame` as the height in the sim's world (above the scene's home)."""
+    base = home_alt_m if frame in RELATIVE_FRAMES else 0.0
+    return alt_m + base - sim.scene.home.alt_m
+
+
 def target_enu(
     sim: Sim, lat_deg: float, lon_deg: float, alt_m: float, frame: int, home_alt_m: float
 ) -> np.ndarray:
     """A global position in `frame` as an ENU target in the sim's world (m)."""
     home = sim.scene.home
     e, n, _ = geodetic_to_enu(lat_deg, lon_deg, home.alt_m, *sim.scene.home_llh)
-    up = alt_m + home_alt_m - home.alt_m if frame in RELATIVE_FRAMES else alt_m - home.alt_m
-    return np.array([float(e), float(n), float(up)])
+    return np.array([float(e), float(n), up_m(sim, alt_m, frame, home_alt_m)])
 
 
 class MissionRunner:
@@ -132,17 +137,21 @@ class MissionRunner:
 
     def load(self, items: list[MissionItem]) -> None:
         self.items = list(items)
-        self.set_current(0)
+        self._start_item(0)
 
     def set_current(self, seq: int) -> bool:
-        if self.items and not 0 <= seq < len(self.items):
+        """Make item `seq` the next to fly; False if there is no such item."""
+        if not 0 <= seq < len(self.items):
             return False
+        self._start_item(seq)
+        return True
+
+    def _start_item(self, seq: int) -> None:
         self.current = seq
         self._entered_s = self._arrived_s = None
         self._target = None
         self._landing = False
         self._current_changed(seq)
-        return True
 
     def update(self, sim: Sim, now_s: float, home_alt_m: float) -> None:
         com = sim.commander
@@ -170,7 +179,7 @@ class MissionRunner:
                     self._reached(item.seq)
                     self._say("mission finished, landed")
                     self.finished = True
-                    self.set_current(0)  # PX4 rewinds a finished mission for the next flight
+                    self._start_item(0)  # PX4 rewinds a finished mission for the next flight
             return
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             arrived = pos[2] >= target[2] - ACCEPT_ALT_M
@@ -213,7 +222,7 @@ class MissionRunner:
         else:
             t = pos.copy()
             if item.frame in RELATIVE_FRAMES | AMSL_FRAMES:
-                t[2] = target_enu(sim, 0.0, 0.0, item.alt_m, item.frame, home_alt_m)[2]
+                t[2] = up_m(sim, item.alt_m, item.frame, home_alt_m)
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             t[:2] = pos[:2]  # a multicopter climbs straight up where it stands
             t[2] = max(t[2], 0.5)

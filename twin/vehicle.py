@@ -28,7 +28,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES, px4_main_sub, px4_mode_name
 from twin.control import AUTO_LOITER, AUTO_MISSION
-from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu
+from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu, up_m
 from twin.mission_protocol import MissionProtocol
 from twin.params import ParamServer, px4_params
 from twin.sim import MODE_BY_NAME, Sim
@@ -301,12 +301,7 @@ class MavlinkVehicle:
         if math.isfinite(lat) and math.isfinite(lon):
             target[:2] = target_enu(sim, lat, lon, 0.0, frame, home)[:2]
         if math.isfinite(alt):
-            target[2] = max(
-                target_enu(sim, sim.scene.home.lat_deg, sim.scene.home.lon_deg, alt, frame, home)[
-                    2
-                ],
-                0.5,
-            )
+            target[2] = max(up_m(sim, alt, frame, home), 0.5)
         ok, why = com.request_mode(0, AUTO_LOITER, pos, sim.sensors.has_fix(sim.t_s))
         if ok:
             com.target_m[0] = target
@@ -325,8 +320,8 @@ class MavlinkVehicle:
             ok, why = self._reposition(sim, args)
         elif c == mavlink.MAV_CMD_MISSION_START:
             first = int(p[0]) if math.isfinite(p[0]) and p[0] > 0 else self.mission.current
-            if not self.mission.set_current(first) or not self.mission.items:
-                return fail, "mission start refused: no such item"
+            if not self.mission.set_current(first):
+                return fail, "mission start refused: no mission or no such item"
             ok, why = self._set_mode(sim, *PX4_MODES["MISSION"])
         elif c == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
             ok, why = self.mission.set_current(int(p[0])), "no such mission item"
