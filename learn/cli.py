@@ -34,6 +34,12 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--cameras", help="cameras to export: front,bottom or none (default: all)")
     p.add_argument("--dataset-id", default=None, help="dataset name (LeRobot repo id, Minari id)")
+    p.add_argument(
+        "--video-preset",
+        default="ultrafast",
+        choices=("ultrafast", "superfast", "veryfast", "faster", "fast", "medium"),
+        help="x264 preset of LeRobot videos (slower = smaller files)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -57,6 +63,7 @@ def run_export(args: argparse.Namespace) -> int:
         fps=args.fps,
         channel_map=cmap,
         cameras=cams,
+        video_preset=args.video_preset,
         **({"dataset_id": args.dataset_id} if args.dataset_id else {}),
     )
     progress = None if args.no_progress else tqdm_progress(len(args.sessions))

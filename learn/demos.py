@@ -58,6 +58,7 @@ class DemoConfig:
     jpeg_quality: int = 80
     timeout_s: float = 300.0
     variability: Variability = Variability()
+    hold_s: float | None = None  # task 1: hover this long instead of the task's hold (long flights)
 
 
 def noisy_plan(scene: Scene, task_id: int, rng: np.random.Generator, err_m: float) -> list[Leg]:
@@ -83,7 +84,10 @@ def fly_demo(
     rng = np.random.default_rng(seed)
     v = config.variability
     lag_ticks = int(round(rng.uniform(*v.lag_s) / TICK_S))
-    pilot = Pilot(noisy_plan(scene, config.task_id, rng, v.path_error_m))
+    legs = noisy_plan(scene, config.task_id, rng, v.path_error_m)
+    if config.hold_s is not None:
+        legs = [replace(leg, seconds=config.hold_s) if leg.kind == "hold" else leg for leg in legs]
+    pilot = Pilot(legs)
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.setblocking(False)

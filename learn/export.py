@@ -31,6 +31,7 @@ class ExportOptions:
     channel_map: ChannelMap = field(default_factory=ChannelMap)
     cameras: tuple[str, ...] | None = None  # None: the cameras of the first recording
     dataset_id: str = "fpv-station/demonstrations"
+    video_preset: str = "ultrafast"  # x264 preset of LeRobot videos
     scene: Scene | None = None
 
 

@@ -295,3 +295,15 @@ def test_cli_export_and_its_errors(session, tmp_path, capsys):
     assert cli_main([*argv[:2], str(tmp_path / "missing"), *argv[2:]]) == 1
     assert "does not exist" in capsys.readouterr().err
     assert cli_main([*argv, "--task", "9"]) == 1
+
+
+def test_telemetry_read_in_small_blocks_is_the_same(session, monkeypatch):
+    from learn import recording
+
+    with recording.open_recording(session) as whole:
+        monkeypatch.setattr(recording, "CSV_BLOCK_BYTES", 1000)  # rows cut across blocks
+        with recording.open_recording(session) as blocks:
+            assert np.array_equal(whole.t_s, blocks.t_s)
+            for name, col in whole.columns.items():
+                assert np.array_equal(col, blocks.columns[name], equal_nan=True), name
+    assert whole.t_s.size > 500

@@ -1,0 +1,134 @@
+"""Export throughput and peak memory: LeRobot, Minari and MCAP on 10 minutes of twin flight.
+
+    python benchmarks/export.py [--minutes 10] [--camera-fps 15] [--keep DIR]
+
+The flights are `fpv-station demos` sessions (the scripted pilot, real MAVLink, both
+cameras at 640x480): one long session of `--minutes` (a hover held that long), the same
+time as ten short sessions (ten episodes), and a session of a fifth of the length, to
+show that memory does not grow with session length. Each export runs in its own process
+(resident memory sampled every 20 ms; the RSS after the imports, before the export,
+printed apart). Prints flight seconds per
+export second (x real time), episodes and camera frames per second, and peak memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from learn.demos import DemoConfig, fly_demo  # noqa: E402
+
+CHILD = """
+import json, sys, threading, time
+from pathlib import Path
+import psutil
+from learn.export import ExportOptions, export_recordings
+import learn.lerobot, learn.minari_export, learn.mcap_export, minari, foxglove, av  # noqa
+proc = psutil.Process()
+base = proc.memory_info().rss
+peak = [base]
+done = threading.Event()
+def sample():  # the process's resident memory every 20 ms while it exports
+    while not done.wait(0.02):
+        peak[0] = max(peak[0], proc.memory_info().rss)
+threading.Thread(target=sample, daemon=True).start()
+fmt, out, *paths = sys.argv[1:]
+t0 = time.perf_counter()
+s = export_recordings([Path(p) for p in paths], fmt, Path(out), ExportOptions(task_id=1))
+dt = time.perf_counter() - t0
+done.set()
+peak[0] = max(peak[0], proc.memory_info().rss)
+print(json.dumps({"s": dt, "episodes": s.episodes, "frames": s.frames,
+                  "camera_frames": s.camera_frames, "base_kb": base / 1024, "peak_kb": peak[0] / 1024}))
+"""
+
+
+def flight_s(folder: Path) -> float:
+    return float(json.loads((folder / "session.json").read_text())["duration_s"])
+
+
+def sessions(root: Path, minutes: float, camera_fps: float) -> dict[str, list[Path]]:
+    marker = root / "sessions.json"
+    if marker.is_file():
+        return {k: [Path(p) for p in v] for k, v in json.loads(marker.read_text()).items()}
+    cfg = DemoConfig(task_id=1, cameras=True, camera_fps=camera_fps, timeout_s=minutes * 60 + 120)
+    climb_land_s = 18.0  # the hover task without its hold: climb to 4 m, descend, disarm
+    t0 = time.perf_counter()
+    out = {
+        "long": [
+            fly_demo(
+                root / "long",
+                1,
+                DemoConfig(**{**cfg.__dict__, "hold_s": minutes * 60 - climb_land_s}),
+            )
+        ],
+        "short": [
+            fly_demo(
+                root / "short",
+                2,
+                DemoConfig(**{**cfg.__dict__, "hold_s": minutes * 12 - climb_land_s}),
+            )
+        ],
+        "ten": [
+            fly_demo(
+                root / "ten",
+                10 + k,
+                DemoConfig(**{**cfg.__dict__, "hold_s": minutes * 6 - climb_land_s}),
+            )
+            for k in range(10)
+        ],
+    }
+    print(f"flew the sessions in {time.perf_counter() - t0:.0f} s", flush=True)
+    marker.write_text(json.dumps({k: [str(p) for p in v] for k, v in out.items()}))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--camera-fps", type=float, default=15.0)
+    ap.add_argument("--keep", type=Path, help="folder for the flown sessions (reused if there)")
+    args = ap.parse_args()
+    print(
+        f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    )
+    root = args.keep or Path(tempfile.mkdtemp(prefix="bench-export-"))
+    root.mkdir(parents=True, exist_ok=True)
+    sets = sessions(root, args.minutes, args.camera_fps)
+    print(f"load average before exports: {os.getloadavg()[0]:.2f}")
+    print(
+        "| sessions | flight (s) | format | export (s) | x real time | episodes/s | camera frames/s | peak RSS (MB) | RSS before export (MB) |"
+    )
+    print("| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for name in ("long", "ten", "short"):
+        paths = sets[name]
+        flown = sum(flight_s(p) for p in paths)
+        for fmt in ("lerobot", "minari", "mcap"):
+            with tempfile.TemporaryDirectory(prefix="bench-out-") as out:
+                r = subprocess.run(
+                    [sys.executable, "-c", CHILD, fmt, str(Path(out) / fmt), *map(str, paths)],
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                )
+            m = json.loads(r.stdout.strip().splitlines()[-1])
+            print(
+                f"| {name} ({len(paths)}) | {flown:.0f} | {fmt} | {m['s']:.1f} | {flown / m['s']:.1f} | "
+                f"{m['episodes'] / m['s']:.2f} | {m['camera_frames'] / m['s']:.0f} | "
+                f"{m['peak_kb'] / 1024:.0f} | {m['base_kb'] / 1024:.0f} |",
+                flush=True,
+            )
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
