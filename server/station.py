@@ -60,10 +60,10 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
         source = settings.link.source.strip()
         if source == "sim":
             # The embedded twin vehicle, reached by a MavlinkLink over a loopback socket,
-            # exactly as a real vehicle below (server/sim.py).
-            from server.sim import open_sim
+            # exactly as a real vehicle below (server/twin_link.py).
+            from server.twin_link import open_twin_link
 
-            station.twin, station.link = open_sim(settings, stack)
+            station.twin, station.link = open_twin_link(settings, stack)
             station.state = station.link.state
         elif source != "none":
             link = MavlinkLink(settings.link)
@@ -85,7 +85,7 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
 
 async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
-    from server.recording import open_recorder
+    from server.recorder_setup import open_recorder
 
     cams = station.cameras
     return await open_recorder(
@@ -109,7 +109,7 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
             name,
             getattr(cams, name),
             link_source=station.settings.link.source,
-            renderer=lambda: station.twin,  # set by open_sim for source "sim", else None
+            renderer=lambda: station.twin,  # set by open_twin_link for source "sim", else None
             stall_s=cams.stall_s,
             retry_min_s=cams.retry_min_s,
             retry_max_s=cams.retry_max_s,

@@ -20,13 +20,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.frames import Frame
 from companion.latest import Latest
 from companion.recording import diskspace
 from companion.recording.recovery import mark_interrupted
 from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.store import SessionStore
 from companion.vehicle_state import VehicleState
+from companion.video_frame import Frame
 
 log = logging.getLogger(__name__)
 

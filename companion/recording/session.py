@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.frames import Frame
 from companion.latest import Latest
 from companion.recording import layout
 from companion.recording.meta import Arming, CameraQuality, Quality, SessionMeta, write_meta
@@ -28,6 +27,7 @@ from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.store import create_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
 from companion.vehicle_state import VehicleState
+from companion.video_frame import Frame
 
 log = logging.getLogger(__name__)
 
