@@ -23,14 +23,14 @@ SORTIES = ((1.0, 14.0), (24.0, None))  # armed periods (s); the second never dis
 END_S = 37.0
 
 
-def two_sorties() -> syn.Flight:
+def two_sorties(sorties=SORTIES, end_s: float = END_S) -> syn.Flight:
     """Each sortie: armed, climb 1 m/s to 3 m, 12 m along x at 2 m/s, down; walked back."""
-    t = np.arange(0.0, END_S, 0.02)
+    t = np.arange(0.0, end_s, 0.02)
     x, z = np.zeros_like(t), np.zeros_like(t)
     armed = np.zeros(t.size, bool)
-    for arm, disarm in SORTIES:
+    for arm, disarm in sorties:
         tau = t - arm
-        on = (tau >= 0) & (t < (disarm if disarm is not None else END_S))
+        on = (tau >= 0) & (t < (disarm if disarm is not None else end_s))
         armed |= on
         z += np.where(on, np.clip(np.minimum(tau - 1.0, 12.0 - tau), 0.0, 3.0), 0.0)
         x += np.where(on, 2.0 * np.clip(tau - 4.0, 0.0, 6.0), 0.0)
