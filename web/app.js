@@ -7,109 +7,91 @@
 // (names as companion/vehicle_state.py). The page shows LINK LOST when the station says
 // the autopilot is silent, when the station itself is unreachable, or when no state
 // arrives at all.
-"use strict";
+import { $, liveSocket } from "/lib.js";
 
-(() => {
-  const STALE_MS = 3000; // no message for this long while the socket is open: link lost
-  const $ = (id) => document.getElementById(id);
-  const fpv = (window.fpv = window.fpv || {});
-  fpv.latest = null;
+const STALE_MS = 3000; // no message for this long while the socket is open: link lost
+const fpv = (window.fpv = window.fpv || {});
+fpv.latest = null;
 
-  let socket = null;
-  let socketOpen = false;
-  let lastMessageAt = 0;
-  let pending = null; // newest message not drawn yet (draw at most once per frame)
-  let retryMs = 500;
+let socketOpen = false;
+let lastMessageAt = 0;
+let pending = null; // newest message not drawn yet (draw at most once per frame)
 
-  function connect() {
-    const proto = location.protocol === "https:" ? "wss:" : "ws:";
-    socket = new WebSocket(`${proto}//${location.host}/ws/telemetry`);
-    socket.onopen = () => {
-      socketOpen = true;
-      retryMs = 500;
-      setConn("live", "ok");
-      lastMessageAt = performance.now();
-    };
-    socket.onmessage = (ev) => {
-      let msg;
-      try {
-        msg = JSON.parse(ev.data);
-      } catch (err) {
-        console.warn("bad telemetry message", err);
-        return;
-      }
-      lastMessageAt = performance.now();
-      fpv.latest = msg;
-      window.dispatchEvent(new CustomEvent("fpv:telemetry", { detail: msg }));
-      if (pending === null) requestAnimationFrame(draw);
-      pending = msg;
-    };
-    socket.onclose = () => {
-      socketOpen = false;
-      setConn("station unreachable", "bad");
-      setTimeout(connect, retryMs);
-      retryMs = Math.min(retryMs * 2, 5000);
-    };
-  }
+liveSocket("/ws/telemetry", {
+  open() {
+    socketOpen = true;
+    setConn("live", "ok");
+    lastMessageAt = performance.now();
+  },
+  message(msg) {
+    lastMessageAt = performance.now();
+    fpv.latest = msg;
+    window.dispatchEvent(new CustomEvent("fpv:telemetry", { detail: msg }));
+    if (pending === null) requestAnimationFrame(draw);
+    pending = msg;
+  },
+  close() {
+    socketOpen = false;
+    setConn("station unreachable", "bad");
+  },
+});
 
-  function setConn(text, cls) {
-    const el = $("conn-status");
-    el.textContent = text;
-    el.className = `pill ${cls}`;
-  }
+function setConn(text, cls) {
+  const pill = $("conn-status");
+  pill.textContent = text;
+  pill.className = `pill ${cls}`;
+}
 
-  const num = (v, digits = 1) => (v === null || v === undefined ? "--" : Number(v).toFixed(digits));
-  const first = (...vals) => vals.find((v) => v !== null && v !== undefined) ?? null;
+const num = (v, digits = 1) => (v === null || v === undefined ? "--" : Number(v).toFixed(digits));
+const first = (...vals) => vals.find((v) => v !== null && v !== undefined) ?? null;
 
-  function draw() {
-    const msg = pending;
-    pending = null;
-    if (!msg) return;
-    const s = msg.state;
-    const gp = s.global_position;
-    const groundSpeed = first(
-      s.vfr_hud.ground_speed_mps,
-      gp.vx_mps !== null ? Math.hypot(gp.vx_mps, gp.vy_mps) : null,
-      s.gps.ground_speed_mps,
-    );
-    const climb = first(s.vfr_hud.climb_mps, gp.vz_mps !== null ? -gp.vz_mps : null);
-    $("v-ground-speed").textContent = num(groundSpeed);
-    $("v-climb").textContent = num(climb);
-    $("v-rel-alt").textContent = num(s.altitude.relative_alt_m);
-    $("v-rel-alt-ref").textContent = {
-      arming: "from arming",
-      first_fix: "from first GPS fix (not armed yet)",
-      none: "no reference yet",
-    }[s.altitude.reference] ?? "waiting for altitude";
-    const armed = $("v-armed");
-    armed.textContent = s.heartbeat.t_mono === null ? "--" : s.heartbeat.armed ? "ARMED" : "disarmed";
-    armed.className = s.heartbeat.armed ? "armed" : "disarmed";
-    $("v-mode").textContent = s.heartbeat.t_mono === null ? "--" : s.heartbeat.mode;
-    const fixNames = ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"];
-    $("v-gps").textContent = s.gps.t_mono === null
-      ? "--"
-      : `${fixNames[s.gps.fix_type] ?? "fix " + s.gps.fix_type}, ${s.gps.satellites ?? "?"} sats`;
-    const b = s.battery;
-    $("v-battery").textContent = b.t_mono === null
-      ? "--"
-      : `${num(b.voltage_v, 2)} V` + (b.remaining_pct !== null ? ` ${num(b.remaining_pct, 0)}%` : "");
-    $("v-heading").textContent = num(first(gp.heading_deg, s.vfr_hud.heading_deg), 0);
-    updateBanner();
-  }
+function draw() {
+  const msg = pending;
+  pending = null;
+  if (!msg) return;
+  const s = msg.state;
+  const gp = s.global_position;
+  const groundSpeed = first(
+    s.vfr_hud.ground_speed_mps,
+    gp.vx_mps !== null ? Math.hypot(gp.vx_mps, gp.vy_mps) : null,
+    s.gps.ground_speed_mps,
+  );
+  const climb = first(s.vfr_hud.climb_mps, gp.vz_mps !== null ? -gp.vz_mps : null);
+  $("v-ground-speed").textContent = num(groundSpeed);
+  $("v-climb").textContent = num(climb);
+  $("v-rel-alt").textContent = num(s.altitude.relative_alt_m);
+  $("v-rel-alt-ref").textContent = {
+    arming: "from arming",
+    first_fix: "from first GPS fix (not armed yet)",
+    none: "no reference yet",
+  }[s.altitude.reference];
+  const armed = $("v-armed");
+  armed.textContent = s.heartbeat.t_mono === null ? "--" : s.heartbeat.armed ? "ARMED" : "disarmed";
+  armed.className = s.heartbeat.armed ? "armed" : "disarmed";
+  $("v-mode").textContent = s.heartbeat.t_mono === null ? "--" : s.heartbeat.mode;
+  const fixNames = ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"];
+  $("v-gps").textContent = s.gps.t_mono === null
+    ? "--"
+    : `${fixNames[s.gps.fix_type] ?? "fix " + s.gps.fix_type}, ${s.gps.satellites ?? "?"} sats`;
+  const b = s.battery;
+  $("v-battery").textContent = b.t_mono === null
+    ? "--"
+    : `${num(b.voltage_v, 2)} V` + (b.remaining_pct !== null ? ` ${num(b.remaining_pct, 0)}%` : "");
+  $("v-heading").textContent = num(first(gp.heading_deg, s.vfr_hud.heading_deg), 0);
+  updateBanner();
+}
 
-  function updateBanner() {
-    const msg = fpv.latest;
-    let detail = null;
-    if (!socketOpen) detail = "no connection to the station";
-    else if (!msg) detail = performance.now() - lastMessageAt > STALE_MS ? "no vehicle state" : null;
-    else if (msg.state.link.link_lost) detail = "no heartbeat from the autopilot";
-    else if (performance.now() - lastMessageAt > STALE_MS) detail = "telemetry stopped";
-    const banner = $("link-banner");
-    banner.hidden = detail === null;
-    $("link-banner-detail").textContent = detail ?? "";
-    $("flight-state").classList.toggle("stale", detail !== null);
-  }
+function updateBanner() {
+  const msg = fpv.latest;
+  let detail = null;
+  if (!socketOpen) detail = "no connection to the station";
+  else if (!msg) detail = performance.now() - lastMessageAt > STALE_MS ? "no vehicle state" : null;
+  else if (msg.state.link.link_lost) detail = "no heartbeat from the autopilot";
+  else if (performance.now() - lastMessageAt > STALE_MS) detail = "telemetry stopped";
+  const banner = $("link-banner");
+  banner.hidden = detail === null;
+  $("link-banner-detail").textContent = detail ?? "";
+  $("flight-state").classList.toggle("stale", detail !== null);
+}
 
-  setInterval(updateBanner, 500);
-  connect();
-})();
+setInterval(updateBanner, 500);

@@ -103,6 +103,4 @@ async def get_trajectory(
     settings = request.app.state.settings
     store = get_recorder(request).store  # the station's one SessionStore
     ref = reference_param(reference)
-    return await asyncio.to_thread(
-        load_trajectory, store, session_id, align, ref, settings.viser
-    )
+    return await asyncio.to_thread(load_trajectory, store, session_id, align, ref, settings.viser)
