@@ -15,6 +15,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.vehicle_state import (
+    MESSAGES_KEPT,
     Attitude,
     Battery,
     GlobalPosition,
@@ -25,6 +26,8 @@ from companion.vehicle_state import (
     PilotAltitude,
     RcChannels,
     ServoOutputs,
+    VehicleMessage,
+    VehicleMessages,
     VehicleState,
     VfrHud,
 )
@@ -87,8 +90,9 @@ def _scaled(value: int, scale: float, unknown: int | None = None) -> float | Non
 class StateTracker:
     """Holds the current `VehicleState`; `update` says whether a message changed it."""
 
-    def __init__(self, sysid: int | None = None) -> None:
+    def __init__(self, sysid: int | None = None, gcs_sysid: int | None = None) -> None:
         self.pinned_sysid = sysid
+        self.gcs_sysid = gcs_sysid  # acks to other ground stations are theirs, not ours
         self.sysid: int | None = sysid
         self.compid: int | None = None
         self.state = VehicleState()
@@ -375,7 +379,44 @@ class StateTracker:
         )
 
 
+def _statustext(self: StateTracker, m: mavlink.MAVLink_message, t: float) -> None:
+    text = m.text if isinstance(m.text, str) else bytes(m.text).decode("utf-8", "replace")
+    _add_message(self, VehicleMessage(t, "statustext", int(m.severity), text.rstrip("\x00")))
+
+
+# The station's own housekeeping (stream rates), not something a person asked for.
+_QUIET_ACKS = {mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_REQUEST_MESSAGE}
+
+
+def _command_ack(self: StateTracker, m: mavlink.MAVLink_message, t: float) -> None:
+    if m.command in _QUIET_ACKS:
+        return
+    target = getattr(m, "target_system", 0)  # MAVLink 1 acks carry no target
+    if target and self.gcs_sysid is not None and target != self.gcs_sysid:
+        return
+    command = _enum_name("MAV_CMD", m.command, "MAV_CMD_").upper()
+    result = _enum_name("MAV_RESULT", m.result, "MAV_RESULT_").upper()
+    ok = m.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS)
+    severity = mavlink.MAV_SEVERITY_INFO if ok else mavlink.MAV_SEVERITY_WARNING
+    text = f"{command}: {result}"
+    _add_message(self, VehicleMessage(t, "command_ack", severity, text, command, result))
+
+
+def _add_message(self: StateTracker, message: VehicleMessage) -> None:
+    old = self.state.messages
+    self.state = _replace_state(
+        self.state,
+        messages=VehicleMessages(
+            t_mono=message.t_mono,
+            count=old.count + 1,
+            recent=(*old.recent[-(MESSAGES_KEPT - 1) :], message),
+        ),
+    )
+
+
 _HANDLERS = {
+    "STATUSTEXT": _statustext,
+    "COMMAND_ACK": _command_ack,
     "GPS_RAW_INT": StateTracker._gps_raw,
     "GLOBAL_POSITION_INT": StateTracker._global_position,
     "VFR_HUD": StateTracker._vfr_hud,
