@@ -128,9 +128,6 @@ class MavlinkLink:
         not block (put into a bounded buffer and return)."""
         self._listeners = [*self._listeners, cb]  # copy-on-write: the thread iterates safely
 
-    def remove_packet_listener(self, cb: PacketListener) -> None:
-        self._listeners = [c for c in self._listeners if c is not cb]
-
     def send(self, msg: mavlink.MAVLink_message) -> None:
         """Queue a message for the vehicle; thread-safe and never blocks. Build it with
         `link.mav.<name>_encode(...)`. Dropped (oldest first) if the port is down long."""

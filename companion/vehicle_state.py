@@ -138,13 +138,17 @@ class PilotAltitude:
 
     Reset at each arming; before the first arming it is relative to the first GPS fix
     (`reference` says which). The paper's definition, not the autopilot's relative_alt,
-    which drifts with the power-on position.
+    which drifts with the power-on position. When the autopilot's altitude frame moves
+    under it (ArduPilot setting its EKF origin: a jump of tens or hundreds of metres), the
+    reference is re-taken by the frame's step: `reference` gains "_retaken" and
+    `retaken_because` says what showed it.
     """
 
     t_mono: float | None = None
     relative_alt_m: float | None = None
     reference_alt_m: float | None = None  # MSL altitude the value is relative to
-    reference: str = "none"  # "none", "first_fix" or "arming"
+    reference: str = "none"  # "none", "first_fix", "arming", "first_fix_retaken", "arming_retaken"
+    retaken_because: str | None = None  # "EKF origin set", "altitude jump", "GPS agrees again"
     home_lat_deg: float | None = None  # where the reference was taken
     home_lon_deg: float | None = None
 

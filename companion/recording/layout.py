@@ -27,7 +27,7 @@ FORMAT_VERSION = 1
 
 SESSION_JSON = "session.json"
 TELEMETRY_CSV = "telemetry.csv"
-MAVLINK_TLOG = "mavlink.tlog"
+MAVLINK_TLOG = "mavlink.tlog"  # records as core.mavlink.tlog_records writes them
 FRAMES_CSV = "frames.csv"  # inside each camera folder
 CAMERAS: tuple[str, ...] = ("front", "bottom")
 
@@ -39,7 +39,6 @@ SESSION_ID_MAX_LEN = 64
 SOURCE_TAG_MAX_LEN = 16
 
 # Frame files: zero-padded sequence number so that a plain sort is capture order.
-FRAME_FILE_TEMPLATE = "{seq:08d}.jpg"
 FRAME_PATH_TEMPLATE = "{camera}/{seq:08d}.jpg"  # relative to the session folder
 
 # Session states recorded in session.json "status".
@@ -53,14 +52,6 @@ TIME_COLUMNS: tuple[str, ...] = ("t_s", "wall_time")
 CAMERA_COLUMN_FIELDS: tuple[str, ...] = ("seq", "file", "t_wall", "skew_s")
 # front/frames.csv and bottom/frames.csv.
 FRAME_COLUMNS: tuple[str, ...] = ("seq", "file", "t_s", "t_wall", "width", "height", "bytes")
-
-# tlog: each packet is preceded by its receive time, big-endian uint64 microseconds
-# (written and read by core.mavlink.tlog_records, which the link's replay source uses too).
-
-
-def frame_file(seq: int) -> str:
-    """File name of frame `seq` inside its camera folder."""
-    return FRAME_FILE_TEMPLATE.format(seq=seq)
 
 
 def frame_relpath(camera: str, seq: int) -> str:

@@ -21,9 +21,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from companion.frames import Frame
 from companion.recording import diskspace, layout
 from companion.recording.rows import RowFormatter, Sample
+from companion.video_frame import Frame
 from core.mavlink.tlog_records import encode_record
 
 log = logging.getLogger(__name__)

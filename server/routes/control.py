@@ -22,20 +22,32 @@ import contextlib
 import json
 import math
 import time
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, Field, ValidationError
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from core.mavlink.px4_modes import PX4_MODES
 from server.auth import require_control_token
 from server.errors import ApiError, BadRequest
+from server.pilot import DEADMAN_S, Pilot
+
+if TYPE_CHECKING:
+    from companion.link import MavlinkLink
+    from server.station import Station
 
 router = APIRouter(tags=["control"])
 
 RATE_HZ = 50.0
-DEADMAN_S = 0.5
-CENTRED = (0.0, 0.0, 0.0, 0.5)
-PX4_MAIN_MODES = {"STABILIZED": 7, "MANUAL": 7, "ALTCTL": 2, "POSCTL": 3}
+# The modes a pilot may choose, as PX4 names them. MANUAL is sent as STABILIZED: on a
+# multicopter PX4 flies the two alike, and the twin knows only STABILIZED.
+PILOT_MODES = {
+    "STABILIZED": "STABILIZED",
+    "MANUAL": "STABILIZED",
+    "ALTCTL": "ALTCTL",
+    "POSCTL": "POSCTL",
+}
 
 
 class Sticks(BaseModel):
@@ -56,18 +68,7 @@ def _error(name: str, message: str) -> str:
     return json.dumps({"error": name, "error_msg": message})
 
 
-class _Pilot:
-    """The newest sticks of one connection and when they arrived."""
-
-    def __init__(self) -> None:
-        self.sticks = CENTRED
-        self.at = -math.inf
-
-    def current(self, now: float) -> tuple[float, float, float, float]:
-        return self.sticks if now - self.at <= DEADMAN_S else CENTRED
-
-
-async def _send_sticks(link, pilot: _Pilot, target: int) -> None:
+async def _send_sticks(link: MavlinkLink, pilot: Pilot, target: int) -> None:
     """MANUAL_CONTROL at a steady rate from the newest sticks (never queues up)."""
     period = 1.0 / RATE_HZ
     next_t = time.monotonic()
@@ -82,35 +83,44 @@ async def _send_sticks(link, pilot: _Pilot, target: int) -> None:
         await asyncio.sleep(max(0.0, next_t - time.monotonic()))
 
 
-def _command(station, cmd: Command) -> None:
+def _command(station: Station, link: MavlinkLink, cmd: Command) -> None:
     """Arm, mode, take-off and land go through the link as for any vehicle."""
-    link, mav = station.link, station.link.mav
+    twin, mav = station.twin, link.mav
+    assert twin is not None  # the route refuses a station without the twin
     if cmd.type == "reset":
-        station.twin.reset()
+        twin.reset()
         return
     if cmd.type in ("arm", "disarm"):
+        arm = 1.0 if cmd.type == "arm" else 0.0
         msg = mav.command_long_encode(
-            1, 1, 400, 0, 1.0 if cmd.type == "arm" else 0.0, 0, 0, 0, 0, 0, 0
+            1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, arm, 0, 0, 0, 0, 0, 0
         )
     elif cmd.type == "mode":
-        main = PX4_MAIN_MODES.get((cmd.mode or "").upper())
-        if main is None:
+        name = PILOT_MODES.get((cmd.mode or "").upper())
+        if name is None:
             raise BadRequest(
-                f"Mode '{cmd.mode}' is not one the pilot can choose: {', '.join(PX4_MAIN_MODES)}."
+                f"Mode '{cmd.mode}' is not one the pilot can choose: {', '.join(PILOT_MODES)}."
             )
-        msg = mav.command_long_encode(1, 1, 176, 0, 1, main, 0, 0, 0, 0, 0)
+        main, sub = PX4_MODES[name]
+        custom = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        msg = mav.command_long_encode(
+            1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, custom, main, sub, 0, 0, 0, 0
+        )
     elif cmd.type == "takeoff":
-        home = station.twin.scene.home.alt_m
-        alt = home + (cmd.alt_m or 2.5)
-        msg = mav.command_long_encode(1, 1, 22, 0, 0, 0, 0, math.nan, math.nan, math.nan, alt)
+        alt = twin.scene.home.alt_m + (cmd.alt_m or 2.5)
+        nan = math.nan
+        msg = mav.command_long_encode(
+            1, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, alt
+        )
     else:
-        msg = mav.command_long_encode(1, 1, 21, 0, 0, 0, 0, math.nan, math.nan, math.nan, 0)
+        nan = math.nan
+        msg = mav.command_long_encode(1, 1, mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, nan, nan, nan, 0)
     link.send(msg)
 
 
 @router.websocket("/ws/control")
 async def ws_control(ws: WebSocket) -> None:
-    station = ws.app.state.station
+    station: Station = ws.app.state.station
     await ws.accept()
     try:
         require_control_token(ws)
@@ -118,7 +128,8 @@ async def ws_control(ws: WebSocket) -> None:
         await ws.send_text(_error(type(exc).__name__, exc.message))
         await ws.close(code=4401)
         return
-    if getattr(station, "twin", None) is None or station.link is None:
+    link = station.link
+    if station.twin is None or link is None:
         await ws.send_text(
             _error(
                 "Conflict",
@@ -128,13 +139,12 @@ async def ws_control(ws: WebSocket) -> None:
         )
         await ws.close(code=4409)
         return
-    if getattr(ws.app.state, "control_pilot", None) is not None:
+    if station.pilot is not None:
         await ws.send_text(_error("Conflict", "Another pilot has the sticks; one at a time."))
         await ws.close(code=4409)
         return
-    pilot = _Pilot()
-    ws.app.state.control_pilot = pilot
-    sender = asyncio.ensure_future(_send_sticks(station.link, pilot, 1))
+    pilot = station.pilot = Pilot()
+    sender = station.tasks.spawn("control-sticks", _send_sticks(link, pilot, 1))
     try:
         await ws.send_text(
             json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S})
@@ -150,7 +160,7 @@ async def ws_control(ws: WebSocket) -> None:
                     pilot.sticks, pilot.at = (s.roll, s.pitch, s.yaw, s.throttle), time.monotonic()
                     continue
                 cmd = Command.model_validate(data)
-                _command(station, cmd)
+                _command(station, link, cmd)
                 await ws.send_text(json.dumps({"type": "ack", "cmd": cmd.type, "ok": True}))
             except (ValueError, ValidationError) as exc:
                 await ws.send_text(_error("BadRequest", f"Bad control message: {exc}"[:500]))
@@ -164,5 +174,5 @@ async def ws_control(ws: WebSocket) -> None:
             await sender
         # The pilot left: centre the sticks now rather than wait for the twin's timeout.
         with contextlib.suppress(Exception):
-            station.link.send(station.link.mav.manual_control_encode(1, 0, 0, 500, 0, 0))
-        ws.app.state.control_pilot = None
+            link.send(link.mav.manual_control_encode(1, 0, 0, 500, 0, 0))
+        station.pilot = None
