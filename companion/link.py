@@ -1,12 +1,12 @@
 """The MAVLink link to the vehicle: one thread owns the port, everyone else reads snapshots.
 
 The thread reads bytes, cuts them into packets (`MavFramer`), hands every raw packet on
-the link to the packet listeners (the recorder: what the vehicle sent, what we sent, and
-what the ground stations we forward to sent, as QGroundControl's tlogs hold), merges the autopilot's messages into the
-`VehicleState` (`StateTracker`) and publishes each new state through `link.state`
-(`Latest`). It also sends the GCS heartbeat, asks for message rates, reconnects when the
-port or peer goes away, and flags `link_lost` after `link_lost_s` without an autopilot
-heartbeat. When another ground station changes the rates we asked for, it says so in the
+the link to the packet listeners (the recorder: what the vehicle sent, what we sent and
+what the ground stations we forward to sent, as QGroundControl's tlogs hold), merges the
+autopilot's messages into the `VehicleState` (`StateTracker`) and publishes each new
+state through `link.state` (`Latest`). It also sends the GCS heartbeat, asks for message
+rates, reconnects when the port or peer goes away, and flags `link_lost` after
+`link_lost_s` without an autopilot heartbeat. When another ground station changes the rates we asked for, it says so in the
 health report and asks again. Nothing here ever runs on the event loop: `send()` only
 queues and wakes.
 """
