@@ -223,7 +223,7 @@ class RecordingSession:
     def _note_arming(self, state: VehicleState, now_mono: float) -> None:
         armed = state.heartbeat.armed
         alt = state.altitude
-        if armed and alt.reference == "arming" and alt.reference_alt_m is not None:
+        if armed and alt.reference.startswith("arming") and alt.reference_alt_m is not None:
             if (
                 self._arming is None
                 or self._was_armed is False
