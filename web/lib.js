@@ -19,7 +19,11 @@
 //                                the token rides as ?token= (browsers cannot set headers)
 //   liveSocket(path, handlers)   a JSON WebSocket that reconnects (0.5 s doubling to 5 s):
 //                                handlers {message(obj), open(), close()}; returns
-//                                {close()} to stop it for good
+//                                {send(obj), close()}: send is dropped while the socket
+//                                is down, close stops it for good. E.g. telemetry with
+//                                bounded staleness (server/routes/telemetry.py):
+//                                  const tm = liveSocket("/ws/telemetry?ack=1",
+//                                    { message(m) { draw(m); tm.send({ ack: m.version }); } });
 //
 // The server's error shape is {"error": Name, "error_msg": text} for every refusal
 // (server/errors.py); WebSockets refuse a bad token by closing with code 4401
@@ -114,5 +118,8 @@ export function liveSocket(path, { message, open, close } = {}) {
     };
   }
   connect();
-  return { close() { stopped = true; socket.close(); } };
+  return {
+    send(obj) { if (socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(obj)); },
+    close() { stopped = true; socket.close(); },
+  };
 }
