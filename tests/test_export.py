@@ -363,3 +363,16 @@ def test_lerobot_reads_back_the_way_lerobot_reads_it(lerobot, tmp_path):
             if t > query[-1]:
                 break
     assert found == query
+
+
+def test_a_session_zip_exports_like_its_folder(session, tmp_path):
+    import shutil
+    import tempfile
+
+    archive = shutil.make_archive(str(tmp_path / session.name), "zip", session.parent, session.name)
+    unpacked = lambda: set(Path(tempfile.gettempdir()).glob("fpv-export-*"))  # noqa: E731
+    before = unpacked()
+    a = export_recordings([session], "minari", tmp_path / "a", ExportOptions(task_id=1))
+    b = export_recordings([Path(archive)], "minari", tmp_path / "b", ExportOptions(task_id=1))
+    assert (a.episodes, a.frames) == (b.episodes, b.frames) == (1, a.frames)
+    assert unpacked() == before  # the unpacked copy is gone
