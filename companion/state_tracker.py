@@ -15,6 +15,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.vehicle_state import (
+    MESSAGES_KEPT,
     Attitude,
     Battery,
     GlobalPosition,
@@ -25,10 +26,13 @@ from companion.vehicle_state import (
     PilotAltitude,
     RcChannels,
     ServoOutputs,
+    VehicleMessage,
+    VehicleMessages,
     VehicleState,
     VfrHud,
 )
 from core.mavlink.framing import packet_version
+from core.mavlink.px4_modes import px4_main_sub, px4_mode_name
 
 _AUTOPILOT_NAMES = {
     mavlink.MAV_AUTOPILOT_PX4: "px4",
@@ -36,8 +40,23 @@ _AUTOPILOT_NAMES = {
     mavlink.MAV_AUTOPILOT_GENERIC: "generic",
 }
 _GPS_3D_FIX = 3
+# The station's own housekeeping (stream rates), not something a person asked for.
+_QUIET_ACKS = {mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_REQUEST_MESSAGE}
 _GROUND_FIX_MAX_AGE_S = 2.5  # older than this (a gap in heartbeats): not "a moment ago"
 _UINT16_UNKNOWN = 65535
+# ArduPilot's altitude frame moves when its EKF origin is set ("EKF3 IMU0 Origin set to
+# GPS", "EKF2 IMU0 origin set"): GLOBAL_POSITION_INT jumps from near 0 to the true AMSL
+# altitude (93 m, 589 m on real logs). A step this fast is no flight: the frame changed.
+_JUMP_MIN_M = 20.0
+_JUMP_MIN_MPS = 100.0
+# Just after the autopilot said its origin was set, a smaller sudden step is the frame too.
+_ORIGIN_WINDOW_S = 10.0
+_ORIGIN_STEP_MIN_M = 2.0
+_ORIGIN_STEP_MIN_MPS = 20.0
+# Fused and GPS altitude (both AMSL) further apart than this: not the same frame (GPS
+# vertical error is metres, barometric drift over a flight some 10 m).
+_DISAGREE_M = 40.0
+_FRESH_GPS_S = 2.0
 
 
 _STATE_FIELDS = tuple(f.name for f in fields(VehicleState))
@@ -58,7 +77,10 @@ def _enum_name(enum: str, value: int, prefix: str) -> str:
 
 def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: int) -> str:
     """The flight mode in the autopilot family's own words (PX4 'POSCTL', ArduCopter
-    'LOITER'); pymavlink keeps the tables of both families up to date."""
+    'LOITER'): PX4's from the code base's one table (core.mavlink.px4_modes), ArduPilot's
+    from pymavlink's tables per vehicle type."""
+    if autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        return px4_mode_name(*px4_main_sub(custom_mode)) or "UNKNOWN"
 
     class _Hb:  # mode_string_v10 reads these attributes from a HEARTBEAT
         def get_type(self) -> str:
@@ -83,8 +105,9 @@ def _scaled(value: int, scale: float, unknown: int | None = None) -> float | Non
 class StateTracker:
     """Holds the current `VehicleState`; `update` says whether a message changed it."""
 
-    def __init__(self, sysid: int | None = None) -> None:
+    def __init__(self, sysid: int | None = None, gcs_sysid: int | None = None) -> None:
         self.pinned_sysid = sysid
+        self.gcs_sysid = gcs_sysid  # acks to other ground stations are theirs, not ours
         self.sysid: int | None = sysid
         self.compid: int | None = None
         self.state = VehicleState()
@@ -93,6 +116,8 @@ class StateTracker:
         # Arming is only seen in the next HEARTBEAT (1 Hz on PX4), by which time a quick
         # pilot is already climbing; the ground position one beat earlier is the truth.
         self._ground_fix: tuple[float, float, float | None, float | None] | None = None
+        self._origin_note_t: float | None = None  # when the autopilot said "origin set"
+        self._frame_offset_m: float | None = None  # fused - GPS altitude while they disagree
 
     def is_autopilot_heartbeat(self, msg: mavlink.MAVLink_message) -> bool:
         if msg.get_type() != "HEARTBEAT" or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
@@ -184,6 +209,7 @@ class StateTracker:
 
     def _global_position(self, m: mavlink.MAVLink_message, t: float) -> None:
         old_alt = self._current_alt_m()
+        old_gp = self.state.global_position
         gp = GlobalPosition(
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
@@ -206,7 +232,37 @@ class StateTracker:
                     self.state,
                     altitude=replace(alt, reference_alt_m=alt.reference_alt_m + gp.alt_m - old_alt),
                 )
+        else:
+            self._check_altitude_frame(old_gp, gp, t)
         self._altitude_changed(t)
+
+    def _statustext(self, m: mavlink.MAVLink_message, t: float) -> None:
+        text = m.text if isinstance(m.text, str) else bytes(m.text).decode("utf-8", "replace")
+        text = text.rstrip("\x00")
+        if "origin set" in text.lower():  # EKF2/EKF3 "IMU0 Origin set to GPS" and kin
+            self._origin_note_t = t
+        self._add_message(VehicleMessage(t, "statustext", int(m.severity), text))
+
+    def _command_ack(self, m: mavlink.MAVLink_message, t: float) -> None:
+        if m.command in _QUIET_ACKS:
+            return
+        target = getattr(m, "target_system", 0)  # MAVLink 1 acks carry no target
+        if target and self.gcs_sysid is not None and target != self.gcs_sysid:
+            return
+        command = _enum_name("MAV_CMD", m.command, "MAV_CMD_").upper()
+        result = _enum_name("MAV_RESULT", m.result, "MAV_RESULT_").upper()
+        ok = m.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS)
+        severity = mavlink.MAV_SEVERITY_INFO if ok else mavlink.MAV_SEVERITY_WARNING
+        message = VehicleMessage(
+            t, "command_ack", severity, f"{command}: {result}", command, result
+        )
+        self._add_message(message)
+
+    def _add_message(self, message: VehicleMessage) -> None:
+        old = self.state.messages
+        recent = (*old.recent[-(MESSAGES_KEPT - 1) :], message)
+        messages = VehicleMessages(t_mono=message.t_mono, count=old.count + 1, recent=recent)
+        self.state = _replace_state(self.state, messages=messages)
 
     def _vfr_hud(self, m: mavlink.MAVLink_message, t: float) -> None:
         hud = VfrHud(
@@ -352,6 +408,60 @@ class StateTracker:
             ),
         )
 
+    def _check_altitude_frame(self, old: GlobalPosition, new: GlobalPosition, t: float) -> None:
+        """Re-take the pilot's reference when the fused altitude changed frame (ArduPilot's
+        EKF origin): a step no vehicle can fly, a sudden step just after "origin set", or
+        fused and GPS altitude coming to agree after disagreeing. The reference moves by
+        the frame's step, so the pilot's altitude stays continuous (a hop stays a hop)."""
+        if old.alt_m is None or new.alt_m is None:
+            return
+        step = new.alt_m - old.alt_m
+        if old.time_boot_ms is not None and new.time_boot_ms is not None:
+            dt = (new.time_boot_ms - old.time_boot_ms) * 1e-3  # the vehicle's own clock
+        else:
+            dt = t - (old.t_mono if old.t_mono is not None else t)
+        rate = abs(step) / max(dt, 1e-3)
+        primed = self._origin_note_t is not None and t - self._origin_note_t <= _ORIGIN_WINDOW_S
+        shift: float | None = None
+        why = ""
+        if abs(step) > _JUMP_MIN_M and rate > _JUMP_MIN_MPS:
+            shift, why = step, "EKF origin set" if primed else "altitude jump"
+        elif primed and abs(step) > _ORIGIN_STEP_MIN_M and rate > _ORIGIN_STEP_MIN_MPS:
+            shift, why = step, "EKF origin set"
+        gps = self.state.gps
+        fresh = (
+            gps.t_mono is not None
+            and gps.alt_m is not None
+            and gps.fix_type >= _GPS_3D_FIX
+            and abs(t - gps.t_mono) <= _FRESH_GPS_S
+        )
+        if fresh:
+            offset = new.alt_m - gps.alt_m  # type: ignore[operator]
+            if shift is None and self._frame_offset_m is not None and abs(offset) <= _DISAGREE_M:
+                shift, why = offset - self._frame_offset_m, "GPS agrees again"
+            self._frame_offset_m = offset if abs(offset) > _DISAGREE_M else None
+        if shift is not None:
+            self._rebase(shift, why, t)
+
+    def _rebase(self, shift_m: float, why: str, t: float) -> None:
+        if self._ground_fix is not None:
+            g = self._ground_fix
+            self._ground_fix = (g[0], g[1] + shift_m, g[2], g[3])
+        alt = self.state.altitude
+        if alt.reference_alt_m is None:
+            return
+        self._origin_note_t = None  # this note has been acted on
+        self.state = replace(
+            self.state,
+            altitude=replace(
+                alt,
+                t_mono=t,
+                reference_alt_m=alt.reference_alt_m + shift_m,
+                reference=alt.reference.removesuffix("_retaken") + "_retaken",
+                retaken_because=why,
+            ),
+        )
+
     def _altitude_changed(self, t: float) -> None:
         pilot = self.state.altitude
         if pilot.reference.startswith("pending_"):
@@ -372,6 +482,7 @@ class StateTracker:
 
 
 _HANDLERS = {
+    "COMMAND_ACK": StateTracker._command_ack,
     "GPS_RAW_INT": StateTracker._gps_raw,
     "GLOBAL_POSITION_INT": StateTracker._global_position,
     "VFR_HUD": StateTracker._vfr_hud,
@@ -381,4 +492,5 @@ _HANDLERS = {
     "SYS_STATUS": StateTracker._sys_status,
     "BATTERY_STATUS": StateTracker._battery_status,
     "LOCAL_POSITION_NED": StateTracker._local_position,
+    "STATUSTEXT": StateTracker._statustext,
 }

@@ -138,13 +138,17 @@ class PilotAltitude:
 
     Reset at each arming; before the first arming it is relative to the first GPS fix
     (`reference` says which). The paper's definition, not the autopilot's relative_alt,
-    which drifts with the power-on position.
+    which drifts with the power-on position. When the autopilot's altitude frame moves
+    under it (ArduPilot setting its EKF origin: a jump of tens or hundreds of metres), the
+    reference is re-taken by the frame's step: `reference` gains "_retaken" and
+    `retaken_because` says what showed it.
     """
 
     t_mono: float | None = None
     relative_alt_m: float | None = None
     reference_alt_m: float | None = None  # MSL altitude the value is relative to
-    reference: str = "none"  # "none", "first_fix" or "arming"
+    reference: str = "none"  # "none", "first_fix", "arming", "first_fix_retaken", "arming_retaken"
+    retaken_because: str | None = None  # "EKF origin set", "altitude jump", "GPS agrees again"
     home_lat_deg: float | None = None  # where the reference was taken
     home_lon_deg: float | None = None
 
@@ -163,6 +167,37 @@ class LinkStatus:
 
 
 @dataclass(frozen=True, slots=True)
+class VehicleMessage:
+    """One thing the vehicle said: a STATUSTEXT, or a COMMAND_ACK (the command it answers
+    and its result, with a text a person reads)."""
+
+    t_mono: float
+    kind: str  # "statustext" or "command_ack"
+    severity: int  # MAV_SEVERITY: 0 emergency ... 7 debug; an ACK: 6 accepted, 4 refused
+    text: str
+    command: str | None = None  # a COMMAND_ACK's command, e.g. "COMPONENT_ARM_DISARM"
+    result: str | None = None  # a COMMAND_ACK's result, e.g. "ACCEPTED", "DENIED"
+
+
+MESSAGES_KEPT = 16
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleMessages:
+    """What the vehicle said lately, newest last. `count` grows by one per message, so a
+    reader that saw count n knows how many are new (at most MESSAGES_KEPT are kept).
+    Not a telemetry.csv column group: the recorder writes messages.csv from it."""
+
+    t_mono: float | None = None
+    count: int = 0
+    recent: tuple[VehicleMessage, ...] = ()
+
+
+# Groups that are logs, not sampled values: no telemetry.csv columns (see the recorder).
+LOG_GROUPS = ("messages",)
+
+
+@dataclass(frozen=True, slots=True)
 class VehicleState:
     """Everything the station knows about the autopilot it follows."""
 
@@ -177,6 +212,7 @@ class VehicleState:
     local_position: LocalPosition = field(default_factory=LocalPosition)
     altitude: PilotAltitude = field(default_factory=PilotAltitude)
     link: LinkStatus = field(default_factory=LinkStatus)
+    messages: VehicleMessages = field(default_factory=VehicleMessages)
 
     def last_heard_mono(self) -> float | None:
         """When the autopilot's newest message arrived (station clock), None if never.

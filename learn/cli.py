@@ -47,7 +47,7 @@ def run_export(args: argparse.Namespace) -> int:
     from core.scene import SceneError
     from learn.episodes import ChannelMap
     from learn.export import ExportOptions, export_recordings, tqdm_progress
-    from learn.recording import RecordingError
+    from learn.recording_reader import RecordingError
 
     try:
         cmap = ChannelMap.parse(args.channel_map)

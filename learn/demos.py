@@ -23,13 +23,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.frames import Frame
 from companion.recording import layout
 from companion.recording.meta import CameraQuality, Quality, SessionMeta, write_meta
 from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.store import create_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits
 from companion.state_tracker import StateTracker
+from companion.video_frame import Frame
 from core.mavlink.framing import MavFramer
 from core.scene import Scene, load_scene
 from twin.pilot import Leg, Observation, Pilot, task_plan

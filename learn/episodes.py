@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from analysis.flights import Flight, split_flights
 from core.geodesy import geodetic_to_enu
 from core.scene import Scene
-from learn.recording import RC_CHANNELS, Recording
+from learn.recording_reader import RC_CHANNELS, Recording
 from twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 Array = NDArray[np.float64]

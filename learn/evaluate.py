@@ -32,7 +32,7 @@ from analysis.track import Track, load_track
 from core.geodesy import enu_to_geodetic
 from core.scene import Scene, load_scene
 from learn.episodes import episodes as recording_episodes
-from learn.recording import open_recording
+from learn.recording_reader import open_recording
 from twin.gym_env import TwinEnv
 from twin.pilot import Observation, Pilot, task_plan
 

@@ -2,7 +2,7 @@
 
     export_recordings(paths, "lerobot", out_dir, ExportOptions(task_id=1))
 
-Recordings are opened one at a time (`learn.recording.open_recording`) and their episodes
+Recordings are opened one at a time (`learn.recording_reader.open_recording`) and their episodes
 streamed into the format's writer, so memory stays flat in the number of sessions. The
 formats: `lerobot` (`learn.lerobot`), `minari` (`learn.minari_export`), `mcap`
 (`learn.mcap_export`).
@@ -17,7 +17,7 @@ from pathlib import Path
 
 from core.scene import Scene, load_scene
 from learn.episodes import ChannelMap, episodes
-from learn.recording import Recording, RecordingError, open_recording
+from learn.recording_reader import Recording, RecordingError, open_recording
 
 FORMATS = ("lerobot", "minari", "mcap")
 DEFAULT_FPS = 10  # the twin env's control rate: a dataset step is an env step

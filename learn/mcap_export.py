@@ -45,7 +45,7 @@ from foxglove.messages import (
 
 from core.mavlink.tlog_records import TlogReader
 from learn.episodes import Episode, carry_forward, scene_xyz
-from learn.recording import COLUMNS, Recording
+from learn.recording_reader import COLUMNS, Recording
 
 WORLD_FRAME = "field"
 BODY_FRAME = "base_link"

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from learn.episodes import Episode, target_m
-from learn.recording import Recording
+from learn.recording_reader import Recording
 from twin.gym_env import ENV_ID, TaskReward
 
 DATA_FORMAT = "arrow"

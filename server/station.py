@@ -11,19 +11,22 @@ import contextlib
 import logging
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from companion.latest import Latest
 from companion.link import MavlinkLink
 from companion.recording.recorder import Recorder
 from companion.vehicle_state import VehicleState
+from server.pilot import Pilot
 from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up time
+    from companion.cameras.capture import Camera
     from server.trajectory3d.replay_scene import Replay3D
     from server.trajectory3d.service import Trajectory3D
+    from twin.runner import Twin
 
 
 log = logging.getLogger(__name__)
@@ -39,12 +42,12 @@ class Station:
     state: Latest[VehicleState] = field(default_factory=Latest)
     telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
     recorder: Recorder | None = None
-    # name -> companion.cameras.capture.Camera; readers use `.frames` (a Latest[Frame])
-    cameras: dict[str, Any] = field(default_factory=dict)
+    # front and bottom; readers use `.frames` (a Latest[Frame])
+    cameras: dict[str, Camera] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
     replay3d: Replay3D | None = None  # the replay's viser panel; None with --no-3d
-    # The digital twin (twin.runner.Twin) when link.source is "sim", else None.
-    twin: Any = None
+    twin: Twin | None = None  # the digital twin when link.source is "sim"
+    pilot: Pilot | None = None  # who has the twin's sticks (/ws/control), one at a time
 
 
 @contextlib.asynccontextmanager
@@ -57,10 +60,10 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
         source = settings.link.source.strip()
         if source == "sim":
             # The embedded twin vehicle, reached by a MavlinkLink over a loopback socket,
-            # exactly as a real vehicle below (server/sim.py).
-            from server.sim import open_sim
+            # exactly as a real vehicle below (server/twin_link.py).
+            from server.twin_link import open_twin_link
 
-            station.twin, station.link = open_sim(settings, stack)
+            station.twin, station.link = open_twin_link(settings, stack)
             station.state = station.link.state
         elif source != "none":
             link = MavlinkLink(settings.link)
@@ -82,7 +85,7 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
 
 async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
-    from server.recording import open_recorder
+    from server.recorder_setup import open_recorder
 
     cams = station.cameras
     return await open_recorder(
@@ -106,7 +109,7 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
             name,
             getattr(cams, name),
             link_source=station.settings.link.source,
-            renderer=lambda: station.twin,  # set by open_sim for source "sim", else None
+            renderer=lambda: station.twin,  # set by open_twin_link for source "sim", else None
             stall_s=cams.stall_s,
             retry_min_s=cams.retry_min_s,
             retry_max_s=cams.retry_max_s,

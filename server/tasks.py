@@ -1,6 +1,6 @@
 """Named, supervised background tasks: none of their exceptions vanish.
 
-Every long-running coroutine of the station runs through `TaskGroupSupervisor.spawn`,
+Every long-running coroutine of the station runs through `TaskSupervisor.spawn`,
 which keeps a reference, logs a crash with the task's name, records it for
 `/api/health`, and cancels everything at shutdown.
 """

@@ -15,8 +15,8 @@ import contextlib
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
-from companion.frames import Frame
 from companion.latest import Latest
+from companion.video_frame import Frame
 
 BOUNDARY = "fpvframe"
 _IDLE_WAIT_S = 5.0  # how often an idle pump looks whether anyone still watches

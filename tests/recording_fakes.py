@@ -14,9 +14,9 @@ import cv2
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.frames import Frame
 from companion.latest import Latest
 from companion.vehicle_state import Heartbeat, PilotAltitude, RcChannels, VehicleState
+from companion.video_frame import Frame
 
 
 def make_jpegs(n: int = 8, width: int = 320, height: int = 240) -> list[bytes]:

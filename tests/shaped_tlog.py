@@ -22,7 +22,10 @@ import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from tests import synthetic
 
 _TIME = struct.Struct(">Q")
 HOME = (43.0021, -78.7875, 180.0)  # the paper's field
@@ -109,9 +112,10 @@ def heartbeat(
     base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     if armed:
         base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-    return mav.heartbeat_encode(
-        mavlink.MAV_TYPE_QUADROTOR, autopilot, base, 3 << 16, mavlink.MAV_STATE_STANDBY
-    )
+    # PX4 POSCTL (main mode 3), ArduCopter LOITER (5)
+    mode = 3 << 16 if autopilot == mavlink.MAV_AUTOPILOT_PX4 else 5
+    state = mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
+    return mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, autopilot, base, mode, state)
 
 
 def gcs_heartbeat(mav: mavlink.MAVLink):
@@ -219,4 +223,73 @@ def no_battery_monitor(duration_s: float = 5.0) -> Shaper:
         t = tick / 50
         for msg in autopilot_messages(ap.mav, t, voltage_mv=0):
             log.emit(ap, t, msg)
+    return log
+
+
+def vehicle_flight(
+    flight: synthetic.Flight,
+    autopilot: int = mavlink.MAV_AUTOPILOT_PX4,
+    fade: tuple[float, float] | None = None,
+    burst_s: float = 1.0,
+    origin_set_s: float | None = None,
+    boot_s: float = 30.0,
+    t0: float = 1_700_000_000.0,
+) -> Shaper:
+    """A dense flight (`tests/synthetic.Flight`: positions and the armed state) as its
+    autopilot sends it at a real log's rates: ATTITUDE 50 Hz, GLOBAL_POSITION_INT and
+    VFR_HUD 10 Hz, GPS_RAW_INT 5 Hz (speed from the motion), SYS_STATUS 2 Hz, HEARTBEAT
+    1 Hz with the armed flag; every message on the vehicle's clock (time_boot_ms /
+    time_usec since a boot `boot_s` before the log starts).
+
+    - `fade` (start, end) s: nothing arrives; the last `burst_s` of it arrives as one burst
+      at `end` (a radio's buffer), with one receive time: a real log's "burst after a gap".
+    - `origin_set_s`: ArduPilot's EKF origin. Before it GLOBAL_POSITION_INT says altitudes
+      near 0 (height above the power-on point); at it the autopilot says "EKF3 IMU0 Origin
+      set to GPS" and the altitude jumps to the true AMSL. GPS_RAW_INT is AMSL throughout.
+    """
+    log = Shaper(t0=t0)
+    ap = log.sender(1, 1)
+    mav = ap.mav
+    t = flight.t_s
+    llh = flight.llh()
+    enu = flight.enu_m()
+    vel = np.gradient(enu, t, axis=0)
+    home_alt = flight.home[2]
+    for tick in range(int(t[-1] * 50)):
+        now = tick / 50
+        i = min(int(np.searchsorted(t, now)), t.size - 1)
+        t_ms = int((boot_s + now) * 1000)
+        lat, lon = int(round(llh[i, 0] * 1e7)), int(round(llh[i, 1] * 1e7))
+        up = float(enu[i, 2])
+        ve, vn, vu = (float(v) for v in vel[i])
+        out = [mav.attitude_encode(t_ms, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)]
+        if origin_set_s is not None and tick == int(round(origin_set_s * 50)):
+            # said as the origin is set, before the first position in the new frame
+            out.append(mav.statustext_encode(6, b"EKF3 IMU0 Origin set to GPS"))
+        if tick % 5 == 0:
+            origin_set = origin_set_s is None or now >= origin_set_s
+            fused = home_alt + up if origin_set else up + 0.3  # the EKF's frame
+            out.append(
+                mav.global_position_int_encode(
+                    t_ms, lat, lon, int(round(fused * 1000)), int(round(up * 1000)),
+                    int(round(vn * 100)), int(round(ve * 100)), int(round(-vu * 100)), 9000,
+                )
+            )  # fmt: skip
+            out.append(mav.vfr_hud_encode(0.0, float(np.hypot(ve, vn)), 90, 40, fused, vu))
+        if tick % 10 == 0:
+            out.append(
+                mav.gps_raw_int_encode(
+                    int((boot_s + now) * 1e6), 3, lat, lon, int(round(llh[i, 2] * 1000)),
+                    80, 120, int(round(100 * np.hypot(ve, vn))), 0, 14,
+                )
+            )  # fmt: skip
+        if tick % 25 == 0:
+            out.append(mav.sys_status_encode(0, 0, 0, 250, 12300, -1, -1, 0, 0, 0, 0, 0, 0))
+        if tick % 50 == 0:
+            out.append(heartbeat(mav, bool(flight.armed[i]), autopilot))
+        for msg in out:
+            if fade is not None and fade[1] - burst_s <= now < fade[1]:
+                log.emit(ap, fade[1], msg)  # buffered, delivered at once when the fade ends
+            else:
+                log.emit(ap, now, msg, lost=fade is not None and fade[0] <= now < fade[1])
     return log

@@ -21,7 +21,7 @@ from companion.recording import layout
 from core.geodesy import enu_to_geodetic, rotate_about_up
 
 Array = NDArray[np.float64]
-FIELD_HOME = (43.0021, -78.7875, 180.0)  # the paper's field, from MISSION.md
+FIELD_HOME = (43.0021, -78.7875, 180.0)  # the paper's field, as core/scenes/field.toml
 
 
 @dataclass(frozen=True)

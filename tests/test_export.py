@@ -298,11 +298,11 @@ def test_cli_export_and_its_errors(session, tmp_path, capsys):
 
 
 def test_telemetry_read_in_small_blocks_is_the_same(session, monkeypatch):
-    from learn import recording
+    from learn import recording_reader
 
-    with recording.open_recording(session) as whole:
-        monkeypatch.setattr(recording, "CSV_BLOCK_BYTES", 1000)  # rows cut across blocks
-        with recording.open_recording(session) as blocks:
+    with recording_reader.open_recording(session) as whole:
+        monkeypatch.setattr(recording_reader, "CSV_BLOCK_BYTES", 1000)  # rows cut across blocks
+        with recording_reader.open_recording(session) as blocks:
             assert np.array_equal(whole.t_s, blocks.t_s)
             for name, col in whole.columns.items():
                 assert np.array_equal(col, blocks.columns[name], equal_nan=True), name

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from companion.frames import Frame
 from companion.recording import layout
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
+from companion.video_frame import Frame
 from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
 
 FPS = 30.0

@@ -6,6 +6,7 @@ ground station on a real UDP socket; the twin stepped faster than real time."""
 from __future__ import annotations
 
 import math
+import socket
 import time
 
 import numpy as np
@@ -13,6 +14,8 @@ import pymap3d
 import pytest
 from pymavlink import mavutil
 
+from server.app import create_app
+from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
 from tests.test_twin_vehicle import drain
 
 mav = mavutil.mavlink
@@ -26,11 +29,20 @@ def latlon(twin, east_m: float, north_m: float) -> tuple[int, int]:
     return int(round(lat * 1e7)), int(round(lon * 1e7))
 
 
+def advance(twin, seconds: float) -> None:
+    """Let `seconds` of sim time pass: stepped, or waited for when the twin runs in real
+    time (in a station)."""
+    if twin.running:
+        time.sleep(seconds / twin.realtime_factor)
+    else:
+        twin.step_for(seconds)
+
+
 def wait_for(twin, gcs, kind: str, seconds: float = 1.0, step_s: float = 0.05) -> list:
     """Step the twin until the GCS got a `kind` (returns all of them so far)."""
     got: list = []
     for _ in range(int(seconds / step_s)):
-        twin.step_for(step_s)
+        advance(twin, step_s)
         got += drain(gcs, kind, timeout=0.02)
         if got:
             return got
@@ -45,7 +57,7 @@ def upload(twin, gcs, items: list[tuple], mission_type: int = 0, drop_request: i
     ignored = False
     deadline = time.monotonic() + 15
     while time.monotonic() < deadline:
-        twin.step_for(0.05)
+        advance(twin, 0.05)
         for m in drain(gcs, timeout=0.02):
             if m.get_type() == "MISSION_ACK":
                 return m
@@ -198,3 +210,45 @@ def test_do_reposition_by_command_int_flies_there_and_holds(twin_and_gcs) -> Non
     pos = twin.pose().pos_enu_m
     assert np.hypot(pos[0] + 12.0, pos[1] - 5.0) < 0.5 and pos[2] == pytest.approx(5.0, abs=0.3)
     assert twin.sim.commander.mode_name() == "LOITER"
+
+
+@pytest.mark.timeout(120)
+def test_a_ground_station_on_the_stations_forward_uploads_and_flies_a_mission(tmp_path):
+    """QGroundControl on `--forward` of a station on the twin: the mission protocol and
+    the flight go through the station's link both ways."""
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = mavutil.mavlink_connection(
+        f"udpin:127.0.0.1:{port}", source_system=255, source_component=190
+    )
+    settings = station_settings(
+        "sim", **{"link.forward": [f"udpout:127.0.0.1:{port}"], "twin.realtime_factor": 4.0}
+    )
+    app = create_app(settings)
+    try:
+        with run_uvicorn(app):
+            station = app.state.station
+            twin = station.twin
+            hb = gcs.wait_heartbeat(timeout=15)
+            assert hb is not None and hb.autopilot == mav.MAV_AUTOPILOT_PX4
+            assert wait_until(lambda: twin.sim.sensors.has_fix(twin.sim.t_s), 15)
+            assert upload(twin, gcs, MISSION).type == mav.MAV_MISSION_ACCEPTED
+            assert [i.command for i in download(twin, gcs)] == [it[1] for it in MISSION]
+            gcs.mav.command_long_send(1, 1, mav.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0)
+            gcs.mav.command_long_send(
+                1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0
+            )
+            reached: list[int] = []
+            modes, heights = set(), []  # what the station itself saw of the flight
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                for m in drain(gcs, "MISSION_ITEM_REACHED", timeout=0.2):
+                    reached.append(m.seq)
+                seen = station.state.get().value
+                modes.add(seen.heartbeat.mode)
+                heights.append(seen.altitude.relative_alt_m or 0.0)
+                if reached[-1:] == [3] and not twin.sim.commander.armed[0]:
+                    break
+            assert reached == [0, 1, 2, 3]
+            assert "MISSION" in modes and max(heights) == pytest.approx(4.0, abs=0.6)
+    finally:
+        gcs.close()

@@ -9,32 +9,9 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from core.geodesy import enu_to_geodetic
-from twin.control import (
-    ALTCTL,
-    AUTO_LAND,
-    AUTO_LOITER,
-    AUTO_MISSION,
-    AUTO_TAKEOFF,
-    POSCTL,
-    STABILIZED,
-)
+from core.mavlink.px4_modes import px4_custom_mode
+from twin.control import ALTCTL, AUTO_TAKEOFF, MODE_NAMES, POSCTL, STABILIZED
 from twin.sim import Sim
-
-# PX4 custom mode = main << 16 | sub << 24 (px4_custom_mode.h).
-PX4_MODES = {  # our mode -> (main, sub)
-    STABILIZED: (7, 0),
-    ALTCTL: (2, 0),
-    POSCTL: (3, 0),
-    AUTO_TAKEOFF: (4, 2),
-    AUTO_LOITER: (4, 3),
-    AUTO_LAND: (4, 6),
-    AUTO_MISSION: (4, 4),
-}
-
-
-def px4_custom_mode(mode: int) -> int:
-    main, sub = PX4_MODES[mode]
-    return (main << 16) | (sub << 24)
 
 
 def stick_to_pwm(x: float) -> int:
@@ -70,7 +47,7 @@ class Telemetry:
             mavlink.MAV_TYPE_QUADROTOR,
             mavlink.MAV_AUTOPILOT_PX4,
             base,
-            px4_custom_mode(mode),
+            px4_custom_mode(MODE_NAMES[mode]),  # the twin's mode names are PX4's
             status,
         )
 

@@ -26,19 +26,16 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from twin.control import AUTO_LOITER, AUTO_MISSION, STABILIZED
+from core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES, px4_main_sub, px4_mode_name
+from twin.control import AUTO_LOITER, AUTO_MISSION
 from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu, up_m
 from twin.mission_protocol import MissionProtocol
 from twin.params import ParamServer, px4_params
-from twin.sim import Sim
-from twin.telemetry import PX4_MODES, Telemetry
+from twin.sim import MODE_BY_NAME, Sim
+from twin.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
-# PX4 custom mode = main << 16 | sub << 24 (px4_custom_mode.h).
-PX4_MODE_FROM_MAIN_SUB = {v: k for k, v in PX4_MODES.items()}
-PX4_MODE_FROM_MAIN_SUB[(1, 0)] = STABILIZED  # MANUAL: a multicopter flies it stabilized
-PX4_MODE_FROM_MAIN_SUB[(4, 0)] = AUTO_LOITER
 
 # Telemetry rates (Hz), close to PX4's defaults on a companion (onboard) link.
 DEFAULT_RATES_HZ = {
@@ -237,11 +234,11 @@ class MavlinkVehicle:
             if msg.target_system not in (0, self.sysid):
                 return
             result, text = self._command(sim, CommandArgs.of(msg))
+            if text:  # the reason first, then the ack, as PX4's commander does
+                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
             self.mav.command_ack_send(
                 msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
             )
-            if text:
-                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
         elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             if getattr(msg, "target_system", 0) not in (0, self.sysid):
                 return
@@ -257,13 +254,15 @@ class MavlinkVehicle:
         elif kind == "SET_MODE":
             if msg.target_system not in (0, self.sysid):
                 return
-            main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
-            ok, why = self._set_mode(sim, main, sub)
+            ok, why = self._set_mode(sim, *px4_main_sub(msg.custom_mode))
             if not ok:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, why.encode()[:50])
 
     def _set_mode(self, sim: Sim, main: int, sub: int) -> tuple[bool, str]:
-        mode = PX4_MODE_FROM_MAIN_SUB.get((main, sub))
+        # PX4's name for the pair, in the twin's words (MANUAL: a multicopter flies it
+        # stabilized); AUTO without a sub mode holds position, as AUTO.LOITER.
+        name = "LOITER" if (main, sub) == (AUTO_MAIN_MODE, 0) else px4_mode_name(main, sub)
+        mode = MODE_BY_NAME.get(name or "")
         if mode is None:
             return False, f"unsupported mode {main}/{sub}"
         if mode == AUTO_MISSION and not self.mission.items:
@@ -323,7 +322,7 @@ class MavlinkVehicle:
             first = int(p[0]) if math.isfinite(p[0]) and p[0] > 0 else self.mission.current
             if not self.mission.set_current(first):
                 return fail, "mission start refused: no mission or no such item"
-            ok, why = self._set_mode(sim, 4, 4)
+            ok, why = self._set_mode(sim, *PX4_MODES["MISSION"])
         elif c == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
             ok, why = self.mission.set_current(int(p[0])), "no such mission item"
         elif c == mavlink.MAV_CMD_DO_SET_MODE:

@@ -78,7 +78,9 @@
     $("v-rel-alt").textContent = num(s.altitude.relative_alt_m);
     $("v-rel-alt-ref").textContent = {
       arming: "from arming",
+      arming_retaken: `from arming (re-taken: ${s.altitude.retaken_because})`,
       first_fix: "from first GPS fix (not armed yet)",
+      first_fix_retaken: `from first GPS fix (re-taken: ${s.altitude.retaken_because})`,
       none: "no reference yet",
     }[s.altitude.reference] ?? "waiting for altitude";
     const armed = $("v-armed");

@@ -4,7 +4,7 @@
     source.py       the source interface every source implements
     v4l2.py         USB / V4L2 through OpenCV, MJPEG passthrough
     media.py        a video file or an image folder, looped
-    sim.py          the digital twin's rendered cameras
+    twin_cameras.py the digital twin's rendered cameras
     airsim.py       AirSim / Cosys-AirSim over msgpack-rpc (client in msgpack_rpc.py)
     capture.py      Camera: the capture thread, NO SIGNAL, back-off, figures
     rig.py          build the station's cameras from the settings

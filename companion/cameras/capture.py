@@ -24,8 +24,8 @@ from companion.cameras.jpeg import JpegEncoder
 from companion.cameras.nosignal import render_no_signal
 from companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError
 from companion.cameras.spec import CameraSpec
-from companion.frames import Frame
 from companion.latest import Latest
+from companion.video_frame import Frame
 
 log = logging.getLogger(__name__)
 

@@ -65,7 +65,6 @@ class JpegEncoder:
         self._params = [int(cv2.IMWRITE_JPEG_QUALITY), self.quality]
         self._lock = threading.Lock()
         self.encodes = 0
-        self.encode_s_total = 0.0
         self.last_encode_s = 0.0
         self.recent_encode_s = 0.0  # moving average over about the last 20 encodes
 
@@ -77,17 +76,10 @@ class JpegEncoder:
             raise ValueError(f"OpenCV could not encode a {image.shape} {image.dtype} image")
         with self._lock:
             self.encodes += 1
-            self.encode_s_total += dt
             self.last_encode_s = dt
             alpha = max(0.05, 1.0 / self.encodes)
             self.recent_encode_s += alpha * (dt - self.recent_encode_s)
         return buf.tobytes()
-
-    @property
-    def mean_encode_ms(self) -> float:
-        """Mean encode time since start."""
-        with self._lock:
-            return 1000.0 * self.encode_s_total / self.encodes if self.encodes else 0.0
 
     @property
     def recent_encode_ms(self) -> float:

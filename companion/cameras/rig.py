@@ -12,9 +12,9 @@ from typing import Protocol
 from companion.cameras.airsim import AirSimSource
 from companion.cameras.capture import Camera
 from companion.cameras.media import ImageFolderSource, VideoFileSource
-from companion.cameras.sim import Renderer, SimSource
 from companion.cameras.source import FrameSource, SourceConfig
 from companion.cameras.spec import CameraSpec, flag, parse_spec
+from companion.cameras.twin_cameras import Renderer, SimSource
 from companion.cameras.v4l2 import V4l2Source
 
 CAMERA_NAMES = ("front", "bottom")

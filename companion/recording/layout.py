@@ -21,14 +21,24 @@ import time
 import typing
 from datetime import UTC, datetime
 
-from companion.vehicle_state import VehicleState
+from companion.vehicle_state import LOG_GROUPS, VehicleState
 
 FORMAT_VERSION = 1
 
 SESSION_JSON = "session.json"
 TELEMETRY_CSV = "telemetry.csv"
-MAVLINK_TLOG = "mavlink.tlog"
+MAVLINK_TLOG = "mavlink.tlog"  # records as core.mavlink.tlog_records writes them
 FRAMES_CSV = "frames.csv"  # inside each camera folder
+MESSAGES_CSV = "messages.csv"  # what the vehicle said: STATUSTEXT and COMMAND_ACK
+MESSAGE_COLUMNS: tuple[str, ...] = (
+    "t_s",
+    "t_wall",
+    "severity",
+    "kind",
+    "text",
+    "command",
+    "result",
+)
 CAMERAS: tuple[str, ...] = ("front", "bottom")
 
 # Session ids: UTC start time in ISO 8601 basic format, "_", a short source tag; a "-N"
@@ -39,7 +49,6 @@ SESSION_ID_MAX_LEN = 64
 SOURCE_TAG_MAX_LEN = 16
 
 # Frame files: zero-padded sequence number so that a plain sort is capture order.
-FRAME_FILE_TEMPLATE = "{seq:08d}.jpg"
 FRAME_PATH_TEMPLATE = "{camera}/{seq:08d}.jpg"  # relative to the session folder
 
 # Session states recorded in session.json "status".
@@ -53,14 +62,6 @@ TIME_COLUMNS: tuple[str, ...] = ("t_s", "wall_time")
 CAMERA_COLUMN_FIELDS: tuple[str, ...] = ("seq", "file", "t_wall", "skew_s")
 # front/frames.csv and bottom/frames.csv.
 FRAME_COLUMNS: tuple[str, ...] = ("seq", "file", "t_s", "t_wall", "width", "height", "bytes")
-
-# tlog: each packet is preceded by its receive time, big-endian uint64 microseconds
-# (written and read by core.mavlink.tlog_records, which the link's replay source uses too).
-
-
-def frame_file(seq: int) -> str:
-    """File name of frame `seq` inside its camera folder."""
-    return FRAME_FILE_TEMPLATE.format(seq=seq)
 
 
 def frame_relpath(camera: str, seq: int) -> str:
@@ -125,6 +126,8 @@ def state_fields() -> list[tuple[str, str, int | None]]:
     out: list[tuple[str, str, int | None]] = []
     hints = typing.get_type_hints(VehicleState)
     for group in dataclasses.fields(VehicleState):
+        if group.name in LOG_GROUPS:  # logs have their own file (MESSAGES_CSV)
+            continue
         group_type = hints[group.name]
         for f in dataclasses.fields(group_type):
             n = _tuple_length(group_type, f)

@@ -16,17 +16,17 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable, Coroutine, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.frames import Frame
 from companion.latest import Latest
 from companion.recording import diskspace
 from companion.recording.recovery import mark_interrupted
 from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.store import SessionStore
 from companion.vehicle_state import VehicleState
+from companion.video_frame import Frame
 
 log = logging.getLogger(__name__)
 
@@ -261,8 +261,3 @@ class Recorder:
             loop.call_soon_threadsafe(self._spawn_stop, reason, session_id)
         except RuntimeError:  # the loop is closed: shutdown finalizes
             pass
-
-
-def with_session_config(options: RecorderOptions, **changes: Any) -> RecorderOptions:
-    """A copy of `options` with some SessionConfig fields changed."""
-    return replace(options, session=replace(options.session, **changes))

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.frames import Frame
 from companion.latest import Latest
 from companion.recording import layout
 from companion.recording.meta import Arming, CameraQuality, Quality, SessionMeta, write_meta
@@ -28,6 +27,7 @@ from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.store import create_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
 from companion.vehicle_state import VehicleState
+from companion.video_frame import Frame
 
 log = logging.getLogger(__name__)
 
@@ -223,7 +223,7 @@ class RecordingSession:
     def _note_arming(self, state: VehicleState, now_mono: float) -> None:
         armed = state.heartbeat.armed
         alt = state.altitude
-        if armed and alt.reference == "arming" and alt.reference_alt_m is not None:
+        if armed and alt.reference.startswith("arming") and alt.reference_alt_m is not None:
             if (
                 self._arming is None
                 or self._was_armed is False

@@ -13,6 +13,14 @@ Client -> station, JSON:
     {"type": "takeoff", "alt_m": 4} | {"type": "land"} | {"type": "reset"}
 Station -> client: {"type": "hello", ...}, {"type": "ack", "cmd": ..., "ok": ...} and the
 error shape {"error": Name, "error_msg": text} for anything refused.
+
+Arm, disarm, mode, take-off and land are answered with what the vehicle said, not with
+what the station sent: the ack waits (without holding up the sticks) for the vehicle's
+COMMAND_ACK, at most ACK_TIMEOUT_S, and carries its result and the vehicle's own words
+(STATUSTEXT since the command, e.g. PX4's "Arming denied: ..."):
+    {"type": "ack", "cmd": "disarm", "ok": false, "result": "DENIED",
+     "text": "Disarming denied: not landed"}
+`result` is "NO_ANSWER" when the vehicle did not answer in time.
 """
 
 from __future__ import annotations
@@ -22,20 +30,32 @@ import contextlib
 import json
 import math
 import time
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, Field, ValidationError
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from core.mavlink.px4_modes import PX4_MODES
 from server.auth import require_control_token
 from server.errors import ApiError, BadRequest
+from server.pilot import DEADMAN_S, Pilot
+
+if TYPE_CHECKING:
+    from companion.link import MavlinkLink
+    from server.station import Station
 
 router = APIRouter(tags=["control"])
 
 RATE_HZ = 50.0
-DEADMAN_S = 0.5
-CENTRED = (0.0, 0.0, 0.0, 0.5)
-PX4_MAIN_MODES = {"STABILIZED": 7, "MANUAL": 7, "ALTCTL": 2, "POSCTL": 3}
+# The modes a pilot may choose, as PX4 names them. MANUAL is sent as STABILIZED: on a
+# multicopter PX4 flies the two alike, and the twin knows only STABILIZED.
+PILOT_MODES = {
+    "STABILIZED": "STABILIZED",
+    "MANUAL": "STABILIZED",
+    "ALTCTL": "ALTCTL",
+    "POSCTL": "POSCTL",
+}
 
 
 class Sticks(BaseModel):
@@ -56,18 +76,7 @@ def _error(name: str, message: str) -> str:
     return json.dumps({"error": name, "error_msg": message})
 
 
-class _Pilot:
-    """The newest sticks of one connection and when they arrived."""
-
-    def __init__(self) -> None:
-        self.sticks = CENTRED
-        self.at = -math.inf
-
-    def current(self, now: float) -> tuple[float, float, float, float]:
-        return self.sticks if now - self.at <= DEADMAN_S else CENTRED
-
-
-async def _send_sticks(link, pilot: _Pilot, target: int) -> None:
+async def _send_sticks(link: MavlinkLink, pilot: Pilot, target: int) -> None:
     """MANUAL_CONTROL at a steady rate from the newest sticks (never queues up)."""
     period = 1.0 / RATE_HZ
     next_t = time.monotonic()
@@ -82,35 +91,80 @@ async def _send_sticks(link, pilot: _Pilot, target: int) -> None:
         await asyncio.sleep(max(0.0, next_t - time.monotonic()))
 
 
-def _command(station, cmd: Command) -> None:
-    """Arm, mode, take-off and land go through the link as for any vehicle."""
-    link, mav = station.link, station.link.mav
+def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
+    """Arm, mode, take-off and land go through the link as for any vehicle; returns the
+    MAV_CMD sent (None for a reset, which the twin does at once)."""
+    twin, mav = station.twin, link.mav
+    assert twin is not None  # the route refuses a station without the twin
     if cmd.type == "reset":
-        station.twin.reset()
-        return
+        twin.reset()
+        return None
     if cmd.type in ("arm", "disarm"):
+        arm = 1.0 if cmd.type == "arm" else 0.0
         msg = mav.command_long_encode(
-            1, 1, 400, 0, 1.0 if cmd.type == "arm" else 0.0, 0, 0, 0, 0, 0, 0
+            1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, arm, 0, 0, 0, 0, 0, 0
         )
     elif cmd.type == "mode":
-        main = PX4_MAIN_MODES.get((cmd.mode or "").upper())
-        if main is None:
+        name = PILOT_MODES.get((cmd.mode or "").upper())
+        if name is None:
             raise BadRequest(
-                f"Mode '{cmd.mode}' is not one the pilot can choose: {', '.join(PX4_MAIN_MODES)}."
+                f"Mode '{cmd.mode}' is not one the pilot can choose: {', '.join(PILOT_MODES)}."
             )
-        msg = mav.command_long_encode(1, 1, 176, 0, 1, main, 0, 0, 0, 0, 0)
+        main, sub = PX4_MODES[name]
+        custom = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        msg = mav.command_long_encode(
+            1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, custom, main, sub, 0, 0, 0, 0
+        )
     elif cmd.type == "takeoff":
-        home = station.twin.scene.home.alt_m
-        alt = home + (cmd.alt_m or 2.5)
-        msg = mav.command_long_encode(1, 1, 22, 0, 0, 0, 0, math.nan, math.nan, math.nan, alt)
+        alt = twin.scene.home.alt_m + (cmd.alt_m or 2.5)
+        nan = math.nan
+        msg = mav.command_long_encode(
+            1, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, alt
+        )
     else:
-        msg = mav.command_long_encode(1, 1, 21, 0, 0, 0, 0, math.nan, math.nan, math.nan, 0)
+        nan = math.nan
+        msg = mav.command_long_encode(1, 1, mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, nan, nan, nan, 0)
     link.send(msg)
+    return msg.command
+
+
+ACK_TIMEOUT_S = 3.0
+REASON_GRACE_S = 0.3
+
+
+async def vehicle_answer(station: Station, command: int, since_mono: float) -> dict[str, Any]:
+    """The vehicle's COMMAND_ACK of `command` sent at `since_mono` (station clock), with
+    its STATUSTEXT since then: {"ok", "result", "text"}."""
+    name = mavlink.enums["MAV_CMD"][command].name.removeprefix("MAV_CMD_")
+    deadline = since_mono + ACK_TIMEOUT_S
+    version, answer = 0, None
+    while (left := deadline - time.monotonic()) > 0:
+        current = await station.state.wait_newer(version, timeout=left)
+        if current is not None:
+            version = current.version
+            said = [m for m in current.value.messages.recent if m.t_mono >= since_mono]
+            acks = [m for m in said if m.kind == "command_ack" and m.command == name]
+            words = [m.text for m in said if m.kind == "statustext"]
+            if acks:
+                ack = acks[-1]
+                ok = ack.result in ("ACCEPTED", "IN_PROGRESS")
+                answer = {"ok": ok, "result": ack.result, "text": "; ".join(words) or ack.text}
+                # A refusal's reason may follow it (ArduPilot sends it after the ack).
+                if ok or words:
+                    return answer
+                deadline = min(deadline, ack.t_mono + REASON_GRACE_S)
+    if answer is not None:
+        return answer
+    return {
+        "ok": False,
+        "result": "NO_ANSWER",
+        "text": f"The vehicle did not answer {name} within {ACK_TIMEOUT_S:g} s.",
+    }
 
 
 @router.websocket("/ws/control")
 async def ws_control(ws: WebSocket) -> None:
-    station = ws.app.state.station
+    station: Station = ws.app.state.station
     await ws.accept()
     try:
         require_control_token(ws)
@@ -118,7 +172,8 @@ async def ws_control(ws: WebSocket) -> None:
         await ws.send_text(_error(type(exc).__name__, exc.message))
         await ws.close(code=4401)
         return
-    if getattr(station, "twin", None) is None or station.link is None:
+    link = station.link
+    if station.twin is None or link is None:
         await ws.send_text(
             _error(
                 "Conflict",
@@ -128,17 +183,27 @@ async def ws_control(ws: WebSocket) -> None:
         )
         await ws.close(code=4409)
         return
-    if getattr(ws.app.state, "control_pilot", None) is not None:
+    if station.pilot is not None:
         await ws.send_text(_error("Conflict", "Another pilot has the sticks; one at a time."))
         await ws.close(code=4409)
         return
-    pilot = _Pilot()
-    ws.app.state.control_pilot = pilot
-    sender = asyncio.ensure_future(_send_sticks(station.link, pilot, 1))
+    pilot = station.pilot = Pilot()
+    sender = station.tasks.spawn("control-sticks", _send_sticks(link, pilot, 1))
+    send_lock = asyncio.Lock()  # acks are sent from their own tasks
+    answers: set[asyncio.Task[None]] = set()
+
+    async def send(text: str) -> None:
+        async with send_lock:
+            await ws.send_text(text)
+
+    async def answer(cmd: Command, command: int, sent_at: float) -> None:
+        # Its own task: sticks keep flowing while the vehicle thinks it over.
+        reply = await vehicle_answer(station, command, sent_at)
+        with contextlib.suppress(WebSocketDisconnect, RuntimeError, ConnectionError):
+            await send(json.dumps({"type": "ack", "cmd": cmd.type, **reply}))
+
     try:
-        await ws.send_text(
-            json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S})
-        )
+        await send(json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S}))
         while True:
             text = await ws.receive_text()
             try:
@@ -150,19 +215,27 @@ async def ws_control(ws: WebSocket) -> None:
                     pilot.sticks, pilot.at = (s.roll, s.pitch, s.yaw, s.throttle), time.monotonic()
                     continue
                 cmd = Command.model_validate(data)
-                _command(station, cmd)
-                await ws.send_text(json.dumps({"type": "ack", "cmd": cmd.type, "ok": True}))
+                sent_at = time.monotonic()
+                command = _command(station, link, cmd)
+                if command is None:  # done by the station itself (reset)
+                    await send(json.dumps({"type": "ack", "cmd": cmd.type, "ok": True}))
+                    continue
+                task = asyncio.create_task(answer(cmd, command, sent_at))
+                answers.add(task)
+                task.add_done_callback(answers.discard)
             except (ValueError, ValidationError) as exc:
-                await ws.send_text(_error("BadRequest", f"Bad control message: {exc}"[:500]))
+                await send(_error("BadRequest", f"Bad control message: {exc}"[:500]))
             except ApiError as exc:
-                await ws.send_text(_error("BadRequest", exc.message))
+                await send(_error("BadRequest", exc.message))
     except (WebSocketDisconnect, RuntimeError, ConnectionError):
         pass
     finally:
+        for task in answers:
+            task.cancel()
         sender.cancel()
         with contextlib.suppress(asyncio.CancelledError, Exception):
             await sender
         # The pilot left: centre the sticks now rather than wait for the twin's timeout.
         with contextlib.suppress(Exception):
-            station.link.send(station.link.mav.manual_control_encode(1, 0, 0, 500, 0, 0))
-        ws.app.state.control_pilot = None
+            link.send(link.mav.manual_control_encode(1, 0, 0, 500, 0, 0))
+        station.pilot = None

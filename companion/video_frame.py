@@ -1,4 +1,5 @@
-"""A camera frame as every part of the station shares it: encoded once, read by many."""
+"""A video frame (one JPEG of one camera) as every part of the station shares it: encoded
+once, read by many. Not a coordinate frame: that is `analysis.flight_frame`."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 The twin listens on an ephemeral UDP port (`udpin:127.0.0.1:0`, so there is no port race)
 and the station's ordinary `MavlinkLink` connects to it with `udpout:`, exactly as it
 would to a vehicle: the link's first GCS heartbeat tells the twin where to send its
-telemetry. `open_sim` returns both; the station keeps them (`station.twin` is what the
+telemetry. `open_twin_link` returns both; the station keeps them (`station.twin` is what the
 sim cameras render from).
 """
 
@@ -19,7 +19,9 @@ from twin.runner import Twin, twin_from_settings
 log = logging.getLogger(__name__)
 
 
-def open_sim(settings: Settings, stack: contextlib.AsyncExitStack) -> tuple[Twin, MavlinkLink]:
+def open_twin_link(
+    settings: Settings, stack: contextlib.AsyncExitStack
+) -> tuple[Twin, MavlinkLink]:
     """Start the twin and the link to it; both stop with `stack`, the link first."""
     twin = twin_from_settings(settings.twin, "udpin:127.0.0.1:0")
     twin.start()

@@ -10,12 +10,12 @@ import contextlib
 from collections.abc import Mapping
 from typing import Any
 
-from companion.frames import Frame
 from companion.latest import Latest
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.vehicle_state import VehicleState
+from companion.video_frame import Frame
 from server import __version__
 from server.settings import Settings
 

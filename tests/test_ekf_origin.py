@@ -1,0 +1,106 @@
+"""ArduPilot's EKF origin: GLOBAL_POSITION_INT says altitudes near 0 until "EKF3 IMU0
+Origin set to GPS", then jumps to the true AMSL altitude (180 m here). The pilot's
+altitude (since arming) must not jump with it: a 1.3 m hop reads 1.3 m, not 181 m.
+
+Shaped tlogs (tests/shaped_tlog.vehicle_flight) go through the station's own framer and
+state tracker packet by packet (every value the pilot could have seen), and through the
+real `replay:` source into a real server, whose session and /api/status are read."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import httpx
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.recording import layout
+from companion.state_tracker import StateTracker
+from core.mavlink.framing import MavFramer
+from core.mavlink.tlog_records import TlogReader
+from server.app import create_app
+from tests import shaped_tlog
+from tests import synthetic as syn
+from tests.helpers import run_uvicorn, station_settings, wait_until
+
+HOP_M = 1.3
+ARDUPILOT = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+
+
+def hop(take_off_s: float, land_s: float, arm_s: float = 5.0, end_s: float = 30.0) -> syn.Flight:
+    """Armed at `arm_s`, a 1 m/s climb to HOP_M at `take_off_s`, down at `land_s`,
+    disarmed 3 s after touching down."""
+    t = np.arange(0.0, end_s, 0.02)
+    up = np.clip(np.minimum(t - take_off_s, land_s - t), 0.0, HOP_M)
+    xyz = np.stack([np.zeros_like(t), np.zeros_like(t), up], 1)
+    armed = (t >= arm_s) & (t < land_s + HOP_M + 3.0)
+    return syn.Flight(t_s=t, xyz_m=xyz, armed=armed)
+
+
+CASES = {
+    "origin set armed on the ground": (hop(take_off_s=12.0, land_s=20.0), 8.0),
+    "origin set during a low hop": (hop(take_off_s=8.0, land_s=18.0), 12.0),
+}
+
+
+def pilot_altitudes(path) -> tuple[np.ndarray, list[str]]:
+    """Every value of the pilot's altitude after each packet, and the references seen."""
+    tracker, framer = StateTracker(), MavFramer()
+    alts, refs = [], []
+    for t, packet in TlogReader(path):
+        for msg in framer.feed(packet):
+            if tracker.update(msg, t):
+                a = tracker.state.altitude
+                if tracker.state.heartbeat.armed and a.relative_alt_m is not None:
+                    alts.append(a.relative_alt_m)
+                refs.append(a.reference)
+    return np.array(alts), refs
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_pilot_altitude_survives_the_ekf_origin_jump(case, tmp_path):
+    flight, origin_s = CASES[case]
+    path = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=origin_s).write(
+        tmp_path / "ekf.tlog"
+    )
+    alts, refs = pilot_altitudes(path)
+    assert alts.max() <= HOP_M + 0.5, alts.max()  # before the fix: 181.3 m
+    assert alts.max() >= HOP_M - 0.2  # and the hop is still seen
+    assert "arming_retaken" in refs
+
+
+def test_altitude_jump_without_a_message_is_a_frame_change_too(tmp_path):
+    """An old ArduPilot log without the STATUSTEXT (or with it lost): the jump alone."""
+    log = shaped_tlog.vehicle_flight(
+        CASES["origin set during a low hop"][0], ARDUPILOT, origin_set_s=12.0
+    )
+    log.records = [(t, p) for t, p in log.records if b"Origin set" not in p]
+    alts, refs = pilot_altitudes(log.write(tmp_path / "ekf.tlog"))
+    assert alts.max() <= HOP_M + 0.5
+    assert "arming_retaken" in refs
+
+
+@pytest.mark.timeout(120)
+def test_replayed_session_records_the_hop_not_the_jump(tmp_path):
+    flight, origin_s = CASES["origin set during a low hop"]
+    path = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=origin_s).write(
+        tmp_path / "ekf.tlog"
+    )
+    settings = station_settings(f"replay:{path}?speed=5", tmp_path / "sessions")
+    with run_uvicorn(create_app(settings)) as base:
+        assert httpx.post(f"{base}/api/recording/start").status_code == 200
+        status = lambda: httpx.get(f"{base}/api/status").json()  # noqa: E731
+        assert wait_until(lambda: status()["link"]["replay_done"], timeout=60)
+        altitude = status()["state"]["altitude"]
+        session = httpx.post(f"{base}/api/recording/stop").json()["last_stop"]["id"]
+    assert altitude["reference"] == "arming_retaken"
+    assert altitude["retaken_because"] == "EKF origin set"
+    folder = tmp_path / "sessions" / session
+    with open(folder / layout.TELEMETRY_CSV) as f:
+        rows = [r for r in csv.DictReader(f) if r["heartbeat.armed"] == "1"]
+    recorded = max(float(r["altitude.relative_alt_m"]) for r in rows)
+    assert HOP_M - 0.3 <= recorded <= HOP_M + 0.5
+    meta = json.loads((folder / layout.SESSION_JSON).read_text())
+    assert meta["arming"]["reference_alt_m"] == pytest.approx(180.0, abs=0.5)
