@@ -95,8 +95,10 @@ def forward_rate_case() -> None:
             status = lambda: httpx.get(f"{base}/api/status").json()["link"]  # noqa: E731
             wait_until(lambda: status()["stream_request"] == "message_interval", 15)
             other.wait_heartbeat(timeout=10)
-            other.mav.command_long_send(1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                        mav.MAVLINK_MSG_ID_ATTITUDE, 500_000, 0, 0, 0, 0, 0)  # fmt: skip
+            other.mav.command_long_send(
+                1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                mav.MAVLINK_MSG_ID_ATTITUDE, 500_000, 0, 0, 0, 0, 0,
+            )  # fmt: skip
             time.sleep(3.0)  # a full rate window after the change
             hz = status()["rates_hz"].get("ATTITUDE", 0.0)
     other.close()
@@ -146,8 +148,9 @@ def twin_cases() -> None:
     track = np.array(track)
     for east, north in ((-8.0, 0.0), (-8.0, 6.0)):
         miss = float(np.min(np.hypot(track[:, 0] - east, track[:, 1] - north)))
-        row("twin AUTO.MISSION (uploaded by MISSION_ITEM_INT)", f"closest to waypoint "
-            f"({east:g}, {north:g}) m", "0 (accept radius 1 m)", f"{miss:.2f} m", f"{miss:.2f} m")  # fmt: skip
+        where = f"closest to waypoint ({east:g}, {north:g}) m"
+        row("twin AUTO.MISSION (uploaded by MISSION_ITEM_INT)", where,
+            "0 (accept radius 1 m)", f"{miss:.2f} m", f"{miss:.2f} m")  # fmt: skip
     home = float(np.hypot(*(track[-1, :2] - t.scene.start_xy_m)))
     row("twin AUTO.MISSION", "landing point from home (m)", "0", f"{home:.2f}", f"{home:.2f} m")
     t.stop()

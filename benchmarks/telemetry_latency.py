@@ -1,6 +1,7 @@
 """Telemetry latency and CPU: MAVLink packet written -> WebSocket message received.
 
     python benchmarks/telemetry_latency.py [--clients 1 20 100] [--seconds 6] [--max-rate 50]
+                                          [--slow-seconds 8]
 
 Starts `fpv-station serve` as a real uvicorn process (so its CPU is measurable on its
 own), a sender process writing ATTITUDE and GLOBAL_POSITION_INT at 250 Hz each (plus a
@@ -11,12 +12,17 @@ Linux): ATTITUDE in `yawspeed` (float32 seconds since the run's epoch), GLOBAL_P
 in `lat` (units of 10 us). A client records, for every group that changed since its last
 message, received_at - sent_at. Printed per N: p50/p99/max added latency and the
 server's CPU seconds per 1,000 packets.
+
+Then the slow reader (a busy phone, goggles on weak Wi-Fi): one client with an 8 KB
+receive buffer that reads one message per 100 ms, with `?ack=1` (acknowledging each
+message) and without. Printed: the age of the attitude it reads, p50/p99/max.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
 import shutil
@@ -135,9 +141,11 @@ def _spawn(*args: str) -> subprocess.Popen:
     )
 
 
-def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) -> dict:
+@contextlib.contextmanager
+def station_under_load(seconds: float):
+    """A `fpv-station serve` process fed at RATE_HZ for `seconds` after a 1 s warm-up;
+    yields (http_port, epoch, server process, t0 of the measured window)."""
     import httpx
-    import psutil
 
     http_port, udp_port = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
     tmp = tempfile.mkdtemp(prefix="fpv-bench-")
@@ -159,7 +167,7 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
         stderr=subprocess.DEVNULL,
         env={**os.environ, **SERVER_ENV, "FPV_RECORDING__SESSIONS_DIR": tmp},
     )
-    workers: list[subprocess.Popen] = []
+    sender = None
     try:
         base = f"http://127.0.0.1:{http_port}"
         for _ in range(300):
@@ -169,6 +177,29 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
             except httpx.HTTPError:
                 time.sleep(0.05)
         epoch = time.monotonic()
+        warmup_s = 1.0
+
+        def start_sender() -> float:
+            nonlocal sender
+            sender = _spawn("--sender", str(udp_port), str(epoch), str(seconds + warmup_s + 0.5))
+            return time.monotonic() + warmup_s
+
+        yield http_port, epoch, server, start_sender
+        if sender is not None:
+            sender.communicate(timeout=30)
+    finally:
+        if sender is not None and sender.poll() is None:
+            sender.kill()
+        server.terminate()
+        server.wait(10)
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) -> dict:
+    import psutil
+
+    workers: list[subprocess.Popen] = []
+    with station_under_load(seconds) as (http_port, epoch, server, start_sender):
         url = f"ws://127.0.0.1:{http_port}/ws/telemetry?max_rate={max_rate}"
         left = n_clients
         while left > 0:
@@ -177,9 +208,7 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
             left -= k
         for w in workers:
             assert w.stdout.readline().strip() == "ready"
-        warmup_s = 1.0
-        sender = _spawn("--sender", str(udp_port), str(epoch), str(seconds + warmup_s + 0.5))
-        t0 = time.monotonic() + warmup_s
+        t0 = start_sender()
         for w in workers:
             w.stdin.write(f"{t0} {t0 + seconds}\n")
             w.stdin.flush()
@@ -192,14 +221,7 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
         samples: list[float] = []
         for w in workers:
             samples += json.loads(w.stdout.readline())
-        sender.communicate(timeout=30)
-    finally:
-        for w in workers:
-            w.kill()
             w.wait()
-        server.terminate()
-        server.wait(10)
-        shutil.rmtree(tmp, ignore_errors=True)
     ms = sorted(x * 1000 for x in samples)
     return {
         "clients": n_clients,
@@ -209,6 +231,37 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
         "max_ms": ms[-1],
         "cpu_s_per_1000_packets": cpu_s / packets * 1000,
         "server_cpu_pct": cpu_s / seconds * 100,
+    }
+
+
+def measure_slow_reader(ack: bool, seconds: float) -> dict:
+    """One client, 8 KB receive buffer, one message per 100 ms; the age of what it reads."""
+    from tests.helpers import RawWsClient
+
+    ages: list[float] = []
+    with station_under_load(seconds) as (http_port, epoch, _server, start_sender):
+        client = RawWsClient(
+            f"http://127.0.0.1:{http_port}",
+            f"/ws/telemetry?max_rate=1000&ack={int(ack)}",
+            rcvbuf=8192,
+        )
+        t0 = start_sender()
+        while time.monotonic() < t0 + seconds:
+            m = client.recv_json()
+            att = m["state"]["attitude"]
+            if time.monotonic() >= t0 and att["time_boot_ms"] is not None:
+                ages.append(time.monotonic() - (epoch + att["yawspeed_rad_s"]))
+            time.sleep(0.1)  # the slow reader's own work per message
+            if ack:
+                client.send_text(json.dumps({"ack": m["version"]}))
+        client.close()
+    ms = sorted(a * 1000 for a in ages)
+    return {
+        "ack": ack,
+        "samples": len(ms),
+        "p50_ms": statistics.median(ms),
+        "p99_ms": ms[max(int(len(ms) * 0.99) - 1, 0)],
+        "max_ms": ms[-1],
     }
 
 
@@ -246,6 +299,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--max-rate", type=float, default=50.0, help="per-client cap (the default)")
     ap.add_argument("--per-worker", type=int, default=25, help="clients per client process")
+    ap.add_argument("--slow-seconds", type=float, default=8.0, help="slow-reader run length")
     args = ap.parse_args()
     print(f"link thread: {link_cpu_us_per_packet():.1f} us CPU per packet (best of 5)")
     print(
@@ -261,6 +315,16 @@ def main() -> None:
         print(
             f"{r['clients']:>7} {r['samples']:>8} {r['p50_ms']:>8.2f} {r['p99_ms']:>8.2f} "
             f"{r['max_ms']:>8.2f} {r['cpu_s_per_1000_packets']:>15.4f} {r['server_cpu_pct']:>13.1f}",
+            flush=True,
+        )
+    print("slow reader: 8 KB receive buffer, one message per 100 ms (max_rate=1000)")
+    print(f"{'mode':>8} {'samples':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8}")
+    for ack in (True, False):
+        r = measure_slow_reader(ack, args.slow_seconds)
+        mode = "ack=1" if ack else "no ack"
+        print(
+            f"{mode:>8} {r['samples']:>8} {r['p50_ms']:>8.1f} {r['p99_ms']:>8.1f} "
+            f"{r['max_ms']:>8.1f}",
             flush=True,
         )
 

@@ -1,12 +1,12 @@
 """The MAVLink link to the vehicle: one thread owns the port, everyone else reads snapshots.
 
 The thread reads bytes, cuts them into packets (`MavFramer`), hands every raw packet on
-the link to the packet listeners (the recorder: what the vehicle sent, what we sent, and
-what the ground stations we forward to sent, as QGroundControl's tlogs hold), merges the autopilot's messages into the
-`VehicleState` (`StateTracker`) and publishes each new state through `link.state`
-(`Latest`). It also sends the GCS heartbeat, asks for message rates, reconnects when the
-port or peer goes away, and flags `link_lost` after `link_lost_s` without an autopilot
-heartbeat. When another ground station changes the rates we asked for, it says so in the
+the link to the packet listeners (the recorder: what the vehicle sent, what we sent and
+what the ground stations we forward to sent, as QGroundControl's tlogs hold), merges the
+autopilot's messages into the `VehicleState` (`StateTracker`) and publishes each new
+state through `link.state` (`Latest`). It also sends the GCS heartbeat, asks for message
+rates, reconnects when the port or peer goes away, and flags `link_lost` after
+`link_lost_s` without an autopilot heartbeat. When another ground station changes the rates we asked for, it says so in the
 health report and asks again. Nothing here ever runs on the event loop: `send()` only
 queues and wakes.
 """
@@ -75,7 +75,7 @@ class MavlinkLink:
         self.state: Latest[VehicleState] = Latest(VehicleState())
         # A replay runs on its own clock (the log's); a live vehicle on the station's.
         self.clock = SourceClock(own=self.spec.kind == "replay")
-        self._tracker = StateTracker(settings.sysid)
+        self._tracker = StateTracker(settings.sysid, gcs_sysid=settings.gcs_sysid)
         self._framer = MavFramer()
         self._meter = HealthMeter(self.spec.text)
         self._streams = StreamRequester(self.mav, settings.message_rates_hz)
@@ -301,9 +301,10 @@ class MavlinkLink:
                 fwd.write(packet)
             if tracker.update(msg, now):
                 changed = True
-                if msg.get_type() == "HEARTBEAT":
+                if mtype == "HEARTBEAT":
                     self._on_autopilot_heartbeat(now, packet_version(msg) == 1)
-            elif msg.get_type() == "COMMAND_ACK" and self._transport is not None:
+            # Acks of our stream requests also go into the state (vehicle messages).
+            if mtype == "COMMAND_ACK" and self._transport is not None:
                 for req in self._streams.on_ack(msg, now):
                     self._write(self._transport, req)
         if changed:

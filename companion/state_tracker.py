@@ -15,6 +15,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.vehicle_state import (
+    MESSAGES_KEPT,
     Attitude,
     Battery,
     GlobalPosition,
@@ -25,6 +26,8 @@ from companion.vehicle_state import (
     PilotAltitude,
     RcChannels,
     ServoOutputs,
+    VehicleMessage,
+    VehicleMessages,
     VehicleState,
     VfrHud,
 )
@@ -37,6 +40,8 @@ _AUTOPILOT_NAMES = {
     mavlink.MAV_AUTOPILOT_GENERIC: "generic",
 }
 _GPS_3D_FIX = 3
+# The station's own housekeeping (stream rates), not something a person asked for.
+_QUIET_ACKS = {mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_REQUEST_MESSAGE}
 _GROUND_FIX_MAX_AGE_S = 2.5  # older than this (a gap in heartbeats): not "a moment ago"
 _UINT16_UNKNOWN = 65535
 # ArduPilot's altitude frame moves when its EKF origin is set ("EKF3 IMU0 Origin set to
@@ -100,8 +105,9 @@ def _scaled(value: int, scale: float, unknown: int | None = None) -> float | Non
 class StateTracker:
     """Holds the current `VehicleState`; `update` says whether a message changed it."""
 
-    def __init__(self, sysid: int | None = None) -> None:
+    def __init__(self, sysid: int | None = None, gcs_sysid: int | None = None) -> None:
         self.pinned_sysid = sysid
+        self.gcs_sysid = gcs_sysid  # acks to other ground stations are theirs, not ours
         self.sysid: int | None = sysid
         self.compid: int | None = None
         self.state = VehicleState()
@@ -231,9 +237,32 @@ class StateTracker:
         self._altitude_changed(t)
 
     def _statustext(self, m: mavlink.MAVLink_message, t: float) -> None:
-        text = m.text if isinstance(m.text, str) else bytes(m.text).decode("ascii", "replace")
+        text = m.text if isinstance(m.text, str) else bytes(m.text).decode("utf-8", "replace")
+        text = text.rstrip("\x00")
         if "origin set" in text.lower():  # EKF2/EKF3 "IMU0 Origin set to GPS" and kin
             self._origin_note_t = t
+        self._add_message(VehicleMessage(t, "statustext", int(m.severity), text))
+
+    def _command_ack(self, m: mavlink.MAVLink_message, t: float) -> None:
+        if m.command in _QUIET_ACKS:
+            return
+        target = getattr(m, "target_system", 0)  # MAVLink 1 acks carry no target
+        if target and self.gcs_sysid is not None and target != self.gcs_sysid:
+            return
+        command = _enum_name("MAV_CMD", m.command, "MAV_CMD_").upper()
+        result = _enum_name("MAV_RESULT", m.result, "MAV_RESULT_").upper()
+        ok = m.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS)
+        severity = mavlink.MAV_SEVERITY_INFO if ok else mavlink.MAV_SEVERITY_WARNING
+        message = VehicleMessage(
+            t, "command_ack", severity, f"{command}: {result}", command, result
+        )
+        self._add_message(message)
+
+    def _add_message(self, message: VehicleMessage) -> None:
+        old = self.state.messages
+        recent = (*old.recent[-(MESSAGES_KEPT - 1) :], message)
+        messages = VehicleMessages(t_mono=message.t_mono, count=old.count + 1, recent=recent)
+        self.state = _replace_state(self.state, messages=messages)
 
     def _vfr_hud(self, m: mavlink.MAVLink_message, t: float) -> None:
         hud = VfrHud(
@@ -453,6 +482,7 @@ class StateTracker:
 
 
 _HANDLERS = {
+    "COMMAND_ACK": StateTracker._command_ack,
     "GPS_RAW_INT": StateTracker._gps_raw,
     "GLOBAL_POSITION_INT": StateTracker._global_position,
     "VFR_HUD": StateTracker._vfr_hud,

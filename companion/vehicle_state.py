@@ -167,6 +167,37 @@ class LinkStatus:
 
 
 @dataclass(frozen=True, slots=True)
+class VehicleMessage:
+    """One thing the vehicle said: a STATUSTEXT, or a COMMAND_ACK (the command it answers
+    and its result, with a text a person reads)."""
+
+    t_mono: float
+    kind: str  # "statustext" or "command_ack"
+    severity: int  # MAV_SEVERITY: 0 emergency ... 7 debug; an ACK: 6 accepted, 4 refused
+    text: str
+    command: str | None = None  # a COMMAND_ACK's command, e.g. "COMPONENT_ARM_DISARM"
+    result: str | None = None  # a COMMAND_ACK's result, e.g. "ACCEPTED", "DENIED"
+
+
+MESSAGES_KEPT = 16
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleMessages:
+    """What the vehicle said lately, newest last. `count` grows by one per message, so a
+    reader that saw count n knows how many are new (at most MESSAGES_KEPT are kept).
+    Not a telemetry.csv column group: the recorder writes messages.csv from it."""
+
+    t_mono: float | None = None
+    count: int = 0
+    recent: tuple[VehicleMessage, ...] = ()
+
+
+# Groups that are logs, not sampled values: no telemetry.csv columns (see the recorder).
+LOG_GROUPS = ("messages",)
+
+
+@dataclass(frozen=True, slots=True)
 class VehicleState:
     """Everything the station knows about the autopilot it follows."""
 
@@ -181,6 +212,7 @@ class VehicleState:
     local_position: LocalPosition = field(default_factory=LocalPosition)
     altitude: PilotAltitude = field(default_factory=PilotAltitude)
     link: LinkStatus = field(default_factory=LinkStatus)
+    messages: VehicleMessages = field(default_factory=VehicleMessages)
 
     def last_heard_mono(self) -> float | None:
         """When the autopilot's newest message arrived (station clock), None if never.

@@ -1,6 +1,6 @@
 """Learning from flights (the `learn` extra, not needed on the Pi).
 
-recording      a session folder, zip or bare tlog opened for export (columns, frames, tlog)
+recording_reader  a session folder, zip or bare tlog opened for export (columns, frames, tlog)
 episodes       one episode per flight: the twin env's state, the pilot's sticks, frames
 export         `fpv-station export`: recordings streamed into a format's writer
 lerobot        LeRobot v3.0 datasets (pyarrow + PyAV)

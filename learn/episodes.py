@@ -145,7 +145,7 @@ def _episode(
     rows = np.clip(np.searchsorted(t, tk, side="right") - 1, f.arm, f.disarm)
 
     def at(name: str) -> Array:
-        return _carried(rec.column(name))[rows]
+        return carry_forward(rec.column(name))[rows]
 
     xyz = scene_xyz(rec, scene, task_id, rows)
     z = xyz[:, 2]
@@ -210,9 +210,13 @@ def scene_xyz(rec: Recording, scene: Scene, task_id: int, rows: NDArray[np.intp]
     the scene's home): x, y from the fused position (else GPS), z the pilot's height.
     A flight whose first row is farther than `ANCHOR_RADIUS_M` from the task's start pad
     was flown on another field and is moved so that it starts on that pad."""
-    lat = _carried(_first_known(rec.column("global_position.lat_deg"), rec.column("gps.lat_deg")))
-    lon = _carried(_first_known(rec.column("global_position.lon_deg"), rec.column("gps.lon_deg")))
-    z = np.nan_to_num(_carried(pilot_height(rec))[rows], nan=0.0)
+    lat = carry_forward(
+        _first_known(rec.column("global_position.lat_deg"), rec.column("gps.lat_deg"))
+    )
+    lon = carry_forward(
+        _first_known(rec.column("global_position.lon_deg"), rec.column("gps.lon_deg"))
+    )
+    z = np.nan_to_num(carry_forward(pilot_height(rec))[rows], nan=0.0)
     known = np.flatnonzero(np.isfinite(lat[rows]) & np.isfinite(lon[rows]))
     if known.size == 0:
         return np.column_stack([np.zeros((rows.size, 2)), z])
@@ -234,7 +238,7 @@ def _first_known(*columns: Array) -> Array:
     return columns[-1]
 
 
-def _carried(v: Array) -> Array:
+def carry_forward(v: Array) -> Array:
     """NaN replaced by the last known value before it (NaN until the first one)."""
     ok = np.isfinite(v)
     if ok.all() or not ok.any():

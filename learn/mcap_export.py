@@ -44,7 +44,7 @@ from foxglove.messages import (
 )
 
 from core.mavlink.tlog_records import TlogReader
-from learn.episodes import Episode, scene_xyz
+from learn.episodes import Episode, carry_forward, scene_xyz
 from learn.recording_reader import COLUMNS, Recording
 
 WORLD_FRAME = "field"
@@ -145,9 +145,10 @@ def _row_events(rec: Recording, scene, task_id: int, i0: int, i1: int, wall0: fl
         np.nan_to_num(c["attitude.pitch_rad"][i0 : i1 + 1]),
         np.nan_to_num(c["attitude.yaw_rad"][i0 : i1 + 1]),
     )
-    lat = _prefer(c["gps.lat_deg"], c["global_position.lat_deg"])
-    lon = _prefer(c["gps.lon_deg"], c["global_position.lon_deg"])
-    alt = _prefer(c["gps.alt_m"], c["global_position.alt_m"])
+    # The latest fix at each row, as rows hold the latest state (0 only before any fix).
+    lat = carry_forward(_prefer(c["gps.lat_deg"], c["global_position.lat_deg"]))
+    lon = carry_forward(_prefer(c["gps.lon_deg"], c["global_position.lon_deg"]))
+    alt = carry_forward(_prefer(c["gps.alt_m"], c["global_position.alt_m"]))
     for k, i in enumerate(range(i0, i1 + 1)):
         t_ns = int(round((wall0 + rec.t_s[i]) * 1e9))
         stamp = _stamp(t_ns)

@@ -101,11 +101,6 @@ class Recording:
         """The recorded JPEG bytes of frame `k` (an index into `cameras[camera]`)."""
         return (self.folder / self.cameras[camera].files[k]).read_bytes()
 
-    @property
-    def is_twin(self) -> bool:
-        src = str(self.meta.get("source") or self.meta.get("platform") or "").lower()
-        return src.startswith(("sim", "twin"))
-
 
 @contextlib.contextmanager
 def open_recording(path: str | Path) -> Iterator[Recording]:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import fields
+from dataclasses import fields, is_dataclass
 from typing import Any
 
 from companion.latest import Versioned
@@ -36,6 +36,8 @@ def _group_dict(group: Any) -> dict[str, Any]:
         v = getattr(group, name)
         if type(v) is float and not math.isfinite(v):
             v = None
+        elif type(v) is tuple and v and is_dataclass(v[0]):  # a log: messages.recent
+            v = [_group_dict(item) for item in v]
         out[name] = v
     return out
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import base64
 import contextlib
+import json
+import os
 import socket
 import threading
 import time
@@ -76,3 +79,54 @@ def station_settings(source: str, sessions_dir: Path | None = None, **overrides)
     if sessions_dir is not None:
         base |= {"recording.sessions_dir": str(sessions_dir), "recording.min_free_mb": 0}
     return load_settings(environ={}, overrides={**base, **overrides})
+
+
+class RawWsClient:
+    """A WebSocket client on a bare socket: it can stop reading (a stalled browser)."""
+
+    def __init__(self, base: str, path: str, rcvbuf: int = 4096):
+        host, port = base.removeprefix("http://").split(":")
+        self.sock = socket.socket()
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        self.sock.connect((host, int(port)))
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall(
+            f"GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+            "Sec-WebSocket-Version: 13\r\n\r\n".encode()
+        )
+        self.buf = b""
+        while b"\r\n\r\n" not in self.buf:
+            self.buf += self.sock.recv(1)  # byte by byte: leave the frames in the socket
+        assert b" 101 " in self.buf.split(b"\r\n")[0]
+        self.buf = b""
+
+    def _need(self, n):
+        while len(self.buf) < n:
+            chunk = self.sock.recv(65536)
+            if not chunk:
+                raise ConnectionError("closed")
+            self.buf += chunk
+
+    def recv_json(self):
+        self._need(2)
+        length, head = self.buf[1] & 0x7F, 2
+        if length == 126:
+            self._need(4)
+            length, head = int.from_bytes(self.buf[2:4], "big"), 4
+        elif length == 127:
+            self._need(10)
+            length, head = int.from_bytes(self.buf[2:10], "big"), 10
+        self._need(head + length)
+        payload, self.buf = self.buf[head : head + length], self.buf[head + length :]
+        return json.loads(payload)
+
+    def send_text(self, text: str) -> None:
+        """A masked text frame, as a browser sends it (RFC 6455 5.3)."""
+        payload, mask = text.encode(), os.urandom(4)
+        assert len(payload) < 126
+        masked = bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+        self.sock.sendall(bytes([0x81, 0x80 | len(payload)]) + mask + masked)
+
+    def close(self):
+        self.sock.close()

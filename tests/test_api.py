@@ -1,9 +1,6 @@
 """REST endpoints with httpx and the telemetry WebSocket with several real clients."""
 
-import base64
 import json
-import os
-import socket
 import threading
 import time
 from dataclasses import replace
@@ -16,7 +13,7 @@ from websockets.sync.client import connect
 from companion.vehicle_state import Attitude, VehicleState
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import run_uvicorn, wait_until
+from tests.helpers import RawWsClient, run_uvicorn, wait_until
 from tests.mav_vehicle import MavVehicle
 
 
@@ -68,51 +65,7 @@ def test_openapi_documents_every_endpoint_with_models():
         assert "relative_alt_m" in schemas["PilotAltitude"]["properties"]
         assert "/ws/telemetry" in httpx.get(f"{base}/").text or True  # page loads
         assert httpx.get(f"{base}/").status_code == 200
-        assert httpx.get(f"{base}/app.js").status_code == 200
-
-
-class RawWsClient:
-    """A WebSocket client on a bare socket: it can stop reading (a stalled browser)."""
-
-    def __init__(self, base: str, path: str):
-        host, port = base.removeprefix("http://").split(":")
-        self.sock = socket.socket()
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        self.sock.connect((host, int(port)))
-        key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall(
-            f"GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\n"
-            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
-            "Sec-WebSocket-Version: 13\r\n\r\n".encode()
-        )
-        self.buf = b""
-        while b"\r\n\r\n" not in self.buf:
-            self.buf += self.sock.recv(1)  # byte by byte: leave the frames in the socket
-        assert b" 101 " in self.buf.split(b"\r\n")[0]
-        self.buf = b""
-
-    def _need(self, n):
-        while len(self.buf) < n:
-            chunk = self.sock.recv(65536)
-            if not chunk:
-                raise ConnectionError("closed")
-            self.buf += chunk
-
-    def recv_json(self):
-        self._need(2)
-        length, head = self.buf[1] & 0x7F, 2
-        if length == 126:
-            self._need(4)
-            length, head = int.from_bytes(self.buf[2:4], "big"), 4
-        elif length == 127:
-            self._need(10)
-            length, head = int.from_bytes(self.buf[2:10], "big"), 10
-        self._need(head + length)
-        payload, self.buf = self.buf[head : head + length], self.buf[head + length :]
-        return json.loads(payload)
-
-    def close(self):
-        self.sock.close()
+        assert httpx.get(f"{base}/flight-state.js").status_code == 200
 
 
 def publish_states(slot, n, hz):
@@ -171,6 +124,47 @@ def test_websocket_fan_out_with_a_stalled_client():
         stalled.close()
         for ws in [*fast, capped]:
             ws.close()
+
+
+def test_slow_reader_with_acks_stays_fresh():
+    """?ack=1: at most one message in flight, so a client that reads one message per
+    100 ms through a small receive buffer always gets a state at most one tick old,
+    where without acks it reads what the kernel buffered seconds ago."""
+    app = make_app()
+    with run_uvicorn(app) as base:
+        slot = app.state.station.state
+        stop = threading.Event()
+
+        def publish():  # 200 Hz, each state stamped with its publish time
+            state = VehicleState()
+            while not stop.is_set():
+                now = time.monotonic()
+                slot.publish(replace(state, attitude=Attitude(t_mono=now)))
+                time.sleep(0.005)
+
+        publisher = threading.Thread(target=publish)
+        publisher.start()
+        try:
+            ages = {}
+            for ack in (True, False):
+                client = RawWsClient(base, f"/ws/telemetry?max_rate=1000&ack={int(ack)}")
+                got = []
+                t_end = time.monotonic() + 3.0
+                while time.monotonic() < t_end:
+                    m = client.recv_json()
+                    got.append(time.monotonic() - m["state"]["attitude"]["t_mono"])
+                    time.sleep(0.1)  # a busy phone: one message per 100 ms
+                    if ack:
+                        client.send_text(json.dumps({"ack": m["version"]}))
+                client.close()
+                ages[ack] = sorted(got[5:])  # after the first second or so
+            # With acks: the newest state when asked, whatever the reader's pace.
+            assert ages[True][-1] < 0.5, ages[True][-5:]  # benchmark target: 0.25 s p99
+            # Without: the backlog grows (the reason ?ack=1 exists).
+            assert ages[False][-1] > 1.0, ages[False][-5:]
+        finally:
+            stop.set()
+            publisher.join()
 
 
 def test_websocket_rejects_a_bad_rate_and_survives_disconnects():

@@ -307,3 +307,72 @@ def test_telemetry_read_in_small_blocks_is_the_same(session, monkeypatch):
             for name, col in whole.columns.items():
                 assert np.array_equal(col, blocks.columns[name], equal_nan=True), name
     assert whole.t_s.size > 500
+
+
+def test_lerobot_reads_back_the_way_lerobot_reads_it(lerobot, tmp_path):
+    """LeRobot's v3.0 reader, step by step, without LeRobot (it pulls in PyTorch): info
+    with tuple shapes, tasks through pandas indexed by the task text, episodes and rows
+    through Hugging Face `datasets` with the features LeRobot derives from info.json, and
+    video frames found at `from_timestamp + timestamp` within LeRobot's 1e-4 s."""
+    import datasets
+    import pandas as pd
+
+    info = json.loads((lerobot / "meta/info.json").read_text())
+    features = {}
+    for key, ft in info["features"].items():
+        shape = tuple(ft["shape"])
+        if ft["dtype"] == "video":
+            continue
+        if shape == (1,):
+            features[key] = datasets.Value(dtype=ft["dtype"])
+        else:
+            features[key] = datasets.Sequence(
+                length=shape[0], feature=datasets.Value(dtype=ft["dtype"])
+            )
+    tasks = pd.read_parquet(lerobot / "meta/tasks.parquet")
+    tasks.index.name = "task"
+    episodes = datasets.Dataset.from_parquet(
+        [str(p) for p in sorted((lerobot / "meta/episodes").glob("*/*.parquet"))],
+        cache_dir=str(tmp_path),  # datasets caches arrow copies: not in the home folder
+    )
+    rows = datasets.Dataset.from_parquet(
+        [str(p) for p in sorted((lerobot / "data").glob("*/*.parquet"))],
+        features=datasets.Features(features),
+        cache_dir=str(tmp_path),
+    ).with_format("numpy")
+    assert len(rows) == info["total_frames"] and len(episodes) == info["total_episodes"]
+    ep = episodes[0]
+    assert int(tasks.loc[ep["tasks"][0]].task_index) == 0
+    part = rows[ep["dataset_from_index"] : ep["dataset_to_index"]]
+    assert part["observation.state"].shape == (ep["length"], 18)
+    key = "observation.images.front"
+    path = lerobot / info["video_path"].format(
+        video_key=key,
+        chunk_index=ep[f"videos/{key}/chunk_index"],
+        file_index=ep[f"videos/{key}/file_index"],
+    )
+    ts = part["timestamp"]
+    query = [ep[f"videos/{key}/from_timestamp"] + float(ts[k]) for k in (0, len(ts) // 2, -1)]
+    found = []
+    with av.open(str(path)) as c:
+        s = c.streams.video[0]
+        c.seek(int(query[0] / s.time_base), stream=s, backward=True, any_frame=False)
+        for frame in c.decode(s):
+            t = float(frame.pts * s.time_base)
+            found += [q for q in query if abs(t - q) < 1e-4]
+            if t > query[-1]:
+                break
+    assert found == query
+
+
+def test_a_session_zip_exports_like_its_folder(session, tmp_path):
+    import shutil
+    import tempfile
+
+    archive = shutil.make_archive(str(tmp_path / session.name), "zip", session.parent, session.name)
+    unpacked = lambda: set(Path(tempfile.gettempdir()).glob("fpv-export-*"))  # noqa: E731
+    before = unpacked()
+    a = export_recordings([session], "minari", tmp_path / "a", ExportOptions(task_id=1))
+    b = export_recordings([Path(archive)], "minari", tmp_path / "b", ExportOptions(task_id=1))
+    assert (a.episodes, a.frames) == (b.episodes, b.frames) == (1, a.frames)
+    assert unpacked() == before  # the unpacked copy is gone

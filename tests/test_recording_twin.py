@@ -48,6 +48,13 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
     rel_alt = np.array([float(r["altitude.relative_alt_m"] or "nan") for r in rows])
     assert np.nanmax(rel_alt) == pytest.approx(4.0, abs=0.4)  # arming-relative
     assert {r["altitude.reference"] for r in rows} == {"arming"}
+    # What the vehicle said during the flight, on the session clock (messages.csv).
+    with open(folder / layout.MESSAGES_CSV, newline="") as f:
+        said = list(csv.DictReader(f))
+    assert tuple(said[0]) == layout.MESSAGE_COLUMNS if said else False
+    landing = [m for m in said if m["kind"] == "statustext" and "landing" in m["text"]]
+    assert landing and 0 < float(landing[-1]["t_s"]) <= t[-1] + 0.5
+    assert all(m["t_wall"] and 0 <= int(m["severity"]) <= 7 for m in said)
     assert abs(rel_alt[-1]) < 0.5  # landed again
     armed = np.array([r["heartbeat.armed"] == "1" for r in rows])
     assert armed[0] and not armed[-1]

@@ -6,6 +6,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.state_tracker import StateTracker
+from companion.vehicle_state import MESSAGES_KEPT
 from core.mavlink.framing import MavFramer
 from tests.mav_vehicle import MavVehicle
 
@@ -84,8 +85,37 @@ def test_every_group_is_filled():
     assert s.battery.remaining_pct == 87 and s.battery.current_a == pytest.approx(4.5)
     assert s.local_position.z_m == pytest.approx(0.0) and s.local_position.x_m == pytest.approx(1.0)
     for group in dataclasses.fields(s):
-        if group.name != "link":
+        if group.name not in ("link", "messages"):  # the station's own; a log (below)
             assert getattr(s, group.name).t_mono is not None, group.name
+
+
+def test_vehicle_messages_statustext_and_our_acks_only():
+    tracker = StateTracker(gcs_sysid=254)
+    framer = MavFramer()
+    ap = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+
+    def feed(msg, t):
+        for decoded in framer.feed(msg.pack(ap)):
+            tracker.update(decoded, t)
+
+    feed(ap.heartbeat_encode(2, 12, 0, 0, 3), 1.0)  # the autopilot: quadrotor, PX4
+    feed(ap.statustext_encode(mavlink.MAV_SEVERITY_CRITICAL, b"Arming denied: no GPS"), 2.0)
+    arm = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+    feed(ap.command_ack_encode(arm, mavlink.MAV_RESULT_DENIED, 0, 0, 254, 190), 2.1)
+    feed(ap.command_ack_encode(arm, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 255, 190), 2.2)  # QGC's
+    rates = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL  # our own housekeeping: not shown
+    feed(ap.command_ack_encode(rates, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 254, 190), 2.3)
+    msgs = tracker.state.messages
+    assert msgs.count == 2 and msgs.t_mono == 2.1
+    text, ack = msgs.recent
+    assert (text.kind, text.severity, text.text) == ("statustext", 2, "Arming denied: no GPS")
+    assert (ack.kind, ack.command, ack.result) == ("command_ack", "COMPONENT_ARM_DISARM", "DENIED")
+    assert ack.text == "COMPONENT_ARM_DISARM: DENIED" and ack.severity == 4
+    for i in range(40):  # the state keeps the newest few; the count says how many came
+        feed(ap.statustext_encode(6, f"line {i}".encode()), 3.0 + i)
+    msgs = tracker.state.messages
+    assert msgs.count == 42 and len(msgs.recent) == MESSAGES_KEPT
+    assert msgs.recent[-1].text == "line 39"
 
 
 def test_pilot_altitude_first_fix_then_arming_and_rearming():

@@ -50,7 +50,13 @@ def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None
         hello = json.loads(ws.recv(timeout=5))
         assert hello["type"] == "hello" and hello["deadman_s"] == 0.5
         ws.send(json.dumps({"type": "arm"}))
-        assert json.loads(ws.recv(timeout=5)) == {"type": "ack", "cmd": "arm", "ok": True}
+        reply = json.loads(ws.recv(timeout=5))  # what the vehicle answered, not what we sent
+        assert (reply["type"], reply["cmd"], reply["ok"], reply["result"]) == (
+            "ack",
+            "arm",
+            True,
+            "ACCEPTED",
+        )
         assert wait_until(lambda: state(app).heartbeat.armed, timeout=5)
         deadline = time.monotonic() + 10
         while twin.pose().pos_enu_m[2] < 2.0:  # full climb stick, as a gamepad sends it
@@ -69,6 +75,14 @@ def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None
         assert abs(twin.pose().pos_enu_m[2] - z0) < 0.3
         assert abs(twin.pose().vel_enu_mps[2]) < 0.3
         assert state(app).rc.pwm_us[2] == 1500
+        # A disarm in the air is refused by the vehicle, and the pilot is told why.
+        ws.send(json.dumps({"type": "disarm"}))
+        reply = json.loads(ws.recv(timeout=5))
+        assert reply["cmd"] == "disarm" and reply["ok"] is False and reply["result"] == "DENIED"
+        assert "in the air" in reply["text"]
+        assert state(app).heartbeat.armed
+        said = [m.text for m in state(app).messages.recent]
+        assert "COMPONENT_ARM_DISARM: DENIED" in said and any("in the air" in t for t in said)
         # Bad input gets the error shape and the connection stays.
         ws.send("not json")
         assert json.loads(ws.recv(timeout=5))["error"] == "BadRequest"

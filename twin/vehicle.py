@@ -234,11 +234,11 @@ class MavlinkVehicle:
             if msg.target_system not in (0, self.sysid):
                 return
             result, text = self._command(sim, CommandArgs.of(msg))
+            if text:  # the reason first, then the ack, as PX4's commander does
+                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
             self.mav.command_ack_send(
                 msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
             )
-            if text:
-                self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, text.encode()[:50])
         elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             if getattr(msg, "target_system", 0) not in (0, self.sysid):
                 return

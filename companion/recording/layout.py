@@ -21,7 +21,7 @@ import time
 import typing
 from datetime import UTC, datetime
 
-from companion.vehicle_state import VehicleState
+from companion.vehicle_state import LOG_GROUPS, VehicleState
 
 FORMAT_VERSION = 1
 
@@ -29,6 +29,16 @@ SESSION_JSON = "session.json"
 TELEMETRY_CSV = "telemetry.csv"
 MAVLINK_TLOG = "mavlink.tlog"  # records as core.mavlink.tlog_records writes them
 FRAMES_CSV = "frames.csv"  # inside each camera folder
+MESSAGES_CSV = "messages.csv"  # what the vehicle said: STATUSTEXT and COMMAND_ACK
+MESSAGE_COLUMNS: tuple[str, ...] = (
+    "t_s",
+    "t_wall",
+    "severity",
+    "kind",
+    "text",
+    "command",
+    "result",
+)
 CAMERAS: tuple[str, ...] = ("front", "bottom")
 
 # Session ids: UTC start time in ISO 8601 basic format, "_", a short source tag; a "-N"
@@ -116,6 +126,8 @@ def state_fields() -> list[tuple[str, str, int | None]]:
     out: list[tuple[str, str, int | None]] = []
     hints = typing.get_type_hints(VehicleState)
     for group in dataclasses.fields(VehicleState):
+        if group.name in LOG_GROUPS:  # logs have their own file (MESSAGES_CSV)
+            continue
         group_type = hints[group.name]
         for f in dataclasses.fields(group_type):
             n = _tuple_length(group_type, f)

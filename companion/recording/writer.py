@@ -161,6 +161,10 @@ class SessionWriter:
         self._csv = csv.writer(self._csv_file)
         self._csv.writerow(self.formatter.header)
         self._tlog = open(f / layout.MAVLINK_TLOG, "wb", buffering=1 << 16)
+        self._messages_file = open(f / layout.MESSAGES_CSV, "w", newline="", buffering=1 << 12)
+        self._messages_csv = csv.writer(self._messages_file)
+        self._messages_csv.writerow(layout.MESSAGE_COLUMNS)
+        self._messages_seen: int | None = None  # the state's message count at the last row
         self._frames_csv_files = {}
         self._frames_csv = {}
         for cam in self.cameras:
@@ -169,7 +173,12 @@ class SessionWriter:
             self._frames_csv_files[cam] = fc
             self._frames_csv[cam] = csv.writer(fc)
             self._frames_csv[cam].writerow(layout.FRAME_COLUMNS)
-        self._files = [self._csv_file, self._tlog, *self._frames_csv_files.values()]
+        self._files = [
+            self._csv_file,
+            self._tlog,
+            self._messages_file,
+            *self._frames_csv_files.values(),
+        ]
         self._flush_files()
 
     def _run(self) -> None:
@@ -256,10 +265,47 @@ class SessionWriter:
         while rows:
             sample = rows[0]
             self._csv.writerow(self.formatter.row(sample))
+            if sample.state is not None:
+                self._write_messages(sample)
             rows.popleft()
             st.rows_written += 1
             st.last_row_mono = sample.t_mono
             st.last_row_wall = sample.t_wall
+
+    def _write_messages(self, sample: Sample) -> None:
+        """The vehicle's messages that arrived since the previous row (messages.csv).
+        Messages from before the session started are not the session's."""
+        log_ = sample.state.messages
+        seen, self._messages_seen = self._messages_seen, log_.count
+        if seen is None or log_.count <= seen:
+            return
+        t0 = self.formatter.t0_mono
+        new = log_.recent[-(log_.count - seen) :]
+        if log_.count - seen > len(new):  # a burst beyond what the state keeps
+            self._messages_csv.writerow(
+                (
+                    round(new[0].t_mono - t0, 6),
+                    "",
+                    6,
+                    "station",
+                    f"{log_.count - seen - len(new)} older messages not kept in the burst (see mavlink.tlog)",
+                    "",
+                    "",
+                )
+            )
+        offset = sample.t_wall - sample.t_mono  # station monotonic -> Unix time
+        for m in new:
+            self._messages_csv.writerow(
+                (
+                    round(m.t_mono - t0, 6),
+                    round(m.t_mono + offset, 6),
+                    m.severity,
+                    m.kind,
+                    m.text,
+                    m.command or "",
+                    m.result or "",
+                )
+            )
 
     def _count_lost(self, frames, rows, packets) -> None:
         with self._cond:

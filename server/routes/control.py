@@ -13,6 +13,14 @@ Client -> station, JSON:
     {"type": "takeoff", "alt_m": 4} | {"type": "land"} | {"type": "reset"}
 Station -> client: {"type": "hello", ...}, {"type": "ack", "cmd": ..., "ok": ...} and the
 error shape {"error": Name, "error_msg": text} for anything refused.
+
+Arm, disarm, mode, take-off and land are answered with what the vehicle said, not with
+what the station sent: the ack waits (without holding up the sticks) for the vehicle's
+COMMAND_ACK, at most ACK_TIMEOUT_S, and carries its result and the vehicle's own words
+(STATUSTEXT since the command, e.g. PX4's "Arming denied: ..."):
+    {"type": "ack", "cmd": "disarm", "ok": false, "result": "DENIED",
+     "text": "Disarming denied: not landed"}
+`result` is "NO_ANSWER" when the vehicle did not answer in time.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ import contextlib
 import json
 import math
 import time
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, Field, ValidationError
@@ -83,13 +91,14 @@ async def _send_sticks(link: MavlinkLink, pilot: Pilot, target: int) -> None:
         await asyncio.sleep(max(0.0, next_t - time.monotonic()))
 
 
-def _command(station: Station, link: MavlinkLink, cmd: Command) -> None:
-    """Arm, mode, take-off and land go through the link as for any vehicle."""
+def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
+    """Arm, mode, take-off and land go through the link as for any vehicle; returns the
+    MAV_CMD sent (None for a reset, which the twin does at once)."""
     twin, mav = station.twin, link.mav
     assert twin is not None  # the route refuses a station without the twin
     if cmd.type == "reset":
         twin.reset()
-        return
+        return None
     if cmd.type in ("arm", "disarm"):
         arm = 1.0 if cmd.type == "arm" else 0.0
         msg = mav.command_long_encode(
@@ -116,6 +125,41 @@ def _command(station: Station, link: MavlinkLink, cmd: Command) -> None:
         nan = math.nan
         msg = mav.command_long_encode(1, 1, mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, nan, nan, nan, 0)
     link.send(msg)
+    return msg.command
+
+
+ACK_TIMEOUT_S = 3.0
+REASON_GRACE_S = 0.3
+
+
+async def vehicle_answer(station: Station, command: int, since_mono: float) -> dict[str, Any]:
+    """The vehicle's COMMAND_ACK of `command` sent at `since_mono` (station clock), with
+    its STATUSTEXT since then: {"ok", "result", "text"}."""
+    name = mavlink.enums["MAV_CMD"][command].name.removeprefix("MAV_CMD_")
+    deadline = since_mono + ACK_TIMEOUT_S
+    version, answer = 0, None
+    while (left := deadline - time.monotonic()) > 0:
+        current = await station.state.wait_newer(version, timeout=left)
+        if current is not None:
+            version = current.version
+            said = [m for m in current.value.messages.recent if m.t_mono >= since_mono]
+            acks = [m for m in said if m.kind == "command_ack" and m.command == name]
+            words = [m.text for m in said if m.kind == "statustext"]
+            if acks:
+                ack = acks[-1]
+                ok = ack.result in ("ACCEPTED", "IN_PROGRESS")
+                answer = {"ok": ok, "result": ack.result, "text": "; ".join(words) or ack.text}
+                # A refusal's reason may follow it (ArduPilot sends it after the ack).
+                if ok or words:
+                    return answer
+                deadline = min(deadline, ack.t_mono + REASON_GRACE_S)
+    if answer is not None:
+        return answer
+    return {
+        "ok": False,
+        "result": "NO_ANSWER",
+        "text": f"The vehicle did not answer {name} within {ACK_TIMEOUT_S:g} s.",
+    }
 
 
 @router.websocket("/ws/control")
@@ -145,10 +189,21 @@ async def ws_control(ws: WebSocket) -> None:
         return
     pilot = station.pilot = Pilot()
     sender = station.tasks.spawn("control-sticks", _send_sticks(link, pilot, 1))
+    send_lock = asyncio.Lock()  # acks are sent from their own tasks
+    answers: set[asyncio.Task[None]] = set()
+
+    async def send(text: str) -> None:
+        async with send_lock:
+            await ws.send_text(text)
+
+    async def answer(cmd: Command, command: int, sent_at: float) -> None:
+        # Its own task: sticks keep flowing while the vehicle thinks it over.
+        reply = await vehicle_answer(station, command, sent_at)
+        with contextlib.suppress(WebSocketDisconnect, RuntimeError, ConnectionError):
+            await send(json.dumps({"type": "ack", "cmd": cmd.type, **reply}))
+
     try:
-        await ws.send_text(
-            json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S})
-        )
+        await send(json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S}))
         while True:
             text = await ws.receive_text()
             try:
@@ -160,15 +215,23 @@ async def ws_control(ws: WebSocket) -> None:
                     pilot.sticks, pilot.at = (s.roll, s.pitch, s.yaw, s.throttle), time.monotonic()
                     continue
                 cmd = Command.model_validate(data)
-                _command(station, link, cmd)
-                await ws.send_text(json.dumps({"type": "ack", "cmd": cmd.type, "ok": True}))
+                sent_at = time.monotonic()
+                command = _command(station, link, cmd)
+                if command is None:  # done by the station itself (reset)
+                    await send(json.dumps({"type": "ack", "cmd": cmd.type, "ok": True}))
+                    continue
+                task = asyncio.create_task(answer(cmd, command, sent_at))
+                answers.add(task)
+                task.add_done_callback(answers.discard)
             except (ValueError, ValidationError) as exc:
-                await ws.send_text(_error("BadRequest", f"Bad control message: {exc}"[:500]))
+                await send(_error("BadRequest", f"Bad control message: {exc}"[:500]))
             except ApiError as exc:
-                await ws.send_text(_error("BadRequest", exc.message))
+                await send(_error("BadRequest", exc.message))
     except (WebSocketDisconnect, RuntimeError, ConnectionError):
         pass
     finally:
+        for task in answers:
+            task.cancel()
         sender.cancel()
         with contextlib.suppress(asyncio.CancelledError, Exception):
             await sender

@@ -5,12 +5,19 @@ reads slowly (or not at all) blocks only its own coroutine in `send_text`, then 
 to the newest state; nothing queues and no client delays another. `?max_rate=` caps
 the messages per second for that client (default 50). The JSON body is built once per
 state version and shared (`server.telemetry_json`).
+
+`?ack=1`: bounded staleness for slow clients (a busy phone, goggles on weak Wi-Fi). The
+kernel's socket buffers hold whatever `send_text` handed over, so a client that reads
+slowly still falls seconds behind without it. With acks the station keeps at most one
+unacknowledged message in flight: the client sends `{"ack": <version>}` after handling a
+message, and the next message is the newest state at that moment, never a queue.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
@@ -20,31 +27,69 @@ router = APIRouter(tags=["telemetry"])
 _IDLE_CHECK_S = 1.0  # how often an idle handler looks whether its client went away
 
 
-async def _until_disconnect(ws: WebSocket) -> None:
-    """Read (and ignore) what the client sends; returns when it disconnects."""
-    with contextlib.suppress(WebSocketDisconnect, RuntimeError):
-        while True:
-            msg = await ws.receive()
-            if msg["type"] == "websocket.disconnect":
-                return
+class _ClientAcks:
+    """Reads what the client sends until it disconnects; keeps the newest `{"ack": n}`."""
+
+    def __init__(self) -> None:
+        self.acked = 0
+        self.changed = asyncio.Event()
+        self.gone = False
+
+    async def read_until_disconnect(self, ws: WebSocket) -> None:
+        try:
+            with contextlib.suppress(WebSocketDisconnect, RuntimeError):
+                while True:
+                    msg = await ws.receive()
+                    if msg["type"] == "websocket.disconnect":
+                        return
+                    self._note(msg.get("text"))
+        finally:
+            self.gone = True
+            self.changed.set()  # a handler waiting for an ack ends now
+
+    def _note(self, text: str | None) -> None:
+        if not text or len(text) > 100:  # an ack is tiny; anything else is ignored
+            return
+        try:
+            ack = json.loads(text).get("ack")
+        except (ValueError, AttributeError):
+            return
+        if isinstance(ack, int) and not isinstance(ack, bool) and ack > self.acked:
+            self.acked = ack
+            self.changed.set()
+
+    async def wait_for(self, version: int, within_s: float) -> bool:
+        """True once `version` is acknowledged; False after `within_s` without it or
+        when the client has gone."""
+        while self.acked < version and not self.gone:
+            self.changed.clear()
+            try:
+                await asyncio.wait_for(self.changed.wait(), within_s)
+            except TimeoutError:
+                return False
+        return not self.gone
 
 
 @router.websocket("/ws/telemetry")
 async def ws_telemetry(
     ws: WebSocket,
     max_rate: float = Query(50.0, gt=0, le=1000, description="messages per second, at most"),
+    ack: bool = Query(False, description='at most one message in flight: send {"ack": version}'),
 ) -> None:
     station = ws.app.state.station
     slot = station.state
     shared = station.telemetry_json
     min_interval_s = 1.0 / max_rate
     await ws.accept()
-    # Held and cancelled below: it only exists to notice the client leaving while idle.
-    watcher = asyncio.ensure_future(_until_disconnect(ws))
+    acks = _ClientAcks()
+    # Held and cancelled below: it notices the client leaving (and reads its acks).
+    watcher = asyncio.ensure_future(acks.read_until_disconnect(ws))
     version = 0
     next_send = 0.0
     try:
         while not watcher.done():
+            if ack and not await acks.wait_for(version, _IDLE_CHECK_S):
+                continue  # the last message is still in flight: look again for a leave
             current = await slot.wait_newer(version, timeout=_IDLE_CHECK_S)
             if slot.closed:
                 break
