@@ -13,6 +13,8 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import anyio
+
 from companion.latest import Latest
 from companion.link import MavlinkLink
 from companion.recording.recorder import Recorder
@@ -21,6 +23,7 @@ from server.pilot import Pilot
 from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
+from server.video_fanout import FrameFanout
 
 if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up time
     from companion.cameras.capture import Camera
@@ -30,6 +33,11 @@ if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up
 
 
 log = logging.getLogger(__name__)
+
+# Analyses at once: each is CPU-bound numpy/matplotlib, and the Pi's two spare cores
+# belong to telemetry and video first. Others wait their turn (bounded by the server's
+# thread pool), they are not refused.
+CONCURRENT_ANALYSES = 1
 
 
 @dataclass
@@ -46,6 +54,11 @@ class Station:
     cameras: dict[str, Camera] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
     replay3d: Replay3D | None = None  # the replay's viser panel; None with --no-3d
+    # One MJPEG fan-out per camera, shared by all its viewers (server.video_fanout).
+    video_fanouts: dict[str, FrameFanout] = field(default_factory=dict)
+    # The analysis routes' worker threads, CONCURRENT_ANALYSES at once; made in
+    # open_station, inside the event loop that anyio's limiter needs.
+    analysis_limiter: anyio.CapacityLimiter | None = None
     twin: Twin | None = None  # the digital twin when link.source is "sim"
     pilot: Pilot | None = None  # who has the twin's sticks (/ws/control), one at a time
 
@@ -53,6 +66,7 @@ class Station:
 @contextlib.asynccontextmanager
 async def open_station(settings: Settings) -> AsyncIterator[Station]:
     station = Station(settings=settings)
+    station.analysis_limiter = anyio.CapacityLimiter(CONCURRENT_ANALYSES)
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
 
@@ -114,6 +128,8 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
             retry_min_s=cams.retry_min_s,
             retry_max_s=cams.retry_max_s,
         )
+    for name, camera in station.cameras.items():
+        station.video_fanouts[name] = FrameFanout(name, camera.frames, station.tasks.spawn)
     start_cameras(station.cameras.values())
     stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
 

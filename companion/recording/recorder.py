@@ -15,10 +15,9 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable, Coroutine, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from companion.latest import Latest
 from companion.recording import diskspace
@@ -27,10 +26,9 @@ from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.store import SessionStore
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
+from core.spawn import Spawn
 
 log = logging.getLogger(__name__)
-
-Spawn = Callable[[str, Coroutine[Any, Any, Any]], Any]
 
 
 @dataclass(frozen=True)

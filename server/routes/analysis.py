@@ -39,10 +39,6 @@ from server.routes.trajectory import reference_param
 
 router = APIRouter(tags=["analysis"])
 MAX_SESSIONS = 8
-# Analyses at once: each is CPU-bound numpy/matplotlib, and the Pi's two spare cores
-# belong to telemetry and video first. Others wait their turn (bounded by the server's
-# thread pool), they are not refused.
-CONCURRENT_ANALYSES = 1
 
 
 class Unprocessable(ApiError):
@@ -165,10 +161,7 @@ async def _run(
         except ae.AnalysisError as exc:  # store errors: 400/404 by server.errors
             raise _api_error(exc) from None
 
-    limiter = getattr(request.app.state, "analysis_limiter", None)
-    if limiter is None:  # made on first use, inside the app's event loop
-        limiter = anyio.CapacityLimiter(CONCURRENT_ANALYSES)
-        request.app.state.analysis_limiter = limiter
+    limiter = request.app.state.station.analysis_limiter
     return await anyio.to_thread.run_sync(work, limiter=limiter)
 
 
