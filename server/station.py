@@ -23,6 +23,7 @@ from server.pilot import Pilot
 from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
+from server.trials import Trials, station_scene
 from server.video_fanout import FrameFanout
 
 if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up time
@@ -33,11 +34,6 @@ if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up
 
 
 log = logging.getLogger(__name__)
-
-# Analyses at once: each is CPU-bound numpy/matplotlib, and the Pi's two spare cores
-# belong to telemetry and video first. Others wait their turn (bounded by the server's
-# thread pool), they are not refused.
-CONCURRENT_ANALYSES = 1
 
 
 @dataclass
@@ -56,17 +52,19 @@ class Station:
     replay3d: Replay3D | None = None  # the replay's viser panel; None with --no-3d
     # One MJPEG fan-out per camera, shared by all its viewers (server.video_fanout).
     video_fanouts: dict[str, FrameFanout] = field(default_factory=dict)
-    # The analysis routes' worker threads, CONCURRENT_ANALYSES at once; made in
-    # open_station, inside the event loop that anyio's limiter needs.
-    analysis_limiter: anyio.CapacityLimiter | None = None
     twin: Twin | None = None  # the digital twin when link.source is "sim"
     pilot: Pilot | None = None  # who has the twin's sticks (/ws/control), one at a time
+    # One analysis at a time (REST analysis and trial scoring): each is CPU-bound numpy and
+    # matplotlib, and the Pi's cores belong to flying first. Made in open_station: an
+    # anyio limiter belongs to the running event loop.
+    analysis_limiter: anyio.CapacityLimiter | None = None
+    trials: Trials | None = None  # the flight task chosen and its trials' scores
 
 
 @contextlib.asynccontextmanager
 async def open_station(settings: Settings) -> AsyncIterator[Station]:
     station = Station(settings=settings)
-    station.analysis_limiter = anyio.CapacityLimiter(CONCURRENT_ANALYSES)
+    station.analysis_limiter = anyio.CapacityLimiter(1)
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
 
@@ -91,6 +89,17 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
         # -- recorder (after the link and cameras it records) -----------------------
         station.recorder = await _open_recorder(station, stack)
+
+        # -- flight tasks: chosen for the sessions, scored when they end -------------
+        scene, scene_file, is_field = station_scene(settings)  # bad file: logged, default
+        station.trials = Trials(
+            scene,
+            scene_file,
+            is_field,
+            station.recorder,
+            station.tasks.spawn,
+            station.analysis_limiter,
+        )
 
         # -- 3D trajectory panel (after the link whose state it draws) ----------------
         if settings.viser.enabled:

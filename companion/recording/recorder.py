@@ -21,6 +21,7 @@ from pathlib import Path
 
 from companion.latest import Latest
 from companion.recording import diskspace
+from companion.recording.meta import SessionMeta, SessionTask
 from companion.recording.recovery import mark_interrupted
 from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.store import SessionStore
@@ -82,6 +83,11 @@ class Recorder:
         self.last_stop: LastStop | None = None
         self.last_error: str | None = None
         self._lock = asyncio.Lock()
+        # The flight task written into each new session (server.trials sets it).
+        self.task: SessionTask | None = None
+        # Called on the event loop with each finished session (its final metadata and
+        # folder); must not block (server.trials spawns the scoring off the loop).
+        self.session_end_hooks: list[Callable[[SessionMeta, Path], None]] = []
         self._spawn: Spawn | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tail: asyncio.TimerHandle | None = None
@@ -147,6 +153,7 @@ class Recorder:
                 self.options.session,
                 trigger,
                 self._on_writer_failure,
+                task=self.task,
             )
         except OSError as exc:
             raise RecorderError(
@@ -173,6 +180,11 @@ class Recorder:
                     session.id, meta.stop_reason or reason, meta.end_wall or time.time()
                 )
                 log.info("recording session %s stopped: %s", session.id, meta.stop_reason)
+                for hook in self.session_end_hooks:
+                    try:
+                        hook(meta, session.folder)
+                    except Exception:  # a consumer's bug must not break stopping
+                        log.exception("session-end hook %r failed", hook)
         return self.status()
 
     def on_packet(self, t_wall: float, packet: bytes) -> None:

@@ -21,7 +21,14 @@ from typing import Any
 
 from companion.latest import Latest
 from companion.recording import layout
-from companion.recording.meta import Arming, CameraQuality, Quality, SessionMeta, write_meta
+from companion.recording.meta import (
+    Arming,
+    CameraQuality,
+    Quality,
+    SessionMeta,
+    SessionTask,
+    write_meta,
+)
 from companion.recording.quality import LinkLossTracker, SkewStats
 from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.store import create_session_dir
@@ -65,9 +72,11 @@ class RecordingSession:
         config: SessionConfig,
         trigger: str = "api",
         on_failure: Callable[[str, str], None] | None = None,
+        task: SessionTask | None = None,
     ) -> None:
         self.config = config
         self.trigger = trigger
+        self.task = task  # the flight task chosen when the session started
         self._state = state
         self._camera_slots = dict(cameras)
         self.cameras: tuple[str, ...] = tuple(cameras)
@@ -319,6 +328,7 @@ class RecordingSession:
             trigger=self.trigger,
             arming=self._arming,
             quality=quality,
+            task=self.task,
         )
 
 

@@ -161,7 +161,7 @@ async def _run(
         except ae.AnalysisError as exc:  # store errors: 400/404 by server.errors
             raise _api_error(exc) from None
 
-    limiter = request.app.state.station.analysis_limiter
+    limiter = request.app.state.station.analysis_limiter  # one analysis at a time
     return await anyio.to_thread.run_sync(work, limiter=limiter)
 
 
