@@ -70,7 +70,11 @@ async def open_recorder(
 ) -> Recorder:
     """Build the recorder, hook it to the link, mark cut-off sessions; stops with `stack`."""
     recorder = Recorder(
-        settings.recording.sessions_dir, state, cameras, recorder_options(settings, camera_fps)
+        settings.recording.sessions_dir,
+        state,
+        cameras,
+        recorder_options(settings, camera_fps),
+        clock=link.clock if link is not None else None,
     )
     if link is not None:
         link.add_packet_listener(recorder.on_packet)

@@ -79,7 +79,8 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.state = station.link.state
         elif source != "none":
             link = MavlinkLink(settings.link)
-            link.start()
+            if not link.clock.own:  # a replay starts below, once its recorder listens
+                link.start()
             stack.callback(link.stop)
             station.link = link
             station.state = link.state
@@ -89,6 +90,10 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
         # -- recorder (after the link and cameras it records) -----------------------
         station.recorder = await _open_recorder(station, stack)
+        if station.link is not None and not station.link.running and station.link.clock.own:
+            # A replay on its own clock: at full speed it would be over before the recorder
+            # listened (companion/source_clock.py).
+            station.link.start()
 
         # -- flight tasks: chosen for the sessions, scored when they end -------------
         scene, scene_file, is_field = station_scene(settings)  # bad file: logged, default
