@@ -21,12 +21,12 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.latest import Latest
 from companion.link_health import HealthMeter, LinkHealth, RateChange
+from companion.link_settings import LinkSettings
 from companion.source_clock import SourceClock
 from companion.state_tracker import StateTracker
 from companion.stream_request import StreamRequester
@@ -40,9 +40,6 @@ from companion.transports import (
 from companion.vehicle_state import VehicleState
 from core.mavlink.framing import MavFramer, packet_version
 from core.mavlink.tlog_records import TlogReader
-
-if TYPE_CHECKING:  # the settings model lives with the others in server.settings
-    from server.settings import LinkSettings
 
 log = logging.getLogger(__name__)
 

@@ -34,10 +34,9 @@ from companion.recording.store import SessionStore
 from companion.source_clock import SourceClock
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
+from core.spawn import Spawn
 
 log = logging.getLogger(__name__)
-
-Spawn = Callable[[str, Coroutine[Any, Any, Any]], Any]
 
 
 @dataclass(frozen=True)
