@@ -39,6 +39,30 @@ TASK_TITLES = {
 }
 
 
+# The paper's published results (its Tables for tasks 1-4: the same pilot on the physical
+# quadcopter and on the digital twin), to set a trial beside. Hover: distance from the
+# origin; the others: lateral (std of y) and height (std of z) deviation; all in metres,
+# trial time in seconds.
+PAPER_RESULTS: dict[str, dict[str, dict[str, float]]] = {
+    "hover": {
+        "physical": {"hover_distance_m": 0.3691, "height_deviation_m": 0.0733, "trial_time_s": 63.4972},
+        "twin": {"hover_distance_m": 0.1056, "height_deviation_m": 0.0693, "trial_time_s": 68.4444},
+    },
+    "a-to-b": {
+        "physical": {"lateral_deviation_m": 0.6728, "height_deviation_m": 0.3654, "trial_time_s": 110.3442},
+        "twin": {"lateral_deviation_m": 1.0038, "height_deviation_m": 0.0302, "trial_time_s": 87.5617},
+    },
+    "obstacle": {
+        "physical": {"lateral_deviation_m": 2.3556, "height_deviation_m": 0.0648, "trial_time_s": 154.9210},
+        "twin": {"lateral_deviation_m": 2.7866, "height_deviation_m": 0.3042, "trial_time_s": 104.0227},
+    },
+    "figure8": {
+        "physical": {"lateral_deviation_m": 2.7589, "height_deviation_m": 0.1579, "trial_time_s": 232.8868},
+        "twin": {"lateral_deviation_m": 2.4729, "height_deviation_m": 0.5843, "trial_time_s": 96.1778},
+    },
+}  # fmt: skip
+
+
 @dataclass(frozen=True)
 class TaskParams:
     """Every threshold of the method; the defaults are the paper's."""
@@ -99,6 +123,7 @@ class TaskResult:
     origin_lat_deg: float
     origin_lon_deg: float
     origin_alt_m: float
+    flight: int | None = None  # which flight of its file (1-based), when split into flights
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

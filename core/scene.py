@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -89,6 +90,17 @@ class Obstacle(_Frozen):
         return np.vstack([bottom, top])
 
 
+# How the paper scores each kind of task (analysis.tasks implements them).
+TaskAnalysis = Literal["hover", "a-to-b", "obstacle", "figure8"]
+# The paper's four tasks by number, for scene files that do not name their analysis.
+PAPER_TASK_ANALYSIS: dict[int, TaskAnalysis] = {
+    1: "hover",
+    2: "a-to-b",
+    3: "obstacle",
+    4: "figure8",
+}
+
+
 class Task(_Frozen):
     id: int
     name: str
@@ -98,6 +110,12 @@ class Task(_Frozen):
     hold_s: float = Field(0.0, ge=0)
     circle_obstacle: str | None = None
     procedure: list[str] = Field(default_factory=list)
+    # How a trial of this task is scored; None: the paper's task of the same number.
+    analysis: TaskAnalysis | None = None
+
+    @property
+    def analysis_task(self) -> TaskAnalysis | None:
+        return self.analysis or PAPER_TASK_ANALYSIS.get(self.id)
 
 
 class Scene(_Frozen):

@@ -18,6 +18,7 @@ from server.routes import (
     replay3d,
     sessions,
     status,
+    task,
     telemetry,
     trajectory,
     video,
@@ -54,5 +55,6 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(trajectory.router)
     app.include_router(replay3d.router)
     app.include_router(control.router)
+    app.include_router(task.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

@@ -13,6 +13,7 @@ import pytest
 
 from analysis.report import analyze_paths
 from core.mavlink.tlog_records import encode_record
+from tests.helpers import wait_until
 from twin.pilot import Observation, Pilot, task_plan
 from twin.runner import Twin
 
@@ -103,24 +104,73 @@ def test_twin_and_synthetic_physical_compare_in_one_table(sessions):
 
 
 def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
-    """End to end: `--source sim` station, the scripted pilot flies task 1, the recorder
-    starts on arming and stops after landing, and the REST analysis of that session (the
-    recorder's own telemetry.csv from the live link) gives a hover near the pad."""
+    """End to end: `--source sim` station, the pilot picks task 1 (POST /api/task), the
+    scripted pilot flies it, the recorder starts on arming and stops after landing, the
+    station scores the trial on its own, and that score is what the REST analysis and
+    `fpv-station analyze --task hover` give for the session."""
     import httpx
 
+    from server.cli import main as cli_main
     from tests.twin_flights import recorded_twin_flight
+
+    def choose_task_1(base: str) -> None:
+        r = httpx.post(f"{base}/api/task", json={"task_id": 9}, timeout=5)
+        assert r.status_code == 400 and "No task 9" in r.json()["error_msg"]
+        r = httpx.post(f"{base}/api/task", json={"task_id": 1}, timeout=5)
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert body["selected"]["name"] == "Take off, hover, land"
+        assert body["paper"]["twin"]["hover_distance_m"] == 0.1056
 
     # Real time (viser off, cameras off): the recorder stamps wall time.
     overrides = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
-    with recorded_twin_flight(tmp_path, 1, overrides) as flight:
+    with recorded_twin_flight(tmp_path, 1, overrides, before_flight=choose_task_1) as flight:
         r = httpx.get(
             f"{flight.base_url}/api/sessions/{flight.session_id}/analysis",
             params={"task": "hover"},
             timeout=60,
         )
+        assert wait_until(lambda: httpx.get(f"{flight.base_url}/api/task").json()["last_score"], 60)
+        task = httpx.get(f"{flight.base_url}/api/task").json()
+        listed = httpx.get(f"{flight.base_url}/api/sessions").json()
     assert r.status_code == 200, r.text
     res = r.json()["results"][0]
     assert res["platform"] == "twin" and res["reference_kind"] == "scene"
     assert res["hover_distance_m"] < 0.5 and res["window_samples"] >= 40  # 5 Hz GPS, 10 s
     assert 10 < res["trial_time_s"] < 60 and res["obstacle_contacts"] == 0
     assert res["height_deviation_m"] < 0.5
+    # Scored on landing, with the same code: the same numbers as REST and the CLI.
+    score = task["last_score"]
+    assert task["last_session"] == flight.session_id and score["ok"] and score["task"] == "hover"
+    for key in ("hover_distance_m", "height_deviation_m", "trial_time_s"):
+        assert score["result"][key] == res[key]
+    out = tmp_path / "cli"
+    assert cli_main(["analyze", "--task", "hover", str(flight.folder), "--out", str(out)]) == 0
+    cli = json.loads((out / "hover_table.json").read_text())
+    cli_row = cli["results"][0] if isinstance(cli, dict) else cli[0]
+    assert cli_row["hover_distance_m"] == pytest.approx(score["result"]["hover_distance_m"])
+    assert [a["session"] for a in task["attempts"]] == [flight.session_id]
+    # The session knows its task and its score; the sessions list shows both.
+    meta = json.loads((flight.folder / "session.json").read_text())
+    assert meta["task"]["id"] == 1 and meta["task"]["analysis"] == "hover"
+    assert meta["score"]["result"]["hover_distance_m"] == score["result"]["hover_distance_m"]
+    row = next(s for s in listed if s["id"] == flight.session_id)
+    assert row["task"]["name"] == "Take off, hover, land" and row["score"]["ok"]
+
+
+def test_an_aborted_trial_says_why(tmp_path):
+    """Task 1 chosen, but the pilot lands from 2 m: no score, and the reason in words."""
+    import httpx
+
+    from tests.twin_flights import recorded_twin_flight
+    from twin.pilot import Leg
+
+    def choose(base: str) -> None:
+        assert httpx.post(f"{base}/api/task", json={"task_id": 1}).status_code == 200
+
+    legs = [Leg("arm"), Leg("climb", alt_m=2.0), Leg("hold", alt_m=2.0, seconds=2.0), Leg("land")]
+    overrides = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    with recorded_twin_flight(tmp_path, 1, overrides, before_flight=choose, legs=legs) as flight:
+        assert wait_until(lambda: httpx.get(f"{flight.base_url}/api/task").json()["last_score"], 60)
+        score = httpx.get(f"{flight.base_url}/api/task").json()["last_score"]
+    assert score["ok"] is False and "never reached 4 m" in score["reason"]

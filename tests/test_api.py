@@ -65,7 +65,7 @@ def test_openapi_documents_every_endpoint_with_models():
         assert "relative_alt_m" in schemas["PilotAltitude"]["properties"]
         assert "/ws/telemetry" in httpx.get(f"{base}/").text or True  # page loads
         assert httpx.get(f"{base}/").status_code == 200
-        assert httpx.get(f"{base}/app.js").status_code == 200
+        assert httpx.get(f"{base}/flight-state.js").status_code == 200
 
 
 def publish_states(slot, n, hz):

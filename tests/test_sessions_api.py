@@ -56,6 +56,7 @@ def test_record_list_meta_and_files(server):
         "session.json",
         "telemetry.csv",
         "mavlink.tlog",
+        "messages.csv",
         "front/frames.csv",
         "bottom/frames.csv",
     }

@@ -8,7 +8,7 @@ one of the scene's tasks, and yields once the recorder has closed the session.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +34,11 @@ def recorded_twin_flight(
     task_id: int,
     overrides: dict[str, Any] | None = None,
     timeout_s: float = 120.0,
+    before_flight: Callable[[str], None] | None = None,
+    legs: list[Leg] | None = None,
 ) -> Iterator[RecordedFlight]:
+    """`before_flight(base_url)` runs once the station is up; `legs` replace the task's
+    scripted plan (an aborted trial, say)."""
     settings = load_settings(
         None,
         {
@@ -52,7 +56,9 @@ def recorded_twin_flight(
         station = app.state.station
         state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
         assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 20)
-        legs = task_plan(station.twin.scene, task_id)
+        if before_flight is not None:
+            before_flight(base)
+        legs = list(legs) if legs is not None else task_plan(station.twin.scene, task_id)
         # A pilot waits on the pad a moment after arming. It matters here: recording
         # starts when the station sees the armed HEARTBEAT (1 Hz), so a take-off within
         # that second would be missing from the session.

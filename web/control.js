@@ -9,228 +9,206 @@
 // Gamepad: axis mapping, inversion and calibration are kept in localStorage
 // ("fpv.control.gamepad"); default = Mode 2 on a standard pad (left: yaw/throttle,
 // right: roll/pitch).
+// A station with a control token refuses the socket (close 4401): lib.js asks for the
+// token and the socket opens again with it.
 // Test hook: window.fpv.control = {enabled, sticks, input, lastReply}.
-"use strict";
+import { $, api, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
 
-(() => {
-  const RATE_MS = 20;
-  const STORE_KEY = "fpv.control.gamepad";
-  const TOKEN_KEY = "fpv.token";
-  const FUNCS = ["roll", "pitch", "yaw", "throttle"];
-  const DEFAULT_MAP = {
-    roll: { index: 2, invert: false }, pitch: { index: 3, invert: true },
-    yaw: { index: 0, invert: false }, throttle: { index: 1, invert: true },
+const RATE_MS = 20;
+const STORE_KEY = "fpv.control.gamepad";
+const FUNCS = ["roll", "pitch", "yaw", "throttle"];
+const DEFAULT_MAP = {
+  roll: { index: 2, invert: false }, pitch: { index: 3, invert: true },
+  yaw: { index: 0, invert: false }, throttle: { index: 1, invert: true },
+};
+const fpv = (window.fpv = window.fpv || {});
+const ctl = (fpv.control = { enabled: false, sticks: null, input: "keyboard", lastReply: null });
+
+let config = loadConfig();
+let socket = null;
+let timer = null;
+let calibrating = null; // {min: [], max: []} while the user sweeps the sticks
+const keys = new Set();
+
+// ---- widget in the toolbar ----
+const box = $("control-widget");
+box.innerHTML = `
+  <button type="button" id="ctl-toggle" title="fly the twin from this browser">Sticks: off</button>
+  <span id="ctl-input" class="pill">keyboard</span>
+  <button type="button" id="ctl-arm">Arm</button>
+  <button type="button" id="ctl-disarm">Disarm</button>
+  <select id="ctl-mode" title="flight mode">
+    <option value="POSCTL">Position</option><option value="ALTCTL">Altitude</option>
+    <option value="STABILIZED">Stabilized</option></select>
+  <button type="button" id="ctl-reset" title="back on the start pad">Reset</button>
+  <details id="ctl-pad"><summary>Gamepad</summary><div id="ctl-pad-body"></div></details>`;
+
+$("ctl-toggle").onclick = () => (ctl.enabled ? stop() : start());
+$("ctl-arm").onclick = () => command({ type: "arm" });
+$("ctl-disarm").onclick = () => command({ type: "disarm" });
+$("ctl-reset").onclick = () => command({ type: "reset" });
+$("ctl-mode").onchange = (e) => command({ type: "mode", mode: e.target.value });
+renderPadPanel();
+
+api("/api/status").then((s) => { box.hidden = s.source !== "sim"; }).catch(() => {});
+
+// ---- connection ----
+function start() {
+  const ws = (socket = new WebSocket(wsUrl("/ws/control", { auth: true })));
+  ws.onmessage = (ev) => {
+    let msg;
+    try { msg = JSON.parse(ev.data); } catch (err) { return; }
+    ctl.lastReply = msg;
+    if (msg.error) {
+      $("ctl-input").textContent = msg.error_msg.slice(0, 60);
+      $("ctl-input").className = "pill bad";
+    }
   };
-  const fpv = (window.fpv = window.fpv || {});
-  const ctl = (fpv.control = { enabled: false, sticks: null, input: "keyboard", lastReply: null });
+  ws.onopen = () => {
+    ctl.enabled = true;
+    $("ctl-input").className = "pill";
+    $("ctl-toggle").textContent = "Sticks: on";
+    $("ctl-toggle").classList.add("on");
+    timer = setInterval(tick, RATE_MS);
+  };
+  ws.onclose = (ev) => {
+    if (ws !== socket) return; // an old socket, already replaced
+    stop();
+    if (ev.code === CLOSE_UNAUTHORIZED && askToken()) start();
+  };
+}
 
-  let config = loadConfig();
-  let socket = null;
-  let timer = null;
-  let calibrating = null; // {min: [], max: []} while the user sweeps the sticks
-  const keys = new Set();
+function stop() {
+  ctl.enabled = false;
+  clearInterval(timer);
+  timer = null;
+  if (socket && socket.readyState <= 1) socket.close();
+  socket = null;
+  $("ctl-toggle").textContent = "Sticks: off";
+  $("ctl-toggle").classList.remove("on");
+}
 
-  // ---- widget in the toolbar ----
-  const toolbar = document.getElementById("toolbar") || document.body;
-  let box = document.getElementById("control-widget");
-  if (!box) {
-    box = document.createElement("span");
-    box.id = "control-widget";
-    toolbar.appendChild(box);
+// A command before the sticks are on opens the socket and waits for it (3 s at most).
+function command(msg, tries = 10) {
+  if (socket && socket.readyState === 1) return socket.send(JSON.stringify(msg));
+  if (!socket) start();
+  if (tries > 0) setTimeout(() => command(msg, tries - 1), 300);
+}
+
+function tick() {
+  const pad = firstGamepad();
+  const sticks = pad ? fromGamepad(pad) : fromKeyboard();
+  ctl.input = pad ? "gamepad" : "keyboard";
+  ctl.sticks = sticks;
+  if (calibrating && pad) sweep(pad);
+  const pill = $("ctl-input");
+  if (!pill.classList.contains("bad")) {
+    // Some browsers offer gamepads only to secure pages (https or localhost).
+    const noPads = !navigator.getGamepads && !window.isSecureContext;
+    pill.textContent = pad ? pad.id.slice(0, 24) : noPads ? "keyboard (gamepad needs https)" : "keyboard";
   }
-  box.hidden = true;
-  box.innerHTML = `
-    <button type="button" id="ctl-toggle" title="fly the twin from this browser">Sticks: off</button>
-    <span id="ctl-input" class="pill">keyboard</span>
-    <button type="button" id="ctl-arm">Arm</button>
-    <button type="button" id="ctl-disarm">Disarm</button>
-    <select id="ctl-mode" title="flight mode">
-      <option value="POSCTL">Position</option><option value="ALTCTL">Altitude</option>
-      <option value="STABILIZED">Stabilized</option></select>
-    <button type="button" id="ctl-reset" title="back on the start pad">Reset</button>
-    <details id="ctl-pad"><summary>Gamepad</summary><div id="ctl-pad-body"></div></details>`;
-  const style = document.createElement("style");
-  style.textContent = `
-    #control-widget { display: inline-flex; gap: .35rem; align-items: center; }
-    #control-widget[hidden] { display: none; }
-    #ctl-toggle.on { background: #17432b; border-color: #3ddc84; color: #fff; }
-    #control-widget select { background: #2a3036; color: #e8eaed; border: 1px solid #3a424a;
-      border-radius: .3rem; padding: .25rem; }
-    #ctl-pad { position: relative; font-size: .8rem; }
-    #ctl-pad-body { position: absolute; right: 0; top: 1.6rem; z-index: 10; background: #1b1f23;
-      border: 1px solid #3a424a; border-radius: .3rem; padding: .5rem; min-width: 16rem; }
-    #ctl-pad-body label { display: block; margin: .15rem 0; }`;
-  document.head.appendChild(style);
-  const $ = (id) => document.getElementById(id);
+  if (socket && socket.readyState === 1) socket.send(JSON.stringify({ type: "sticks", ...sticks }));
+}
 
-  $("ctl-toggle").onclick = () => (ctl.enabled ? stop() : start());
-  $("ctl-arm").onclick = () => command({ type: "arm" });
-  $("ctl-disarm").onclick = () => command({ type: "disarm" });
-  $("ctl-reset").onclick = () => command({ type: "reset" });
-  $("ctl-mode").onchange = (e) => command({ type: "mode", mode: e.target.value });
-  renderPadPanel();
+// ---- inputs ----
+const clamp = (v, lo, hi) => Math.min(hi, Math.max(lo, v));
+function fromKeyboard() {
+  const k = (code) => keys.has(code);
+  const amount = k("ShiftLeft") || k("ShiftRight") ? 1.0 : 0.6;
+  const axis = (plus, minus) => (plus.some(k) ? amount : 0) - (minus.some(k) ? amount : 0);
+  return {
+    roll: axis(["KeyD"], ["KeyA"]), pitch: axis(["KeyW"], ["KeyS"]),
+    yaw: axis(["KeyE"], ["KeyQ"]),
+    throttle: clamp(0.5 + 0.5 * axis(["ArrowUp", "KeyR"], ["ArrowDown", "KeyF"]), 0, 1),
+  };
+}
 
-  fetch("/api/status").then((r) => r.json()).then((s) => {
-    box.hidden = s.source !== "sim";
-  }).catch(() => {});
+function firstGamepad() {
+  const pads = navigator.getGamepads ? navigator.getGamepads() : [];
+  for (const p of pads) if (p && p.connected && p.axes.length >= 4) return p;
+  return null;
+}
 
-  // ---- connection ----
-  function start() {
-    const proto = location.protocol === "https:" ? "wss:" : "ws:";
-    const token = localStorage.getItem(TOKEN_KEY);
-    socket = new WebSocket(`${proto}//${location.host}/ws/control${token ? "?token=" + encodeURIComponent(token) : ""}`);
-    socket.onmessage = (ev) => {
-      let msg;
-      try { msg = JSON.parse(ev.data); } catch (err) { return; }
-      ctl.lastReply = msg;
-      if (msg.error) {
-        $("ctl-input").textContent = msg.error_msg.slice(0, 60);
-        $("ctl-input").className = "pill bad";
-      }
-    };
-    socket.onopen = () => {
-      ctl.enabled = true;
-      $("ctl-toggle").textContent = "Sticks: on";
-      $("ctl-toggle").classList.add("on");
-      timer = setInterval(tick, RATE_MS);
-    };
-    socket.onclose = () => stop();
-  }
+function axisValue(pad, f) {
+  const m = config.map[f];
+  const raw = pad.axes[m.index] ?? 0;
+  const c = config.calib[m.index] || { center: 0, min: -1, max: 1 };
+  let v = raw >= c.center ? (raw - c.center) / Math.max(c.max - c.center, 1e-3)
+                          : (raw - c.center) / Math.max(c.center - c.min, 1e-3);
+  v = clamp(v, -1, 1);
+  return m.invert ? -v : v;
+}
 
-  function stop() {
-    ctl.enabled = false;
-    clearInterval(timer);
-    timer = null;
-    if (socket && socket.readyState <= 1) socket.close();
-    socket = null;
-    $("ctl-toggle").textContent = "Sticks: off";
-    $("ctl-toggle").classList.remove("on");
-  }
+function fromGamepad(pad) {
+  const s = {};
+  for (const f of FUNCS) s[f] = axisValue(pad, f);
+  s.throttle = clamp(0.5 + 0.5 * s.throttle, 0, 1); // spring-centred stick: centre = hold
+  return s;
+}
 
-  function command(msg) {
-    if (!socket || socket.readyState !== 1) {
-      start();
-      setTimeout(() => command(msg), 300);
-      return;
-    }
-    socket.send(JSON.stringify(msg));
-  }
-
-  function tick() {
-    const pad = firstGamepad();
-    const sticks = pad ? fromGamepad(pad) : fromKeyboard();
-    ctl.input = pad ? "gamepad" : "keyboard";
-    ctl.sticks = sticks;
-    if (calibrating && pad) sweep(pad);
-    const pill = $("ctl-input");
-    if (!pill.classList.contains("bad")) {
-      // Some browsers offer gamepads only to secure pages (https or localhost).
-      const noPads = !navigator.getGamepads && !window.isSecureContext;
-      pill.textContent = pad ? pad.id.slice(0, 24) : noPads ? "keyboard (gamepad needs https)" : "keyboard";
-    }
-    if (socket && socket.readyState === 1) socket.send(JSON.stringify({ type: "sticks", ...sticks }));
-  }
-
-  // ---- inputs ----
-  const clamp = (v, lo, hi) => Math.min(hi, Math.max(lo, v));
-  function fromKeyboard() {
-    const k = (code) => keys.has(code);
-    const amount = k("ShiftLeft") || k("ShiftRight") ? 1.0 : 0.6;
-    const axis = (plus, minus) => (plus.some(k) ? amount : 0) - (minus.some(k) ? amount : 0);
-    return {
-      roll: axis(["KeyD"], ["KeyA"]), pitch: axis(["KeyW"], ["KeyS"]),
-      yaw: axis(["KeyE"], ["KeyQ"]),
-      throttle: clamp(0.5 + 0.5 * axis(["ArrowUp", "KeyR"], ["ArrowDown", "KeyF"]), 0, 1),
-    };
-  }
-
-  function firstGamepad() {
-    const pads = navigator.getGamepads ? navigator.getGamepads() : [];
-    for (const p of pads) if (p && p.connected && p.axes.length >= 4) return p;
-    return null;
-  }
-
-  function axisValue(pad, f) {
-    const m = config.map[f];
-    const raw = pad.axes[m.index] ?? 0;
-    const c = config.calib[m.index] || { center: 0, min: -1, max: 1 };
-    let v = raw >= c.center ? (raw - c.center) / Math.max(c.max - c.center, 1e-3)
-                            : (raw - c.center) / Math.max(c.center - c.min, 1e-3);
-    v = clamp(v, -1, 1);
-    return m.invert ? -v : v;
-  }
-
-  function fromGamepad(pad) {
-    const s = {};
-    for (const f of FUNCS) s[f] = axisValue(pad, f);
-    s.throttle = clamp(0.5 + 0.5 * s.throttle, 0, 1); // spring-centred stick: centre = hold
-    return s;
-  }
-
-  function sweep(pad) {
-    pad.axes.forEach((v, i) => {
-      calibrating.min[i] = Math.min(calibrating.min[i] ?? v, v);
-      calibrating.max[i] = Math.max(calibrating.max[i] ?? v, v);
-    });
-  }
-
-  // ---- gamepad mapping and calibration, saved in the browser ----
-  function loadConfig() {
-    try {
-      const saved = JSON.parse(localStorage.getItem(STORE_KEY) || "null");
-      if (saved && saved.map && FUNCS.every((f) => saved.map[f])) return { calib: {}, ...saved };
-    } catch (err) { /* a broken entry falls back to the defaults */ }
-    return { map: JSON.parse(JSON.stringify(DEFAULT_MAP)), calib: {} };
-  }
-
-  function saveConfig() {
-    localStorage.setItem(STORE_KEY, JSON.stringify(config));
-  }
-
-  function renderPadPanel() {
-    const body = $("ctl-pad-body");
-    body.innerHTML = FUNCS.map((f) => `
-      <label>${f}: axis <input type="number" min="0" max="15" data-f="${f}" data-k="index"
-        value="${config.map[f].index}" style="width:3rem">
-        <input type="checkbox" data-f="${f}" data-k="invert" ${config.map[f].invert ? "checked" : ""}> invert</label>`).join("") +
-      `<button type="button" id="ctl-cal">${calibrating ? "Done (centre sticks)" : "Calibrate"}</button>
-       <button type="button" id="ctl-defaults">Defaults</button>`;
-    body.querySelectorAll("input").forEach((el) => {
-      el.onchange = () => {
-        const m = config.map[el.dataset.f];
-        if (el.dataset.k === "index") m.index = clamp(parseInt(el.value, 10) || 0, 0, 15);
-        else m.invert = el.checked;
-        saveConfig();
-      };
-    });
-    $("ctl-cal").onclick = () => {
-      const pad = firstGamepad();
-      if (!calibrating) {
-        calibrating = { min: [], max: [] }; // move every stick to its ends, then press Done
-      } else if (pad) {
-        pad.axes.forEach((v, i) => {
-          config.calib[i] = { center: v, min: calibrating.min[i] ?? -1, max: calibrating.max[i] ?? 1 };
-        });
-        calibrating = null;
-        saveConfig();
-      } else {
-        calibrating = null;
-      }
-      renderPadPanel();
-    };
-    $("ctl-defaults").onclick = () => {
-      config = { map: JSON.parse(JSON.stringify(DEFAULT_MAP)), calib: {} };
-      saveConfig();
-      renderPadPanel();
-    };
-  }
-
-  const typing = (e) => ["INPUT", "SELECT", "TEXTAREA"].includes(e.target.tagName);
-  window.addEventListener("keydown", (e) => {
-    if (typing(e) || !ctl.enabled) return;
-    keys.add(e.code);
-    if (e.code.startsWith("Arrow")) e.preventDefault();
+function sweep(pad) {
+  pad.axes.forEach((v, i) => {
+    calibrating.min[i] = Math.min(calibrating.min[i] ?? v, v);
+    calibrating.max[i] = Math.max(calibrating.max[i] ?? v, v);
   });
-  window.addEventListener("keyup", (e) => keys.delete(e.code));
-  window.addEventListener("blur", () => keys.clear()); // released keys must not stay held
-})();
+}
+
+// ---- gamepad mapping and calibration, saved in the browser ----
+function loadConfig() {
+  try {
+    const saved = JSON.parse(localStorage.getItem(STORE_KEY) || "null");
+    if (saved && saved.map && FUNCS.every((f) => saved.map[f])) return { calib: {}, ...saved };
+  } catch (err) { /* a broken entry falls back to the defaults */ }
+  return { map: JSON.parse(JSON.stringify(DEFAULT_MAP)), calib: {} };
+}
+
+function saveConfig() {
+  localStorage.setItem(STORE_KEY, JSON.stringify(config));
+}
+
+function renderPadPanel() {
+  const body = $("ctl-pad-body");
+  body.innerHTML = FUNCS.map((f) => `
+    <label>${f}: axis <input type="number" min="0" max="15" data-f="${f}" data-k="index"
+      value="${config.map[f].index}">
+      <input type="checkbox" data-f="${f}" data-k="invert" ${config.map[f].invert ? "checked" : ""}> invert</label>`).join("") +
+    `<button type="button" id="ctl-cal">${calibrating ? "Done (centre sticks)" : "Calibrate"}</button>
+     <button type="button" id="ctl-defaults">Defaults</button>`;
+  body.querySelectorAll("input").forEach((el) => {
+    el.onchange = () => {
+      const m = config.map[el.dataset.f];
+      if (el.dataset.k === "index") m.index = clamp(parseInt(el.value, 10) || 0, 0, 15);
+      else m.invert = el.checked;
+      saveConfig();
+    };
+  });
+  $("ctl-cal").onclick = () => {
+    const pad = firstGamepad();
+    if (!calibrating) {
+      calibrating = { min: [], max: [] }; // move every stick to its ends, then press Done
+    } else if (pad) {
+      pad.axes.forEach((v, i) => {
+        config.calib[i] = { center: v, min: calibrating.min[i] ?? -1, max: calibrating.max[i] ?? 1 };
+      });
+      calibrating = null;
+      saveConfig();
+    } else {
+      calibrating = null;
+    }
+    renderPadPanel();
+  };
+  $("ctl-defaults").onclick = () => {
+    config = { map: JSON.parse(JSON.stringify(DEFAULT_MAP)), calib: {} };
+    saveConfig();
+    renderPadPanel();
+  };
+}
+
+const typing = (e) => ["INPUT", "SELECT", "TEXTAREA"].includes(e.target.tagName);
+window.addEventListener("keydown", (e) => {
+  if (typing(e) || !ctl.enabled) return;
+  keys.add(e.code);
+  if (e.code.startsWith("Arrow")) e.preventDefault();
+});
+window.addEventListener("keyup", (e) => keys.delete(e.code));
+window.addEventListener("blur", () => keys.clear()); // released keys must not stay held

@@ -5,300 +5,275 @@
 // 3D: the station's replay viser server in an iframe, told what to show by
 // PUT /api/replay3d and the slider's instant by PUT /api/replay3d/time (<= 15 Hz). That
 // scene is shared by every viewer of the replay panel: the last page to move it wins.
-"use strict";
+// Colours: the path is drawn in the colours of the reply (the server's ramp, as the 3D
+// panel's), the compared session in one colour.
+import { $, api } from "/lib.js";
 
-(() => {
-  const $ = (id) => document.getElementById(id);
-  const params = new URLSearchParams(location.search);
-  const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
-  const r3d = { port: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null };
-  const R3D_PERIOD_MS = 1000 / 15;
+const params = new URLSearchParams(location.search);
+const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
+const r3d = { port: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null };
+const R3D_PERIOD_MS = 1000 / 15;
 
-  // The same ramp as the 3D panel (server/trajectory3d/colors.py), height 0-10 m.
-  const STOPS = [[48, 18, 160], [30, 150, 230], [40, 190, 90], [240, 200, 30], [220, 40, 30]];
-  function ramp(v, lo, hi) {
-    const u = Math.min(1, Math.max(0, (v - lo) / (hi - lo || 1))) * (STOPS.length - 1);
-    const i = Math.min(STOPS.length - 2, Math.floor(u)), f = u - i;
-    const c = STOPS[i].map((x, k) => Math.round(x + (STOPS[i + 1][k] - x) * f));
-    return `rgb(${c[0]},${c[1]},${c[2]})`;
-  }
+function status(text) { $("replay-status").textContent = text; }
 
-  function status(text) { $("replay-status").textContent = text; }
-
-  async function getJson(url) {
-    const r = await fetch(url);
-    const body = await r.json().catch(() => ({}));
-    if (!r.ok) throw new Error(body.error_msg || `${r.status} ${r.statusText}`);
-    return body;
-  }
-
-  async function loadSessions() {
-    const list = await getJson("/api/sessions");
-    const sessions = Array.isArray(list) ? list : (list.sessions || []);
-    for (const sel of [$("replay-session"), $("replay-compare")]) {
-      for (const s of sessions) {
-        const dur = s.duration_s != null ? ` (${Math.round(s.duration_s)} s)` : "";
-        sel.appendChild(new Option(`${s.id}${dur}`, s.id));
-      }
-    }
-    return sessions;
-  }
-
-  function trajUrl(id) {
-    const align = $("replay-align").checked ? "?align=farthest" : "";
-    return `/api/sessions/${encodeURIComponent(id)}/trajectory${align}`;
-  }
-
-  async function load() {
-    const a = $("replay-session").value, b = $("replay-compare").value;
-    const q = new URLSearchParams();
-    if (a) q.set("session", a);
-    if (b) q.set("compare", b);
-    if ($("replay-align").checked) q.set("align", "1");
-    history.replaceState(null, "", `${location.pathname}?${q}`);
-    view.a = view.b = null;
-    if (!a) { status("No recorded session yet."); draw(); return; }
-    status(`Loading ${a}...`);
-    try {
-      view.a = await getJson(trajUrl(a));
-      view.b = b ? await getJson(trajUrl(b)) : null;
-    } catch (err) {
-      status(`Cannot load the trajectory: ${err.message}`);
-      draw();
-      return;
-    }
-    load3d(a, b);
-    const dur = duration(view.a);
-    $("replay-slider").max = String(Math.max(1, Math.round(dur * 10)));
-    setTime(0);
-    status(`${view.a.t_s.length} fixes, ${dur.toFixed(1)} s` +
-      (view.b ? `; overlay ${view.b.id} (${view.b.t_s.length} fixes)` : ""));
-  }
-
-  // -- the 3D panel ------------------------------------------------------------------
-
-  async function put(url, body) {
-    const r = await fetch(url, { method: "PUT", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify(body) });
-    const reply = await r.json().catch(() => ({}));
-    if (!r.ok) throw new Error(reply.error_msg || `${r.status} ${r.statusText}`);
-    return reply;
-  }
-
-  async function init3d() {
-    try {
-      const info = await getJson("/api/viser");
-      r3d.port = info.replay_port || null;
-    } catch (err) { r3d.port = null; } // an older station: the 2D view alone
-  }
-
-  async function load3d(a, b) {
-    if (!r3d.port) return;
-    const frame = $("replay-3d");
-    if (!frame.getAttribute("src")) {
-      frame.hidden = false;
-      frame.setAttribute("src", `${location.protocol}//${location.hostname}:${r3d.port}/`);
-      draw(); // the canvas just got narrower
-    }
-    r3d.ready = false;
-    const gen = ++r3d.gen; // a newer pick supersedes this one
-    try {
-      await put("/api/replay3d", { session: a, overlay: b || null,
-        align: $("replay-align").checked ? "farthest" : "none" });
-      if (gen !== r3d.gen) return;
-      r3d.ready = true;
-      r3d.sentT = null;
-      send3dTime();
-    } catch (err) {
-      status(`${$("replay-status").textContent} (3D: ${err.message})`);
+async function loadSessions() {
+  const sessions = await api("/api/sessions");
+  for (const sel of [$("replay-session"), $("replay-compare")]) {
+    for (const s of sessions) {
+      const dur = s.duration_s != null ? ` (${Math.round(s.duration_s)} s)` : "";
+      sel.appendChild(new Option(`${s.id}${dur}`, s.id));
     }
   }
+  return sessions;
+}
 
-  // Throttled: at most 15 PUTs a second while the slider moves or play runs, and the
-  // last instant is always sent.
-  function send3dTime() {
-    if (!r3d.ready || r3d.sentT === view.t) return;
-    const wait = r3d.lastSent + R3D_PERIOD_MS - performance.now();
-    if (wait > 0) {
-      if (!r3d.timer) r3d.timer = setTimeout(() => { r3d.timer = null; send3dTime(); }, wait);
-      return;
-    }
-    r3d.lastSent = performance.now();
-    r3d.sentT = view.t;
-    put("/api/replay3d/time", { t_s: view.t }).catch(() => { r3d.sentT = null; });
-  }
+function trajUrl(id) {
+  const align = $("replay-align").checked ? "?align=farthest" : "";
+  return `/api/sessions/${encodeURIComponent(id)}/trajectory${align}`;
+}
 
-  const duration = (tr) => tr.t_s.length ? tr.t_s[tr.t_s.length - 1] - tr.t_s[0] : 0;
-
-  // Index of the last fix at or before `t` seconds after the start of `tr`.
-  function indexAt(tr, t) {
-    const target = tr.t_s[0] + t;
-    let lo = 0, hi = tr.t_s.length - 1;
-    if (target <= tr.t_s[0]) return 0;
-    while (lo < hi) {
-      const mid = (lo + hi + 1) >> 1;
-      if (tr.t_s[mid] <= target) lo = mid; else hi = mid - 1;
-    }
-    return lo;
-  }
-
-  function setTime(t) {
-    view.t = Math.max(0, Math.min(t, view.a ? duration(view.a) : 0));
-    $("replay-slider").value = String(Math.round(view.t * 10));
-    $("replay-time").textContent = `${view.t.toFixed(1)} / ${view.a ? duration(view.a).toFixed(1) : "--"} s`;
-    if (view.a) showInstant(view.a, indexAt(view.a, view.t));
+async function load() {
+  const a = $("replay-session").value, b = $("replay-compare").value;
+  const q = new URLSearchParams();
+  if (a) q.set("session", a);
+  if (b) q.set("compare", b);
+  if ($("replay-align").checked) q.set("align", "1");
+  history.replaceState(null, "", `${location.pathname}?${q}`);
+  view.a = view.b = null;
+  if (!a) { status("No recorded session yet."); draw(); return; }
+  status(`Loading ${a}...`);
+  try {
+    view.a = await api(trajUrl(a));
+    view.b = b ? await api(trajUrl(b)) : null;
+  } catch (err) {
+    status(`Cannot load the trajectory: ${err.message}`);
     draw();
+    return;
+  }
+  load3d(a, b);
+  const dur = duration(view.a);
+  $("replay-slider").max = String(Math.max(1, Math.round(dur * 10)));
+  setTime(0);
+  status(`${view.a.t_s.length} fixes, ${dur.toFixed(1)} s` +
+    (view.b ? `; overlay ${view.b.id} (${view.b.t_s.length} fixes)` : ""));
+}
+
+// -- the 3D panel ------------------------------------------------------------------
+
+async function init3d() {
+  try {
+    r3d.port = (await api("/api/viser")).replay_port; // null with --no-3d: the 2D view alone
+  } catch (err) {
+    status(`No 3D panel: ${err.message}`);
+  }
+}
+
+async function load3d(a, b) {
+  if (!r3d.port) return;
+  const frame = $("replay-3d");
+  if (!frame.getAttribute("src")) {
+    frame.hidden = false;
+    frame.setAttribute("src", `${location.protocol}//${location.hostname}:${r3d.port}/`);
+    draw(); // the canvas just got narrower
+  }
+  r3d.ready = false;
+  const gen = ++r3d.gen; // a newer pick supersedes this one
+  try {
+    await api("/api/replay3d", { method: "PUT", body: { session: a, overlay: b || null,
+      align: $("replay-align").checked ? "farthest" : "none" } });
+    if (gen !== r3d.gen) return;
+    r3d.ready = true;
+    r3d.sentT = null;
     send3dTime();
+  } catch (err) {
+    status(`${$("replay-status").textContent} (3D: ${err.message})`);
   }
+}
 
-  function showInstant(tr, i) {
-    const fmt = (v, unit) => v == null ? "--" : `${v.toFixed(2)} ${unit}`;
-    $("r-x").textContent = fmt(tr.x_m[i], "m");
-    $("r-y").textContent = fmt(tr.y_m[i], "m");
-    $("r-z").textContent = fmt(tr.z_m[i], "m");
-    $("r-speed").textContent = fmt(tr.speed_mps[i], "m/s");
-    for (const cam of ["front", "bottom"]) {
-      const file = (tr.frames[cam] || [])[i];
-      const img = $(`replay-${cam}`);
-      if (file && view.frames[cam] !== file) {
-        view.frames[cam] = file;
-        const path = file.split("/").map(encodeURIComponent).join("/");
-        img.src = `/api/sessions/${encodeURIComponent(tr.id)}/files/${path}`;
-      } else if (!file) { view.frames[cam] = null; img.removeAttribute("src"); }
-    }
+// Throttled: at most 15 PUTs a second while the slider moves or play runs, and the
+// last instant is always sent.
+function send3dTime() {
+  if (!r3d.ready || r3d.sentT === view.t) return;
+  const wait = r3d.lastSent + R3D_PERIOD_MS - performance.now();
+  if (wait > 0) {
+    if (!r3d.timer) r3d.timer = setTimeout(() => { r3d.timer = null; send3dTime(); }, wait);
+    return;
   }
+  r3d.lastSent = performance.now();
+  r3d.sentT = view.t;
+  api("/api/replay3d/time", { method: "PUT", body: { t_s: view.t } }).catch(() => { r3d.sentT = null; });
+}
 
-  function fitCanvas(c) {
-    const dpr = window.devicePixelRatio || 1;
-    const w = Math.max(1, Math.round(c.clientWidth * dpr)), h = Math.max(1, Math.round(c.clientHeight * dpr));
-    if (c.width !== w || c.height !== h) { c.width = w; c.height = h; }
-    const ctx = c.getContext("2d");
-    ctx.setTransform(1, 0, 0, 1, 0, 0);
-    ctx.clearRect(0, 0, w, h);
-    return { ctx, w, h, dpr };
+const duration = (tr) => tr.t_s.length ? tr.t_s[tr.t_s.length - 1] - tr.t_s[0] : 0;
+
+// Index of the last fix at or before `t` seconds after the start of `tr`.
+function indexAt(tr, t) {
+  const target = tr.t_s[0] + t;
+  let lo = 0, hi = tr.t_s.length - 1;
+  if (target <= tr.t_s[0]) return 0;
+  while (lo < hi) {
+    const mid = (lo + hi + 1) >> 1;
+    if (tr.t_s[mid] <= target) lo = mid; else hi = mid - 1;
   }
+  return lo;
+}
 
-  // Draw a path as segments, broken where a gap starts (no fix, or a long silence).
-  function strokePath(ctx, tr, px, py, colorOf, width) {
-    ctx.lineWidth = width;
-    ctx.lineCap = "round";
-    for (let i = 1; i < tr.t_s.length; i++) {
-      if (tr.starts_run[i]) continue;
-      ctx.strokeStyle = colorOf(i);
-      ctx.beginPath();
-      ctx.moveTo(px(tr, i - 1), py(tr, i - 1));
-      ctx.lineTo(px(tr, i), py(tr, i));
-      ctx.stroke();
-    }
+function setTime(t) {
+  view.t = Math.max(0, Math.min(t, view.a ? duration(view.a) : 0));
+  $("replay-slider").value = String(Math.round(view.t * 10));
+  $("replay-time").textContent = `${view.t.toFixed(1)} / ${view.a ? duration(view.a).toFixed(1) : "--"} s`;
+  if (view.a) showInstant(view.a, indexAt(view.a, view.t));
+  draw();
+  send3dTime();
+}
+
+function showInstant(tr, i) {
+  const fmt = (v, unit) => v == null ? "--" : `${v.toFixed(2)} ${unit}`;
+  $("r-x").textContent = fmt(tr.x_m[i], "m");
+  $("r-y").textContent = fmt(tr.y_m[i], "m");
+  $("r-z").textContent = fmt(tr.z_m[i], "m");
+  $("r-speed").textContent = fmt(tr.speed_mps[i], "m/s");
+  for (const cam of ["front", "bottom"]) {
+    const file = (tr.frames[cam] || [])[i];
+    const img = $(`replay-${cam}`);
+    if (file && view.frames[cam] !== file) {
+      view.frames[cam] = file;
+      const path = file.split("/").map(encodeURIComponent).join("/");
+      img.src = `/api/sessions/${encodeURIComponent(tr.id)}/files/${path}`;
+    } else if (!file) { view.frames[cam] = null; img.removeAttribute("src"); }
   }
+}
 
-  function drawTop() {
-    const { ctx, w, h, dpr } = fitCanvas($("replay-top"));
-    const trs = [view.a, view.b].filter(Boolean);
-    if (!trs.length) return;
-    let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
-    for (const tr of trs) for (let i = 0; i < tr.t_s.length; i++) {
-      x0 = Math.min(x0, tr.x_m[i]); x1 = Math.max(x1, tr.x_m[i]);
-      y0 = Math.min(y0, tr.y_m[i]); y1 = Math.max(y1, tr.y_m[i]);
-    }
-    const pad = 2, m = 20 * dpr;
-    x0 -= pad; x1 += pad; y0 -= pad; y1 += pad;
-    const s = Math.min((w - 2 * m) / (x1 - x0), (h - 2 * m) / (y1 - y0));
-    const cx = (w - s * (x1 - x0)) / 2, cy = (h - s * (y1 - y0)) / 2;
-    const X = (x) => cx + (x - x0) * s, Y = (y) => h - cy - (y - y0) * s;
-    // 5 m grid, so distances read at a glance
-    ctx.strokeStyle = "#d6dbd2"; ctx.lineWidth = 1;
-    for (let gx = Math.ceil(x0 / 5) * 5; gx <= x1; gx += 5) { ctx.beginPath(); ctx.moveTo(X(gx), 0); ctx.lineTo(X(gx), h); ctx.stroke(); }
-    for (let gy = Math.ceil(y0 / 5) * 5; gy <= y1; gy += 5) { ctx.beginPath(); ctx.moveTo(0, Y(gy)); ctx.lineTo(w, Y(gy)); ctx.stroke(); }
-    ctx.fillStyle = "#555"; ctx.font = `${11 * dpr}px system-ui`;
-    ctx.fillText(`grid 5 m; ${$("replay-align").checked ? "x = start to farthest point" : "x east, y north"}`, 6 * dpr, 14 * dpr);
-    const px = (tr, i) => X(tr.x_m[i]), py = (tr, i) => Y(tr.y_m[i]);
-    if (view.b) strokePath(ctx, view.b, px, py, () => "rgba(150, 60, 200, 0.55)", 3 * dpr);
-    strokePath(ctx, view.a, px, py, (i) => ramp(view.a.z_m[i], 0, 10), 3 * dpr);
-    // origin (arming point) and the vehicle(s) at the cursor time
-    ctx.fillStyle = "#f5b400";
-    ctx.beginPath(); ctx.arc(X(0), Y(0), 5 * dpr, 0, 2 * Math.PI); ctx.fill();
-    for (const [tr, color] of [[view.b, "#9640c8"], [view.a, "#e02020"]]) {
-      if (!tr) continue;
-      const i = indexAt(tr, view.t);
-      ctx.fillStyle = color; ctx.strokeStyle = "#fff"; ctx.lineWidth = 2 * dpr;
-      ctx.beginPath(); ctx.arc(px(tr, i), py(tr, i), 7 * dpr, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-    }
+function fitCanvas(c) {
+  const dpr = window.devicePixelRatio || 1;
+  const w = Math.max(1, Math.round(c.clientWidth * dpr)), h = Math.max(1, Math.round(c.clientHeight * dpr));
+  if (c.width !== w || c.height !== h) { c.width = w; c.height = h; }
+  const ctx = c.getContext("2d");
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
+  ctx.clearRect(0, 0, w, h);
+  return { ctx, w, h, dpr };
+}
+
+// Draw a path as segments, broken where a gap starts (no fix, or a long silence).
+function strokePath(ctx, tr, px, py, colorOf, width) {
+  ctx.lineWidth = width;
+  ctx.lineCap = "round";
+  for (let i = 1; i < tr.t_s.length; i++) {
+    if (tr.starts_run[i]) continue;
+    ctx.strokeStyle = colorOf(i);
+    ctx.beginPath();
+    ctx.moveTo(px(tr, i - 1), py(tr, i - 1));
+    ctx.lineTo(px(tr, i), py(tr, i));
+    ctx.stroke();
   }
+}
 
-  function drawHeight() {
-    const { ctx, w, h, dpr } = fitCanvas($("replay-height"));
-    const trs = [view.a, view.b].filter(Boolean);
-    if (!trs.length) return;
-    const T = Math.max(...trs.map(duration), 1e-3);
-    let z0 = 0, z1 = 1;
-    for (const tr of trs) for (const z of tr.z_m) { z0 = Math.min(z0, z); z1 = Math.max(z1, z); }
-    const m = 8 * dpr;
-    const X = (t) => m + (t / T) * (w - 2 * m), Y = (z) => h - m - ((z - z0) / (z1 - z0)) * (h - 2 * m);
-    const px = (tr, i) => X(tr.t_s[i] - tr.t_s[0]), py = (tr, i) => Y(tr.z_m[i]);
-    if (view.b) strokePath(ctx, view.b, px, py, () => "rgba(150, 60, 200, 0.55)", 2 * dpr);
-    strokePath(ctx, view.a, px, py, (i) => ramp(view.a.z_m[i], 0, 10), 2 * dpr);
-    ctx.strokeStyle = "#e02020"; ctx.lineWidth = 1.5 * dpr;
-    ctx.beginPath(); ctx.moveTo(X(view.t), 0); ctx.lineTo(X(view.t), h); ctx.stroke();
-    ctx.fillStyle = "#555"; ctx.font = `${10 * dpr}px system-ui`;
-    ctx.fillText(`height ${z0.toFixed(1)} to ${z1.toFixed(1)} m`, 6 * dpr, 12 * dpr);
+function drawTop() {
+  const { ctx, w, h, dpr } = fitCanvas($("replay-top"));
+  const trs = [view.a, view.b].filter(Boolean);
+  if (!trs.length) return;
+  let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
+  for (const tr of trs) for (let i = 0; i < tr.t_s.length; i++) {
+    x0 = Math.min(x0, tr.x_m[i]); x1 = Math.max(x1, tr.x_m[i]);
+    y0 = Math.min(y0, tr.y_m[i]); y1 = Math.max(y1, tr.y_m[i]);
   }
-
-  function draw() { drawTop(); drawHeight(); }
-
-  // The playhead runs on the wall clock from where play started, so the replay keeps
-  // its speed however often the browser paints (slow laptops, background tabs).
-  function playhead() {
-    return view.anchorT + (performance.now() - view.anchorWall) / 1000 * Number($("replay-speed").value);
+  const pad = 2, m = 20 * dpr;
+  x0 -= pad; x1 += pad; y0 -= pad; y1 += pad;
+  const s = Math.min((w - 2 * m) / (x1 - x0), (h - 2 * m) / (y1 - y0));
+  const cx = (w - s * (x1 - x0)) / 2, cy = (h - s * (y1 - y0)) / 2;
+  const X = (x) => cx + (x - x0) * s, Y = (y) => h - cy - (y - y0) * s;
+  // 5 m grid, so distances read at a glance
+  ctx.strokeStyle = "#d6dbd2"; ctx.lineWidth = 1;
+  for (let gx = Math.ceil(x0 / 5) * 5; gx <= x1; gx += 5) { ctx.beginPath(); ctx.moveTo(X(gx), 0); ctx.lineTo(X(gx), h); ctx.stroke(); }
+  for (let gy = Math.ceil(y0 / 5) * 5; gy <= y1; gy += 5) { ctx.beginPath(); ctx.moveTo(0, Y(gy)); ctx.lineTo(w, Y(gy)); ctx.stroke(); }
+  ctx.fillStyle = "#555"; ctx.font = `${11 * dpr}px system-ui`;
+  ctx.fillText(`grid 5 m; ${$("replay-align").checked ? "x = start to farthest point" : "x east, y north"}`, 6 * dpr, 14 * dpr);
+  const px = (tr, i) => X(tr.x_m[i]), py = (tr, i) => Y(tr.y_m[i]);
+  if (view.b) strokePath(ctx, view.b, px, py, () => "rgba(150, 60, 200, 0.55)", 3 * dpr);
+  strokePath(ctx, view.a, px, py, (i) => view.a.color[i], 3 * dpr);
+  // origin (arming point) and the vehicle(s) at the cursor time
+  ctx.fillStyle = "#f5b400";
+  ctx.beginPath(); ctx.arc(X(0), Y(0), 5 * dpr, 0, 2 * Math.PI); ctx.fill();
+  for (const [tr, color] of [[view.b, "#9640c8"], [view.a, "#e02020"]]) {
+    if (!tr) continue;
+    const i = indexAt(tr, view.t);
+    ctx.fillStyle = color; ctx.strokeStyle = "#fff"; ctx.lineWidth = 2 * dpr;
+    ctx.beginPath(); ctx.arc(px(tr, i), py(tr, i), 7 * dpr, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
   }
+}
 
-  function anchor() { view.anchorT = view.t; view.anchorWall = performance.now(); }
+function drawHeight() {
+  const { ctx, w, h, dpr } = fitCanvas($("replay-height"));
+  const trs = [view.a, view.b].filter(Boolean);
+  if (!trs.length) return;
+  const T = Math.max(...trs.map(duration), 1e-3);
+  let z0 = 0, z1 = 1;
+  for (const tr of trs) for (const z of tr.z_m) { z0 = Math.min(z0, z); z1 = Math.max(z1, z); }
+  const m = 8 * dpr;
+  const X = (t) => m + (t / T) * (w - 2 * m), Y = (z) => h - m - ((z - z0) / (z1 - z0)) * (h - 2 * m);
+  const px = (tr, i) => X(tr.t_s[i] - tr.t_s[0]), py = (tr, i) => Y(tr.z_m[i]);
+  if (view.b) strokePath(ctx, view.b, px, py, () => "rgba(150, 60, 200, 0.55)", 2 * dpr);
+  strokePath(ctx, view.a, px, py, (i) => view.a.color[i], 2 * dpr);
+  ctx.strokeStyle = "#e02020"; ctx.lineWidth = 1.5 * dpr;
+  ctx.beginPath(); ctx.moveTo(X(view.t), 0); ctx.lineTo(X(view.t), h); ctx.stroke();
+  ctx.fillStyle = "#555"; ctx.font = `${10 * dpr}px system-ui`;
+  ctx.fillText(`height ${z0.toFixed(1)} to ${z1.toFixed(1)} m`, 6 * dpr, 12 * dpr);
+}
 
-  function tick() {
-    if (!view.playing) return;
-    setTime(playhead());
-    if (view.a && view.t >= duration(view.a)) { togglePlay(false); return; }
+function draw() { drawTop(); drawHeight(); }
+
+// The playhead runs on the wall clock from where play started, so the replay keeps
+// its speed however often the browser paints (slow laptops, background tabs).
+function playhead() {
+  return view.anchorT + (performance.now() - view.anchorWall) / 1000 * Number($("replay-speed").value);
+}
+
+function anchor() { view.anchorT = view.t; view.anchorWall = performance.now(); }
+
+function tick() {
+  if (!view.playing) return;
+  setTime(playhead());
+  if (view.a && view.t >= duration(view.a)) { togglePlay(false); return; }
+  requestAnimationFrame(tick);
+}
+
+function togglePlay(on) {
+  const was = view.playing;
+  view.playing = on ?? !view.playing;
+  $("replay-play").textContent = view.playing ? "Pause" : "Play";
+  if (view.playing && !was) {
+    if (view.a && view.t >= duration(view.a)) setTime(0);
+    anchor();
     requestAnimationFrame(tick);
+  } else if (!view.playing && was) {
+    setTime(playhead());
   }
+}
 
-  function togglePlay(on) {
-    const was = view.playing;
-    view.playing = on ?? !view.playing;
-    $("replay-play").textContent = view.playing ? "Pause" : "Play";
-    if (view.playing && !was) {
-      if (view.a && view.t >= duration(view.a)) setTime(0);
-      anchor();
-      requestAnimationFrame(tick);
-    } else if (!view.playing && was) {
-      setTime(playhead());
-    }
+async function main() {
+  $("replay-align").checked = params.get("align") === "1";
+  await init3d();
+  try {
+    const sessions = await loadSessions();
+    $("replay-session").value = params.get("session") || (sessions[0] && sessions[0].id) || "";
+    $("replay-compare").value = params.get("compare") || "";
+  } catch (err) {
+    status(`Cannot list the sessions: ${err.message}`);
   }
+  $("replay-session").addEventListener("change", load);
+  $("replay-compare").addEventListener("change", () => {
+    if ($("replay-compare").value) $("replay-align").checked = true; // compare in the paper's frame
+    load();
+  });
+  $("replay-align").addEventListener("change", load);
+  $("replay-slider").addEventListener("input", () => {
+    setTime(Number($("replay-slider").value) / 10);
+    anchor();
+  });
+  $("replay-speed").addEventListener("change", anchor);
+  $("replay-play").addEventListener("click", () => togglePlay());
+  window.addEventListener("resize", draw);
+  await load();
+}
 
-  async function main() {
-    $("replay-align").checked = params.get("align") === "1";
-    await init3d();
-    try {
-      const sessions = await loadSessions();
-      $("replay-session").value = params.get("session") || (sessions[0] && sessions[0].id) || "";
-      $("replay-compare").value = params.get("compare") || "";
-    } catch (err) {
-      status(`Cannot list the sessions: ${err.message}`);
-    }
-    $("replay-session").addEventListener("change", load);
-    $("replay-compare").addEventListener("change", () => {
-      if ($("replay-compare").value) $("replay-align").checked = true; // compare in the paper's frame
-      load();
-    });
-    $("replay-align").addEventListener("change", load);
-    $("replay-slider").addEventListener("input", () => {
-      setTime(Number($("replay-slider").value) / 10);
-      anchor();
-    });
-    $("replay-speed").addEventListener("change", anchor);
-    $("replay-play").addEventListener("click", () => togglePlay());
-    window.addEventListener("resize", draw);
-    await load();
-  }
-
-  main();
-})();
+main();

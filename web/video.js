@@ -9,109 +9,84 @@
 // frame interval of waiting), shown only when the browser's and station's clocks agree
 // (the reply's server_time checked against the request's round trip). Others read the
 // figures from window.fpv.cameras.
-"use strict";
+import { $, el, api } from "/lib.js";
 
-(() => {
-  const CAMERAS = ["front", "bottom"];
-  const POLL_MS = 1000;
-  const CLOCK_SLACK_S = 0.02; // clocks "agree" if the offset is within RTT/2 + this
-  const fpv = (window.fpv = window.fpv || {});
-  fpv.cameras = {};
+const CAMERAS = ["front", "bottom"];
+const POLL_MS = 1000;
+const CLOCK_SLACK_S = 0.02; // clocks "agree" if the offset is within RTT/2 + this
+const fpv = (window.fpv = window.fpv || {});
+fpv.cameras = {};
 
-  const style = document.createElement("style");
-  style.textContent = `
-    .view .video-stream { width: 100%; height: 100%; object-fit: contain; display: block; }
-    .view .video-readout { position: absolute; top: .3rem; right: .5rem; z-index: 1;
-      font: .75rem/1.2 ui-monospace, monospace; color: #e8eaed; background: rgba(0,0,0,.55);
-      padding: .1rem .4rem; border-radius: .25rem; font-variant-numeric: tabular-nums; }
-    .view .video-readout.bad { color: #ff3b30; }
-    .view .video-readout.warn { color: #ffb020; }`;
-  document.head.appendChild(style);
+const views = {};
+for (const name of CAMERAS) {
+  const img = el("img", { class: "video-stream", alt: `${name} camera`, "data-camera": name });
+  const readout = el("div", { class: "video-readout", id: `${name}-readout` }, "-- fps");
+  $(`${name}-view`).append(img, readout);
+  views[name] = { img, readout, retry: null };
+}
+// Streams start after the page's load event: an endless MJPEG image would otherwise
+// hold that event (and whatever waits for it) forever.
+const start = () => Object.keys(views).forEach(attach);
+if (document.readyState === "complete") start();
+else window.addEventListener("load", start, { once: true });
 
-  const views = {};
-  for (const name of CAMERAS) {
-    const box = document.getElementById(`${name}-view`);
-    if (!box) continue;
-    const img = document.createElement("img");
-    img.className = "video-stream";
-    img.alt = `${name} camera`;
-    img.dataset.camera = name;
-    const readout = document.createElement("div");
-    readout.className = "video-readout";
-    readout.id = `${name}-readout`;
-    readout.textContent = "-- fps";
-    box.appendChild(img);
-    box.appendChild(readout);
-    views[name] = { img, readout, retry: null };
+// (Re)connect a stream; a broken stream (station restarted) retries once a second.
+function attach(name) {
+  const v = views[name];
+  v.img.onerror = () => {
+    if (v.retry) return;
+    v.retry = setTimeout(() => { v.retry = null; attach(name); }, 1000);
+  };
+  v.img.src = `/video/${name}.mjpg?t=${Date.now()}`;
+}
+
+let stationDown = false;
+
+async function poll() {
+  const sentAt = Date.now();
+  let reply;
+  try {
+    reply = await api("/api/cameras");
+  } catch (err) {
+    for (const v of Object.values(views)) setReadout(v, "station unreachable", "bad");
+    stationDown = true;
+    return;
   }
-  // Streams start after the page's load event: an endless MJPEG image would otherwise
-  // hold that event (and whatever waits for it) forever.
-  const start = () => Object.keys(views).forEach(attach);
-  if (document.readyState === "complete") start();
-  else window.addEventListener("load", start, { once: true });
-
-  // (Re)connect a stream; a broken stream (station restarted) retries once a second.
-  function attach(name) {
-    const v = views[name];
-    v.img.onerror = () => {
-      if (v.retry) return;
-      v.retry = setTimeout(() => { v.retry = null; attach(name); }, 1000);
-    };
-    v.img.src = `/video/${name}.mjpg?t=${Date.now()}`;
+  if (stationDown) {
+    // The station is back (restarted): a stream that ended quietly will not error,
+    // so reconnect every stream.
+    stationDown = false;
+    Object.keys(views).forEach(attach);
   }
-
-  let stationDown = false;
-
-  async function poll() {
-    const sentAt = Date.now();
-    let reply;
-    try {
-      const r = await fetch("/api/cameras", { cache: "no-store" });
-      if (!r.ok) throw new Error(`HTTP ${r.status}`);
-      reply = await r.json();
-    } catch (err) {
-      for (const v of Object.values(views)) setReadout(v, "station unreachable", "bad");
-      stationDown = true;
-      return;
+  const now = Date.now();
+  const rttS = (now - sentAt) / 1000;
+  // Station clock minus browser clock, best estimate: server_time was taken mid-request.
+  const offsetS = reply.server_time - (sentAt + now) / 2000;
+  const clocksAgree = Math.abs(offsetS) <= rttS / 2 + CLOCK_SLACK_S;
+  for (const cam of reply.cameras) {
+    const latencyMs = cam.last_frame_time != null ? now - cam.last_frame_time * 1000 : null;
+    fpv.cameras[cam.name] = { ...cam, latency_ms: clocksAgree ? latencyMs : null,
+      clock_offset_s: offsetS };
+    const v = views[cam.name];
+    if (!v) continue;
+    if (!cam.signal) {
+      // The frame itself says why, large; the readout stays short (hover for the reason).
+      setReadout(v, "NO SIGNAL", "bad", cam.reason || "no frames");
+      continue;
     }
-    if (stationDown) {
-      // The station is back (restarted): a stream that ended quietly will not error,
-      // so reconnect every stream.
-      stationDown = false;
-      Object.keys(views).forEach(attach);
-    }
-    const now = Date.now();
-    const rttS = (now - sentAt) / 1000;
-    // Station clock minus browser clock, best estimate: server_time was taken mid-request.
-    const offsetS = reply.server_time - (sentAt + now) / 2000;
-    const clocksAgree = Math.abs(offsetS) <= rttS / 2 + CLOCK_SLACK_S;
-    for (const cam of reply.cameras) {
-      const latencyMs = cam.last_frame_time != null ? now - cam.last_frame_time * 1000 : null;
-      fpv.cameras[cam.name] = { ...cam, latency_ms: clocksAgree ? latencyMs : null,
-        clock_offset_s: offsetS };
-      const v = views[cam.name];
-      if (!v) continue;
-      if (!cam.signal) {
-        // The frame itself says why, large; the readout stays short (hover for the reason).
-        setReadout(v, "NO SIGNAL", "bad", cam.reason || "no frames");
-        continue;
-      }
-      let text = `${cam.delivered_fps.toFixed(1)} fps`;
-      if (clocksAgree && latencyMs != null) text += ` · ${Math.max(0, latencyMs).toFixed(0)} ms`;
-      else text += ` · clocks differ ${offsetS >= 0 ? "+" : ""}${offsetS.toFixed(2)} s`;
-      const slow = cam.delivered_fps < 0.8 * cam.configured_fps;
-      setReadout(v, text, slow ? "warn" : "");
-    }
+    let text = `${cam.delivered_fps.toFixed(1)} fps`;
+    if (clocksAgree && latencyMs != null) text += ` · ${Math.max(0, latencyMs).toFixed(0)} ms`;
+    else text += ` · clocks differ ${offsetS >= 0 ? "+" : ""}${offsetS.toFixed(2)} s`;
+    const slow = cam.delivered_fps < 0.8 * cam.configured_fps;
+    setReadout(v, text, slow ? "warn" : "");
   }
+}
 
-  function setReadout(v, text, cls, title = "") {
-    v.readout.textContent = text;
-    v.readout.title = title;
-    v.readout.className = `video-readout${cls ? " " + cls : ""}`;
-  }
+function setReadout(v, text, cls, title = "") {
+  v.readout.textContent = text;
+  v.readout.title = title;
+  v.readout.className = `video-readout${cls ? " " + cls : ""}`;
+}
 
-  if (Object.keys(views).length) {
-    poll();
-    setInterval(poll, POLL_MS);
-  }
-})();
+poll();
+setInterval(poll, POLL_MS);

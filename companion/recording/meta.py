@@ -69,6 +69,34 @@ class Arming(_Model):
     home_lon_deg: float | None = None
 
 
+class SessionTask(_Model):
+    """The flight task the pilot chose before the session (from the scene file), so that
+    the session, its analysis and an exported episode know what the flight was for."""
+
+    id: int
+    name: str
+    analysis: str | None = None  # how it is scored: hover, a-to-b, obstacle, figure8
+    scene: str  # the scene's name
+    scene_file: str | None = None  # None: the default field
+    start_pad: str
+    end_pad: str
+    altitude_m: float
+    hold_s: float = 0.0
+    reference_lat_deg: float | None = None  # the end pad: the analysis' +x reference
+    reference_lon_deg: float | None = None
+    procedure: list[str] = Field(default_factory=list)
+
+
+class TrialScore(_Model):
+    """The task's analysis of this session, done when the vehicle disarmed."""
+
+    task: str  # the analysis: hover, a-to-b, ...
+    ok: bool
+    reason: str | None = None  # in plain words, when there is no score
+    scored_utc: str
+    result: dict[str, Any] | None = None  # analysis.tasks.TaskResult as a dict
+
+
 class SessionMeta(_Model):
     format_version: int = FORMAT_VERSION
     id: str
@@ -86,6 +114,8 @@ class SessionMeta(_Model):
     trigger: str | None = None  # "rest", "arm", "api", ...
     arming: Arming | None = None
     quality: Quality = Field(default_factory=Quality)
+    task: SessionTask | None = None
+    score: TrialScore | None = None
 
 
 def write_meta(path: Path, meta: SessionMeta) -> None:

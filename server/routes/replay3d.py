@@ -70,11 +70,11 @@ async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     settings = request.app.state.settings
     store = get_recorder(request).store  # the station's one SessionStore
     ref = reference_param(body.reference)
-    gap_s = settings.viser.gap_s
+    viser = settings.viser
 
     def work() -> None:  # file reads, geodesy and the scene batch: off the event loop
-        a = load_trajectory(store, body.session, body.align, ref, gap_s)
-        b = load_trajectory(store, body.overlay, body.align, ref, gap_s) if body.overlay else None
+        a = load_trajectory(store, body.session, body.align, ref, viser)
+        b = load_trajectory(store, body.overlay, body.align, ref, viser) if body.overlay else None
         service.load(a, b)
 
     await asyncio.to_thread(work)

@@ -14,7 +14,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import BaseModel
 
 from companion.recording import layout
-from companion.recording.meta import SessionMeta
+from companion.recording.meta import SessionMeta, SessionTask, TrialScore
 from companion.recording.recorder import Recorder
 from companion.recording.store import (
     SessionSummary,
@@ -42,6 +42,8 @@ class SessionSummaryModel(BaseModel):
     frames_dropped: dict[str, int]
     skew_p99_s: dict[str, float | None]  # camera -> p99 of row-to-frame skew
     recording_now: bool
+    task: SessionTask | None = None  # the flight task chosen before the session
+    score: TrialScore | None = None  # its score, once the vehicle disarmed
 
 
 class SessionDetailModel(BaseModel):
@@ -59,6 +61,8 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
     data["recording_now"] = s.id == recording_id
     cams = s.meta.quality.cameras if s.meta is not None else {}
     data["skew_p99_s"] = {c: q.skew_p99_s for c, q in cams.items()}
+    if s.meta is not None:
+        data["task"], data["score"] = s.meta.task, s.meta.score
     return SessionSummaryModel.model_validate(data)
 
 

@@ -23,6 +23,7 @@ from companion.recording.store import (
 from core.geodesy import LatLonError, parse_latlon
 from server.errors import BadRequest
 from server.routes.recording import get_recorder
+from server.settings import ViserSettings
 from server.trajectory3d.replay import (
     Align,
     CameraFrames,
@@ -49,7 +50,7 @@ def load_trajectory(
     session_id: str,
     align: Align,
     reference: tuple[float, float] | None,
-    gap_s: float,
+    viser: ViserSettings,
 ) -> TrajectoryReply:
     """Blocking: reads the session's files (run it in a thread)."""
     folder: Path = store.resolve(session_id)  # store errors answer 400/404 (server.errors)
@@ -75,9 +76,10 @@ def load_trajectory(
             relative_alt_m=track.relative_alt_m,
             speed_mps=track.ground_speed_mps,
             cameras=cameras,
-            gap_s=gap_s,
+            gap_s=viser.gap_s,
             align=align,
             reference_latlon=reference,
+            height_range_m=viser.height_range_m,
         )
     except ValueError as exc:
         raise BadRequest(f"Session '{session_id}': {exc}") from None
@@ -101,6 +103,4 @@ async def get_trajectory(
     settings = request.app.state.settings
     store = get_recorder(request).store  # the station's one SessionStore
     ref = reference_param(reference)
-    return await asyncio.to_thread(
-        load_trajectory, store, session_id, align, ref, settings.viser.gap_s
-    )
+    return await asyncio.to_thread(load_trajectory, store, session_id, align, ref, settings.viser)

@@ -30,3 +30,8 @@ def ramp_rgb(values: ArrayLike, lo: float, hi: float) -> NDArray[np.uint8]:
     out = np.stack([np.interp(u, _STOPS, _RGB[:, c]) for c in range(3)], axis=-1)
     out[np.isnan(v)] = (128, 128, 128)
     return np.round(out).astype(np.uint8)
+
+
+def ramp_hex(values: ArrayLike, lo: float, hi: float) -> list[str]:
+    """`ramp_rgb` as CSS colours ("#rrggbb"), for pages that draw with the same ramp."""
+    return [f"#{r:02x}{g:02x}{b:02x}" for r, g, b in ramp_rgb(values, lo, hi).tolist()]

@@ -23,8 +23,11 @@ from pydantic import BaseModel
 
 from analysis.flight_frame import arming_origin_index, rotation_to
 from core.geodesy import geodetic_to_enu, rotate_about_up
+from server.settings import ViserSettings
+from server.trajectory3d.colors import ramp_hex
 
 Align = Literal["none", "end", "farthest"]
+_HEIGHT_RANGE_M: tuple[float, float] = ViserSettings.model_fields["height_range_m"].default
 
 
 class GeoPoint(BaseModel):
@@ -46,6 +49,7 @@ class TrajectoryReply(BaseModel):
     z_m: list[float]
     speed_mps: list[float | None]
     starts_run: list[bool]  # True where a gap (no fix, or silence > gap_s) ends
+    color: list[str]  # "#rrggbb" per point: height on the 3D panels' ramp (pages draw it)
     frames: dict[str, list[str | None]]  # camera -> file (relative to the session) per time
 
 
@@ -99,6 +103,7 @@ def build_trajectory(
     gap_s: float = 1.0,
     align: Align = "none",
     reference_latlon: tuple[float, float] | None = None,
+    height_range_m: tuple[float, float] = _HEIGHT_RANGE_M,
 ) -> TrajectoryReply:
     """The reply for one session's fixes (rows without a fix already dropped), in the
     analysis' flight frame (`analysis.flight_frame`: same origin, same turn)."""
@@ -134,6 +139,7 @@ def build_trajectory(
         z_m=_rounded(enu[:, 2], 3),
         speed_mps=[None if not math.isfinite(v) else round(v, 3) for v in speed.tolist()],
         starts_run=starts.tolist(),
+        color=ramp_hex(enu[:, 2], *height_range_m),
         frames={c.camera: frames_at(t, c) for c in (cameras or [])},
     )
 

@@ -1,0 +1,179 @@
+"""Flight tasks in the pilot's hands: the task chosen for the next flights, written into
+each session, and the trial scored the moment the vehicle disarms.
+
+The scene is the station's one field (`core.scene`): `viser.field_file` when set, else the
+twin's scene when flying the twin, else the default field (the paper's four tasks; its
+pads only count for flights that start on them, as in `fpv-station analyze`). Scoring
+runs `analysis.report.analyze_paths` on the finished session, the same call as
+`fpv-station analyze --task T SESSION [--scene FILE]`, in a worker thread behind the
+station's analysis limiter, and stores the result in the session's `session.json`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+import logging
+from pathlib import Path
+from typing import Any
+
+import anyio
+
+from analysis.errors import AnalysisError
+from analysis.report import analyze_paths
+from analysis.tasks import PAPER_RESULTS
+from companion.recording import layout
+from companion.recording.meta import SessionMeta, SessionTask, TrialScore, read_meta, write_meta
+from companion.recording.recorder import Recorder, Spawn
+from core.geodesy import enu_to_geodetic
+from core.scene import Scene, SceneError, Task, load_scene
+from server.settings import Settings
+
+log = logging.getLogger(__name__)
+
+MAX_ATTEMPTS_SHOWN = 20
+
+
+def session_task(scene: Scene, scene_file: Path | None, task: Task) -> SessionTask:
+    """What a session records of its task: the task, its scene and its +x reference."""
+    end = scene.pad(task.end_pad)
+    lat, lon, _ = enu_to_geodetic([end.x_m, end.y_m, 0.0], *scene.home_llh)
+    return SessionTask(
+        id=task.id,
+        name=task.name,
+        analysis=task.analysis_task,
+        scene=scene.name,
+        scene_file=str(scene_file) if scene_file is not None else None,
+        start_pad=task.start_pad,
+        end_pad=task.end_pad,
+        altitude_m=task.altitude_m,
+        hold_s=task.hold_s,
+        reference_lat_deg=round(float(lat), 8),
+        reference_lon_deg=round(float(lon), 8),
+        procedure=list(task.procedure),
+    )
+
+
+def score_session(folder: Path, task: SessionTask) -> TrialScore:
+    """Blocking: the task's analysis of one finished session, as `fpv-station analyze`."""
+    now = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    if task.analysis is None:
+        return TrialScore(task="none", ok=False, reason="This task has no scoring.", scored_utc=now)
+    scene = Path(task.scene_file) if task.scene_file else True
+    try:
+        analysis = analyze_paths([folder], task.analysis, scene=scene)
+    except AnalysisError as exc:  # never reached the window, no GPS fix, too short ...
+        return TrialScore(task=task.analysis, ok=False, reason=str(exc), scored_utc=now)
+    result = analysis.results[0].to_dict()
+    return TrialScore(task=task.analysis, ok=True, scored_utc=now, result=result)
+
+
+class Trials:
+    """The chosen task, and the scores of the trials flown with it."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        scene_file: Path | None,
+        is_field: bool,
+        recorder: Recorder | None,
+        spawn: Spawn,
+        limiter: anyio.CapacityLimiter,
+    ) -> None:
+        self.scene = scene
+        self.scene_file = scene_file
+        self.is_field = is_field  # the scene is the field being flown (not just its tasks)
+        self.recorder = recorder
+        self.selected: SessionTask | None = None
+        self.last: tuple[str, TrialScore] | None = None  # (session id, score)
+        self._spawn = spawn
+        self._limiter = limiter
+        self._scoring = 0
+        if recorder is not None:
+            recorder.session_end_hooks.append(self._on_session_end)
+
+    def select(self, task_id: int | None) -> SessionTask | None:
+        """Choose the task for the next sessions (None: no task); KeyError if unknown."""
+        self.selected = (
+            None
+            if task_id is None
+            else session_task(self.scene, self.scene_file, self.scene.task(task_id))
+        )
+        if self.recorder is not None:
+            self.recorder.task = self.selected
+        return self.selected
+
+    @property
+    def scoring(self) -> bool:
+        return self._scoring > 0
+
+    def _on_session_end(self, meta: SessionMeta, folder: Path) -> None:
+        if meta.task is None:
+            return
+        self._scoring += 1
+        self._spawn(f"score-{meta.id}", self._score(meta.id, meta.task, folder))
+
+    async def _score(self, session_id: str, task: SessionTask, folder: Path) -> None:
+        try:
+            score = await anyio.to_thread.run_sync(
+                _score_and_store, folder, task, limiter=self._limiter
+            )
+            self.last = (session_id, score)
+            log.info("session %s scored: %s", session_id, score.reason or "ok")
+        finally:
+            self._scoring -= 1
+
+    async def attempts(self, task_id: int) -> list[dict[str, Any]]:
+        """This UTC day's scored sessions of `task_id`, newest first."""
+        if self.recorder is None:
+            return []
+        summaries = await asyncio.to_thread(self.recorder.store.list)
+        today = dt.datetime.now(dt.UTC).date()
+        out = []
+        for s in summaries:
+            m = s.meta
+            if m is None or m.task is None or m.task.id != task_id or m.score is None:
+                continue
+            if (
+                s.start_wall is None
+                or dt.datetime.fromtimestamp(s.start_wall, dt.UTC).date() != today
+            ):
+                continue
+            out.append({"session": s.id, "start_utc": m.start_utc, "score": m.score})
+            if len(out) >= MAX_ATTEMPTS_SHOWN:
+                break
+        return out
+
+    @staticmethod
+    def paper(analysis: str | None) -> dict[str, dict[str, float]] | None:
+        """The paper's published figures for the task, physical and twin."""
+        return PAPER_RESULTS.get(analysis) if analysis else None
+
+
+def _score_and_store(folder: Path, task: SessionTask) -> TrialScore:
+    score = score_session(folder, task)
+    path = folder / layout.SESSION_JSON
+    try:
+        meta = read_meta(path)
+        write_meta(path, meta.model_copy(update={"score": score}))
+    except (OSError, ValueError) as exc:  # the score is still shown on the page
+        log.error("cannot store the score in %s: %s", path, exc)
+    return score
+
+
+def station_scene(settings: Settings) -> tuple[Scene, Path | None, bool]:
+    """The station's field, its file (None: the default field) and whether it is the
+    field being flown (a scene file given, or the twin's), see the module docstring."""
+    if settings.viser.field_file is not None:
+        path = Path(settings.viser.field_file)
+    elif settings.link.source.strip() == "sim" and settings.twin.scene is not None:
+        path = Path(settings.twin.scene)
+    elif settings.link.source.strip() == "sim":
+        return load_scene(None), None, True
+    else:
+        return load_scene(None), None, False
+    try:
+        return load_scene(path), path, True
+    except SceneError as exc:  # the station still flies; tasks come from the default field
+        log.error("scene file not used: %s", exc)
+        return load_scene(None), None, False

@@ -1,0 +1,169 @@
+"""What every page shares (web/lib.js, web/style.css), in real headless chromium against a
+real station: the one 401 -> ask -> retry flow for HTTP and for the control WebSocket, and
+pages that style only through the one stylesheet and load only the station's own scripts."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+from playwright.sync_api import expect, sync_playwright
+
+from server.app import create_app
+from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings
+from tests.test_trajectory_replay import SESSION_A, sessions_dir  # noqa: F401
+
+TOKEN = "s3cret-token"
+# Each page, and what shows once all its scripts have run.
+PAGES = {
+    "/": "#p3d-toggle",
+    "/sessions.html": f'#sessions tr[data-id="{SESSION_A}"] a.replay',
+    "/analysis.html": f'#sessions option[value="{SESSION_A}"]',
+    f"/replay.html?session={SESSION_A}": "#replay-status:has-text('fixes')",
+}
+
+
+@pytest.fixture
+def chromium():
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture
+def guarded(tmp_path):
+    """A station with a control token; yields its base URL."""
+    settings = station_settings("none", tmp_path / "sessions", **{"server.token": TOKEN})
+    with run_uvicorn(create_app(settings)) as base:
+        yield base
+
+
+def answer_dialogs(page, token: str | None) -> list[str]:
+    """Accept confirms; answer prompts with `token` (None = cancel). Returns the prompts."""
+    prompts: list[str] = []
+
+    def on_dialog(dialog):
+        if dialog.type == "prompt":
+            prompts.append(dialog.message)
+            if token is None:
+                dialog.dismiss()
+            else:
+                dialog.accept(token)
+        else:
+            dialog.accept()
+
+    page.on("dialog", on_dialog)
+    return prompts
+
+
+def test_http_401_asks_for_the_token_once_retries_and_keeps_it(guarded, chromium):
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    sid = httpx.post(f"{guarded}/api/recording/start", headers=auth).json()["id"]
+    httpx.post(f"{guarded}/api/recording/stop", headers=auth).raise_for_status()
+
+    page = chromium.new_page()
+    prompts = answer_dialogs(page, TOKEN)
+    deletes: list[str | None] = []
+    page.on(
+        "request",
+        lambda r: deletes.append(r.headers.get("authorization")) if r.method == "DELETE" else None,
+    )
+    page.goto(f"{guarded}/sessions.html")
+    row = page.locator(f'#sessions tr[data-id="{sid}"]')
+    row.locator("button.delete").click()
+    expect(row).to_have_count(0)
+    assert httpx.get(f"{guarded}/api/sessions").json() == []
+    assert len(prompts) == 1 and "token" in prompts[0]
+    assert deletes == [None, f"Bearer {TOKEN}"]  # refused, asked, retried with the token
+    assert page.evaluate("localStorage.getItem('fpv.token')") == TOKEN
+
+    # Another page of the same station uses the kept token without asking again.
+    page.goto(f"{guarded}/")
+    button = page.locator("#rec-button")
+    button.click()
+    expect(button).to_have_class("recording")
+    button.click()
+    expect(button).to_have_text("REC")
+    assert len(prompts) == 1
+
+
+def test_http_401_declined_shows_the_servers_error_and_changes_nothing(guarded, chromium):
+    page = chromium.new_page()
+    alerts: list[str] = []
+    page.on("dialog", lambda d: (alerts.append(d.message), d.dismiss()))
+    page.goto(f"{guarded}/")
+    page.locator("#rec-button").click()
+    expect(page.locator("#rec-button")).to_have_text("REC")
+    page.wait_for_function("document.getElementById('rec-button').disabled === false")
+    # the prompt (declined), then the refusal in the server's words
+    assert "token" in alerts[0]
+    assert alerts[1].startswith("Recording: This station requires a control token")
+    assert httpx.get(f"{guarded}/api/recording").json()["recording"] is False
+
+
+def test_control_socket_4401_asks_for_the_token_and_reconnects(guarded, chromium):
+    """The control socket refuses a missing token (close 4401); the page asks through
+    lib.js and opens it again with the token. This station has no twin, so the socket
+    then gets past the token and is refused for that reason instead."""
+    page = chromium.new_page()
+    prompts = answer_dialogs(page, TOKEN)
+    page.goto(f"{guarded}/")
+    page.wait_for_function("window.fpv && window.fpv.control")
+    page.evaluate("document.getElementById('ctl-toggle').click()")  # hidden without a twin
+    page.wait_for_function(
+        "window.fpv.control.lastReply && window.fpv.control.lastReply.error === 'Conflict'"
+    )
+    assert len(prompts) == 1
+    assert "digital twin" in page.evaluate("window.fpv.control.lastReply.error_msg")
+
+
+# Records <style> elements as they are added, from before the page's first script runs.
+WATCH_STYLES = """
+window.__styles = [];
+new MutationObserver((muts) => {
+  for (const m of muts) for (const n of m.addedNodes)
+    if (n.nodeName === "STYLE") window.__styles.push(n.textContent.slice(0, 80));
+}).observe(document, { childList: true, subtree: true });
+"""
+
+
+@pytest.mark.timeout(180)
+def test_pages_style_only_through_the_stylesheet_and_load_only_own_scripts(
+    sessions_dir,  # noqa: F811
+    chromium,
+):
+    settings = station_settings("none", sessions_dir, **{"viser.enabled": True, "viser.port": 0})
+    with run_uvicorn(create_app(settings)) as base:
+        page = chromium.new_page()
+        page.add_init_script(WATCH_STYLES)
+        scripts: list[str] = []
+        page.on(
+            "request",
+            lambda r: (
+                scripts.append(r.url)
+                if r.resource_type == "script" and r.frame == page.main_frame
+                else None
+            ),
+        )
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        for path, ready in PAGES.items():
+            scripts.clear()
+            page.goto(base + path)
+            expect(page.locator(ready)).to_have_count(1, timeout=20_000)
+            found = page.evaluate(
+                """() => ({
+                  injected: window.__styles,
+                  styles: document.querySelectorAll("style").length,
+                  styled: [...document.querySelectorAll("[style]")].map((e) => e.outerHTML.slice(0, 80)),
+                  sheets: [...document.querySelectorAll("link[rel=stylesheet]")].map((l) => l.href),
+                  classic: [...document.querySelectorAll("script")].filter((s) => s.type !== "module").length,
+                })"""
+            )
+            assert found["injected"] == [] and found["styles"] == 0, (path, found)
+            assert found["styled"] == [], (path, found["styled"])
+            assert found["sheets"] == [f"{base}/style.css"], (path, found["sheets"])
+            assert found["classic"] == 0, path  # every page script is an ES module
+            assert scripts and all(u.startswith(base + "/") for u in scripts), (path, scripts)
+            assert f"{base}/lib.js" in scripts, (path, scripts)
+        assert errors == []
