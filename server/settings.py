@@ -33,6 +33,16 @@ class ServerSettings(Section):
     # When set, control endpoints (recording, delete, twin control) need
     # `Authorization: Bearer <token>`; reading stays open, as on a field network.
     token: str | None = None
+    # "token": `fpv-station serve` with no token set makes one on first start, keeps it in
+    # `token_file` and prints the URL that carries it (as Jupyter does). "open": no
+    # control token at all (only for a network where nobody else is).
+    control: Literal["token", "open"] = "token"
+    token_file: Path | None = None  # None: $XDG_CONFIG_HOME/fpv-station/token
+    # Browser origins besides the station's own that may change things (scheme://host:port).
+    allowed_origins: list[str] = Field(default_factory=list)
+    # Request bodies: larger ones are refused (413) before they are read. Every body the
+    # API takes is a small JSON document.
+    max_body_bytes: int = Field(64 * 1024, ge=1024, le=64 * 1024 * 1024)
 
 
 class ViserSettings(Section):

@@ -53,10 +53,11 @@ def record(path, speed: str, sessions_dir) -> list[dict]:
         get = lambda url: httpx.get(f"{base}{url}", timeout=30).json()  # noqa: E731
         assert wait_until(lambda: get("/api/status")["link"]["replay_done"], timeout=120)
         assert wait_until(lambda: not get("/api/recording")["recording"], timeout=10)
+        rates = get("/api/status")["link"]["rates_hz"]
         out = []
         for s in sorted(get("/api/sessions"), key=lambda s: s["start_wall"]):
             table = get(f"/api/sessions/{s['id']}/analysis?task=a-to-b")
-            out.append({**s, "result": table["results"][0]})
+            out.append({**s, "result": table["results"][0], "rates_hz": rates})
         return out
 
 
@@ -79,6 +80,8 @@ def test_sessions_from_a_replay_are_the_same_at_any_speed(sorties_tlog, tmp_path
             r = s["result"]
             assert r["trial_time_s"] == pytest.approx(10.0, abs=0.3), speed  # 0.5 m up and down
             assert r["max_speed_mps"] == pytest.approx(2.0, abs=0.3), speed
+            # Rates in the log's seconds: ATTITUDE is 50 Hz of the vehicle's, at any speed.
+            assert s["rates_hz"]["ATTITUDE"] == pytest.approx(50.0, rel=0.05), speed
     for k in range(2):
         base = runs["1"][k]["result"]["trial_time_s"]
         for speed in ("20", "max"):

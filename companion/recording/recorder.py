@@ -276,9 +276,10 @@ class Recorder:
         elif not armed and self._was_armed is True:
             if session is not None and session.trigger == "arm":
                 self._tail_due = t + self.options.post_disarm_tail_s
+                self._tail_deadline_wall = self._tail_due  # the log's time, as the session's
         self._was_armed = armed
         if self._tail_due is not None and t >= self._tail_due and self.session is not None:
-            self._tail_due = None
+            self._tail_due = self._tail_deadline_wall = None
             self._wait_for(self.stop("disarmed", only_id=self.session.id))
 
     def _wait_for(self, coro: Coroutine[Any, Any, Any]) -> None:
