@@ -5,9 +5,12 @@
                         [--label NAME ...] [--hover-height M] [--hover-window S]
                         [--hover-tolerance M]
                         [--margin M] [--airborne-height M] [--height-source pilot|gps]
+                        [--flight N]
 
-SESSION is a session folder, a downloaded session zip, or a bare .tlog. Prints the
-comparison table (Markdown) and writes it as .md/.csv/.json with the three figures.
+SESSION is a session folder, a downloaded session zip, or a bare .tlog. Each flight in
+it (take-off to landing; an autopilot's log often holds several) is one row, labelled
+"SESSION flight N"; --flight N analyses only the N-th of each. Prints the comparison
+table (Markdown) and writes it as .md/.csv/.json with the three figures.
 """
 
 from __future__ import annotations
@@ -27,6 +30,12 @@ def _latlon_arg(text: str) -> tuple[float, float]:
         return parse_latlon(text)
     except LatLonError as exc:  # argparse shows an ArgumentTypeError's own message
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _flight_arg(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"--flight counts from 1, not '{text}'.")
+    return int(text)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -67,6 +76,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="M",
         help="window starts/ends this far along x from take-off/landing",
     )
+    p.add_argument(
+        "--flight",
+        type=_flight_arg,
+        metavar="N",
+        help="analyse only the N-th flight of each session (default: every flight, one row each)",
+    )
     p.add_argument("--airborne-height", type=float, default=d.airborne_height_m, metavar="M")
     p.add_argument(
         "--height-source",
@@ -91,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     scene: Any = False if args.no_scene else (args.scene if args.scene else True)
     try:
         analysis = analyze_paths(
-            args.sessions, args.task, args.reference, scene, params, args.label
+            args.sessions, args.task, args.reference, scene, params, args.label, args.flight
         )
         out = args.out or Path(f"analysis-{args.task}")
         files = analysis.write(out)
@@ -99,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"fpv-station analyze: {exc}", file=sys.stderr)
         return 2
     print(analysis.comparison.to_markdown())
+    for label, why in analysis.skipped:
+        print(f"skipped {label}: {why}", file=sys.stderr)
     for f in files:
         print(f"wrote {f}")
     return 0

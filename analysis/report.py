@@ -2,6 +2,12 @@
 table and figures. The CLI and the REST routes both call `analyze_tracks`, so they give
 the same numbers.
 
+One trial per flight: a file or session holding several take-off/landing cycles (several
+sorties in one autopilot log, two flights joined by a post-disarm tail) is split into
+flights (`analysis.flights`) and each is its own row, labelled "NAME flight N"; `flight`
+picks one. A flight in which the task cannot be measured (a test hop in a file of
+figure 8s) is listed in `skipped` with the reason, unless it is the only one asked for.
+
 The field (pads and obstacles of the twin's scene) is used for a flight that starts
 within `scene_radius_m` of one of its pads: its landing pad then gives the +x direction
 (unless a reference is given), plots draw it, and twin flights get their obstacle
@@ -12,15 +18,17 @@ approximates the real obstacles, and GPS noise would invent contacts.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from analysis import plots
 from analysis.compare import Comparison, compare
+from analysis.errors import AnalysisError, TaskWindowError
 from analysis.field_layout import FieldLayout, load_field_layout
 from analysis.flight_frame import AlignedTrack, align_track
+from analysis.flights import Flight, track_flights
 from analysis.tasks import TaskParams, TaskResult, analyze, check_task
 from analysis.track import Track, load_track
 from core.geodesy import geodetic_to_enu
@@ -33,6 +41,7 @@ class Analysis:
     task: str
     aligned: tuple[AlignedTrack, ...]
     comparison: Comparison
+    skipped: tuple[tuple[str, str], ...] = ()  # (label, why) of flights without a trial
 
     @property
     def results(self) -> tuple[TaskResult, ...]:
@@ -72,31 +81,79 @@ def field_for(
     return field if np.min(np.hypot(*(pads - start[:2]).T)) <= radius_m else None
 
 
+def flight_tracks(track: Track, params: TaskParams, flight: int | None = None) -> list[Track]:
+    """The track of each flight (or of flight number `flight`): its armed period with the
+    ground time before it (back to the previous flight), where the flight frame finds its
+    arming point. A track in which nothing flew is returned whole (its analysis says so)."""
+    flights = track_flights(track, params.airborne_height_m, params.min_airborne_s)
+    if flight is not None and not 1 <= flight <= len(flights):
+        raise TaskWindowError(
+            f"'{track.source}' has {len(flights)} flight(s); there is no flight {flight}."
+        )
+    if not flights:
+        return [track]
+    out = []
+    for f in flights if flight is None else [flights[flight - 1]]:
+        previous: Flight | None = flights[f.number - 2] if f.number > 1 else None
+        start = previous.disarm + 1 if previous is not None else 0
+        label = track.label if len(flights) == 1 else f"{track.label} flight {f.number}"
+        part = track.select(slice(start, f.disarm + 1))
+        out.append(replace(part, label=label, meta={**track.meta, "flight": f.number}))
+    return out
+
+
 def analyze_tracks(
     tracks: Sequence[Track],
     task: str,
     reference_latlon: tuple[float, float] | None = None,
     field: FieldLayout | None = None,
     params: TaskParams | None = None,
+    flight: int | None = None,
 ) -> Analysis:
+    """One row per flight of each track (`flight`: only that flight of each)."""
     check_task(task)
     p = params or TaskParams()
-    aligned, results = [], []
-    for track in tracks:
-        near = field_for(track, field)
-        a = align_track(
-            track,
-            reference_latlon,
-            near,
-            min_points=p.min_points,
-            min_reference_m=p.margin_m,
-            ground_height_m=p.airborne_height_m,
+    aligned, results, skipped = [], [], []
+    for whole in tracks:
+        parts = flight_tracks(whole, p, flight)
+        for track in parts:
+            try:
+                a, result = _analyze_one(track, task, reference_latlon, field, p)
+            except AnalysisError as exc:
+                if len(parts) == 1:
+                    raise
+                skipped.append((track.label, str(exc)))
+                continue
+            aligned.append(a)
+            results.append(result)
+    if not results:
+        raise TaskWindowError(
+            "No flight with a trial to analyse: " + "; ".join(f"{n}: {w}" for n, w in skipped)
         )
-        # Draw the field for every flight, count contacts for the twin only (see above).
-        result = analyze(a, task, p, count_contacts=track.platform == "twin")
-        aligned.append(a)
-        results.append(result)
-    return Analysis(task=task, aligned=tuple(aligned), comparison=compare(results))
+    return Analysis(
+        task=task, aligned=tuple(aligned), comparison=compare(results), skipped=tuple(skipped)
+    )
+
+
+def _analyze_one(
+    track: Track,
+    task: str,
+    reference_latlon: tuple[float, float] | None,
+    field: FieldLayout | None,
+    p: TaskParams,
+) -> tuple[AlignedTrack, TaskResult]:
+    near = field_for(track, field)
+    a = align_track(
+        track,
+        reference_latlon,
+        near,
+        min_points=p.min_points,
+        min_reference_m=p.margin_m,
+        ground_height_m=p.airborne_height_m,
+    )
+    # Draw the field for every flight, count contacts for the twin only (see above).
+    result = analyze(a, task, p, count_contacts=track.platform == "twin")
+    return a, replace(result, flight=track.meta.get("flight"))
 
 
 def analyze_paths(
@@ -106,6 +163,7 @@ def analyze_paths(
     scene: str | Path | None | bool = True,
     params: TaskParams | None = None,
     labels: Sequence[str] | None = None,
+    flight: int | None = None,
 ) -> Analysis:
     """`scene`: True = the default field (core.scene.DEFAULT_SCENE), False = none, or a
     path to a scene file."""
@@ -115,4 +173,4 @@ def analyze_paths(
     tracks = [
         load_track(path, names[i] if i < len(names) else None) for i, path in enumerate(paths)
     ]
-    return analyze_tracks(tracks, task, reference_latlon, field, params)
+    return analyze_tracks(tracks, task, reference_latlon, field, params, flight)

@@ -123,6 +123,7 @@ class TaskResult:
     origin_lat_deg: float
     origin_lon_deg: float
     origin_alt_m: float
+    flight: int | None = None  # which flight of its file (1-based), when split into flights
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -3,9 +3,10 @@ microsecond timestamp before every packet, as QGroundControl, MAVProxy and our r
 write), read with `core.mavlink.tlog_records.TlogReader` (which survives a cut or
 corrupted log). `analysis.track.load_tlog` makes them a `Track`.
 
-One sample per GPS_RAW_INT with a fix (GLOBAL_POSITION_INT when the log has no raw GPS);
-the armed state, relative altitude and speeds are the latest values received before the
-sample. pymavlink decodes message by message (there is no vectorized MAVLink parser);
+One sample per GPS_RAW_INT with a fix (GLOBAL_POSITION_INT when the log has no raw GPS),
+timed by the vehicle's own clock (`time_usec`, `time_boot_ms`; see
+`analysis.vehicle_clock`), the receive time only where it has none; the armed state,
+relative altitude and speeds are the latest values received before the sample. pymavlink decodes message by message (there is no vectorized MAVLink parser);
 everything after the decode is numpy.
 """
 
@@ -17,6 +18,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from analysis.errors import NoGpsFixError, TrackLoadError
+from analysis.vehicle_clock import on_vehicle_clock
 from core.mavlink.framing import message_id
 from core.mavlink.tlog_records import TlogReader
 
@@ -57,10 +59,14 @@ def read_tlog_samples(path: Path, min_fix_type: int = 3) -> dict[str, np.ndarray
             if kind == "GPS_RAW_INT":
                 speed = np.nan if msg.vel == _UINT16_UNKNOWN else msg.vel / 100.0
                 gps.append(
-                    (t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0, msg.fix_type, speed)
-                )
+                    (t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0, msg.fix_type, speed,
+                     msg.time_usec * 1e-6)
+                )  # fmt: skip
             elif kind == "GLOBAL_POSITION_INT":
-                glob.append((t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0, 3, np.nan))
+                glob.append(
+                    (t, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt / 1000.0, 3, np.nan,
+                     msg.time_boot_ms * 1e-3)
+                )  # fmt: skip
                 rel.append((t, msg.relative_alt / 1000.0))
             elif kind == "HEARTBEAT":
                 if msg.type in _NOT_AUTOPILOT or msg.autopilot == mavlink2.MAV_AUTOPILOT_INVALID:
@@ -71,21 +77,28 @@ def read_tlog_samples(path: Path, min_fix_type: int = 3) -> dict[str, np.ndarray
     except OSError as exc:
         raise TrackLoadError(f"'{path}' cannot be read: {exc}") from None
 
-    rows = _by_time(np.array(gps if gps else glob, dtype=np.float64).reshape(-1, 6))
+    rows = _by_time(np.array(gps if gps else glob, dtype=np.float64).reshape(-1, 7))
     if rows.shape[0] == 0:
         raise NoGpsFixError(f"'{path}' holds no GPS_RAW_INT or GLOBAL_POSITION_INT message.")
-    t, lat, lon, alt, fix, speed = rows.T
+    t, lat, lon, alt, fix, speed, t_vehicle = rows.T
     ok = (fix >= min_fix_type) & ~((lat == 0) & (lon == 0))
     if not ok.any():
         raise NoGpsFixError(f"'{path}' has no GPS sample with a fix (fix_type >= {min_fix_type}).")
-    t, lat, lon, alt, fix, speed = (a[ok] for a in (t, lat, lon, alt, fix, speed))
-    t0 = t[0]
+    t, lat, lon, alt, fix, speed, t_vehicle = (
+        a[ok] for a in (t, lat, lon, alt, fix, speed, t_vehicle)
+    )
+    # When each sample was taken (the vehicle's clock on the receive clock); the other
+    # messages are matched by receive time, as the station saw them arrive.
+    taken = on_vehicle_clock(t, t_vehicle)
+    order = np.argsort(taken, kind="stable")
+    taken, t, lat, lon, alt, fix, speed = (a[order] for a in (taken, t, lat, lon, alt, fix, speed))
+    t0 = taken[0]
     hud_a = _by_time(np.array(hud, dtype=np.float64).reshape(-1, 3))
     if np.isnan(speed).all() and hud_a.shape[0]:
         speed = _latest(hud_a[:, 0], hud_a[:, 1], t)
     return {
-        "t_s": t - t0,
-        "wall_time": t,
+        "t_s": taken - t0,
+        "wall_time": taken,
         "lat_deg": lat,
         "lon_deg": lon,
         "alt_m": alt,

@@ -1,7 +1,8 @@
 """A flight track as typed numpy columns, loaded from a session folder's `telemetry.csv`,
 a downloaded session zip, or a bare `.tlog`.
 
-One sample per GPS solution. The recorder writes one CSV row per telemetry tick (faster
+One sample per GPS solution, timed by the vehicle's clock where the file has it (see
+`analysis.vehicle_clock`). The recorder writes one CSV row per telemetry tick (faster
 than the GPS updates), so the same GPS solution appears on several rows; counting it
 several times would weight slow-update stretches more than others and bias every mean
 and standard deviation. We keep the first row of each GPS *message*, recognised by a
@@ -27,6 +28,7 @@ from numpy.typing import NDArray
 from analysis.csvcols import CsvColumns, to_bool, to_float
 from analysis.errors import NoGpsFixError, TrackLoadError
 from analysis.tlog_samples import read_tlog_samples
+from analysis.vehicle_clock import on_vehicle_clock
 from companion.recording import layout
 
 Array = NDArray[np.float64]
@@ -211,6 +213,7 @@ def load_telemetry_csv(
         "rel": ["altitude.relative_alt_m", "global_position.relative_alt_m"],
         "speed": ["vfr_hud.ground_speed_mps", "gps.ground_speed_mps"],
         "climb": ["vfr_hud.climb_mps"],
+        "vehicle_t": [f"{pos}.time_usec", f"{pos}.time_boot_ms"],
     }
     chosen = {k: next((c for c in cands if c in index), None) for k, cands in wanted.items()}
     table = CsvColumns(body, len(header))
@@ -230,6 +233,11 @@ def load_telemetry_csv(
             raise TrackLoadError(f"'{source}': column {name}: {exc}") from None
 
     t_s, lat, lon, alt, fix = (column(k) for k in ("t_s", "lat", "lon", "alt", "fix"))
+    wall = column("wall_time")
+    if chosen["vehicle_t"] is not None:  # when the GPS took it, not when a burst brought it
+        scale = 1e-6 if chosen["vehicle_t"].endswith("_usec") else 1e-3
+        taken = on_vehicle_clock(t_s, column("vehicle_t") * scale)
+        wall, t_s = wall + (taken - t_s), taken
     ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & np.isfinite(t_s)
     ok &= ~((lat == 0) & (lon == 0))  # autopilots report 0,0 before a fix
     if chosen["fix"] is not None:
@@ -248,7 +256,7 @@ def load_telemetry_csv(
         label=label,
         source=source,
         t_s=t_s[ok],
-        wall_time=column("wall_time")[ok],
+        wall_time=wall[ok],
         lat_deg=lat[ok],
         lon_deg=lon[ok],
         alt_m=alt[ok],

@@ -26,12 +26,17 @@ import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
+from analysis.report import analyze_paths  # noqa: E402
 from companion.recording import layout  # noqa: E402
 from server.app import create_app  # noqa: E402
 from tests import shaped_tlog  # noqa: E402
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
+from tests.test_analysis_time_base import FADE, SPEED_MPS, dash  # noqa: E402
+from tests.test_ekf_origin import ARDUPILOT, CASES, HOP_M, pilot_altitudes  # noqa: E402
 from tests.test_flight_truth import by_stream, mavloss, replay_status  # noqa: E402
+from tests.test_replay_clock import record, two_sorties  # noqa: E402
+from tests.test_trial_per_flight import SORTIES as JOINED  # noqa: E402
 from tests.test_twin_mission import MISSION, REL, take_off, upload  # noqa: E402
 from twin.runner import Twin  # noqa: E402
 from twin.sensors import SensorParams  # noqa: E402
@@ -72,7 +77,7 @@ def silence_case(tmp: Path) -> None:
         session = httpx.post(f"{base}/api/recording/stop").json()["last_stop"]["id"]
     meta = json.loads((tmp / "sessions" / session / layout.SESSION_JSON).read_text())
     losses = meta["quality"]["link_loss"]
-    got = sum((iv["end_s"] - iv["start_s"]) * speed for iv in losses)
+    got = sum(iv["end_s"] - iv["start_s"] for iv in losses)  # the log's seconds
     row("autopilot silent 45 s, radio + QGC talking (replay x10)", "session link_loss (log s)",
         "45.0", f"{got:.1f} in {len(losses)} interval(s)", f"{got - 45.0:+.1f} s")  # fmt: skip
 
@@ -174,12 +179,64 @@ def reset_case() -> None:
         "Reset (s)", "0.02 (50 Hz ATTITUDE)", f"{gap:.2f}", f"{gap - 0.02:+.2f} s")  # fmt: skip
 
 
+def ekf_origin_cases(tmp: Path) -> None:
+    for case, (flight, origin_s) in CASES.items():
+        path = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=origin_s).write(
+            tmp / "ekf.tlog"
+        )
+        alts, _ = pilot_altitudes(path)
+        top = float(alts.max())
+        row(f"ArduPilot EKF origin jump to 180 m AMSL, {case}, 1.3 m hop",
+            "highest pilot's altitude while armed (m)", f"{HOP_M:.2f}", f"{top:.2f}",
+            f"{top - HOP_M:+.2f} m")  # fmt: skip
+
+
+def burst_case(tmp: Path) -> None:
+    path = shaped_tlog.vehicle_flight(dash(), fade=FADE, burst_s=1.0).write(tmp / "burst.tlog")
+    (r,) = analyze_paths([path], "a-to-b", scene=False).results
+    row("28 m/s dash, 4.3 s fade then a 1 s burst", "max speed (m/s)", f"{SPEED_MPS:.1f} (GPS)",
+        f"{r.max_speed_mps:.2f}", f"{r.max_speed_mps - SPEED_MPS:+.2f} m/s")  # fmt: skip
+
+
+def replay_speed_cases(tmp: Path) -> None:
+    path = shaped_tlog.vehicle_flight(two_sorties()).write(tmp / "sorties.tlog")
+    runs = {speed: record(path, speed, tmp / f"s{speed}") for speed in ("1", "20", "max")}
+    for speed, sessions in runs.items():
+        times = " / ".join(f"{s['result']['trial_time_s']:.2f}" for s in sessions)
+        reasons = " / ".join(str(s["stop_reason"]) for s in sessions)
+        worst = max(abs(s["result"]["trial_time_s"] - 10.0) for s in sessions)
+        row(f"2 sorties 10 s apart, log ends armed, replay x{speed}",
+            "sessions; trial times (s); stop reasons", "2; 10.00 / 10.00; disarmed / source ended",
+            f"{len(sessions)}; {times}; {reasons}", f"{worst:.2f} s")  # fmt: skip
+
+
+def joined_flights_case(tmp: Path) -> None:
+    path = shaped_tlog.vehicle_flight(two_sorties(JOINED, end_s=33.0)).write(tmp / "joined.tlog")
+    settings = station_settings(
+        f"replay:{path}?speed=max", tmp / "joined", **{"recording.auto_record_on_arm": True}
+    )
+    with run_uvicorn(create_app(settings)) as base:
+        get = lambda url: httpx.get(f"{base}{url}", timeout=30).json()  # noqa: E731
+        wait_until(lambda: get("/api/status")["link"]["replay_done"], 60)
+        wait_until(lambda: not get("/api/recording")["recording"], 10)
+        (session,) = get("/api/sessions")
+        rows = get(f"/api/sessions/{session['id']}/analysis?task=a-to-b")["results"]
+    times = " / ".join(f"{r['trial_time_s']:.2f}" for r in rows)
+    row("2 flights 3 s apart in one session (the tail joins them)", "trial rows; trial times (s)",
+        "2; 10.00 / 10.00", f"{len(rows)}; {times}",
+        f"{max(abs(r['trial_time_s'] - 10.0) for r in rows):.2f} s")  # fmt: skip
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         loss_cases(tmp)
         silence_case(tmp)
         battery_case(tmp)
+        ekf_origin_cases(tmp)
+        burst_case(tmp)
+        replay_speed_cases(tmp)
+        joined_flights_case(tmp)
     forward_rate_case()
     twin_cases()
     reset_case()

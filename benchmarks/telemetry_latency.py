@@ -270,7 +270,7 @@ def link_cpu_us_per_packet() -> float:
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     from companion.link import MavlinkLink
-    from server.settings import LinkSettings
+    from companion.link_settings import LinkSettings
 
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     packets = [bytes(mav.heartbeat_encode(2, 12, 81, 3 << 16, 4).pack(mav))]

@@ -21,12 +21,13 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.latest import Latest
 from companion.link_health import HealthMeter, LinkHealth, RateChange
+from companion.link_settings import LinkSettings
+from companion.source_clock import SourceClock
 from companion.state_tracker import StateTracker
 from companion.stream_request import StreamRequester
 from companion.transports import (
@@ -39,9 +40,6 @@ from companion.transports import (
 from companion.vehicle_state import VehicleState
 from core.mavlink.framing import MavFramer, packet_version
 from core.mavlink.tlog_records import TlogReader
-
-if TYPE_CHECKING:  # the settings model lives with the others in server.settings
-    from server.settings import LinkSettings
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +70,8 @@ class MavlinkLink:
             None, srcSystem=settings.gcs_sysid, srcComponent=settings.gcs_compid
         )
         self.state: Latest[VehicleState] = Latest(VehicleState())
+        # A replay runs on its own clock (the log's); a live vehicle on the station's.
+        self.clock = SourceClock(own=self.spec.kind == "replay")
         self._tracker = StateTracker(settings.sysid, gcs_sysid=settings.gcs_sysid)
         self._framer = MavFramer()
         self._meter = HealthMeter(self.spec.text)
@@ -139,6 +139,7 @@ class MavlinkLink:
             self._framer.counters,
             self.state.get().value.link.link_lost if self.state.get() else True,
             self._last_hb_mono,
+            self.clock.mono(),
             self._tracker.sysid if self._tracker.compid is not None else self._tracker.pinned_sysid,
             self._tracker.compid,
         )
@@ -233,6 +234,7 @@ class MavlinkLink:
             return
         reader = TlogReader(path)
         self._meter.connected = True
+        clock = self.clock
         t0_rec: float | None = None
         t0_mono = time.monotonic()
         for t_rec, packet in reader:
@@ -244,13 +246,22 @@ class MavlinkLink:
                 due = t0_mono + (t_rec - t0_rec) / self.spec.speed
                 while (wait := due - time.monotonic()) > 0 and not self._stop.is_set():
                     self._stop.wait(min(wait, _TICK_S))
-                    self._housekeeping(None, time.monotonic())
-            now = time.monotonic()
-            self._on_bytes(packet, now)
-            self._housekeeping(None, now)
+                    # Between records the log's clock runs with the wall clock (x speed),
+                    # so a silence in the log is a silence as it passes.
+                    now = t_rec - max(due - time.monotonic(), 0.0) * self.spec.speed
+                    clock.advance(now)
+                    self._housekeeping(None, clock.mono())
+            clock.advance(t_rec)  # listeners see the time before the record applies
+            self._on_bytes(packet, clock.mono())
+            self._housekeeping(None, clock.mono())
         self._meter.truncated_records = reader.truncated
         self._meter.replay_done = True
         self._meter.connected = False
+        # Nothing more will come from this vehicle: say so, and end what follows it.
+        now = clock.mono()
+        if self._tracker.set_link_lost(True, now, self._last_hb_mono):
+            self.state.publish(self._tracker.state)
+        clock.end()
         log.info("replay of %s done (%d truncated records)", path, reader.truncated)
         self._idle_forever()
 
@@ -258,7 +269,7 @@ class MavlinkLink:
         deadline = time.monotonic() + seconds
         while not self._stop.is_set() and (left := deadline - time.monotonic()) > 0:
             self._stop.wait(min(left, _TICK_S))
-            self._housekeeping(None, time.monotonic())
+            self._housekeeping(None, self.clock.mono())
 
     def _idle_forever(self) -> None:
         while not self._stop.is_set():
@@ -271,7 +282,7 @@ class MavlinkLink:
         msgs = self._framer.feed(data)
         if not msgs:
             return
-        t_wall = time.time()
+        t_wall = self.clock.wall()  # a replay's packets keep their log times
         tracker = self._tracker
         changed = False
         for msg in msgs:
@@ -390,4 +401,4 @@ class MavlinkLink:
         packet = bytes(msg.pack(self.mav, force_mavlink1=self._force_v1))
         transport.write(packet)
         self.mav.seq = (self.mav.seq + 1) % 256
-        self._notify(time.time(), packet)  # what we sent belongs in the recording too
+        self._notify(self.clock.wall(), packet)  # what we sent belongs in the recording too

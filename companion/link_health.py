@@ -8,7 +8,6 @@ window, so nothing is computed per packet beyond a few increments.
 from __future__ import annotations
 
 import collections
-import time
 from dataclasses import dataclass, field
 
 from companion.stream_loss import StreamLoss, StreamLossCounter
@@ -114,6 +113,7 @@ class HealthMeter:
         framer: FramerCounters,
         link_lost: bool,
         last_heartbeat_mono: float | None,
+        now_mono: float,
         sysid: int | None,
         compid: int | None,
     ) -> LinkHealth:
@@ -127,7 +127,7 @@ class HealthMeter:
             link_lost=link_lost,
             since_heartbeat_s=None
             if last_heartbeat_mono is None
-            else round(time.monotonic() - last_heartbeat_mono, 3),
+            else round(now_mono - last_heartbeat_mono, 3),
             autopilot_sysid=sysid,
             autopilot_compid=compid,
             rates_hz=self._rates,

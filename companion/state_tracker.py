@@ -57,6 +57,7 @@ _ORIGIN_STEP_MIN_MPS = 20.0
 # vertical error is metres, barometric drift over a flight some 10 m).
 _DISAGREE_M = 40.0
 _FRESH_GPS_S = 2.0
+_SLIDE_MPS = 2.0  # offset changing faster than this after agreeing: the frame still moves
 
 
 _STATE_FIELDS = tuple(f.name for f in fields(VehicleState))
@@ -117,7 +118,9 @@ class StateTracker:
         # pilot is already climbing; the ground position one beat earlier is the truth.
         self._ground_fix: tuple[float, float, float | None, float | None] | None = None
         self._origin_note_t: float | None = None  # when the autopilot said "origin set"
-        self._frame_offset_m: float | None = None  # fused - GPS altitude while they disagree
+        # fused - GPS altitude when they began to disagree (a frame not anchored to GPS)
+        self._frame_offset_m: float | None = None
+        self._sliding: bool | None = None  # after agreeing again, still sliding into place
 
     def is_autopilot_heartbeat(self, msg: mavlink.MAVLink_message) -> bool:
         if msg.get_type() != "HEARTBEAT" or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
@@ -437,9 +440,22 @@ class StateTracker:
         )
         if fresh:
             offset = new.alt_m - gps.alt_m  # type: ignore[operator]
-            if shift is None and self._frame_offset_m is not None and abs(offset) <= _DISAGREE_M:
-                shift, why = offset - self._frame_offset_m, "GPS agrees again"
-            self._frame_offset_m = offset if abs(offset) > _DISAGREE_M else None
+            disagree = abs(offset) > _DISAGREE_M
+            held = self._frame_offset_m
+            if shift is None and held is not None and not disagree:
+                moved = offset - held
+                if self._sliding is None or abs(moved) > _SLIDE_MPS * max(dt, 1e-3):
+                    # The frame moved by the change of their offset: since they began to
+                    # disagree, then sample by sample while it still slides into place.
+                    shift, why = moved, "GPS agrees again"
+                    self._frame_offset_m, self._sliding = offset, True
+                else:  # settled
+                    self._frame_offset_m = self._sliding = None
+            elif not disagree:
+                self._frame_offset_m = self._sliding = None
+            elif shift is not None or held is None:
+                self._frame_offset_m = offset  # the frame as it is now (after a step, the new one)
+                self._sliding = None
         if shift is not None:
             self._rebase(shift, why, t)
 

@@ -10,6 +10,7 @@ from fastapi.staticfiles import StaticFiles
 
 from server import __version__
 from server.errors import install_error_handlers
+from server.guard import RequestGuard, redact_tokens_in_access_log
 from server.routes import (
     analysis,
     control,
@@ -44,6 +45,13 @@ def create_app(settings: Settings) -> FastAPI:
     )
     app.state.settings = settings
     install_error_handlers(app)
+    # Origin, content type and body size, before any route (server/guard.py).
+    app.add_middleware(
+        RequestGuard,
+        allowed_origins=settings.server.allowed_origins,
+        max_body_bytes=settings.server.max_body_bytes,
+    )
+    redact_tokens_in_access_log()
     app.include_router(health.router)
     app.include_router(status.router)
     app.include_router(telemetry.router)

@@ -24,6 +24,13 @@ def add_serve_parser(sub: Any) -> None:
     p.add_argument("--port", dest="server.port", type=int, help="HTTP port (default 8000)")
     p.add_argument("--token", dest="server.token", help="token that guards control endpoints")
     p.add_argument(
+        "--open",
+        dest="server.control",
+        action="store_const",
+        const="open",
+        help="no control token: anyone who reaches the station may control it",
+    )
+    p.add_argument(
         "--source",
         dest="link.source",
         help="MAVLink source: sim, /dev/serial0:921600, /dev/ttyACM0, udpin:0.0.0.0:14550, "
@@ -196,10 +203,21 @@ def run_serve(args: argparse.Namespace) -> int:
 
     settings = settings_from_args(args)
     check_link_settings(settings)
+    srv = settings.server
+    if srv.control == "token" and not srv.token:
+        from server.token_file import default_token_file, load_or_create_token
+
+        srv.token = load_or_create_token(srv.token_file)
+        print(f"fpv-station: control token in {srv.token_file or default_token_file()}")
     app = create_app(settings)
-    print(f"fpv-station: open http://{_display_host(settings.server.host)}:{settings.server.port}/")
+    url = f"http://{_display_host(srv.host)}:{srv.port}/"
+    if srv.control == "token":  # the page keeps the token and takes it out of the URL
+        url += f"?token={srv.token}"
+    else:
+        print("fpv-station: control is OPEN (server.control = 'open'): anyone can fly it")
+    print(f"fpv-station: open {url}")
     # Our own listening socket: it caps unsent bytes per connection (see server/listen.py).
-    sock = listening_socket(settings.server.host, settings.server.port)
+    sock = listening_socket(srv.host, srv.port)
     uvicorn_server(app).run(sockets=[sock])
     return 0
 

@@ -11,11 +11,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from companion.latest import Latest
+from companion.link import MavlinkLink
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
+from core.spawn import Spawn
 from server import __version__
 from server.settings import Settings
 
@@ -50,26 +52,29 @@ def _provenance(settings: Settings) -> dict[str, Any]:
     out: dict[str, Any] = {
         "recording": settings.recording.model_dump(mode="json"),
         "link": {"source": settings.link.source, "sysid": settings.link.sysid},
+        "cameras": settings.cameras.model_dump(mode="json"),
     }
-    for section in ("cameras", "twin"):  # sections of other parts, when present
-        value = getattr(settings, section, None)
-        if value is not None and (section != "twin" or settings.link.source == "sim"):
-            out[section] = value.model_dump(mode="json")
+    if settings.link.source == "sim":  # the twin's settings made this flight
+        out["twin"] = settings.twin.model_dump(mode="json")
     return out
 
 
 async def open_recorder(
     settings: Settings,
     stack: contextlib.AsyncExitStack,
-    spawn: Any,
+    spawn: Spawn,
     state: Latest[VehicleState],
     cameras: Mapping[str, Latest[Frame]],
     camera_fps: Mapping[str, float | None],
-    link: Any | None,
+    link: MavlinkLink | None,
 ) -> Recorder:
     """Build the recorder, hook it to the link, mark cut-off sessions; stops with `stack`."""
     recorder = Recorder(
-        settings.recording.sessions_dir, state, cameras, recorder_options(settings, camera_fps)
+        settings.recording.sessions_dir,
+        state,
+        cameras,
+        recorder_options(settings, camera_fps),
+        clock=link.clock if link is not None else None,
     )
     if link is not None:
         link.add_packet_listener(recorder.on_packet)

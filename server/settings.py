@@ -1,6 +1,10 @@
 """The station's one settings object: defaults, then a TOML file, then the environment,
 then the command line, each overriding the one before.
 
+Each part declares its own section next to its code (`companion.link_settings`,
+`companion.recording.settings`, `companion.cameras.settings`, `twin.settings`); the
+server's own sections are here, and `Settings` composes them all.
+
 Environment variables are `FPV_<SECTION>__<KEY>` (for example `FPV_SERVER__PORT=9000`,
 `FPV_LINK__SOURCE=udpin:0.0.0.0:14550`); values are parsed as TOML literals when they
 can be (numbers, booleans, lists), as plain strings otherwise.
@@ -14,96 +18,34 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError
 
-from companion.cameras.spec import parse_spec
+from companion.cameras.settings import CameraSettings
+from companion.link_settings import LinkSettings
+from companion.recording.settings import RecordingSettings
+from core.settings_section import Section
+from twin.settings import TwinSettings
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
-
-
-class ServerSettings(_Section):
+class ServerSettings(Section):
     host: str = "0.0.0.0"
     port: int = Field(8000, ge=1, le=65535)
     # When set, control endpoints (recording, delete, twin control) need
     # `Authorization: Bearer <token>`; reading stays open, as on a field network.
     token: str | None = None
+    # "token": `fpv-station serve` with no token set makes one on first start, keeps it in
+    # `token_file` and prints the URL that carries it (as Jupyter does). "open": no
+    # control token at all (only for a network where nobody else is).
+    control: Literal["token", "open"] = "token"
+    token_file: Path | None = None  # None: $XDG_CONFIG_HOME/fpv-station/token
+    # Browser origins besides the station's own that may change things (scheme://host:port).
+    allowed_origins: list[str] = Field(default_factory=list)
+    # Request bodies: larger ones are refused (413) before they are read. Every body the
+    # API takes is a small JSON document.
+    max_body_bytes: int = Field(64 * 1024, ge=1024, le=64 * 1024 * 1024)
 
 
-class LinkSettings(_Section):
-    # serial (/dev/serial0:921600, /dev/ttyACM0), udpin:/udpout:/tcp: strings,
-    # replay:FILE.tlog[?speed=N], or "sim" for the embedded digital twin.
-    source: str = "sim"
-    sysid: int | None = Field(None, ge=1, le=255)  # pin the autopilot; None = auto-detect
-    forward: list[str] = Field(default_factory=list)  # raw MAVLink copies (udpout:HOST:PORT)
-    link_lost_s: float = Field(2.0, gt=0)
-    heartbeat_hz: float = Field(1.0, gt=0)
-    reconnect_s: float = Field(1.0, gt=0)
-    # Our own identity on the link. Not QGroundControl's or Mission Planner's 255/190 (nor
-    # MAVProxy's 255): with --forward both talk to one vehicle, and a shared identity
-    # sends one's command acknowledgements and sequence numbers to the other.
-    gcs_sysid: int = Field(254, ge=1, le=255)
-    gcs_compid: int = Field(190, ge=1, le=255)  # MAV_COMP_ID_MISSIONPLANNER: a GCS
-    # What the station asks the autopilot for (SET_MESSAGE_INTERVAL, or REQUEST_DATA_STREAM
-    # on older firmware); 0 leaves a message at the autopilot's own rate.
-    message_rates_hz: dict[str, float] = Field(
-        default_factory=lambda: {
-            "ATTITUDE": 50.0,
-            "GLOBAL_POSITION_INT": 25.0,
-            "LOCAL_POSITION_NED": 25.0,
-            "VFR_HUD": 10.0,
-            "GPS_RAW_INT": 5.0,
-            "RC_CHANNELS": 10.0,
-            "SERVO_OUTPUT_RAW": 10.0,
-            "SYS_STATUS": 2.0,
-            "BATTERY_STATUS": 1.0,
-        }
-    )
-    request_streams: bool = True  # False: listen only (another GCS already asks)
-
-
-class RecordingSettings(_Section):
-    """Synchronized flight recording (companion.recording); format in docs/SESSION_FORMAT.md."""
-
-    sessions_dir: Path = Path("./sessions")
-    rate_hz: float = Field(30.0, ge=1, le=100)  # telemetry.csv rows per second
-    auto_record_on_arm: bool = True
-    post_disarm_tail_s: float = Field(5.0, ge=0, le=600)
-    min_free_mb: float = Field(200.0, ge=0)  # stop cleanly under this much free disk
-    row_queue: int = Field(2000, ge=10)  # bounded writer buffers (items)
-    frame_queue: int = Field(90, ge=2)  # per camera
-    packet_queue: int = Field(20000, ge=100)
-    flush_interval_s: float = Field(0.5, gt=0, le=1.0)  # at most 1 s: kill -9 keeps all but it
-
-
-class CameraConfig(_Section):
-    # A camera spec (see companion/cameras/spec.py): v4l2:/dev/video0, v4l2:0, file:X.mp4,
-    # folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none. None = sim:<name> when
-    # link.source is "sim", else none. Spec options (?width=..&fps=..) override the rest.
-    spec: str | None = None
-    width: int = Field(640, ge=16, le=8192)
-    height: int = Field(480, ge=16, le=8192)
-    fps: float = Field(30.0, gt=0, le=240)
-    jpeg_quality: int = Field(80, ge=1, le=100)
-
-    @field_validator("spec")
-    @classmethod
-    def _spec_is_usable(cls, value: str | None) -> str | None:
-        if value is not None:
-            parse_spec(value)  # CameraSpecError (a ValueError) says what is wrong
-        return value
-
-
-class CameraSettings(_Section):
-    front: CameraConfig = Field(default_factory=CameraConfig)
-    bottom: CameraConfig = Field(default_factory=CameraConfig)
-    stall_s: float = Field(2.0, gt=0)  # no frame for this long = NO SIGNAL (stalled)
-    retry_min_s: float = Field(0.5, gt=0)  # reopen back-off, doubling up to retry_max_s
-    retry_max_s: float = Field(5.0, gt=0)
-
-
-class ViserSettings(_Section):
+class ViserSettings(Section):
     """The 3D trajectory panel (a viser server on its own port)."""
 
     enabled: bool = True
@@ -131,33 +73,7 @@ class ViserSettings(_Section):
         return 0 if self.port == 0 else min(self.port + 1, 65535)
 
 
-class TwinSettings(_Section):
-    """The embedded digital twin (`--source sim` and `fpv-station sim`)."""
-
-    scene: Path | None = None  # scene TOML; None = the built-in field of the paper
-    seed: int = 0
-    physics_hz: float = Field(250.0, ge=250.0, le=2000.0)
-    realtime_factor: float = Field(1.0, gt=0, le=100.0)
-    wind_east_mps: float = 0.0
-    wind_north_mps: float = 0.0
-    gust_std_mps: float = Field(0.0, ge=0)
-    sensor_noise: bool = True
-    gps_rate_hz: float = Field(5.0, ge=1.0, le=20.0)
-    max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
-    rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
-    fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
-
-    @field_validator("scene")
-    @classmethod
-    def _scene_loads(cls, value: Path | None) -> Path | None:
-        if value is not None:
-            from core.scene import load_scene
-
-            load_scene(value)  # SceneError (a ValueError) says which file and key
-        return value
-
-
-class Settings(_Section):
+class Settings(Section):
     server: ServerSettings = Field(default_factory=ServerSettings)
     link: LinkSettings = Field(default_factory=LinkSettings)
     recording: RecordingSettings = Field(default_factory=RecordingSettings)

@@ -24,6 +24,7 @@ from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
 from server.trials import Trials, station_scene
+from server.video_fanout import FrameFanout
 
 if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up time
     from companion.cameras.capture import Camera
@@ -49,6 +50,8 @@ class Station:
     cameras: dict[str, Camera] = field(default_factory=dict)
     trajectory3d: Trajectory3D | None = None  # the viser panel; None with --no-3d
     replay3d: Replay3D | None = None  # the replay's viser panel; None with --no-3d
+    # One MJPEG fan-out per camera, shared by all its viewers (server.video_fanout).
+    video_fanouts: dict[str, FrameFanout] = field(default_factory=dict)
     twin: Twin | None = None  # the digital twin when link.source is "sim"
     pilot: Pilot | None = None  # who has the twin's sticks (/ws/control), one at a time
     # One analysis at a time (REST analysis and trial scoring): each is CPU-bound numpy and
@@ -76,7 +79,8 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.state = station.link.state
         elif source != "none":
             link = MavlinkLink(settings.link)
-            link.start()
+            if not link.clock.own:  # a replay starts below, once its recorder listens
+                link.start()
             stack.callback(link.stop)
             station.link = link
             station.state = link.state
@@ -86,6 +90,10 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
         # -- recorder (after the link and cameras it records) -----------------------
         station.recorder = await _open_recorder(station, stack)
+        if station.link is not None and not station.link.running and station.link.clock.own:
+            # A replay on its own clock: at full speed it would be over before the recorder
+            # listened (companion/source_clock.py).
+            station.link.start()
 
         # -- flight tasks: chosen for the sessions, scored when they end -------------
         scene, scene_file, is_field = station_scene(settings)  # bad file: logged, default
@@ -134,6 +142,8 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
             retry_min_s=cams.retry_min_s,
             retry_max_s=cams.retry_max_s,
         )
+    for name, camera in station.cameras.items():
+        station.video_fanouts[name] = FrameFanout(name, camera.frames, station.tasks.spawn)
     start_cameras(station.cameras.values())
     stack.push_async_callback(asyncio.to_thread, stop_cameras, list(station.cameras.values()))
 

@@ -17,6 +17,7 @@ from typing import Any
 
 from companion.latest import Latest
 from companion.video_frame import Frame
+from core.spawn import Spawn
 
 BOUNDARY = "fpvframe"
 _IDLE_WAIT_S = 5.0  # how often an idle pump looks whether anyone still watches
@@ -44,23 +45,25 @@ def multipart_part(frame: Frame) -> bytes:
 
 
 class FrameFanout:
-    """The newest multipart part of one camera, with an event that fires per new frame."""
+    """The newest multipart part of one camera, with an event that fires per new frame.
+    `spawn` starts its pump (the station's supervised `tasks.spawn`)."""
 
-    def __init__(self, name: str, frames: Latest[Frame]) -> None:
+    def __init__(self, name: str, frames: Latest[Frame], spawn: Spawn) -> None:
         self.name = name
         self.frames = frames
+        self._spawn = spawn
         self.version = 0
         self.part = b""
         self.viewers = 0
         self._event = asyncio.Event()
         self._task: asyncio.Task[Any] | None = None
 
-    def _ensure_pump(self, tasks: Any) -> None:
+    def _ensure_pump(self) -> None:
         if self._task is None or self._task.done():
             # A fresh event, set synchronously: the previous pump's final set() must not
             # let viewers spin on a set event before the new pump has run.
             self._event = asyncio.Event()
-            self._task = tasks.spawn(f"video-fanout-{self.name}", self._pump())
+            self._task = self._spawn(f"video-fanout-{self.name}", self._pump())
 
     async def _pump(self) -> None:
         try:
@@ -75,7 +78,6 @@ class FrameFanout:
 
     async def stream(
         self,
-        tasks: Any,
         watching: contextlib.AbstractContextManager[Any],
         is_disconnected: Callable[[], Awaitable[bool]],
     ) -> AsyncIterator[bytes]:
@@ -94,7 +96,7 @@ class FrameFanout:
                         sent = self.version
                         yield self.part
                         continue
-                    self._ensure_pump(tasks)
+                    self._ensure_pump()
                     event = self._event
                     try:
                         await asyncio.wait_for(event.wait(), _DISCONNECT_CHECK_S)

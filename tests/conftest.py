@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import socket
+import tempfile
 
 import pytest
 from pymavlink import mavutil
@@ -11,6 +13,10 @@ from tests.helpers import free_port
 from twin.runner import Twin
 from twin.sensors import SensorParams
 from twin.sim import SimConfig
+
+# `fpv-station serve` keeps its first-start control token under XDG_CONFIG_HOME: test
+# stations (and their subprocesses) get a throwaway one, never the user's.
+os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="fpv-test-config-")
 
 
 @pytest.fixture()

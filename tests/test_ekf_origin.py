@@ -82,6 +82,28 @@ def test_altitude_jump_without_a_message_is_a_frame_change_too(tmp_path):
     assert "arming_retaken" in refs
 
 
+def test_fused_altitude_converging_slowly_to_gps_retakes_the_reference(tmp_path):
+    """No step and no message: the fused altitude slides from near 0 to AMSL over 8 s on
+    the ground (36 m a second is no jump). When it comes within 40 m of GPS, the frame
+    change is the change of their offset; the hop after it reads as a hop."""
+    flight = hop(take_off_s=20.0, land_s=26.0, end_s=34.0)
+    log = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=None)
+    decoder = mavlink.MAVLink(None)
+    ramp = (8.0, 16.0)
+    for k, (t, packet) in enumerate(log.records):
+        msg = decoder.decode(bytearray(packet))
+        if msg.get_type() == "GLOBAL_POSITION_INT":
+            s = float(np.clip((t - log.t0 - ramp[0]) / (ramp[1] - ramp[0]), 0.0, 1.0))
+            msg.alt = int(msg.alt - (1.0 - s) * 179_700)  # from up + 0.3 m to AMSL
+            sender = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+            sender.seq = msg.get_seq()
+            log.records[k] = (t, bytes(msg.pack(sender)))
+    alts, refs = pilot_altitudes(log.write(tmp_path / "slow.tlog"))
+    assert "arming_retaken" in refs or "first_fix_retaken" in refs
+    late = alts[-800:]  # the last ~11 s armed (~70 updates/s): the hop, after the slide
+    assert late.max() == pytest.approx(HOP_M, abs=0.5)
+
+
 @pytest.mark.timeout(120)
 def test_replayed_session_records_the_hop_not_the_jump(tmp_path):
     flight, origin_s = CASES["origin set during a low hop"]

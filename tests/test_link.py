@@ -12,8 +12,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.link import MavlinkLink
+from companion.link_settings import LinkSettings
 from core.mavlink.tlog_records import write_record
-from server.settings import LinkSettings
 from tests.helpers import free_port
 from tests.helpers import wait_until as _wait_until
 from tests.mav_vehicle import MavVehicle

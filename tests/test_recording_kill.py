@@ -105,6 +105,7 @@ def test_kill_9_of_the_server_and_restart(tmp_path):
         "--port",
         str(port),
         "--no-3d",
+        "--open",  # this test is about kill -9, not about the control token
     ]
     base = f"http://127.0.0.1:{port}"
 

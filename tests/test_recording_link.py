@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from companion.link import MavlinkLink
+from companion.link_settings import LinkSettings
 from companion.recording import layout
 from server.app import create_app
-from server.settings import LinkSettings, load_settings
+from server.settings import load_settings
 from tests.helpers import run_uvicorn, wait_until
 from tests.mav_vehicle import MavVehicle
 

@@ -13,8 +13,8 @@ import pytest
 
 from analysis.track import load_session_dir
 from companion.link import MavlinkLink
+from companion.link_settings import LinkSettings
 from companion.recording import layout
-from server.settings import LinkSettings
 from tests.helpers import wait_until
 from tests.twin_flights import recorded_twin_flight
 

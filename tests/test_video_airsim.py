@@ -19,7 +19,7 @@ import pytest
 
 from companion.cameras.msgpack_rpc import MsgpackRpcClient, RpcError
 from companion.cameras.rig import build_camera
-from server.settings import CameraConfig
+from companion.cameras.settings import CameraConfig
 from tests.helpers import free_port, wait_until
 
 COLORS = {"front_center": (10, 200, 30), "bottom_center": (200, 20, 90)}  # BGR

@@ -10,8 +10,9 @@ import pytest
 
 from companion.cameras.jpeg import jpeg_size
 from companion.cameras.rig import build_camera, effective_spec
+from companion.cameras.settings import CameraConfig
 from companion.cameras.spec import CameraSpecError, parse_spec
-from server.settings import CameraConfig, SettingsError, load_settings
+from server.settings import SettingsError, load_settings
 from tests.helpers import wait_until
 from tests.video_fixtures import CountingRenderer, write_images
 

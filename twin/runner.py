@@ -21,6 +21,7 @@ import numpy as np
 
 from companion.latest import Latest
 from core.scene import Scene, load_scene
+from twin.settings import TwinSettings
 from twin.sim import Pose, Sim, SimConfig
 from twin.vehicle import MavlinkVehicle
 
@@ -189,8 +190,8 @@ class Twin:
             return self._renderer
 
 
-def twin_from_settings(ts: Any, mavlink: str | None) -> Twin:
-    """Build a Twin from `server.settings.TwinSettings` (duck-typed: twin/ needs no server)."""
+def twin_from_settings(ts: TwinSettings, mavlink: str | None) -> Twin:
+    """Build a Twin from its settings section (`[twin]`)."""
     from twin.control import ControlGains
     from twin.dynamics import Wind
     from twin.sensors import SensorParams

@@ -7,27 +7,17 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import Protocol
 
 from companion.cameras.airsim import AirSimSource
 from companion.cameras.capture import Camera
 from companion.cameras.media import ImageFolderSource, VideoFileSource
+from companion.cameras.settings import CameraConfig
 from companion.cameras.source import FrameSource, SourceConfig
 from companion.cameras.spec import CameraSpec, flag, parse_spec
 from companion.cameras.twin_cameras import Renderer, SimSource
 from companion.cameras.v4l2 import V4l2Source
 
 CAMERA_NAMES = ("front", "bottom")
-
-
-class CameraConfigLike(Protocol):
-    """One camera's settings (`server.settings.CameraConfig`)."""
-
-    spec: str | None
-    width: int
-    height: int
-    fps: float
-    jpeg_quality: int
 
 
 def effective_spec(name: str, spec: str | None, link_source: str) -> str:
@@ -68,7 +58,7 @@ def make_source(
 
 def build_camera(
     name: str,
-    cfg: CameraConfigLike,
+    cfg: CameraConfig,
     link_source: str = "none",
     renderer: Callable[[], Renderer | None] = lambda: None,
     stall_s: float = 2.0,

@@ -8,6 +8,11 @@
 
 One session at a time. A session stopped by the writer (disk full, write error) is
 finalized here with the writer's reason, which stays visible in `status().last_stop`.
+
+A source on its own clock (a replay, `companion.source_clock`) drives the recorder from
+its thread: rows at each instant of its time, arming and the post-disarm tail in its
+seconds, and its end closing the session (`stop_reason` "source ended"); the replay waits
+while a session starts or stops, so the sessions are the same at any replay speed.
 """
 
 from __future__ import annotations
@@ -26,12 +31,12 @@ from companion.recording.meta import SessionMeta, SessionTask
 from companion.recording.recovery import mark_interrupted
 from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.store import SessionStore
+from companion.source_clock import SourceClock
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
+from core.spawn import Spawn
 
 log = logging.getLogger(__name__)
-
-Spawn = Callable[[str, Coroutine[Any, Any, Any]], Any]
 
 
 @dataclass(frozen=True)
@@ -75,8 +80,10 @@ class Recorder:
         state: Latest[VehicleState],
         cameras: Mapping[str, Latest[Frame]],
         options: RecorderOptions = RecorderOptions(),
+        clock: SourceClock | None = None,
     ) -> None:
         self.store = SessionStore(sessions_dir)
+        self.clock = clock or SourceClock()
         self.state = state
         self.cameras = dict(cameras)
         self.options = options
@@ -94,6 +101,9 @@ class Recorder:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tail: asyncio.TimerHandle | None = None
         self._tail_deadline_wall: float | None = None
+        self._closed = False
+        self._was_armed: bool | None = None  # source-clock arm watching (its thread)
+        self._tail_due: float | None = None  # end of the tail, source clock
 
     # -- service lifecycle ---------------------------------------------------------------
 
@@ -102,11 +112,14 @@ class Recorder:
         self._loop = asyncio.get_running_loop()
         self._spawn = spawn or (lambda name, coro: asyncio.get_running_loop().create_task(coro))
         marked = await asyncio.to_thread(mark_interrupted, self.store)
-        if self.options.auto_record_on_arm:
+        if self.clock.own:
+            self.clock.add_listener(self._on_source_time)
+        elif self.options.auto_record_on_arm:
             self._spawn("recorder-arm-watch", self._watch_arming())
         return marked
 
     async def aclose(self) -> None:
+        self._closed = True
         await self.stop("shutdown")
 
     # -- control -------------------------------------------------------------------------
@@ -121,7 +134,7 @@ class Recorder:
         """Start a session unless one runs (then it keeps running); returns the status."""
         async with self._lock:
             self._cancel_tail()
-            if self.session is None:
+            if self.session is None and not self._closed:
                 try:
                     session = await asyncio.to_thread(self._new_session, trigger)
                 except (OSError, RecorderError) as exc:
@@ -155,6 +168,7 @@ class Recorder:
                 self.options.session,
                 trigger,
                 self._on_writer_failure,
+                self.clock,
                 task=self.task,
             )
         except OSError as exc:
@@ -210,7 +224,7 @@ class Recorder:
             id=s.id,
             trigger=s.trigger,
             start_wall=s.t0_wall,
-            elapsed_s=round(time.monotonic() - s.t0_mono, 3),
+            elapsed_s=round(s.clock.mono() - s.t0_mono, 3),
             telemetry_rows=stats.rows_written,
             frames_written=dict(stats.frames_written),
             frames_dropped=s.frames_dropped(),
@@ -240,6 +254,43 @@ class Recorder:
             elif not armed and was_armed is True:
                 self._schedule_tail()
             was_armed = armed
+
+    def _on_source_time(self, t: float | None) -> None:
+        """The source's clock moved to `t` (None: it ended); in the source's thread."""
+        if self._closed or self._loop is None:
+            return
+        session = self.session
+        if t is None:
+            if session is not None:
+                self._wait_for(self.stop("source ended", only_id=session.id))
+            return
+        if session is not None:
+            session.advance(t)
+        if not self.options.auto_record_on_arm:
+            return
+        got = self.state.get()
+        armed = bool(got.value.heartbeat.armed) if got is not None else False
+        if armed and self._was_armed is not True:
+            self._tail_due = None
+            self._wait_for(self.start("arm"))
+        elif not armed and self._was_armed is True:
+            if session is not None and session.trigger == "arm":
+                self._tail_due = t + self.options.post_disarm_tail_s
+                self._tail_deadline_wall = self._tail_due  # the log's time, as the session's
+        self._was_armed = armed
+        if self._tail_due is not None and t >= self._tail_due and self.session is not None:
+            self._tail_due = self._tail_deadline_wall = None
+            self._wait_for(self.stop("disarmed", only_id=self.session.id))
+
+    def _wait_for(self, coro: Coroutine[Any, Any, Any]) -> None:
+        """Run `coro` on the event loop and wait for it (from the source's thread)."""
+        assert self._loop is not None
+        try:
+            asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout=30.0)
+        except RecorderError:
+            pass  # logged, and shown in status().last_error
+        except Exception:
+            log.exception("recording start/stop on the source's clock failed")
 
     def _schedule_tail(self) -> None:
         session = self.session

@@ -33,6 +33,7 @@ from companion.recording.quality import LinkLossTracker, SkewStats
 from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.store import create_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
+from companion.source_clock import SourceClock
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
 
@@ -72,6 +73,7 @@ class RecordingSession:
         config: SessionConfig,
         trigger: str = "api",
         on_failure: Callable[[str, str], None] | None = None,
+        clock: SourceClock | None = None,
         task: SessionTask | None = None,
     ) -> None:
         self.config = config
@@ -80,8 +82,12 @@ class RecordingSession:
         self._state = state
         self._camera_slots = dict(cameras)
         self.cameras: tuple[str, ...] = tuple(cameras)
-        self.t0_wall = time.time()
-        self.t0_mono = time.monotonic()
+        # A source on its own clock (a replay) is sampled in its time, by `advance` from
+        # its thread; any other by the sampler thread on the station's clock.
+        self.clock = clock or SourceClock()
+        self.t0_wall = self.clock.wall()
+        self.t0_mono = self.clock.mono()
+        self._next_sample = self.t0_mono
         self.id, self.folder = create_session_dir(root, self.t0_wall, config.source)
         self._tracks = {c: _CameraTrack() for c in self.cameras}
         self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
@@ -113,7 +119,8 @@ class RecordingSession:
     def start(self) -> None:
         """Start the threads and the frame consumers (call on the event loop)."""
         self.writer.start()
-        self._sampler.start()
+        if not self.clock.own:
+            self._sampler.start()
         for cam, slot in self._camera_slots.items():
             task = asyncio.get_running_loop().create_task(
                 self._consume(cam, slot), name=f"recorder-frames-{cam}"
@@ -133,9 +140,10 @@ class RecordingSession:
         return self.meta(layout.STATUS_COMPLETE)
 
     def _finish(self) -> None:
-        self._sampler.join(5.0)
+        if self._sampler.is_alive():
+            self._sampler.join(5.0)
         self.writer.close()
-        self.end_wall = self.writer.stats.last_row_wall or time.time()
+        self.end_wall = self.writer.stats.last_row_wall or self.clock.wall()
         self._write_meta(layout.STATUS_COMPLETE)
 
     @property
@@ -208,7 +216,20 @@ class RecordingSession:
                 log.exception("telemetry sample failed")
             next_t += period
 
-    def _sample(self, now_mono: float) -> None:
+    def advance(self, t: float) -> None:
+        """The source's clock reached `t`: the rows of every instant before it (source's
+        thread; the state is the one that held until `t`). Waits while the writer is
+        behind, so that a replay at full speed loses no row."""
+        period = 1.0 / self.config.rate_hz
+        while self._next_sample < t and not self._stop.is_set():
+            self.writer.wait_for_room()
+            try:
+                self._sample(self._next_sample, self._next_sample)
+            except Exception:
+                log.exception("telemetry sample failed")
+            self._next_sample += period
+
+    def _sample(self, now_mono: float, now_wall: float | None = None) -> None:
         versioned = self._state.get()
         state = versioned.value if versioned is not None else None
         refs: list[FrameRef | None] = []
@@ -222,7 +243,8 @@ class RecordingSession:
             refs.append(ref)
             if ref is not None:
                 self._tracks[cam].skew.add(now_mono - ref.t_mono)
-        self.writer.put_row(Sample(now_mono, time.time(), state, tuple(refs)))
+        wall = time.time() if now_wall is None else now_wall
+        self.writer.put_row(Sample(now_mono, wall, state, tuple(refs)))
         # Link loss is about the autopilot: a radio's or another ground station's packets
         # keep arriving while the vehicle is silent, so only the autopilot's messages count.
         self._links.update(now_mono, state.last_heard_mono() if state is not None else None)

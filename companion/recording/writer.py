@@ -91,7 +91,7 @@ class SessionWriter:
                 self.stats.rows_dropped += 1
                 return False
             self._rows.append(sample)
-            self._cond.notify()
+            self._cond.notify_all()  # the writer thread (and a producer waiting for room)
         return True
 
     def put_frame(self, camera: str, frame: Frame) -> bool:
@@ -101,7 +101,7 @@ class SessionWriter:
                 self.stats.frames_dropped_queue[camera] += 1
                 return False
             q.append(frame)
-            self._cond.notify()
+            self._cond.notify_all()  # the writer thread (and a producer waiting for room)
         return True
 
     def put_packet(self, t_wall: float, packet: bytes) -> bool:
@@ -113,6 +113,19 @@ class SessionWriter:
             # No notify: packets are many and small; the thread takes them at its next
             # wake-up (a frame, a row, or the flush timer), which bounds their delay.
         return True
+
+    def wait_for_room(self, timeout: float = 5.0) -> None:
+        """For a producer that can wait (a replay on its own clock): return when the row
+        queue is at most half full, or after `timeout`."""
+        with self._cond:
+            self._cond.wait_for(
+                lambda: (
+                    self.failure is not None
+                    or self._closing
+                    or len(self._rows) <= self.limits.row_queue // 2
+                ),
+                timeout,
+            )
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -135,7 +148,7 @@ class SessionWriter:
         """Write what is buffered, flush, close the files; returns when the thread is done."""
         with self._cond:
             self._closing = True
-            self._cond.notify()
+            self._cond.notify_all()  # the writer thread (and a producer waiting for room)
         if self._thread.is_alive():
             self._thread.join(timeout)
         self._close_files()
@@ -180,6 +193,7 @@ class SessionWriter:
                     self._cond.wait(wait_s)
                 taken = self._take()
                 closing = self._closing
+                self._cond.notify_all()  # room again for a producer in wait_for_room
             self._write_or_count(*taken)
             now = time.monotonic()
             if closing or now >= next_flush:

@@ -1,7 +1,7 @@
 """Flight analysis over REST: the paper's task metrics as JSON and its figures as PNG, for
 one recorded session or a comparison of several.
 
-    GET /api/sessions/{id}/analysis?task=hover[&reference=LAT,LON&...thresholds]
+    GET /api/sessions/{id}/analysis?task=hover[&reference=LAT,LON&flight=N&...thresholds]
     GET /api/sessions/{id}/analysis/{plot}.png?task=...     plot: trajectory3d|birdseye|history
     GET /api/analysis?task=...&sessions=ID&sessions=ID2     one table over several sessions
     GET /api/analysis/{plot}.png?task=...&sessions=...
@@ -11,7 +11,8 @@ untrusted). Loading and plotting run in a worker thread (one analysis at a time,
 Pi's cores stay free for telemetry and video), never on the event loop; the
 last few analyses are cached, keyed on the files' size and modification time, so a page
 asking for the table and three figures loads the session once. The JSON is the CLI's
-`TABLE.json`, computed by the same `analysis.report.analyze_tracks`.
+`TABLE.json`, computed by the same `analysis.report.analyze_tracks`: one row per flight
+(`flight=N` for the N-th only), and `skipped` the flights without a trial of the task.
 """
 
 from __future__ import annotations
@@ -113,6 +114,7 @@ def _cached(
     reference: tuple[float, float] | None,
     scene: str | None,
     params: TaskParams,
+    flight: int | None = None,
 ) -> Analysis:
     tracks = []
     for session_id, (data, _, _), meta in files:
@@ -120,11 +122,16 @@ def _cached(
         m = parse_meta(Path(meta[0]).read_bytes()) if meta else {}
         tracks.append(replace(track, meta=m, source=str(Path(data).parent)))
     field = load_field_layout(scene)
-    return analyze_tracks(tracks, task, reference, field, params)
+    return analyze_tracks(tracks, task, reference, field, params, flight)
 
 
 def _analyze(
-    request: Request, session_ids: list[str], task: str, reference: str | None, params: TaskParams
+    request: Request,
+    session_ids: list[str],
+    task: str,
+    reference: str | None,
+    params: TaskParams,
+    flight: int | None,
 ) -> Analysis:
     """Runs in a worker thread: file access, parsing and numpy."""
     settings = request.app.state.settings
@@ -135,7 +142,12 @@ def _analyze(
         files.append((sid, _stamp(data), _stamp(meta)))
     scene = settings.twin.scene
     return _cached(
-        tuple(files), task, reference_param(reference), str(scene) if scene else None, params
+        tuple(files),
+        task,
+        reference_param(reference),
+        str(scene) if scene else None,
+        params,
+        flight,
     )
 
 
@@ -146,6 +158,7 @@ async def _run(
     reference: str | None,
     params: TaskParams,
     plot: str | None = None,
+    flight: int | None = None,
 ) -> Analysis | bytes:
     if not session_ids:
         raise BadRequest("Give at least one session (sessions=ID).")
@@ -156,7 +169,7 @@ async def _run(
 
     def work() -> Analysis | bytes:
         try:
-            an = _analyze(request, session_ids, task, reference, params)
+            an = _analyze(request, session_ids, task, reference, params, flight)
             return an if plot is None else an.plot(plot)
         except ae.AnalysisError as exc:  # store errors: 400/404 by server.errors
             raise _api_error(exc) from None
@@ -168,6 +181,7 @@ async def _run(
 _TASK = Query(..., description="hover, a-to-b, obstacle or figure8")
 _REF = Query(None, description="LAT,LON of the point that sets +x")
 _D = TaskParams()
+_FLIGHT = Query(None, ge=1, description="only the N-th flight of each session (from 1)")
 
 
 def _thresholds(
@@ -192,6 +206,11 @@ def _thresholds(
 _P = Depends(_thresholds)
 
 
+def _table(an: Analysis) -> dict:
+    skipped = [{"label": label, "reason": why} for label, why in an.skipped]
+    return {**an.comparison.to_dict(), "skipped": skipped}
+
+
 @router.get("/api/sessions/{session_id}/analysis", summary="Task metrics of one session")
 async def session_analysis(
     request: Request,
@@ -199,9 +218,10 @@ async def session_analysis(
     task: str = _TASK,
     reference: str | None = _REF,
     params: TaskParams = _P,
+    flight: int | None = _FLIGHT,
 ) -> dict:
-    an = await _run(request, [session_id], task, reference, params)
-    return {"sessions": [session_id], **an.comparison.to_dict()}
+    an = await _run(request, [session_id], task, reference, params, flight=flight)
+    return {"sessions": [session_id], **_table(an)}
 
 
 @router.get("/api/sessions/{session_id}/analysis/{plot}.png", summary="A figure of one session")
@@ -212,8 +232,9 @@ async def session_plot(
     task: str = _TASK,
     reference: str | None = _REF,
     params: TaskParams = _P,
+    flight: int | None = _FLIGHT,
 ) -> Response:
-    png = await _run(request, [session_id], task, reference, params, plot)
+    png = await _run(request, [session_id], task, reference, params, plot, flight)
     return Response(png, media_type="image/png")
 
 
@@ -224,9 +245,10 @@ async def compare_sessions(
     sessions: list[str] | None = Query(None),
     reference: str | None = _REF,
     params: TaskParams = _P,
+    flight: int | None = _FLIGHT,
 ) -> dict:
-    an = await _run(request, sessions or [], task, reference, params)
-    return {"sessions": sessions or [], **an.comparison.to_dict()}
+    an = await _run(request, sessions or [], task, reference, params, flight=flight)
+    return {"sessions": sessions or [], **_table(an)}
 
 
 @router.get("/api/analysis/{plot}.png", summary="A figure overlaying sessions of one task")
@@ -237,6 +259,7 @@ async def compare_plot(
     sessions: list[str] | None = Query(None),
     reference: str | None = _REF,
     params: TaskParams = _P,
+    flight: int | None = _FLIGHT,
 ) -> Response:
-    png = await _run(request, sessions or [], task, reference, params, plot)
+    png = await _run(request, sessions or [], task, reference, params, plot, flight)
     return Response(png, media_type="image/png")

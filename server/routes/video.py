@@ -14,19 +14,17 @@ the camera or another viewer.
 from __future__ import annotations
 
 import time
-import weakref
 
 from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
 from pydantic import BaseModel
 
 from server.errors import NotFound, Unavailable
-from server.video_fanout import BOUNDARY, FrameFanout, frame_time_header
+from server.video_fanout import BOUNDARY, frame_time_header
 
 router = APIRouter(tags=["video"])
 
 _NO_CACHE = {"Cache-Control": "no-store, no-cache, must-revalidate", "Pragma": "no-cache"}
-_fanouts: weakref.WeakKeyDictionary[object, FrameFanout] = weakref.WeakKeyDictionary()
 
 
 class CameraInfo(BaseModel):
@@ -72,11 +70,9 @@ def _camera(request: Request, name: str):
 )
 async def get_stream(camera: str, request: Request) -> StreamingResponse:
     cam = _camera(request, camera)
-    fanout = _fanouts.get(cam)
-    if fanout is None:
-        fanout = _fanouts[cam] = FrameFanout(cam.name, cam.frames)
+    fanout = request.app.state.station.video_fanouts[camera]
     return StreamingResponse(
-        fanout.stream(request.app.state.station.tasks, cam.watching(), request.is_disconnected),
+        fanout.stream(cam.watching(), request.is_disconnected),
         media_type=f"multipart/x-mixed-replace; boundary={BOUNDARY}",
         headers={**_NO_CACHE, "X-Accel-Buffering": "no"},
     )

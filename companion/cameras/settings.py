@@ -1,0 +1,35 @@
+"""The cameras' settings section (`[cameras]`), composed by `server.settings`. Imports only
+`spec` (no OpenCV), so settings validate without loading the capture code."""
+
+from __future__ import annotations
+
+from pydantic import Field, field_validator
+
+from companion.cameras.spec import parse_spec
+from core.settings_section import Section
+
+
+class CameraConfig(Section):
+    # A camera spec (see companion/cameras/spec.py): v4l2:/dev/video0, v4l2:0, file:X.mp4,
+    # folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none. None = sim:<name> when
+    # link.source is "sim", else none. Spec options (?width=..&fps=..) override the rest.
+    spec: str | None = None
+    width: int = Field(640, ge=16, le=8192)
+    height: int = Field(480, ge=16, le=8192)
+    fps: float = Field(30.0, gt=0, le=240)
+    jpeg_quality: int = Field(80, ge=1, le=100)
+
+    @field_validator("spec")
+    @classmethod
+    def _spec_is_usable(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_spec(value)  # CameraSpecError (a ValueError) says what is wrong
+        return value
+
+
+class CameraSettings(Section):
+    front: CameraConfig = Field(default_factory=CameraConfig)
+    bottom: CameraConfig = Field(default_factory=CameraConfig)
+    stall_s: float = Field(2.0, gt=0)  # no frame for this long = NO SIGNAL (stalled)
+    retry_min_s: float = Field(0.5, gt=0)  # reopen back-off, doubling up to retry_max_s
+    retry_max_s: float = Field(5.0, gt=0)

@@ -1,0 +1,179 @@
+"""Who may change things, checked before any route runs (an ASGI middleware).
+
+The pilot's browser visits other websites while it holds the station's page open, and any
+host on the field Wi-Fi can reach the Pi. Three checks, token or no token:
+
+- **Origin.** A browser names the page that makes a request in `Origin`. A request that
+  changes something (any method but GET/HEAD/OPTIONS) and every WebSocket upgrade must
+  come from the station's own origin (the `Host` it was reached at) or one listed in
+  `server.allowed_origins`; otherwise 403 (a WebSocket is closed with 1008 before it is
+  accepted). Requests without `Origin` are not from a web page (curl, scripts, the test
+  clients): they pass here and meet the control token.
+- **Content type.** A request that changes something and has a body must say
+  `application/json`: the `text/plain` and form bodies a cross-site page can send without
+  asking are refused (415).
+- **Body size.** A declared `Content-Length` over `server.max_body_bytes` is refused (413)
+  before a byte is read; a chunked body is cut off at the limit the same way.
+
+Replies use the one error shape {"error", "error_msg"} (server.errors).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from collections.abc import Awaitable, Callable, MutableMapping
+from typing import Any
+from urllib.parse import urlsplit
+
+Scope = MutableMapping[str, Any]
+Message = MutableMapping[str, Any]
+Receive = Callable[[], Awaitable[Message]]
+Send = Callable[[Message], Awaitable[None]]
+ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
+
+_SAFE_METHODS = {"GET", "HEAD", "OPTIONS"}
+_DEFAULT_PORTS = {"http": 80, "https": 443, "ws": 80, "wss": 443}
+
+
+def _origin_key(origin: str) -> tuple[str, int] | None:
+    """(host, port) of an Origin value, None for "null" or junk."""
+    try:
+        parts = urlsplit(origin)
+        port = parts.port or _DEFAULT_PORTS.get(parts.scheme)
+    except ValueError:
+        return None
+    if not parts.hostname or port is None:
+        return None
+    return parts.hostname.lower(), port
+
+
+def _host_key(host: str, scheme: str) -> tuple[str, int] | None:
+    """(host, port) of a Host header as the browser used it."""
+    return _origin_key(f"{'https' if scheme in ('https', 'wss') else 'http'}://{host}")
+
+
+class RequestGuard:
+    def __init__(self, app: ASGIApp, allowed_origins: list[str], max_body_bytes: int) -> None:
+        self.app = app
+        self.allowed = {k for o in allowed_origins if (k := _origin_key(o)) is not None}
+        self.max_body = max_body_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        kind = scope["type"]
+        if kind not in ("http", "websocket"):
+            await self.app(scope, receive, send)
+            return
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
+        changes = kind == "websocket" or scope["method"] not in _SAFE_METHODS
+        if changes and not self._origin_ok(headers, scope):
+            why = (
+                f"Origin '{headers.get('origin', '')[:100]}' may not control this station; "
+                "open the station's own page (or add the origin to server.allowed_origins)."
+            )
+            if kind == "websocket":
+                await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
+            else:
+                await _reply(send, 403, "Forbidden", why)
+            return
+        if kind == "websocket":
+            await self.app(scope, receive, send)
+            return
+        length = headers.get("content-length")
+        if length is not None and (not length.isdigit() or int(length) > self.max_body):
+            await _reply(
+                send, 413, "PayloadTooLarge", f"Request bodies are at most {self.max_body} bytes."
+            )
+            return
+        ctype = headers.get("content-type", "").split(";")[0].strip().lower()
+        has_body = (length is not None and length != "0") or "transfer-encoding" in headers
+        if changes and has_body and ctype != "application/json":
+            await _reply(
+                send,
+                415,
+                "UnsupportedMediaType",
+                f"Send JSON ('Content-Type: application/json'), not '{ctype or 'none'}'.",
+            )
+            return
+        await self._call_with_body_limit(scope, receive, send)
+
+    def _origin_ok(self, headers: dict[str, str], scope: Scope) -> bool:
+        origin = headers.get("origin")
+        if origin is None:
+            return True  # not a web page: the control token decides
+        key = _origin_key(origin)
+        if key is None:
+            return False
+        own = _host_key(headers.get("host", ""), scope.get("scheme", "http"))
+        return key == own or key in self.allowed
+
+    async def _call_with_body_limit(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """A body without a declared length (chunked) is read here up to the limit and
+        handed on whole; the routes' own body parsing would turn an error into a 400."""
+        headers = dict(scope["headers"])
+        if b"content-length" in headers or b"transfer-encoding" not in headers:
+            await self.app(scope, receive, send)
+            return
+        chunks, size, more = [], 0, True
+        while more:
+            message = await receive()
+            if message["type"] != "http.request":  # the client left
+                return
+            chunks.append(message.get("body", b""))
+            size += len(chunks[-1])
+            more = message.get("more_body", False)
+            if size > self.max_body:
+                await _reply(
+                    send,
+                    413,
+                    "PayloadTooLarge",
+                    f"Request bodies are at most {self.max_body} bytes.",
+                )
+                return
+        body, sent = b"".join(chunks), False
+
+        async def replay() -> Message:
+            nonlocal sent
+            if sent:
+                return await receive()  # after the body: wait for the disconnect
+            sent = True
+            return {"type": "http.request", "body": body, "more_body": False}
+
+        await self.app(scope, replay, send)
+
+
+async def _reply(send: Send, status: int, name: str, message: str) -> None:
+    body = json.dumps({"error": name, "error_msg": message}).encode()
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(body)).encode()),
+                (b"connection", b"close"),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": body})
+
+
+class RedactTokens(logging.Filter):
+    """Keeps `?token=...` out of the access log (uvicorn logs the full request target)."""
+
+    _TOKEN = re.compile(r"(token=)[^&\s\"]+")
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.args, tuple):
+            record.args = tuple(
+                self._TOKEN.sub(r"\1<redacted>", a) if isinstance(a, str) else a
+                for a in record.args
+            )
+        return True
+
+
+def redact_tokens_in_access_log() -> None:
+    access = logging.getLogger("uvicorn.access")
+    if not any(isinstance(f, RedactTokens) for f in access.filters):
+        access.addFilter(RedactTokens())

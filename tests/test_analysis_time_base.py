@@ -1,0 +1,53 @@
+"""Analysis times from the vehicle's own clock (issue 11 item 7): a radio fade of 4.3 s
+ends in a burst of the packets it buffered, all with one receive time. Speeds and
+durations must come from the vehicle's time_usec / time_boot_ms, not from when the burst
+arrived: the GPS says 28 m/s, so must the analysis."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis.report import analyze_paths
+from analysis.track import load_track
+from analysis.vehicle_clock import on_vehicle_clock
+from tests import shaped_tlog
+from tests import synthetic as syn
+
+SPEED_MPS = 28.0
+FADE = (12.0, 16.3)  # 4.3 s without packets, the last 1 s of them then in one burst
+
+
+def dash() -> syn.Flight:
+    """Armed at 1.5 s, up to 3 m by 5 s, 15 s due east at 28 m/s (420 m), down, disarmed."""
+    t = np.arange(0.0, 28.0, 0.02)
+    x = SPEED_MPS * np.clip(t - 5.0, 0.0, 15.0)
+    z = np.clip(np.minimum(t - 2.0, 23.0 - t), 0.0, 3.0)
+    xyz = np.stack([x, np.zeros_like(t), z], 1)
+    return syn.Flight(t_s=t, xyz_m=xyz, armed=(t >= 1.5) & (t < 25.0))
+
+
+@pytest.fixture(scope="module")
+def burst_tlog(tmp_path_factory):
+    log = shaped_tlog.vehicle_flight(dash(), fade=FADE, burst_s=1.0)
+    return log.write(tmp_path_factory.mktemp("burst") / "burst.tlog")
+
+
+def test_speed_after_a_burst_is_the_gps_speed_not_the_burst(burst_tlog):
+    (r,) = analyze_paths([burst_tlog], "a-to-b", scene=False).results
+    assert r.max_speed_mps == pytest.approx(SPEED_MPS, abs=1.0)  # receive times: ~60 m/s
+    assert r.trial_time_s == pytest.approx(20.0, abs=0.5)  # take-off 2.5 s, landing 22.5 s
+
+
+def test_track_times_are_the_vehicles(burst_tlog):
+    track = load_track(burst_tlog)
+    steps = np.diff(track.t_s)
+    assert steps.min() > 0.15  # 5 Hz GPS, none piled up on one receive time
+    assert steps.max() == pytest.approx(15.4 - 11.8, abs=0.01)  # last GPS before, first after
+
+
+def test_vehicle_clock_stretches_and_fallback():
+    r = np.array([10.0, 10.2, 15.0, 15.0, 15.0, 100.0, 100.2])
+    v = np.array([1.0, 1.2, 4.6, 4.8, 5.0, 0.5, 0.7])  # a burst, then a reboot
+    assert on_vehicle_clock(r, v) == pytest.approx([10.0, 10.2, 13.6, 13.8, 14.0, 100.0, 100.2])
+    assert on_vehicle_clock(r, np.zeros(r.size)) == pytest.approx(r)  # no vehicle time

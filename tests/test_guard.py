@@ -1,0 +1,104 @@
+"""Who may change things: a hostile page in the pilot's browser and oversized bodies,
+against a real uvicorn server (server/guard.py)."""
+
+from __future__ import annotations
+
+import socket
+
+import httpx
+import pytest
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import connect
+
+from server.app import create_app
+from server.guard import RedactTokens
+from server.settings import load_settings
+from tests.helpers import run_uvicorn, station_settings
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    settings = station_settings(
+        "none",
+        tmp_path_factory.mktemp("sessions"),
+        **{"server.allowed_origins": ["http://laptop.field:9000"]},
+    )
+    with run_uvicorn(create_app(settings)) as url:
+        yield url
+
+
+def test_a_cross_site_page_cannot_change_anything(base):
+    start = f"{base}/api/recording/start"
+    # The attack of the issue: a simple (no preflight) cross-site POST as text/plain.
+    evil = {"Origin": "http://evil.example", "Content-Type": "text/plain"}
+    r = httpx.post(start, headers=evil, content=b"{}")
+    assert r.status_code == 403 and r.json()["error"] == "Forbidden"
+    assert "evil.example" in r.json()["error_msg"]
+    for origin in ("null", "http://127.0.0.1.evil.example", "file://"):
+        assert httpx.post(start, headers={"Origin": origin}).status_code == 403
+    assert httpx.get(f"{base}/api/recording").json()["recording"] is False
+    # Reading stays open to any page (the pilot's tools), changing does not.
+    assert httpx.get(f"{base}/api/status", headers=evil).status_code == 200
+    # The station's own page, and an allowed origin, may.
+    own = base.replace("http://", "")
+    assert httpx.post(start, headers={"Origin": f"http://{own}"}).status_code == 200
+    assert httpx.post(f"{base}/api/recording/stop").status_code == 200  # no Origin: curl
+    allowed = {"Origin": "http://laptop.field:9000"}
+    assert httpx.post(f"{base}/api/recording/stop", headers=allowed).status_code == 200
+
+
+def test_websocket_upgrades_from_another_site_are_refused(base):
+    ws = base.replace("http", "ws")
+    for path in ("/ws/control", "/ws/telemetry"):
+        with pytest.raises(InvalidStatus) as exc:
+            connect(f"{ws}{path}", origin="http://evil.example", open_timeout=5)
+        assert exc.value.response.status_code == 403
+    with connect(f"{ws}/ws/telemetry", origin=base, open_timeout=5) as conn:
+        conn.ping().wait(5)
+
+
+def test_state_changing_bodies_must_be_json(base):
+    r = httpx.put(
+        f"{base}/api/replay3d", content=b"session=x", headers={"Content-Type": "text/plain"}
+    )
+    assert r.status_code == 415 and r.json()["error"] == "UnsupportedMediaType"
+    form = httpx.post(f"{base}/api/task", data={"task_id": "1"})
+    assert form.status_code == 415
+
+
+def test_a_huge_body_is_refused_before_it_is_read(base):
+    host, port = base.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=5) as sock:
+        # Declares 300 MB and sends none of it: the answer must come at once.
+        sock.sendall(
+            b"PUT /api/replay3d HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            b"Content-Length: 300000000\r\n\r\n"
+        )
+        reply = sock.recv(4096).decode()
+    assert reply.startswith("HTTP/1.1 413") and "PayloadTooLarge" in reply
+
+    # A chunked body with no declared length is cut off at the limit the same way.
+    def chunks():
+        for _ in range(200):
+            yield b"x" * 1024
+
+    r = httpx.put(
+        f"{base}/api/replay3d", content=chunks(), headers={"Content-Type": "application/json"}
+    )
+    assert r.status_code == 413
+
+
+def test_tokens_are_kept_out_of_the_access_log():
+    import logging
+
+    record = logging.LogRecord(
+        "uvicorn.access", logging.INFO, "", 0, '%s - "%s %s HTTP/%s" %d',
+        ("1.2.3.4:5", "GET", "/ws/control?token=s3cret&x=1", "1.1", 101), None,
+    )  # fmt: skip
+    assert RedactTokens().filter(record)
+    assert "s3cret" not in record.getMessage() and "token=<redacted>&x=1" in record.getMessage()
+
+
+def test_settings_refuse_a_silly_body_limit():
+    with pytest.raises(Exception, match="max_body_bytes"):
+        load_settings(None, {"server.max_body_bytes": 10}, environ={})

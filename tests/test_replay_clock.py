@@ -1,0 +1,88 @@
+"""A replay runs on its own clock (issue 11 items 3 and 4): sessions recorded from it are
+in the log's time (rows, times, the post-disarm tail), so they and their analysis are the
+same at any replay speed; and a replay that ends while armed closes its session.
+
+One shaped log (tests/shaped_tlog.vehicle_flight) with two sorties 10 s apart (the tail
+is 5 s of the log, 0.25 s of wall time at x20) and the log ending while still armed, is
+replayed through the real `replay:` source into a real server recording on arming, at
+x1, x20 and as fast as it goes; sessions and analyses are read over HTTP."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+import pytest
+
+from core.mavlink.tlog_records import TlogReader
+from server.app import create_app
+from tests import shaped_tlog
+from tests import synthetic as syn
+from tests.helpers import run_uvicorn, station_settings, wait_until
+
+SORTIES = ((1.0, 14.0), (24.0, None))  # armed periods (s); the second never disarms
+END_S = 37.0
+
+
+def two_sorties(sorties=SORTIES, end_s: float = END_S) -> syn.Flight:
+    """Each sortie: armed, climb 1 m/s to 3 m, 12 m along x at 2 m/s, down; walked back."""
+    t = np.arange(0.0, end_s, 0.02)
+    x, z = np.zeros_like(t), np.zeros_like(t)
+    armed = np.zeros(t.size, bool)
+    for arm, disarm in sorties:
+        tau = t - arm
+        on = (tau >= 0) & (t < (disarm if disarm is not None else end_s))
+        armed |= on
+        z += np.where(on, np.clip(np.minimum(tau - 1.0, 12.0 - tau), 0.0, 3.0), 0.0)
+        x += np.where(on, 2.0 * np.clip(tau - 4.0, 0.0, 6.0), 0.0)
+    return syn.Flight(t_s=t, xyz_m=np.stack([x, np.zeros_like(t), z], 1), armed=armed)
+
+
+@pytest.fixture(scope="module")
+def sorties_tlog(tmp_path_factory):
+    return shaped_tlog.vehicle_flight(two_sorties()).write(
+        tmp_path_factory.mktemp("sorties") / "sorties.tlog"
+    )
+
+
+def record(path, speed: str, sessions_dir) -> list[dict]:
+    """Replay at `speed` with recording on arming; each session's summary and analysis."""
+    settings = station_settings(
+        f"replay:{path}?speed={speed}", sessions_dir, **{"recording.auto_record_on_arm": True}
+    )
+    with run_uvicorn(create_app(settings)) as base:
+        get = lambda url: httpx.get(f"{base}{url}", timeout=30).json()  # noqa: E731
+        assert wait_until(lambda: get("/api/status")["link"]["replay_done"], timeout=120)
+        assert wait_until(lambda: not get("/api/recording")["recording"], timeout=10)
+        rates = get("/api/status")["link"]["rates_hz"]
+        out = []
+        for s in sorted(get("/api/sessions"), key=lambda s: s["start_wall"]):
+            table = get(f"/api/sessions/{s['id']}/analysis?task=a-to-b")
+            out.append({**s, "result": table["results"][0], "rates_hz": rates})
+        return out
+
+
+@pytest.mark.timeout(300)
+def test_sessions_from_a_replay_are_the_same_at_any_speed(sorties_tlog, tmp_path):
+    runs = {speed: record(sorties_tlog, speed, tmp_path / speed) for speed in ("1", "20", "max")}
+    log_t0 = next(iter(TlogReader(sorties_tlog)))[0]
+    for speed, sessions in runs.items():
+        # One session per sortie: the 5 s tail is the log's 5 s at every speed.
+        assert [s["stop_reason"] for s in sessions] == ["disarmed", "source ended"], speed
+        first, second = sessions
+        # In the log's time: starts at the arming, ends 5 s after disarming / at the end.
+        assert first["start_wall"] - log_t0 == pytest.approx(1.0, abs=1.1), speed
+        assert first["duration_s"] == pytest.approx(
+            14.0 + 5.0 - first["start_wall"] + log_t0, abs=0.2
+        )
+        assert second["end_wall"] - log_t0 == pytest.approx(END_S, abs=0.2), speed
+        for s in sessions:
+            assert s["telemetry_rows"] == pytest.approx(30 * s["duration_s"], abs=3), speed
+            r = s["result"]
+            assert r["trial_time_s"] == pytest.approx(10.0, abs=0.3), speed  # 0.5 m up and down
+            assert r["max_speed_mps"] == pytest.approx(2.0, abs=0.3), speed
+            # Rates in the log's seconds: ATTITUDE is 50 Hz of the vehicle's, at any speed.
+            assert s["rates_hz"]["ATTITUDE"] == pytest.approx(50.0, rel=0.05), speed
+    for k in range(2):
+        base = runs["1"][k]["result"]["trial_time_s"]
+        for speed in ("20", "max"):
+            assert runs[speed][k]["result"]["trial_time_s"] == pytest.approx(base, rel=0.01)

@@ -1,0 +1,35 @@
+"""The digital twin's settings section (`[twin]`), composed by `server.settings`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, field_validator
+
+from core.settings_section import Section
+
+
+class TwinSettings(Section):
+    """The embedded digital twin (`--source sim` and `fpv-station sim`)."""
+
+    scene: Path | None = None  # scene TOML; None = the built-in field of the paper
+    seed: int = 0
+    physics_hz: float = Field(250.0, ge=250.0, le=2000.0)
+    realtime_factor: float = Field(1.0, gt=0, le=100.0)
+    wind_east_mps: float = 0.0
+    wind_north_mps: float = 0.0
+    gust_std_mps: float = Field(0.0, ge=0)
+    sensor_noise: bool = True
+    gps_rate_hz: float = Field(5.0, ge=1.0, le=20.0)
+    max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
+    rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
+    fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
+
+    @field_validator("scene")
+    @classmethod
+    def _scene_loads(cls, value: Path | None) -> Path | None:
+        if value is not None:
+            from core.scene import load_scene
+
+            load_scene(value)  # SceneError (a ValueError) says which file and key
+        return value
