@@ -90,6 +90,21 @@ def test_http_401_asks_for_the_token_once_retries_and_keeps_it(guarded, chromium
     assert len(prompts) == 1
 
 
+def test_the_printed_url_token_is_kept_and_leaves_the_address_bar(guarded, chromium):
+    """`fpv-station serve` prints http://HOST:PORT/?token=...: the page keeps the token,
+    drops it from the URL, and controls the station without asking."""
+    page = chromium.new_page()
+    prompts = answer_dialogs(page, None)
+    page.goto(f"{guarded}/?token={TOKEN}#x")
+    assert page.evaluate("localStorage.getItem('fpv.token')") == TOKEN
+    assert page.url == f"{guarded}/#x"
+    button = page.locator("#rec-button")
+    button.click()
+    expect(button).to_have_class("recording")
+    assert httpx.get(f"{guarded}/api/recording").json()["recording"] is True
+    assert prompts == []
+
+
 def test_http_401_declined_shows_the_servers_error_and_changes_nothing(guarded, chromium):
     page = chromium.new_page()
     alerts: list[str] = []

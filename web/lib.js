@@ -7,6 +7,7 @@
 //                                ...; true = present, false/null = absent), children are
 //                                nodes or text
 //   token()                      the station's control token kept in this browser, or null
+//                                (a ?token= in the page's URL is taken into it at load)
 //   askToken(why)                ask the user for the token (a prompt), keep it; returns it,
 //                                or null when the user declines
 //   api(path, {method, body})    fetch a JSON API route (body: an object, sent as JSON) and
@@ -48,6 +49,18 @@ export function el(tag, attrs = {}, ...children) {
 }
 
 export const token = () => localStorage.getItem(TOKEN_KEY);
+
+// `fpv-station serve` prints the station's URL with ?token= on first start (as Jupyter
+// does): keep the token in this browser and take it out of the address bar, so that it
+// is not bookmarked, shared or shown over the pilot's shoulder.
+(function takeTokenFromUrl() {
+  const url = new URL(location.href);
+  const t = url.searchParams.get("token");
+  if (!t) return;
+  localStorage.setItem(TOKEN_KEY, t);
+  url.searchParams.delete("token");
+  history.replaceState(history.state, "", url.pathname + url.search + url.hash);
+})();
 
 export function askToken(why = "This station needs its control token:") {
   const t = prompt(why);
