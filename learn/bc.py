@@ -1,15 +1,23 @@
 """Behaviour cloning: a small policy from the state (and the time since arming) to the
 pilot's four sticks, trained on a LeRobot dataset exported by `fpv-station export`.
 
-The model is scikit-learn's k-nearest-neighbours regressor on standardized inputs
-(distance-weighted mean of the `k` closest demonstrated frames' sticks). It is CPU-only,
-has nothing to tune but `k`, and needs no torch. The time since arming is an input
-because the state alone cannot say when a timed task phase is over (task 1 holds the
-hover for 10 s, then lands): a demonstration's `timestamp` column is exactly that time,
-and `TwinEnv` reports it as `info["t_s"]`.
+The model is scikit-learn's k-nearest-neighbours regressor (distance-weighted mean of
+the `k` closest demonstrated frames' sticks). It is CPU-only, has nothing to tune but
+`k`, and needs no torch. Inputs, each divided by a fixed physical scale (`SCALES`) so
+that distances mean the same in every dataset: the position relative to the target, the
+heading, on the ground, and the time since arming (the state alone cannot say when a
+timed phase is over: task 1 holds the hover for 10 s, then lands; a demonstration's
+`timestamp` is that time, `TwinEnv` reports it as `info["t_s"]`).
 
-A policy file is an `.npz` of plain arrays (the training inputs and sticks, the
-standardization, `k`): no pickle, so loading a policy file runs no code from it.
+Left out, on purpose: velocities and attitude. With them the clone copies itself: a
+vehicle cruising at 1.4 m/s finds its neighbours among cruising frames and flew past
+the task 2 pad into the net; the scripted pilots command speed from the distance to go,
+which position alone carries. Also out: body rates, battery, armed (constant), and the
+distances the position repeats. Standardizing by the data's spread instead blew sensor
+noise on nearly constant inputs up into the distance (a 4-demo policy never took off).
+
+A policy file is an `.npz` of plain arrays (the training inputs and sticks, the scales,
+`k`): no pickle, so loading a policy file runs no code from it.
 """
 
 from __future__ import annotations
@@ -21,21 +29,20 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-FORMAT = "fpv-station-bc-knn-1"
+FORMAT = "fpv-station-bc-knn-2"
 DEFAULT_K = 5
-# The state elements the policy reads (`twin.gym_env.STATE_NAMES`): position to the
-# target, velocity, roll, pitch, heading, on the ground. Left out: body rates (noise at
-# this rate), battery, armed (constant in flight: standardizing a nearly constant input
-# blows its noise up into the distance), and the two distances the position repeats.
-FEATURES = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 15)
+# The state elements the policy reads (`twin.gym_env.STATE_NAMES`): x, y, z to the
+# target, sin and cos of the heading, on the ground; then the time since arming.
+FEATURES = (0, 1, 2, 8, 9, 15)
+# What one unit of distance is, per input: 1 m along the ground, 0.5 m in height, 0.2 of
+# heading sine/cosine (~12 degrees), on/off the ground, 2 s.
+SCALES = (1.0, 1.0, 0.5, 0.2, 0.2, 1.0, 2.0)
 
 
 @dataclass
 class BcPolicy:
     inputs: NDArray[np.float32]  # (n, len(FEATURES) + 1): state features, seconds since arming
     sticks: NDArray[np.float32]  # (n, 4)
-    mean: NDArray[np.float64]
-    scale: NDArray[np.float64]
     k: int = DEFAULT_K
     task_id: int = 0  # the task of the demonstrations (0 = unknown)
 
@@ -45,11 +52,12 @@ class BcPolicy:
         self._model = KNeighborsRegressor(
             n_neighbors=min(self.k, len(self.inputs)), weights="distance"
         )
-        self._model.fit((self.inputs - self.mean) / self.scale, self.sticks)
+        self._scale = np.array(SCALES)
+        self._model.fit(self.inputs / self._scale, self.sticks)
 
     def act(self, state: np.ndarray, t_s: float) -> np.ndarray:
         x = np.append(np.asarray(state, np.float64)[list(FEATURES)], t_s)[None, :]
-        a = self._model.predict((x - self.mean) / self.scale)[0]
+        a = self._model.predict(x / self._scale)[0]
         return np.clip(a, -1.0, 1.0).astype(np.float32)
 
     def save(self, path: Path) -> Path:
@@ -60,10 +68,9 @@ class BcPolicy:
                 f,
                 format=np.array(FORMAT),
                 features=np.array(FEATURES),
+                scales=np.array(SCALES),
                 inputs=self.inputs,
                 sticks=self.sticks,
-                mean=self.mean,
-                scale=self.scale,
                 k=np.array(self.k),
                 task_id=np.array(self.task_id),
             )
@@ -74,13 +81,11 @@ class BcPolicy:
         with np.load(Path(path), allow_pickle=False) as z:
             if "format" not in z or str(z["format"]) != FORMAT:
                 raise ValueError(f"'{path}' is not an fpv-station behaviour-cloning policy")
-            if tuple(z["features"].tolist()) != FEATURES:
+            if tuple(z["features"].tolist()) != FEATURES or tuple(z["scales"].tolist()) != SCALES:
                 raise ValueError(f"'{path}' reads other state features; train it again")
             return cls(
                 inputs=z["inputs"],
                 sticks=z["sticks"],
-                mean=z["mean"],
-                scale=z["scale"],
                 k=int(z["k"]),
                 task_id=int(z["task_id"]),
             )
@@ -109,10 +114,7 @@ def train(dataset: Path, k: int = DEFAULT_K) -> BcPolicy:
     inputs, sticks, task_id = read_lerobot(dataset)
     if len(inputs) < 2:
         raise ValueError(f"'{dataset}' has {len(inputs)} frames; behaviour cloning needs more")
-    mean = inputs.mean(0).astype(np.float64)
-    scale = inputs.std(0).astype(np.float64)
-    scale[scale < 1e-6] = 1.0  # constant inputs (armed, always 1) carry no distance
-    return BcPolicy(inputs, sticks, mean, scale, k, task_id)
+    return BcPolicy(inputs, sticks, k, task_id)
 
 
 def _matrix(col) -> np.ndarray:

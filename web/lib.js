@@ -7,10 +7,12 @@
 //                                ...; true = present, false/null = absent), children are
 //                                nodes or text
 //   token()                      the station's control token kept in this browser, or null
+//                                (a ?token= in the page's URL is taken into it at load)
 //   askToken(why)                ask the user for the token (a prompt), keep it; returns it,
 //                                or null when the user declines
-//   api(path, {method, body})    fetch a JSON API route and return the parsed reply (null
-//                                when there is none). Sends the token when there is one;
+//   api(path, {method, body})    fetch a JSON API route (body: an object, sent as JSON) and
+//                                return the parsed reply (null when there is none; images
+//                                and streams are plain URLs, not api calls). Sends the token when there is one;
 //                                on 401 asks for it once (askToken) and retries. A refusal
 //                                throws ApiError; so does an unreachable station (status 0).
 //   ApiError                     .status (HTTP, 0 = unreachable), .error (the server's error
@@ -24,10 +26,11 @@
 //                                bounded staleness (server/routes/telemetry.py):
 //                                  const tm = liveSocket("/ws/telemetry?ack=1",
 //                                    { message(m) { draw(m); tm.send({ ack: m.version }); } });
+//   CLOSE_UNAUTHORIZED           4401, the close code of a WebSocket that refuses the token:
+//                                on it, askToken() and open the socket again (control.js)
 //
 // The server's error shape is {"error": Name, "error_msg": text} for every refusal
-// (server/errors.py); WebSockets refuse a bad token by closing with code 4401
-// (CLOSE_UNAUTHORIZED). Page scripts keep their own state; only what two pages need
+// (server/errors.py). Page scripts keep their own state; only what two pages need
 // belongs here.
 
 const TOKEN_KEY = "fpv.token";
@@ -46,6 +49,18 @@ export function el(tag, attrs = {}, ...children) {
 }
 
 export const token = () => localStorage.getItem(TOKEN_KEY);
+
+// `fpv-station serve` prints the station's URL with ?token= on first start (as Jupyter
+// does): keep the token in this browser and take it out of the address bar, so that it
+// is not bookmarked, shared or shown over the pilot's shoulder.
+(function takeTokenFromUrl() {
+  const url = new URL(location.href);
+  const t = url.searchParams.get("token");
+  if (!t) return;
+  localStorage.setItem(TOKEN_KEY, t);
+  url.searchParams.delete("token");
+  history.replaceState(history.state, "", url.pathname + url.search + url.hash);
+})();
 
 export function askToken(why = "This station needs its control token:") {
   const t = prompt(why);
