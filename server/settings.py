@@ -42,7 +42,7 @@ class ServerSettings(Section):
     allowed_origins: list[str] = Field(default_factory=list)
     # Request bodies: larger ones are refused (413) before they are read. Every body the
     # API takes is a small JSON document.
-    max_body_bytes: int = Field(64 * 1024, ge=1024, le=64 * 1024 * 1024)
+    max_body_bytes: int = Field(8 * 1024, ge=1024, le=64 * 1024 * 1024)
 
 
 class ViserSettings(Section):

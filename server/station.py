@@ -94,6 +94,8 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             # A replay on its own clock: at full speed it would be over before the recorder
             # listened (companion/source_clock.py).
             station.link.start()
+            # Serve once the log gave its first time: a session is in the log's time.
+            await asyncio.to_thread(station.link.clock.wait_started, 2.0)
 
         # -- flight tasks: chosen for the sessions, scored when they end -------------
         scene, scene_file, is_field = station_scene(settings)  # bad file: logged, default

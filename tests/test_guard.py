@@ -3,6 +3,7 @@ against a real uvicorn server (server/guard.py)."""
 
 from __future__ import annotations
 
+import json
 import socket
 
 import httpx
@@ -102,3 +103,50 @@ def test_tokens_are_kept_out_of_the_access_log():
 def test_settings_refuse_a_silly_body_limit():
     with pytest.raises(Exception, match="max_body_bytes"):
         load_settings(None, {"server.max_body_bytes": 10}, environ={})
+
+
+@pytest.mark.parametrize("n", [300, 5000])
+def test_long_names_are_a_client_error(base, n):
+    sid = httpx.post(f"{base}/api/recording/start").json()["id"]
+    httpx.post(f"{base}/api/recording/stop")
+    for path in (
+        f"/api/sessions/{'a' * n}",
+        f"/api/sessions/{'a' * n}/download",
+        f"/api/sessions/{sid}/files/{'b' * n}",
+        f"/api/sessions/{sid}/files/front/{'c' * n}.jpg",
+        f"/api/sessions/{sid}/files/{'d/' * (n // 2)}x",
+    ):
+        r = httpx.get(f"{base}{path}")
+        assert 400 <= r.status_code < 500, (path[:60], r.status_code)
+        assert set(r.json()) == {"error", "error_msg"}
+
+
+def test_websocket_parameters_are_bounded_with_a_reason(base):
+    ws = base.replace("http", "ws")
+    for bad in ("1e-300", "-3", "nan", "abc", "5000"):
+        with pytest.raises(InvalidStatus) as exc:
+            connect(f"{ws}/ws/telemetry?max_rate={bad}", open_timeout=5)
+        response = exc.value.response
+        assert response.status_code == 400, bad
+        body = json.loads(response.body)
+        assert body["error"] == "BadRequest" and "max_rate" in body["error_msg"]
+
+
+def test_a_binary_frame_on_the_control_socket_closes_it_cleanly(tmp_path):
+    from websockets.exceptions import ConnectionClosed
+
+    settings = station_settings(
+        "sim", tmp_path, **{"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    )
+    with run_uvicorn(create_app(settings)) as url:
+        with connect(url.replace("http", "ws") + "/ws/control", open_timeout=10) as ws:
+            assert "hello" in ws.recv(timeout=5)
+            ws.send(b"\x00\x01binary")
+            reply = ws.recv(timeout=5)
+            assert '"BadRequest"' in reply and "text" in reply
+            with pytest.raises(ConnectionClosed) as closed:
+                ws.recv(timeout=5)
+            assert closed.value.rcvd.code == 1003 and "binary" in closed.value.rcvd.reason
+        # The pilot's place is free again: the handler ended.
+        with connect(url.replace("http", "ws") + "/ws/control", open_timeout=10) as ws:
+            assert "hello" in ws.recv(timeout=5)

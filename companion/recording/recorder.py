@@ -148,6 +148,8 @@ class Recorder:
         return self.status()
 
     def _new_session(self, trigger: str) -> RecordingSession:
+        if not self.clock.started:  # a session is in its source's time: none yet
+            raise RecorderError("The replay has not started yet; start recording in a moment.")
         root = self.store.root
         need = self.options.session.limits.min_free_bytes
         try:

@@ -205,7 +205,14 @@ async def ws_control(ws: WebSocket) -> None:
     try:
         await send(json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S}))
         while True:
-            text = await ws.receive_text()
+            message = await ws.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            text = message.get("text")
+            if text is None:  # a binary frame: this protocol is JSON text only
+                await send(_error("BadRequest", "Control messages are JSON text frames."))
+                await ws.close(code=1003, reason="binary frames are not accepted")
+                break
             try:
                 data = json.loads(text)
                 if not isinstance(data, dict):

@@ -73,7 +73,9 @@ class _ClientAcks:
 @router.websocket("/ws/telemetry")
 async def ws_telemetry(
     ws: WebSocket,
-    max_rate: float = Query(50.0, gt=0, le=1000, description="messages per second, at most"),
+    # At least 1/s: a handler paced slower would sit out a client's leaving (and a value
+    # like 1e-300 would park it for good).
+    max_rate: float = Query(50.0, ge=1, le=1000, description="messages per second, at most"),
     ack: bool = Query(False, description='at most one message in flight: send {"ack": version}'),
 ) -> None:
     station = ws.app.state.station
