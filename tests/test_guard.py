@@ -181,7 +181,7 @@ def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
     base = f"http://127.0.0.1:{port}"
     sockets = []
     try:
-        assert wait_until(lambda: _up(base), 20)
+        assert wait_until(lambda: _up(base), 60)
         statuses = []
         for _ in range(300):
             s = socket.create_connection(("127.0.0.1", port), timeout=5)
