@@ -192,6 +192,23 @@ def run_cameras(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_install_service_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "install-service",
+        help="install and start the systemd service (as root), or print it with --dry-run",
+    )
+    p.add_argument("--user", default=None, help="the user it runs as (default fpv-station)")
+    p.add_argument("--dry-run", action="store_true", help="print the files and commands only")
+    p.set_defaults(func=run_install_service)
+
+
+def run_install_service(args: argparse.Namespace) -> int:
+    from server.install_service import DEFAULT_USER, ServicePlan, install, installed_exec_path
+
+    plan = ServicePlan(user=args.user or DEFAULT_USER, exec_path=installed_exec_path())
+    return install(plan, dry_run=args.dry_run)
+
+
 def settings_from_args(args: argparse.Namespace) -> Settings:
     overrides = {k: v for k, v in vars(args).items() if "." in k}
     return load_settings(getattr(args, "config", None), overrides)
@@ -253,6 +270,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_analyze_parser(sub)
     add_learn_parsers(sub)
     add_cameras_parser(sub)
+    add_install_service_parser(sub)
     return parser
 
 
