@@ -140,7 +140,7 @@ export function mountOsd(view, { menu = true } = {}) {
     stats.totalMs += ms;
     stats.maxMs = Math.max(stats.maxMs, ms);
     stats.recent.push(ms);
-    if (stats.recent.length > 600) stats.recent.shift();
+    if (stats.recent.length > (stats.keep || 600)) stats.recent.shift();
   }
 
   function draw() {
