@@ -37,7 +37,9 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--size", nargs="+", default=["1280x720", "1920x1080"])
     args = ap.parse_args()
-    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f}")
+    print(
+        f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f}"
+    )
     rates = dict(DEFAULT_RATES_HZ, ATTITUDE=50.0)
     with tempfile.TemporaryDirectory() as tmp, MavVehicle("udp", rates_hz=rates) as vehicle:
         stop = threading.Event()
@@ -59,9 +61,13 @@ def main() -> None:
                 w, h = (int(v) for v in size.split("x"))
                 page = browser.new_page(viewport={"width": w, "height": h})
                 page.goto(base + "/goggles.html")
-                page.wait_for_function("document.querySelector('[data-osd=mode]').textContent !== ''", timeout=15000)
+                page.wait_for_function(
+                    "document.querySelector('[data-osd=mode]').textContent !== ''", timeout=15000
+                )
                 page.wait_for_timeout(2000)  # warm-up: JIT, first layout
-                page.evaluate("fpv.osdStats.recent.length = 0; fpv.osdStats.frames = 0; fpv.osdStats.totalMs = 0")
+                page.evaluate(
+                    "fpv.osdStats.recent.length = 0; fpv.osdStats.frames = 0; fpv.osdStats.totalMs = 0"
+                )
                 page.evaluate("fpv.osdStats.keep = 1e6")
                 page.wait_for_timeout(args.seconds * 1000)
                 ms = page.evaluate("fpv.osdStats.recent.slice()")
@@ -77,7 +83,9 @@ def main() -> None:
                 page.close()
             browser.close()
         stop.set()
-    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f}")
+    print(
+        f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f}"
+    )
 
 
 if __name__ == "__main__":
