@@ -194,3 +194,17 @@ def test_goggles_show_the_task_step_as_an_osd_line(station, browser):
     expect(page.locator("[data-osd=task]")).to_have_text("TASK Armed", timeout=10000)
     vehicle.arm()
     expect(page.locator("[data-osd=task]")).to_have_text("TASK Took off", timeout=10000)
+
+
+@pytest.mark.parametrize("size", [(390, 844), (844, 390)])
+def test_pilot_page_has_no_horizontal_scroll_on_a_phone(station, browser, size):
+    vehicle, base = station
+    page = browser.new_page(viewport={"width": size[0], "height": size[1]})
+    page.goto(base + "/")
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+    sw, cw = page.evaluate(
+        "[document.documentElement.scrollWidth, document.documentElement.clientWidth]"
+    )
+    assert sw <= cw, (sw, cw)
+    page.locator("#bottom-view").scroll_into_view_if_needed()
+    expect(page.locator("#bottom-view img")).to_be_in_viewport()

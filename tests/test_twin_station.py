@@ -235,3 +235,47 @@ def test_reset_after_minutes_of_flight_keeps_telemetry_flowing(tmp_path) -> None
         assert wait_until(lambda: (state(app).heartbeat.t_mono or 0) > after, timeout=3)
         assert not state(app).link.link_lost
         assert twin.sim.t_s > 120.0  # carried back, not rebooted: its clock ran on
+
+
+def test_keyboard_arm_gesture_legend_select_and_release_on_blur(tmp_path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+
+    app = sim_app(**{"recording.sessions_dir": str(tmp_path)})
+    with run_uvicorn(app) as url, sync_playwright() as p:
+        assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
+        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        page = browser.new_page()
+        page.goto(url + "/")
+        page.wait_for_selector("#control-widget:not([hidden])", timeout=5000)
+        page.keyboard.press("?")
+        assert page.locator("#key-legend").is_visible()
+        assert "arm" in page.locator("#key-legend").inner_text()
+        page.keyboard.press("Escape")
+        assert page.locator("#key-legend").is_hidden()
+        page.click("#ctl-toggle")
+        page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
+        # The documented gesture, without Shift: full throttle down and full yaw right.
+        page.keyboard.down("ArrowDown")
+        page.keyboard.down("KeyE")
+        page.wait_for_function("window.fpv.control.sticks.yaw === 1", timeout=2000)
+        assert page.evaluate("window.fpv.control.sticks.throttle") == 0
+        assert wait_until(lambda: state(app).heartbeat.armed, timeout=8)
+        page.keyboard.up("KeyE")
+        page.keyboard.up("ArrowDown")
+        # A focused <select> does not take the arrow keys while the sticks fly.
+        select = page.locator("#task-select")
+        select.focus()
+        before = select.input_value()
+        page.keyboard.down("ArrowDown")
+        page.wait_for_function("window.fpv.control.sticks.throttle < 0.5", timeout=2000)
+        page.keyboard.up("ArrowDown")
+        assert select.input_value() == before
+        # The window loses focus with a key held: the sticks are centred.
+        select.evaluate("e => e.blur()")
+        page.keyboard.down("KeyW")
+        page.wait_for_function("window.fpv.control.sticks.pitch > 0", timeout=2000)
+        page.evaluate("window.dispatchEvent(new Event('blur'))")
+        page.wait_for_function("window.fpv.control.sticks.pitch === 0", timeout=2000)
+        browser.close()

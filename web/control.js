@@ -5,14 +5,16 @@
 // going to background: the station's dead-man (0.5 s) then centres them (= hold).
 //
 // Keyboard (Position mode: released keys = hold): W/S pitch, A/D roll, Q/E yaw,
-// ArrowUp/ArrowDown climb/descend (R/F too); Shift = full deflection.
+// ArrowUp/ArrowDown climb/descend (R/F too); Shift = full deflection. Arm: ArrowDown+E
+// (throttle down, yaw right); disarm: ArrowDown+Q. "?" shows the key legend.
+// Sticks are centred (hold) while the window has no focus or the tab is hidden.
 // Gamepad: axis mapping, inversion and calibration are kept in localStorage
 // ("fpv.control.gamepad"); default = Mode 2 on a standard pad (left: yaw/throttle,
 // right: roll/pitch).
 // A station with a control token refuses the socket (close 4401): lib.js asks for the
 // token and the socket opens again with it.
 // Test hook: window.fpv.control = {enabled, sticks, input, lastReply}.
-import { $, api, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
+import { $, el, api, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
 
 const RATE_MS = 20;
 const STORE_KEY = "fpv.control.gamepad";
@@ -97,7 +99,7 @@ function command(msg, tries = 10) {
 
 function tick() {
   const pad = firstGamepad();
-  const sticks = pad ? fromGamepad(pad) : fromKeyboard();
+  const sticks = released() ? { ...CENTRED } : pad ? fromGamepad(pad) : fromKeyboard();
   ctl.input = pad ? "gamepad" : "keyboard";
   ctl.sticks = sticks;
   if (calibrating && pad) sweep(pad);
@@ -116,12 +118,28 @@ function fromKeyboard() {
   const k = (code) => keys.has(code);
   const amount = k("ShiftLeft") || k("ShiftRight") ? 1.0 : 0.6;
   const axis = (plus, minus) => (plus.some(k) ? amount : 0) - (minus.some(k) ? amount : 0);
-  return {
+  const sticks = {
     roll: axis(["KeyD"], ["KeyA"]), pitch: axis(["KeyW"], ["KeyS"]),
     yaw: axis(["KeyE"], ["KeyQ"]),
     throttle: clamp(0.5 + 0.5 * axis(["ArrowUp", "KeyR"], ["ArrowDown", "KeyF"]), 0, 1),
   };
+  // The stick gestures are full deflections (the twin wants throttle < 0.1 and |yaw| > 0.9):
+  // throttle down with yaw right arms, with yaw left disarms, with or without Shift.
+  const down = ["ArrowDown", "KeyF"].some(k), up = ["ArrowUp", "KeyR"].some(k);
+  if (down && !up && (k("KeyE") !== k("KeyQ"))) {
+    sticks.throttle = 0;
+    sticks.yaw = k("KeyE") ? 1 : -1;
+  }
+  return sticks;
 }
+
+// Sticks let go (hold) while the page is not the pilot's focus: a gamepad keeps reporting
+// its axes to a background tab, and nobody is watching the video then.
+const CENTRED = { roll: 0, pitch: 0, yaw: 0, throttle: 0.5 };
+let focused = document.hasFocus();
+window.addEventListener("focus", () => { focused = true; });
+window.addEventListener("blur", () => { focused = false; });
+const released = () => !focused || document.visibilityState !== "visible";
 
 function firstGamepad() {
   const pads = navigator.getGamepads ? navigator.getGamepads() : [];
@@ -204,11 +222,32 @@ function renderPadPanel() {
   };
 }
 
-const typing = (e) => ["INPUT", "SELECT", "TEXTAREA"].includes(e.target.tagName);
+// Text fields keep their keys; a focused <select> (the task, a mode) does not get the
+// arrow keys while the sticks are active: they fly, they never change a selection.
+const typing = (e) => ["INPUT", "TEXTAREA"].includes(e.target.tagName) && e.target.type !== "checkbox";
 window.addEventListener("keydown", (e) => {
   if (typing(e) || !ctl.enabled) return;
+  if (e.target.tagName === "SELECT" && !e.code.startsWith("Arrow")) return;
   keys.add(e.code);
   if (e.code.startsWith("Arrow")) e.preventDefault();
-});
+}, { capture: true });
 window.addEventListener("keyup", (e) => keys.delete(e.code));
 window.addEventListener("blur", () => keys.clear()); // released keys must not stay held
+
+// ---- the key legend ("?") ----
+const LEGEND = [
+  ["W / S", "pitch forward / back"], ["A / D", "roll left / right"], ["Q / E", "yaw left / right"],
+  ["\u2191 / \u2193 (R / F)", "climb / descend"], ["Shift", "full deflection"],
+  ["\u2193 + E", "arm (throttle down, yaw right)"], ["\u2193 + Q", "disarm (throttle down, yaw left)"],
+  ["?", "this legend"],
+];
+const legend = el("div", { id: "key-legend", class: "key-legend", role: "dialog", "aria-label": "keys", hidden: true },
+  el("h2", {}, "Keys (twin sticks on)"),
+  el("table", {}, ...LEGEND.map(([key, what]) => el("tr", {}, el("th", {}, key), el("td", {}, what)))));
+legend.addEventListener("click", () => { legend.hidden = true; });
+document.body.append(legend);
+window.addEventListener("keydown", (e) => {
+  if (typing(e)) return;
+  if (e.key === "?") legend.hidden = !legend.hidden;
+  else if (e.key === "Escape") legend.hidden = true;
+});
