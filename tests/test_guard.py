@@ -150,3 +150,71 @@ def test_a_binary_frame_on_the_control_socket_closes_it_cleanly(tmp_path):
         # The pilot's place is free again: the handler ended.
         with connect(url.replace("http", "ws") + "/ws/control", open_timeout=10) as ws:
             assert "hello" in ws.recv(timeout=5)
+
+
+def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
+    """1,050 sockets once made the recorder fail with EMFILE under the Pi's default limit.
+    With 256 descriptors for the whole process, a flood of telemetry clients is capped
+    (503 beyond the cap), and recording still starts, writes and stops cleanly."""
+    import base64
+    import os
+    import resource
+    import subprocess
+    import sys
+    import time
+
+    from tests.helpers import free_port, wait_until
+
+    port = free_port()
+
+    def low_limit():
+        resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256))
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "server", "serve", "--source", "none", "--open", "--no-3d",
+         "--host", "127.0.0.1", "--port", str(port), "--sessions-dir", str(tmp_path)],
+        preexec_fn=low_limit,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "FPV_RECORDING__MIN_FREE_MB": "0"},
+    )  # fmt: skip
+    base = f"http://127.0.0.1:{port}"
+    sockets = []
+    try:
+        assert wait_until(lambda: _up(base), 60)
+        statuses = []
+        for _ in range(300):
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            key = base64.b64encode(os.urandom(16)).decode()
+            s.sendall(
+                f"GET /ws/telemetry HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                "Sec-WebSocket-Version: 13\r\n\r\n".encode()
+            )
+            statuses.append(s.recv(64).split(b" ")[1])
+            sockets.append(s)
+        assert statuses.count(b"101") >= 1 and statuses.count(b"503") >= 100, set(statuses)
+        # The recorder still has its descriptors while the flood holds its sockets.
+        r = httpx.post(f"{base}/api/recording/start", timeout=10)
+        assert r.status_code == 200, r.text
+        time.sleep(1.5)
+        stop = httpx.post(f"{base}/api/recording/stop", timeout=10).json()
+        assert stop["last_stop"]["reason"] == "requested"
+        health = httpx.get(f"{base}/api/health", timeout=10).json()
+        assert health["status"] == "ok", health
+        meta = httpx.get(f"{base}/api/sessions/{stop['last_stop']['id']}", timeout=10).json()
+        assert (
+            meta["meta"]["status"] == "complete" and meta["meta"]["quality"]["telemetry_rows"] > 10
+        )
+    finally:
+        for s in sockets:
+            s.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def _up(base: str) -> bool:
+    try:
+        return httpx.get(f"{base}/api/health", timeout=2).status_code == 200
+    except httpx.HTTPError:
+        return False
