@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import pty
+import re
 import socket
 import subprocess
 import sys
@@ -34,9 +35,10 @@ def test_doctor_hears_the_vehicle_over_udp(tmp_path):
         done = doctor("--source", v.station_source, "--sessions-dir", str(tmp_path))
     assert done.returncode == 0, done.stdout + done.stderr
     assert "px4 quadrotor, sysid 7 compid 1, MAVLink 2" in done.stdout
-    asked = round(Settings().link.message_rates_hz["ATTITUDE"])
-    assert asked != 20  # the vehicle's own rate: doctor shows what it gets after asking
-    assert f"ATTITUDE {asked}," in done.stdout
+    # The vehicle sends ATTITUDE at 20 Hz of its own; doctor shows what it gets after asking.
+    asked = Settings().link.message_rates_hz["ATTITUDE"]
+    got = float(re.search(r"ATTITUDE (\d+)", done.stdout).group(1))
+    assert asked > 30 and got > 30, done.stdout
     assert "min of recording" in done.stdout
     assert "all checks passed" in done.stdout
 
