@@ -147,3 +147,50 @@ def test_osd_elements_switch_off_and_stay_off(station, browser):
     expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
     expect(page.locator("[data-osd=battery]")).to_be_hidden()
     expect(page.locator("[data-osd=gps]")).to_be_visible()
+
+
+@pytest.mark.parametrize("size", [(1280, 720), (1920, 1080)])
+def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser, size):
+    vehicle, base = station
+    w, h = size
+    page = browser.new_page(viewport={"width": w, "height": h})
+    page.goto(base + "/goggles.html")
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+    vehicle.yaw_rad = math.radians(45)
+    expect(page.locator("[data-osd=heading]")).to_have_text("045", timeout=5000)
+    box = page.evaluate(
+        """() => { const r = document.querySelector('#front-view img').getBoundingClientRect();
+        const d = document.documentElement;
+        return {area: r.width * r.height, view: innerWidth * innerHeight,
+                sw: d.scrollWidth, cw: d.clientWidth, sh: d.scrollHeight, ch: d.clientHeight,
+                chrome: document.querySelectorAll('#toolbar, header').length}; }"""
+    )
+    assert box["area"] >= 0.9 * box["view"], box
+    assert box["sw"] <= box["cw"] and box["sh"] <= box["ch"], box
+    assert box["chrome"] == 0
+    assert page.evaluate("getComputedStyle(document.body).backgroundColor") == "rgb(0, 0, 0)"
+
+    bottom = page.locator("#bottom-view")
+    expect(bottom).to_be_hidden()
+    page.keyboard.press("b")
+    expect(bottom).to_be_visible()
+    expect(bottom.locator("img")).to_have_count(1)
+    page.keyboard.press("b")
+    expect(bottom).to_be_hidden()
+
+
+def test_goggles_show_the_task_step_as_an_osd_line(station, browser):
+    vehicle, base = station
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.goto(base + "/goggles.html")
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+    tasks = page.evaluate("fetch('/api/task').then(r => r.json())")
+    if not tasks["tasks"]:
+        pytest.skip("no tasks in the station's scene")
+    first_task = tasks["tasks"][0]["id"]
+    reply = page.request.post(base + "/api/task", data={"task_id": first_task})
+    assert reply.ok, reply.text()
+    page.reload()
+    expect(page.locator("[data-osd=task]")).to_have_text("TASK Armed", timeout=10000)
+    vehicle.arm()
+    expect(page.locator("[data-osd=task]")).to_have_text("TASK Took off", timeout=10000)
