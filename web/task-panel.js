@@ -20,6 +20,7 @@ let scene = null; // GET /api/scene
 let taskInfo = null; // GET /api/task
 let flight = null; // this flight: steps done (indices of stepNames), trail; reset on arming
 let lastVersion = -1;
+let currentStep = null; // the name of the step the pilot is on (window "fpv:task-step")
 let vehicle = null; // {x, y, heading}: metres east/north of the scene's home
 
 const panel = el("section", { id: "task-panel", class: "task-panel", "aria-label": "flight task" });
@@ -165,6 +166,12 @@ function render() {
   const names = stepNames(task);
   const done = flight && task ? flight.done : new Set();
   const current = names.findIndex((_, i) => !done.has(i));
+  // The current step for other modules (the goggles' OSD line): null without a task.
+  const step = task && current >= 0 ? names[current] : null;
+  if (step !== currentStep) {
+    currentStep = step;
+    window.dispatchEvent(new CustomEvent("fpv:task-step", { detail: step }));
+  }
   steps.replaceChildren(
     ...names.map((name, i) =>
       el("li", { class: done.has(i) ? "done" : i === current ? "current" : null, "data-step": String(i) }, name),
