@@ -1,26 +1,36 @@
 # fpv-station: one image for the Raspberry Pi (linux/arm64) and laptops (linux/amd64).
 #   docker buildx build --platform linux/arm64,linux/amd64 -t fpv-station .
-#
-# On the Pi, pass the Pixhawk's serial port and the two USB video grabbers through:
-#   docker run --rm -p 8000:8000 -p 8080:8080 \
-#     --device /dev/serial0 --device /dev/video0 --device /dev/video2 \
-#     -v /home/pi/sessions:/data/sessions \
-#     fpv-station serve --source /dev/serial0:921600 \
-#       --front v4l2:/dev/video0 --bottom v4l2:/dev/video2
+# On the Pi use deploy/compose.yaml (serial port, cameras, sessions volume, restart policy):
+#   docker compose -f deploy/compose.yaml up -d
 # With no arguments it starts on the embedded digital twin.
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
 WORKDIR /app
 COPY pyproject.toml README.md ./
-COPY server ./server
+# Every package pyproject.toml installs ([tool.setuptools.packages.find]).
+COPY core ./core
 COPY companion ./companion
 COPY twin ./twin
 COPY analysis ./analysis
+COPY server ./server
+COPY learn ./learn
 COPY web ./web
 RUN pip install .
 
-# 8000: web UI, REST, WebSocket, MJPEG; 8080: the viser 3D panel
-EXPOSE 8000 8080
+# Not root: a user in dialout (serial) and video (V4L2), the groups' Debian ids, which
+# Raspberry Pi OS shares (20 and 44), so --device nodes from the host are usable.
+RUN useradd --system --uid 999 --user-group --groups dialout,video \
+        --home-dir /data --shell /usr/sbin/nologin fpv-station \
+    && mkdir -p /data/sessions && chown -R fpv-station:fpv-station /data
+USER fpv-station
+ENV HOME=/data FPV_RECORDING__SESSIONS_DIR=/data/sessions FPV_SERVER__TOKEN_FILE=/data/token
+VOLUME /data
+
+# 8000: web UI, REST, WebSocket, MJPEG; 8080: the live 3D panel; 8081: the replay's 3D panel
+EXPOSE 8000 8080 8081
+HEALTHCHECK --interval=15s --timeout=5s --start-period=30s --retries=3 CMD \
+    python -c "import json,sys,urllib.request as u; \
+sys.exit(0 if json.load(u.urlopen('http://127.0.0.1:8000/api/health', timeout=4))['ok'] else 1)"
 ENTRYPOINT ["fpv-station"]
 CMD ["serve", "--source", "sim", "--host", "0.0.0.0"]

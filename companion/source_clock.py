@@ -17,6 +17,7 @@ replay waits for it.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable
 
@@ -31,6 +32,16 @@ class SourceClock:
         self.ended = False
         self._t: float | None = None
         self._listeners: list[ClockListener] = []
+        self._first = threading.Event()
+
+    @property
+    def started(self) -> bool:
+        """False for a source on its own clock that has not given its first time yet."""
+        return not self.own or self._t is not None
+
+    def wait_started(self, timeout: float) -> bool:
+        """Block until the source gave its first time (at once for the station's clock)."""
+        return self.started or self._first.wait(timeout)
 
     def mono(self) -> float:
         return self._t if self.own and self._t is not None else time.monotonic()
@@ -46,6 +57,7 @@ class SourceClock:
         if self._t is not None and t <= self._t:
             return
         self._t = t
+        self._first.set()
         self._tell(t)
 
     def end(self) -> None:

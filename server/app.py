@@ -25,6 +25,7 @@ from server.routes import (
     video,
     viser_panel,
 )
+from server.sd_notify import Notifier, notify_loop, notify_stopping
 from server.settings import Settings
 from server.station import open_station
 from web import WEB_DIR
@@ -35,7 +36,12 @@ def create_app(settings: Settings) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         async with open_station(settings) as station:
             app.state.station = station
+            # Under systemd: READY now, then the watchdog while tasks live (server/sd_notify.py).
+            notifier = Notifier.from_environ()
+            if notifier is not None:
+                station.tasks.spawn("systemd-notify", notify_loop(notifier, station.tasks))
             yield
+            notify_stopping(notifier)
 
     app = FastAPI(
         title="fpv-station",

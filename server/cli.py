@@ -192,6 +192,45 @@ def run_cameras(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_doctor_parser(sub: Any) -> None:
+    p = sub.add_parser("doctor", help="check the wiring, cameras, disk, clock and ports")
+    p.add_argument("--config", type=Path, help="TOML settings file")
+    p.add_argument("--source", dest="link.source", help="MAVLink source to listen on")
+    p.add_argument("--heartbeat-s", type=float, default=5.0, help="wait this long for one")
+    add_camera_flags(p)
+    add_viser_flags(p)
+    p.add_argument("--port", dest="server.port", type=int, help="the web port to check")
+    p.add_argument("--sessions-dir", dest="recording.sessions_dir", type=Path)
+    p.set_defaults(func=run_doctor)
+
+
+def run_doctor(args: argparse.Namespace) -> int:
+    from server.doctor import format_table, run_checks
+
+    checks = run_checks(settings_from_args(args), heartbeat_s=args.heartbeat_s)
+    print(format_table(checks))
+    failed = [c.name for c in checks if c.status == "FAIL"]
+    print(f"\n{len(failed)} failed: {', '.join(failed)}" if failed else "\nall checks passed")
+    return 1 if failed else 0
+
+
+def add_install_service_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "install-service",
+        help="install and start the systemd service (as root), or print it with --dry-run",
+    )
+    p.add_argument("--user", default=None, help="the user it runs as (default fpv-station)")
+    p.add_argument("--dry-run", action="store_true", help="print the files and commands only")
+    p.set_defaults(func=run_install_service)
+
+
+def run_install_service(args: argparse.Namespace) -> int:
+    from server.install_service import DEFAULT_USER, ServicePlan, install, installed_exec_path
+
+    plan = ServicePlan(user=args.user or DEFAULT_USER, exec_path=installed_exec_path())
+    return install(plan, dry_run=args.dry_run)
+
+
 def settings_from_args(args: argparse.Namespace) -> Settings:
     overrides = {k: v for k, v in vars(args).items() if "." in k}
     return load_settings(getattr(args, "config", None), overrides)
@@ -253,6 +292,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_analyze_parser(sub)
     add_learn_parsers(sub)
     add_cameras_parser(sub)
+    add_install_service_parser(sub)
+    add_doctor_parser(sub)
     return parser
 
 

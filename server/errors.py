@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import logging
 
-from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
+from fastapi import FastAPI, Request, WebSocket
+from fastapi.exceptions import RequestValidationError, WebSocketRequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -82,6 +82,15 @@ def install_error_handlers(app: FastAPI) -> None:
             f"{'.'.join(str(p) for p in err['loc'])}: {err['msg']}" for err in exc.errors()
         )
         return error_response(422, "ValidationError", problems)
+
+    @app.exception_handler(WebSocketRequestValidationError)
+    async def _ws_validation(ws: WebSocket, exc: WebSocketRequestValidationError) -> None:
+        # A refused upgrade answered in the error shape (an HTTP 400 with a JSON body),
+        # not a bare 403: browsers and scripts see why.
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in err['loc'])}: {err['msg']}" for err in exc.errors()
+        )
+        await ws.send_denial_response(error_response(400, "BadRequest", problems))
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:

@@ -42,7 +42,14 @@ class ServerSettings(Section):
     allowed_origins: list[str] = Field(default_factory=list)
     # Request bodies: larger ones are refused (413) before they are read. Every body the
     # API takes is a small JSON document.
-    max_body_bytes: int = Field(64 * 1024, ge=1024, le=64 * 1024 * 1024)
+    max_body_bytes: int = Field(8 * 1024, ge=1024, le=64 * 1024 * 1024)
+    # Concurrent streaming clients (server/client_limits.py): beyond these a WebSocket
+    # upgrade or an MJPEG stream is refused with 503. Each holds a file descriptor; the
+    # caps are lowered further at start so that `fd_reserve` descriptors always remain for
+    # the recorder and the link, whatever the process's RLIMIT_NOFILE.
+    max_ws_clients: int = Field(200, ge=1, le=100_000)
+    max_video_clients: int = Field(40, ge=1, le=10_000)
+    fd_reserve: int = Field(128, ge=32, le=100_000)
 
 
 class ViserSettings(Section):

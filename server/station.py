@@ -19,6 +19,7 @@ from companion.latest import Latest
 from companion.link import MavlinkLink
 from companion.recording.recorder import Recorder
 from companion.vehicle_state import VehicleState
+from server.client_limits import ClientCap, ClientLimits, raise_nofile_limit
 from server.pilot import Pilot
 from server.settings import Settings
 from server.tasks import TaskSupervisor
@@ -59,12 +60,20 @@ class Station:
     # anyio limiter belongs to the running event loop.
     analysis_limiter: anyio.CapacityLimiter | None = None
     trials: Trials | None = None  # the flight task chosen and its trials' scores
+    # Caps on streaming clients, fitted under the descriptor limit (server/client_limits.py).
+    client_limits: ClientLimits = field(
+        default_factory=lambda: ClientLimits(ClientCap("websocket", 200), ClientCap("video", 40))
+    )
 
 
 @contextlib.asynccontextmanager
 async def open_station(settings: Settings) -> AsyncIterator[Station]:
     station = Station(settings=settings)
     station.analysis_limiter = anyio.CapacityLimiter(1)
+    srv = settings.server
+    station.client_limits = ClientLimits.fitted(
+        srv.max_ws_clients, srv.max_video_clients, srv.fd_reserve, raise_nofile_limit()
+    )
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
 
@@ -94,6 +103,8 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             # A replay on its own clock: at full speed it would be over before the recorder
             # listened (companion/source_clock.py).
             station.link.start()
+            # Serve once the log gave its first time: a session is in the log's time.
+            await asyncio.to_thread(station.link.clock.wait_started, 2.0)
 
         # -- flight tasks: chosen for the sessions, scored when they end -------------
         scene, scene_file, is_field = station_scene(settings)  # bad file: logged, default

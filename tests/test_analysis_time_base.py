@@ -47,7 +47,8 @@ def test_track_times_are_the_vehicles(burst_tlog):
 
 
 def test_vehicle_clock_stretches_and_fallback():
-    r = np.array([10.0, 10.2, 15.0, 15.0, 15.0, 100.0, 100.2])
-    v = np.array([1.0, 1.2, 4.6, 4.8, 5.0, 0.5, 0.7])  # a burst, then a reboot
-    assert on_vehicle_clock(r, v) == pytest.approx([10.0, 10.2, 13.6, 13.8, 14.0, 100.0, 100.2])
+    r = np.array([10.0, 10.2, 10.4, 10.6, 15.0, 15.0, 100.0, 100.2])
+    v = np.array([1.0, 1.2, 1.4, 1.6, 4.8, 5.0, 0.5, 0.7])  # a burst, then a reboot
+    want = [10.0, 10.2, 10.4, 10.6, 13.8, 14.0, 100.0, 100.2]
+    assert on_vehicle_clock(r, v) == pytest.approx(want)
     assert on_vehicle_clock(r, np.zeros(r.size)) == pytest.approx(r)  # no vehicle time

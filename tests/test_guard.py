@@ -3,6 +3,7 @@ against a real uvicorn server (server/guard.py)."""
 
 from __future__ import annotations
 
+import json
 import socket
 
 import httpx
@@ -102,3 +103,118 @@ def test_tokens_are_kept_out_of_the_access_log():
 def test_settings_refuse_a_silly_body_limit():
     with pytest.raises(Exception, match="max_body_bytes"):
         load_settings(None, {"server.max_body_bytes": 10}, environ={})
+
+
+@pytest.mark.parametrize("n", [300, 5000])
+def test_long_names_are_a_client_error(base, n):
+    sid = httpx.post(f"{base}/api/recording/start").json()["id"]
+    httpx.post(f"{base}/api/recording/stop")
+    for path in (
+        f"/api/sessions/{'a' * n}",
+        f"/api/sessions/{'a' * n}/download",
+        f"/api/sessions/{sid}/files/{'b' * n}",
+        f"/api/sessions/{sid}/files/front/{'c' * n}.jpg",
+        f"/api/sessions/{sid}/files/{'d/' * (n // 2)}x",
+    ):
+        r = httpx.get(f"{base}{path}")
+        assert 400 <= r.status_code < 500, (path[:60], r.status_code)
+        assert set(r.json()) == {"error", "error_msg"}
+
+
+def test_websocket_parameters_are_bounded_with_a_reason(base):
+    ws = base.replace("http", "ws")
+    for bad in ("1e-300", "-3", "nan", "abc", "5000"):
+        with pytest.raises(InvalidStatus) as exc:
+            connect(f"{ws}/ws/telemetry?max_rate={bad}", open_timeout=5)
+        response = exc.value.response
+        assert response.status_code == 400, bad
+        body = json.loads(response.body)
+        assert body["error"] == "BadRequest" and "max_rate" in body["error_msg"]
+
+
+def test_a_binary_frame_on_the_control_socket_closes_it_cleanly(tmp_path):
+    from websockets.exceptions import ConnectionClosed
+
+    settings = station_settings(
+        "sim", tmp_path, **{"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    )
+    with run_uvicorn(create_app(settings)) as url:
+        with connect(url.replace("http", "ws") + "/ws/control", open_timeout=10) as ws:
+            assert "hello" in ws.recv(timeout=5)
+            ws.send(b"\x00\x01binary")
+            reply = ws.recv(timeout=5)
+            assert '"BadRequest"' in reply and "text" in reply
+            with pytest.raises(ConnectionClosed) as closed:
+                ws.recv(timeout=5)
+            assert closed.value.rcvd.code == 1003 and "binary" in closed.value.rcvd.reason
+        # The pilot's place is free again: the handler ended.
+        with connect(url.replace("http", "ws") + "/ws/control", open_timeout=10) as ws:
+            assert "hello" in ws.recv(timeout=5)
+
+
+def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
+    """1,050 sockets once made the recorder fail with EMFILE under the Pi's default limit.
+    With 256 descriptors for the whole process, a flood of telemetry clients is capped
+    (503 beyond the cap), and recording still starts, writes and stops cleanly."""
+    import base64
+    import os
+    import resource
+    import subprocess
+    import sys
+    import time
+
+    from tests.helpers import free_port, wait_until
+
+    port = free_port()
+
+    def low_limit():
+        resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256))
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "server", "serve", "--source", "none", "--open", "--no-3d",
+         "--host", "127.0.0.1", "--port", str(port), "--sessions-dir", str(tmp_path)],
+        preexec_fn=low_limit,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "FPV_RECORDING__MIN_FREE_MB": "0"},
+    )  # fmt: skip
+    base = f"http://127.0.0.1:{port}"
+    sockets = []
+    try:
+        assert wait_until(lambda: _up(base), 60)
+        statuses = []
+        for _ in range(300):
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            key = base64.b64encode(os.urandom(16)).decode()
+            s.sendall(
+                f"GET /ws/telemetry HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                "Sec-WebSocket-Version: 13\r\n\r\n".encode()
+            )
+            statuses.append(s.recv(64).split(b" ")[1])
+            sockets.append(s)
+        assert statuses.count(b"101") >= 1 and statuses.count(b"503") >= 100, set(statuses)
+        # The recorder still has its descriptors while the flood holds its sockets.
+        r = httpx.post(f"{base}/api/recording/start", timeout=10)
+        assert r.status_code == 200, r.text
+        time.sleep(1.5)
+        stop = httpx.post(f"{base}/api/recording/stop", timeout=10).json()
+        assert stop["last_stop"]["reason"] == "requested"
+        health = httpx.get(f"{base}/api/health", timeout=10).json()
+        assert health["status"] == "ok", health
+        meta = httpx.get(f"{base}/api/sessions/{stop['last_stop']['id']}", timeout=10).json()
+        assert (
+            meta["meta"]["status"] == "complete" and meta["meta"]["quality"]["telemetry_rows"] > 10
+        )
+    finally:
+        for s in sockets:
+            s.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def _up(base: str) -> bool:
+    try:
+        return httpx.get(f"{base}/api/health", timeout=2).status_code == 200
+    except httpx.HTTPError:
+        return False

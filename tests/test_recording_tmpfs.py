@@ -72,3 +72,46 @@ def test_full_tmpfs_stops_cleanly_with_reason(tmp_path, min_free_kb, expect):
         assert meta["quality"]["cameras"]["front"]["frames_written"] > 5
         with open(root / st.last_stop.id / layout.TELEMETRY_CSV) as f:
             assert f.readline().startswith("t_s,wall_time,")
+
+
+def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
+    """A write failure while flying is not the end of the flight's data: the recorder
+    tries again (1 s, doubling) and starts a new session once the cause has passed."""
+    import shutil
+
+    with tmpfs(tmp_path / "disk", 8192) as root:
+        cam = FakeCamera("front", 30.0, make_jpegs(4, 320, 240)).start()  # ~1.5 MB/s
+        vehicle = FakeVehicle().start()
+        vehicle.armed = True
+        options = RecorderOptions(
+            session=SessionConfig(
+                rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=0)
+            ),
+            auto_record_on_arm=True,
+        )
+        rec = Recorder(root, vehicle.state, {"front": cam.frames}, options)
+
+        async def run():
+            await rec.open()
+            try:
+                deadline = time.monotonic() + 30
+                while rec.failure is None and time.monotonic() < deadline:  # noqa: ASYNC110
+                    await asyncio.sleep(0.1)
+                assert rec.failure is not None and rec.failure.startswith("disk full"), rec.failure
+                first = rec.last_stop.id
+                cam.stop()  # fewer bytes per second, and room made: the cause has passed
+                shutil.rmtree(root / first)
+                deadline = time.monotonic() + 20
+                while rec.recording_id in (None, first) and time.monotonic() < deadline:  # noqa: ASYNC110
+                    await asyncio.sleep(0.1)
+                status = rec.status()
+                assert status.recording and status.id != first, status
+                assert rec.failure is None
+            finally:
+                await rec.aclose()
+
+        try:
+            asyncio.run(run())
+        finally:
+            cam.stop()
+            vehicle.stop()

@@ -4,10 +4,13 @@ pages that style only through the one stylesheet and load only the station's own
 
 from __future__ import annotations
 
+import time
+
 import httpx
 import pytest
 from playwright.sync_api import expect, sync_playwright
 
+from companion.vehicle_state import VehicleState
 from server.app import create_app
 from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings
 from tests.test_trajectory_replay import SESSION_A, sessions_dir  # noqa: F401
@@ -182,3 +185,45 @@ def test_pages_style_only_through_the_stylesheet_and_load_only_own_scripts(
             assert scripts and all(u.startswith(base + "/") for u in scripts), (path, scripts)
             assert f"{base}/lib.js" in scripts, (path, scripts)
         assert errors == []
+
+
+def test_live_socket_sends_acks_and_closes_for_good(tmp_path, chromium):
+    """lib.js's liveSocket on `/ws/telemetry?ack=1`: the station sends the next state only
+    after the page's ack, so more than one message arriving proves `send` reached it;
+    after `close()` nothing more arrives (no reconnect)."""
+    app = create_app(station_settings("none", tmp_path / "sessions"))
+    with run_uvicorn(app) as base:
+        page = chromium.new_page()
+        page.goto(f"{base}/sessions.html")
+        page.evaluate(
+            """async () => {
+              const { liveSocket } = await import("/lib.js");
+              window.__got = [];
+              const s = liveSocket("/ws/telemetry?ack=1", { message(m) {
+                window.__got.push(m.version);
+                s.send({ ack: m.version });
+              } });
+              window.__sock = s;
+            }"""
+        )
+        slot = app.state.station.state
+
+        def publish_until(n: int) -> bool:
+            for _ in range(100):
+                slot.publish(VehicleState())
+                time.sleep(0.05)
+                if page.evaluate("window.__got.length") >= n:
+                    return True
+            return False
+
+        assert publish_until(4), page.evaluate("window.__got")
+        got = page.evaluate("window.__got")
+        assert got == sorted(set(got))  # each state once, in order
+        page.evaluate("window.__sock.close()")
+        page.wait_for_timeout(300)
+        before = page.evaluate("window.__got.length")
+        for _ in range(10):
+            slot.publish(VehicleState())
+            time.sleep(0.05)
+        page.wait_for_timeout(1500)  # longer than the first reconnect delay
+        assert page.evaluate("window.__got.length") == before

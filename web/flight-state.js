@@ -1,44 +1,43 @@
-// fpv-station pilot page: live flight state from WS /ws/telemetry.
+// fpv-station pilot page: the flight state table, the connection pill and LINK LOST.
 //
-// Other page modules get the same telemetry without opening their own socket:
-//   window.addEventListener("fpv:telemetry", (e) => use(e.detail));  // every message
-//   window.fpv.latest                                                 // newest message
-// A message is {t_server, t_server_mono, version, state: {heartbeat, gps, ..., link}}
-// (names as companion/vehicle_state.py). The page shows LINK LOST when the station says
-// the autopilot is silent, when the station itself is unreachable, or when no state
+// The telemetry comes from telemetry.js (the page's one WS /ws/telemetry?ack=1 feed; other
+// modules listen to its window "fpv:telemetry" events). Freshness is honest: the pill says
+// "live" only while messages actually arrive, and each row greys out and shows its age
+// when its telemetry group is older than STALE_S. The page shows LINK LOST when the
+// station says the autopilot is silent, when the station is unreachable, or when no state
 // arrives at all.
-import { $, liveSocket } from "/lib.js";
+import { $, el } from "/lib.js";
+import { feed, groupAge } from "/telemetry.js";
 
 const STALE_MS = 3000; // no message for this long while the socket is open: link lost
-const fpv = (window.fpv = window.fpv || {});
-fpv.latest = null;
+// Row (value element id) -> the telemetry groups it is drawn from, and its stale age.
+const ROWS = {
+  "v-ground-speed": [["vfr_hud", "global_position", "gps"], 2],
+  "v-climb": [["vfr_hud", "global_position"], 2],
+  "v-rel-alt": [["altitude"], 2],
+  "v-armed": [["heartbeat"], 3],
+  "v-mode": [["heartbeat"], 3],
+  "v-gps": [["gps"], 2],
+  "v-battery": [["battery"], 5],
+  "v-heading": [["global_position", "vfr_hud"], 2],
+};
+const rowAges = {};
+for (const id of Object.keys(ROWS)) {
+  const tr = $(id).closest("tr");
+  const age = el("small", { class: "age" });
+  tr.querySelector("th").append(" ", age);
+  rowAges[id] = { tr, age };
+}
 
-let socketOpen = false;
-let lastMessageAt = 0;
 let pending = null; // newest message not drawn yet (draw at most once per frame)
-
-liveSocket("/ws/telemetry", {
-  open() {
-    socketOpen = true;
-    setConn("live", "ok");
-    lastMessageAt = performance.now();
-  },
-  message(msg) {
-    lastMessageAt = performance.now();
-    fpv.latest = msg;
-    window.dispatchEvent(new CustomEvent("fpv:telemetry", { detail: msg }));
-    if (pending === null) requestAnimationFrame(draw);
-    pending = msg;
-  },
-  close() {
-    socketOpen = false;
-    setConn("station unreachable", "bad");
-  },
+window.addEventListener("fpv:telemetry", (e) => {
+  if (pending === null) requestAnimationFrame(draw);
+  pending = e.detail;
 });
 
 function setConn(text, cls) {
   const pill = $("conn-status");
-  pill.textContent = text;
+  if (pill.textContent !== text) pill.textContent = text;
   pill.className = `pill ${cls}`;
 }
 
@@ -83,17 +82,35 @@ function draw() {
   updateBanner();
 }
 
+function updateFreshness() {
+  for (const [id, [groups, limit]] of Object.entries(ROWS)) {
+    const ages = groups.map(groupAge).filter((a) => a !== null);
+    const age = ages.length ? Math.min(...ages) : null;
+    const stale = !feed.flowing() || age === null || age > limit;
+    const { tr, age: ageEl } = rowAges[id];
+    tr.classList.toggle("stale", stale);
+    const text = stale && age !== null ? `${age.toFixed(0)} s old` : "";
+    if (ageEl.textContent !== text) ageEl.textContent = text;
+  }
+  if (!feed.socketOpen) setConn("station unreachable", "bad");
+  else if (feed.flowing()) setConn("live", "ok");
+  else setConn(feed.latest ? "no telemetry" : "waiting for telemetry", "bad");
+}
+
 function updateBanner() {
-  const msg = fpv.latest;
+  updateFreshness();
+  const msg = feed.latest;
+  const quietMs = performance.now() - (feed.receivedAt || openedAt);
   let detail = null;
-  if (!socketOpen) detail = "no connection to the station";
-  else if (!msg) detail = performance.now() - lastMessageAt > STALE_MS ? "no vehicle state" : null;
+  if (!feed.socketOpen) detail = "no connection to the station";
+  else if (!msg) detail = quietMs > STALE_MS ? "no vehicle state" : null;
   else if (msg.state.link.link_lost) detail = "no heartbeat from the autopilot";
-  else if (performance.now() - lastMessageAt > STALE_MS) detail = "telemetry stopped";
+  else if (quietMs > STALE_MS) detail = "telemetry stopped";
   const banner = $("link-banner");
   banner.hidden = detail === null;
   $("link-banner-detail").textContent = detail ?? "";
   $("flight-state").classList.toggle("stale", detail !== null);
 }
 
-setInterval(updateBanner, 500);
+const openedAt = performance.now();
+setInterval(updateBanner, 250);

@@ -10,8 +10,9 @@
 //                                (a ?token= in the page's URL is taken into it at load)
 //   askToken(why)                ask the user for the token (a prompt), keep it; returns it,
 //                                or null when the user declines
-//   api(path, {method, body})    fetch a JSON API route and return the parsed reply (null
-//                                when there is none). Sends the token when there is one;
+//   api(path, {method, body})    fetch a JSON API route (body: an object, sent as JSON) and
+//                                return the parsed reply (null when there is none; images
+//                                and streams are plain URLs, not api calls). Sends the token when there is one;
 //                                on 401 asks for it once (askToken) and retries. A refusal
 //                                throws ApiError; so does an unreachable station (status 0).
 //   ApiError                     .status (HTTP, 0 = unreachable), .error (the server's error
@@ -25,10 +26,11 @@
 //                                bounded staleness (server/routes/telemetry.py):
 //                                  const tm = liveSocket("/ws/telemetry?ack=1",
 //                                    { message(m) { draw(m); tm.send({ ack: m.version }); } });
+//   CLOSE_UNAUTHORIZED           4401, the close code of a WebSocket that refuses the token:
+//                                on it, askToken() and open the socket again (control.js)
 //
 // The server's error shape is {"error": Name, "error_msg": text} for every refusal
-// (server/errors.py); WebSockets refuse a bad token by closing with code 4401
-// (CLOSE_UNAUTHORIZED). Page scripts keep their own state; only what two pages need
+// (server/errors.py). Page scripts keep their own state; only what two pages need
 // belongs here.
 
 const TOKEN_KEY = "fpv.token";

@@ -32,6 +32,17 @@ function quality(s) {
   return { text: parts.join(", ") || "--", bad };
 }
 
+function scoreText(s) {
+  // The trial's score, done by the station when the vehicle disarmed (server/trials.py).
+  if (!s.score) return s.task ? "not scored" : "--";
+  if (!s.score.ok) return "no score";
+  const r = s.score.result;
+  const main = s.score.task === "hover"
+    ? `hover ${r.hover_distance_m.toFixed(3)} m`
+    : `lateral ${r.lateral_deviation_m.toFixed(3)} m`;
+  return `${main}, height ${r.height_deviation_m.toFixed(3)} m, ${r.trial_time_s.toFixed(1)} s`;
+}
+
 function cell(tr, text, cls) {
   const td = el("td", { class: cls || null }, text);
   tr.appendChild(td);
@@ -70,6 +81,9 @@ async function load() {
     cell(tr, s.status, `status-${s.status}`).title = s.stop_reason || "";
     const q = quality(s);
     cell(tr, q.text, q.bad ? "quality-bad" : "");
+    cell(tr, s.task ? `${s.task.id}. ${s.task.name}` : "--", "task");
+    cell(tr, scoreText(s), s.score && !s.score.ok ? "quality-bad score" : "score").title =
+      s.score && s.score.reason ? s.score.reason : "";
     const id = encodeURIComponent(s.id);
     const del = el("button", { type: "button", class: "delete", disabled: s.recording_now }, "delete");
     del.addEventListener("click", () => remove(s.id));

@@ -8,12 +8,14 @@
 // age of the newest frame as the browser gets it: capture, encode, network, up to one
 // frame interval of waiting), shown only when the browser's and station's clocks agree
 // (the reply's server_time checked against the request's round trip). Others read the
-// figures from window.fpv.cameras.
+// figures from window.fpv.cameras (and window.fpv.camerasAt: performance.now() of the
+// reply). A camera whose newest frame is older than STALLED_S reads "0 fps · stalled".
 import { $, el, api } from "/lib.js";
 
 const CAMERAS = ["front", "bottom"];
 const POLL_MS = 1000;
 const CLOCK_SLACK_S = 0.02; // clocks "agree" if the offset is within RTT/2 + this
+const STALLED_S = 1.0; // no new frame for this long: the stream is stalled, whatever fps says
 const fpv = (window.fpv = window.fpv || {});
 fpv.cameras = {};
 
@@ -48,7 +50,7 @@ async function poll() {
   try {
     reply = await api("/api/cameras");
   } catch (err) {
-    for (const v of Object.values(views)) setReadout(v, "station unreachable", "bad");
+    for (const v of Object.values(views)) setReadout(v, "0 fps · station unreachable", "bad");
     stationDown = true;
     return;
   }
@@ -59,6 +61,7 @@ async function poll() {
     Object.keys(views).forEach(attach);
   }
   const now = Date.now();
+  fpv.camerasAt = performance.now(); // when last_frame_age_s was true (the OSD ages it on)
   const rttS = (now - sentAt) / 1000;
   // Station clock minus browser clock, best estimate: server_time was taken mid-request.
   const offsetS = reply.server_time - (sentAt + now) / 2000;
@@ -72,6 +75,12 @@ async function poll() {
     if (!cam.signal) {
       // The frame itself says why, large; the readout stays short (hover for the reason).
       setReadout(v, "NO SIGNAL", "bad", cam.reason || "no frames");
+      continue;
+    }
+    if (cam.last_frame_age_s === null || cam.last_frame_age_s > STALLED_S) {
+      // Frames stopped: 0 fps now, not the average of the last seconds.
+      const age = cam.last_frame_age_s === null ? "" : ` ${cam.last_frame_age_s.toFixed(0)} s`;
+      setReadout(v, `0 fps · stalled${age}`, "bad");
       continue;
     }
     let text = `${cam.delivered_fps.toFixed(1)} fps`;

@@ -69,6 +69,9 @@ class RecordingStatus:
     last_error: str | None = None  # why the last start failed, if it did
 
 
+RETRY_MAX_S = 30.0
+
+
 class RecorderError(Exception):
     """A session could not start; the message says why and what to do."""
 
@@ -102,6 +105,10 @@ class Recorder:
         self._tail: asyncio.TimerHandle | None = None
         self._tail_deadline_wall: float | None = None
         self._closed = False
+        # Why the last session was cut short by a write failure (EMFILE, EIO, disk full),
+        # until a new session starts; the station's health reports it (degraded).
+        self.failure: str | None = None
+        self._retrying = False
         self._was_armed: bool | None = None  # source-clock arm watching (its thread)
         self._tail_due: float | None = None  # end of the tail, source clock
 
@@ -144,10 +151,13 @@ class Recorder:
                 session.start()
                 self.session = session
                 self.last_error = None
+                self.failure = None
                 log.info("recording session %s started (%s)", session.id, trigger)
         return self.status()
 
     def _new_session(self, trigger: str) -> RecordingSession:
+        if not self.clock.started:  # a session is in its source's time: none yet
+            raise RecorderError("The replay has not started yet; start recording in a moment.")
         root = self.store.root
         need = self.options.session.limits.min_free_bytes
         try:
@@ -316,11 +326,39 @@ class Recorder:
             log.exception("cannot schedule the recording stop")
 
     def _on_writer_failure(self, session_id: str, reason: str) -> None:
-        """From the writer thread: finalize the session on the event loop."""
+        """From the writer thread: finalize the session on the event loop, then try again
+        (the cause is often passing: descriptors, a flaky card, space being freed)."""
         loop = self._loop
         if loop is None:
             return
         try:
-            loop.call_soon_threadsafe(self._spawn_stop, reason, session_id)
+            loop.call_soon_threadsafe(self._failed, reason, session_id)
         except RuntimeError:  # the loop is closed: shutdown finalizes
             pass
+
+    def _failed(self, reason: str, session_id: str) -> None:
+        self.failure = reason
+        self._spawn_stop(reason, session_id)
+        if not self._retrying and self._spawn is not None:
+            self._retrying = True
+            self._spawn(f"recorder-retry-{session_id}", self._retry())
+
+    async def _retry(self) -> None:
+        """While the vehicle flies and no session runs, start one again: after 1 s, then
+        doubling to 30 s. A stopped vehicle needs no recording; the failure stays shown."""
+        delay = 1.0
+        try:
+            while not self._closed and self.failure is not None:
+                await asyncio.sleep(delay)
+                delay = min(delay * 2, RETRY_MAX_S)
+                got = self.state.get()
+                armed = got is not None and bool(got.value.heartbeat.armed)
+                if self.session is not None or not armed or not self.options.auto_record_on_arm:
+                    continue
+                try:
+                    await self.start("retry")
+                except RecorderError:
+                    continue  # logged and in last_error; the failure stays until it works
+                log.info("recording resumed after: %s", self.failure)
+        finally:
+            self._retrying = False

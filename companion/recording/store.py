@@ -103,7 +103,11 @@ class SessionStore:
         try:
             st = os.stat(real)
         except (FileNotFoundError, NotADirectoryError):
-            raise SessionFileNotFound(f"Session '{session_id}' has no file '{relpath}'.") from None
+            raise SessionFileNotFound(
+                f"Session '{session_id}' has no file '{relpath[:200]}'."
+            ) from None
+        except OSError as exc:  # ENAMETOOLONG, ELOOP ...: still the client's path
+            raise InvalidPath(f"'{relpath[:200]}' cannot be a file here: {exc.strerror}.") from None
         if not stat.S_ISREG(st.st_mode):
             raise SessionFileNotFound(f"'{relpath}' in session '{session_id}' is not a file.")
         return real
@@ -205,6 +209,12 @@ class SessionStore:
         return sorted(out)
 
 
+# The session's own files are short (front/00000042.jpg); longer requests are refused
+# before the file system sees them, which would fail with ENAMETOOLONG.
+MAX_RELPATH_LEN = 200
+MAX_NAME_BYTES = 255
+
+
 def _safe_parts(relpath: str) -> list[str]:
     """Split a request path into plain names; refuse anything that could climb out."""
     if not isinstance(relpath, str) or not relpath:
@@ -215,10 +225,14 @@ def _safe_parts(relpath: str) -> list[str]:
         raise InvalidPath("Use '/' to separate folders in a file path.")
     if relpath.startswith("/") or PurePosixPath(relpath).is_absolute() or ":" in relpath:
         raise InvalidPath(f"'{relpath[:200]}' is absolute; give a path inside the session.")
+    if len(relpath) > MAX_RELPATH_LEN:
+        raise InvalidPath(f"A file path inside a session is at most {MAX_RELPATH_LEN} characters.")
     parts = relpath.split("/")
     for part in parts:
         if part in ("", ".", ".."):
             raise InvalidPath(f"'{relpath[:200]}' is not a plain relative path.")
+        if len(part.encode()) > MAX_NAME_BYTES:  # the file system's own limit (NAME_MAX)
+            raise InvalidPath(f"'{part[:80]}...' is longer than a file name can be.")
     return parts
 
 

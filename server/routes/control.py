@@ -38,7 +38,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from core.mavlink.px4_modes import PX4_MODES
 from server.auth import require_control_token
-from server.errors import ApiError, BadRequest
+from server.errors import ApiError, BadRequest, Unavailable, error_response
 from server.pilot import DEADMAN_S, Pilot
 
 if TYPE_CHECKING:
@@ -165,6 +165,14 @@ async def vehicle_answer(station: Station, command: int, since_mono: float) -> d
 @router.websocket("/ws/control")
 async def ws_control(ws: WebSocket) -> None:
     station: Station = ws.app.state.station
+    try:
+        with station.client_limits.websocket.slot():
+            await _serve_control(ws, station)
+    except Unavailable as exc:
+        await ws.send_denial_response(error_response(503, "Unavailable", exc.message))
+
+
+async def _serve_control(ws: WebSocket, station: Station) -> None:
     await ws.accept()
     try:
         require_control_token(ws)
@@ -205,7 +213,14 @@ async def ws_control(ws: WebSocket) -> None:
     try:
         await send(json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S}))
         while True:
-            text = await ws.receive_text()
+            message = await ws.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            text = message.get("text")
+            if text is None:  # a binary frame: this protocol is JSON text only
+                await send(_error("BadRequest", "Control messages are JSON text frames."))
+                await ws.close(code=1003, reason="binary frames are not accepted")
+                break
             try:
                 data = json.loads(text)
                 if not isinstance(data, dict):

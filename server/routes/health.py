@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
@@ -11,14 +13,26 @@ router = APIRouter(tags=["health"])
 
 
 class Health(BaseModel):
-    ok: bool
+    ok: bool  # up, and doing all it should (status "ok")
+    status: Literal["ok", "degraded"]
+    reasons: list[str]  # why degraded, in words
     version: str
     failed_tasks: dict[str, str]
 
 
-@router.get("/api/health", response_model=Health, summary="Is the station up")
+@router.get("/api/health", response_model=Health, summary="Is the station up and well")
 async def get_health(request: Request) -> Health:
     station = request.app.state.station
+    reasons = [f"background task {n} died: {why}" for n, why in station.tasks.failures.items()]
+    recorder = station.recorder
+    if recorder is not None and recorder.failure is not None:
+        reasons.append(f"recording failed: {recorder.failure}")
+    if recorder is not None and recorder.last_error is not None:
+        reasons.append(f"recording cannot start: {recorder.last_error}")
     return Health(
-        ok=station.tasks.healthy, version=__version__, failed_tasks=station.tasks.failures
+        ok=not reasons,
+        status="degraded" if reasons else "ok",
+        reasons=reasons,
+        version=__version__,
+        failed_tasks=station.tasks.failures,
     )

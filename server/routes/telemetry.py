@@ -22,6 +22,9 @@ import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
+from server.errors import Unavailable, error_response
+from server.station import Station
+
 router = APIRouter(tags=["telemetry"])
 
 _IDLE_CHECK_S = 1.0  # how often an idle handler looks whether its client went away
@@ -73,10 +76,20 @@ class _ClientAcks:
 @router.websocket("/ws/telemetry")
 async def ws_telemetry(
     ws: WebSocket,
-    max_rate: float = Query(50.0, gt=0, le=1000, description="messages per second, at most"),
+    # At least 1/s: a handler paced slower would sit out a client's leaving (and a value
+    # like 1e-300 would park it for good).
+    max_rate: float = Query(50.0, ge=1, le=1000, description="messages per second, at most"),
     ack: bool = Query(False, description='at most one message in flight: send {"ack": version}'),
 ) -> None:
     station = ws.app.state.station
+    try:
+        with station.client_limits.websocket.slot():
+            await _serve_telemetry(ws, station, max_rate, ack)
+    except Unavailable as exc:
+        await ws.send_denial_response(error_response(503, "Unavailable", exc.message))
+
+
+async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack: bool) -> None:
     slot = station.state
     shared = station.telemetry_json
     min_interval_s = 1.0 / max_rate

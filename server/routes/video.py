@@ -13,7 +13,9 @@ the camera or another viewer.
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import AsyncIterator
 
 from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
@@ -70,9 +72,20 @@ def _camera(request: Request, name: str):
 )
 async def get_stream(camera: str, request: Request) -> StreamingResponse:
     cam = _camera(request, camera)
-    fanout = request.app.state.station.video_fanouts[camera]
+    station = request.app.state.station
+    fanout = station.video_fanouts[camera]
+    cap = station.client_limits.video
+    cap.check()  # 503 now when full, before the stream starts
+
+    async def held() -> AsyncIterator[bytes]:
+        # The place is held while the stream runs (a generator that never starts holds
+        # nothing); one taken in between by another viewer ends this stream at once.
+        with contextlib.suppress(Unavailable), cap.slot():
+            async for part in fanout.stream(cam.watching(), request.is_disconnected):
+                yield part
+
     return StreamingResponse(
-        fanout.stream(cam.watching(), request.is_disconnected),
+        held(),
         media_type=f"multipart/x-mixed-replace; boundary={BOUNDARY}",
         headers={**_NO_CACHE, "X-Accel-Buffering": "no"},
     )

@@ -1,0 +1,51 @@
+"""The Dockerfile and compose file agree with pyproject.toml and the settings (docker
+cannot build here: no daemon; these catch what drifted before, e.g. a package not copied)."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+from server.settings import Settings
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def dockerfile() -> str:
+    return (REPO / "Dockerfile").read_text()
+
+
+def test_dockerfile_copies_every_installed_package():
+    pyproject = tomllib.loads((REPO / "pyproject.toml").read_text())
+    packages = [
+        p.rstrip("*") for p in pyproject["tool"]["setuptools"]["packages"]["find"]["include"]
+    ]
+    copied = set(re.findall(r"^COPY (\w+) \./\1$", dockerfile(), re.M))
+    assert set(packages) == copied
+
+
+def test_dockerfile_exposes_every_default_port_and_checks_health():
+    s = Settings()
+    ports = {s.server.port, s.viser.port, s.viser.replay_port_resolved}
+    exposed = {
+        int(p) for line in re.findall(r"^EXPOSE (.*)$", dockerfile(), re.M) for p in line.split()
+    }
+    assert ports == exposed
+    assert "/api/health" in dockerfile() and "HEALTHCHECK" in dockerfile()
+
+
+def test_dockerfile_runs_as_a_user_in_dialout_and_video():
+    text = dockerfile()
+    assert re.search(r"^USER fpv-station$", text, re.M)
+    assert "--groups dialout,video" in text
+
+
+def test_compose_publishes_the_same_ports_and_passes_devices():
+    compose = (REPO / "deploy" / "compose.yaml").read_text()
+    published = {int(p) for p in re.findall(r'"(\d+):\d+"', compose)}
+    s = Settings()
+    assert published == {s.server.port, s.viser.port, s.viser.replay_port_resolved}
+    for device in ("/dev/serial0", "/dev/video0", "/dev/video2"):
+        assert f"{device}:{device}" in compose
+    assert "restart: unless-stopped" in compose

@@ -1,0 +1,196 @@
+"""The FPV OSD (web/osd.js) over the pilot page's front camera, in real headless chromium
+against a real station following the test MAVLink vehicle over real UDP."""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+
+import pytest
+from playwright.sync_api import expect, sync_playwright
+
+from server.app import create_app
+from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings
+from tests.mav_vehicle import MavVehicle
+
+
+@pytest.fixture
+def browser():
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def station(tmp_path):
+    with MavVehicle("udp") as vehicle:
+        settings = station_settings(
+            vehicle.station_source, tmp_path / "sessions", **{"link.link_lost_s": 1.0}
+        )
+        with run_uvicorn(create_app(settings)) as base:
+            yield vehicle, base
+
+
+def horizon_angle(page) -> float:
+    """The drawn horizon line's angle (degrees, screen y down), from the canvas' pixels:
+    the white pixels in two columns at a quarter of the width from each side (outside the
+    pitch ladder, inside the horizon line)."""
+    return page.evaluate(
+        """() => {
+        const c = document.querySelector('[data-osd=horizon]');
+        const ctx = c.getContext('2d');
+        const {width: W, height: H} = c;
+        const img = ctx.getImageData(0, 0, W, H).data;
+        // Mean bright row in two columns at +-20% of the width around the centre.
+        const rowAt = (x) => { let sum = 0, n = 0;
+          for (let y = 0; y < H; y++) { const i = (y * W + x) * 4;
+            if (img[i + 3] > 200 && img[i] > 200 && img[i + 2] > 200) { sum += y; n++; } }
+          return n ? sum / n : null; };
+        const xl = Math.round(W * 0.25), xr = Math.round(W * 0.75);
+        const yl = rowAt(xl), yr = rowAt(xr);
+        if (yl === null || yr === null) return null;
+        return Math.atan2(yr - yl, xr - xl) * 180 / Math.PI;
+    }"""
+    )
+
+
+def test_osd_horizon_heading_values_messages_and_staleness(station, browser):
+    vehicle, base = station
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    page.goto(base + "/")
+    osd = lambda name: page.locator(f"[data-osd={name}]")  # noqa: E731
+    expect(osd("mode")).to_have_text("POSCTL", timeout=10000)
+    for name in (
+        "horizon",
+        "heading",
+        "altitude",
+        "climb",
+        "speed",
+        "battery",
+        "gps",
+        "mode",
+        "armed",
+        "timer",
+        "home",
+        "link",
+        "age",
+        "warning",
+        "messages",
+    ):
+        expect(osd(name)).to_have_count(1)
+
+    # A level vehicle: a level horizon, centred.
+    expect(osd("horizon")).to_have_attribute("data-roll", "0.0", timeout=5000)
+    level = horizon_angle(page)
+    assert level is not None and abs(level) < 1.0
+
+    # Roll 20 deg right: the horizon turns 20 deg the other way (counter-clockwise on the
+    # screen); pitch 10 deg up moves it down, and the numbers say so.
+    vehicle.roll_rad, vehicle.pitch_rad = math.radians(20), math.radians(10)
+    expect(osd("horizon")).to_have_attribute("data-roll", "20.0", timeout=5000)
+    expect(osd("horizon")).to_have_attribute("data-pitch", "10.0")
+    expect(osd("horizon")).to_have_text("roll 20° pitch 10°")
+    angle = horizon_angle(page)
+    assert angle is not None and abs(angle - (-20.0)) < 3.0, angle
+
+    vehicle.yaw_rad = math.radians(93)
+    expect(osd("heading")).to_have_text("093", timeout=5000)
+    expect(osd("heading")).to_have_attribute("data-heading", "93")
+
+    vehicle.arm()
+    vehicle.alt_m += 4.2
+    vehicle.vx_mps, vehicle.vy_mps, vehicle.vz_mps = 3.0, 4.0, -1.5
+    expect(osd("armed")).to_have_text("ARMED", timeout=5000)
+    expect(osd("altitude")).to_have_text("ALT 4.2 m", timeout=5000)
+    expect(osd("speed")).to_have_text("GS 5.0 m/s")
+    expect(osd("climb")).to_have_text("VS +1.5 m/s")
+    expect(osd("gps")).to_have_text("3D 12 sats")
+    expect(osd("battery")).to_contain_text("12.3 V 87%")
+    expect(osd("timer")).to_have_text(re.compile(r"00:0[1-9]"), timeout=5000)
+    expect(osd("home")).to_have_text("H 0 m")
+    expect(osd("age")).to_have_text(re.compile(r"TLM 0\.\ds"))
+    # (The test station's cameras have no signal: the OSD says so, and nothing else.)
+    expect(osd("warning")).to_have_text("VIDEO STALE")
+
+    # A STATUSTEXT reaches the messages line within a second; an emergency warns.
+    sent = time.monotonic()
+    vehicle.send_message(vehicle.mav.statustext_encode(2, b"Crash detected"))
+    expect(osd("messages")).to_have_text("CRIT Crash detected", timeout=1000)
+    assert time.monotonic() - sent < 1.5
+    expect(osd("warning")).to_contain_text("CRASH")
+
+    # The vehicle goes silent: values grey out and show their age, LINK LOST warns.
+    vehicle.silent = True
+    expect(osd("altitude")).to_have_class(re.compile(r"\bosd-stale\b"), timeout=5000)
+    expect(osd("altitude")).to_have_text(re.compile(r"ALT 4\.2 m \(\d+s\)"))
+    expect(osd("horizon")).to_have_class(re.compile(r"\bosd-stale\b"))
+    expect(osd("warning")).to_contain_text("LINK LOST", timeout=5000)
+    expect(page.locator("#conn-status")).to_have_text("no telemetry", timeout=5000)
+    expect(page.locator("#v-rel-alt").locator("xpath=ancestor::tr")).to_have_class("stale")
+
+    vehicle.silent = False
+    expect(osd("altitude")).not_to_have_class(re.compile(r"\bosd-stale\b"), timeout=5000)
+    expect(page.locator("#conn-status")).to_have_text("live", timeout=5000)
+
+
+def test_osd_elements_switch_off_and_stay_off(station, browser):
+    vehicle, base = station
+    page = browser.new_page()
+    page.goto(base + "/")
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+    page.locator(".osd-menu-button").click()
+    page.locator("[data-osd-toggle=battery]").uncheck()
+    expect(page.locator("[data-osd=battery]")).to_be_hidden()
+    page.reload()
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+    expect(page.locator("[data-osd=battery]")).to_be_hidden()
+    expect(page.locator("[data-osd=gps]")).to_be_visible()
+
+
+@pytest.mark.parametrize("size", [(1280, 720), (1920, 1080)])
+def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser, size):
+    vehicle, base = station
+    w, h = size
+    page = browser.new_page(viewport={"width": w, "height": h})
+    page.goto(base + "/goggles.html")
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+    vehicle.yaw_rad = math.radians(45)
+    expect(page.locator("[data-osd=heading]")).to_have_text("045", timeout=5000)
+    box = page.evaluate(
+        """() => { const r = document.querySelector('#front-view img').getBoundingClientRect();
+        const d = document.documentElement;
+        return {area: r.width * r.height, view: innerWidth * innerHeight,
+                sw: d.scrollWidth, cw: d.clientWidth, sh: d.scrollHeight, ch: d.clientHeight,
+                chrome: document.querySelectorAll('#toolbar, header').length}; }"""
+    )
+    assert box["area"] >= 0.9 * box["view"], box
+    assert box["sw"] <= box["cw"] and box["sh"] <= box["ch"], box
+    assert box["chrome"] == 0
+    assert page.evaluate("getComputedStyle(document.body).backgroundColor") == "rgb(0, 0, 0)"
+
+    bottom = page.locator("#bottom-view")
+    expect(bottom).to_be_hidden()
+    page.keyboard.press("b")
+    expect(bottom).to_be_visible()
+    expect(bottom.locator("img")).to_have_count(1)
+    page.keyboard.press("b")
+    expect(bottom).to_be_hidden()
+
+
+def test_goggles_show_the_task_step_as_an_osd_line(station, browser):
+    vehicle, base = station
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.goto(base + "/goggles.html")
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+    tasks = page.evaluate("fetch('/api/task').then(r => r.json())")
+    if not tasks["tasks"]:
+        pytest.skip("no tasks in the station's scene")
+    first_task = tasks["tasks"][0]["id"]
+    reply = page.request.post(base + "/api/task", data={"task_id": first_task})
+    assert reply.ok, reply.text()
+    page.reload()
+    expect(page.locator("[data-osd=task]")).to_have_text("TASK Armed", timeout=10000)
+    vehicle.arm()
+    expect(page.locator("[data-osd=task]")).to_have_text("TASK Took off", timeout=10000)

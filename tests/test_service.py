@@ -1,0 +1,193 @@
+"""The systemd service: the unit file, install-service, and the notify/watchdog protocol
+spoken to a real AF_UNIX datagram socket standing in for systemd's NOTIFY_SOCKET."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from server.install_service import UNIT_NAME, ServicePlan
+from server.sd_notify import Notifier, notify_loop
+from server.settings import load_settings
+from server.tasks import TaskSupervisor
+from tests.helpers import free_port
+
+REPO = Path(__file__).resolve().parents[1]
+FPV_STATION = str(Path(sys.executable).parent / "fpv-station")
+
+
+def notify_socket(path: Path) -> socket.socket:
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    s.bind(str(path))
+    s.settimeout(0.05)
+    return s
+
+
+def datagrams(s: socket.socket, seconds: float) -> list[str]:
+    got, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            got.append(s.recv(4096).decode())
+        except TimeoutError:
+            pass
+    return got
+
+
+def test_repo_unit_file_is_the_rendered_default():
+    assert (REPO / "deploy" / UNIT_NAME).read_text() == ServicePlan().unit_text()
+
+
+def test_repo_config_is_the_rendered_default_and_loads(tmp_path):
+    text = (REPO / "deploy" / "config.toml").read_text()
+    assert text == ServicePlan().config_text()
+    (tmp_path / "config.toml").write_text(text)
+    settings = load_settings(tmp_path / "config.toml", environ={})
+    assert settings.recording.sessions_dir == Path("/var/lib/fpv-station/sessions")
+    assert settings.link.source == "/dev/serial0:921600"
+
+
+def test_unit_has_what_a_field_station_needs():
+    unit = ServicePlan().unit_text()
+    for line in (
+        "Type=notify",
+        "WatchdogSec=30",
+        "Restart=always",
+        "User=fpv-station",
+        "SupplementaryGroups=dialout video",
+        "ExecStart=/usr/local/bin/fpv-station serve --config /etc/fpv-station/config.toml",
+        "StateDirectory=fpv-station",
+        "DeviceAllow=char-ttyAMA rw",
+        "DeviceAllow=char-video4linux rw",
+        "ProtectSystem=strict",
+    ):
+        assert line in unit.splitlines(), line
+    assert not any(
+        ln.startswith("PrivateDevices") for ln in unit.splitlines()
+    )  # it would hide /dev/serial0 and /dev/video*
+
+
+def test_unit_passes_systemd_analyze_verify(tmp_path):
+    tool = shutil.which("systemd-analyze")
+    if tool is None:
+        pytest.skip("systemd-analyze is not installed here")
+    unit = tmp_path / UNIT_NAME
+    unit.write_text(ServicePlan(exec_path=FPV_STATION).unit_text())
+    done = subprocess.run(
+        [tool, "verify", "--man=no", str(unit)], capture_output=True, text=True, timeout=60
+    )
+    # Lines about other units on this machine (it is not a booted systemd host) are not ours.
+    ours = [ln for ln in done.stderr.splitlines() if UNIT_NAME in ln]
+    assert done.returncode == 0 and not ours, done.stderr
+
+
+def test_install_service_dry_run_prints_unit_and_commands():
+    done = subprocess.run(
+        [FPV_STATION, "install-service", "--user", "pilot", "--dry-run"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "User=pilot" in done.stdout
+    assert f"ExecStart={Path(FPV_STATION).resolve()} serve" in done.stdout
+    assert 'sessions_dir = "/var/lib/fpv-station/sessions"' in done.stdout
+    assert "systemctl enable --now fpv-station.service" in done.stdout
+
+
+def test_install_service_refuses_without_root():
+    if os.geteuid() == 0:
+        pytest.skip("running as root: a real install would change this machine")
+    done = subprocess.run(
+        [FPV_STATION, "install-service"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 1 and "root" in done.stdout
+
+
+def test_notifier_from_environ():
+    assert Notifier.from_environ({}) is None
+    n = Notifier.from_environ({"NOTIFY_SOCKET": "@fpv", "WATCHDOG_USEC": "30000000"})
+    assert n == Notifier("\0fpv", 30.0)
+    other_pid = Notifier.from_environ(
+        {"NOTIFY_SOCKET": "/run/x", "WATCHDOG_USEC": "1000", "WATCHDOG_PID": "1"}
+    )
+    assert other_pid is not None and other_pid.watchdog_s is None  # meant for another process
+
+
+def test_watchdog_pings_only_while_tasks_are_healthy(tmp_path):
+    sock = notify_socket(tmp_path / "notify")
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.extend(datagrams(sock, 2.0)), daemon=True)
+    reader.start()
+
+    async def scenario() -> None:
+        tasks = TaskSupervisor()
+
+        async def dies_later() -> None:
+            await asyncio.sleep(0.6)
+            raise RuntimeError("camera thread wedged")
+
+        tasks.spawn("front-camera", dies_later())
+        loop_task = asyncio.create_task(notify_loop(Notifier(str(tmp_path / "notify"), 0.1), tasks))
+        await asyncio.sleep(1.2)
+        loop_task.cancel()
+        await tasks.aclose()
+
+    t0 = time.monotonic()
+    asyncio.run(scenario())
+    assert time.monotonic() - t0 < 5
+    reader.join()
+    assert got[0] == "READY=1\nSTATUS=serving"
+    pings = got.index(next(g for g in got if g.startswith("STATUS=unhealthy")))
+    assert pings >= 5 and all(g == "WATCHDOG=1" for g in got[1:pings])  # ~0.6 s at 0.05 s
+    assert "front-camera: RuntimeError: camera thread wedged" in got[pings]
+    assert got[pings + 1 :] == []  # no more pings: systemd restarts the station
+
+
+def test_a_full_notify_queue_does_not_block_the_event_loop(tmp_path):
+    sock = notify_socket(tmp_path / "notify")  # never read: the kernel queue fills (~10)
+    notifier = Notifier(str(tmp_path / "notify"), None)
+    t0 = time.monotonic()
+    sent = [notifier.send("WATCHDOG=1") for _ in range(200)]
+    assert time.monotonic() - t0 < 2
+    assert sent[0] and not sent[-1]  # later ones dropped (and logged), not waited for
+    sock.close()
+
+
+def test_serve_notifies_systemd_ready_then_watchdog_then_stopping(tmp_path):
+    sock = notify_socket(tmp_path / "notify")
+    port = free_port()
+    env = dict(os.environ, NOTIFY_SOCKET=str(tmp_path / "notify"), WATCHDOG_USEC="400000")
+    proc = subprocess.Popen(
+        [FPV_STATION, "serve", "--source", "none", "--no-3d", "--open"]
+        + ["--host", "127.0.0.1", "--port", str(port), "--sessions-dir", str(tmp_path / "s")],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        got = []
+        end = time.monotonic() + 60
+        while "READY=1\nSTATUS=serving" not in got and time.monotonic() < end:
+            got += datagrams(sock, 0.2)
+        assert "READY=1\nSTATUS=serving" in got
+        health = httpx.get(f"http://127.0.0.1:{port}/api/health", timeout=10).json()
+        assert health["ok"] is True  # READY means it already serves
+        assert datagrams(sock, 1.0).count("WATCHDOG=1") >= 3  # every 0.2 s
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) in (0, -signal.SIGTERM)  # uvicorn re-raises the signal
+        assert "STOPPING=1" in datagrams(sock, 0.3)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -1,0 +1,48 @@
+// fpv-station goggles page (/goggles.html): the front camera full screen under the OSD
+// (osd.js), for HDMI goggles at 1280x720 or 1920x1080 and phones; no page chrome.
+//   F or a tap   fullscreen          B   bottom camera picture-in-picture
+//   O            OSD elements menu
+// The screen is kept awake (Screen Wake Lock, re-taken when the page is shown again), and
+// the flight task's current step (task-panel.js, "fpv:task-step") is an OSD line. The
+// picture fills the screen (object-fit: cover in style.css): a 4:3 camera on 16:9
+// goggles loses its edges rather than a quarter of the screen to black bars.
+import { $ } from "/lib.js";
+
+const fpv = (window.fpv = window.fpv || {});
+
+function toggleFullscreen() {
+  if (document.fullscreenElement) document.exitFullscreen().catch(() => {});
+  else document.documentElement.requestFullscreen().catch(() => {});
+}
+
+window.addEventListener("keydown", (e) => {
+  if (e.ctrlKey || e.metaKey || e.altKey) return;
+  const key = e.key.toLowerCase();
+  if (key === "f") toggleFullscreen();
+  else if (key === "b") $("bottom-view").hidden = !$("bottom-view").hidden;
+  else if (key === "o" && fpv.osd) fpv.osd.toggleMenu();
+  else return;
+  e.preventDefault();
+});
+$("front-view").addEventListener("click", (e) => {
+  if (!e.target.closest(".osd-menu, .osd-menu-button")) toggleFullscreen();
+});
+
+// Keep the screen on while the page is shown (goggles and phones sleep otherwise).
+let wakeLock = null;
+async function keepAwake() {
+  if (!("wakeLock" in navigator) || document.visibilityState !== "visible" || wakeLock) return;
+  try {
+    wakeLock = await navigator.wakeLock.request("screen");
+    wakeLock.addEventListener("release", () => { wakeLock = null; });
+    document.body.dataset.wakeLock = "on";
+  } catch (err) {
+    document.body.dataset.wakeLock = "refused"; // e.g. not a secure context: http://pi.local
+  }
+}
+document.addEventListener("visibilitychange", keepAwake);
+keepAwake();
+
+window.addEventListener("fpv:task-step", (e) => {
+  if (fpv.osd) fpv.osd.setLine("task", e.detail ? `TASK ${e.detail}` : "");
+});

@@ -1,0 +1,371 @@
+// fpv-station: the FPV on-screen display over the front camera (pilot and goggles pages).
+//
+//   <section id="front-view" data-osd-view> ... <script type="module" src="/osd.js">
+// mounts the OSD on that element when loaded; window.fpv.osd is then
+// {toggleMenu(), setLine(name, text)} (a page's own OSD lines, e.g. the goggles' task step).
+//
+// Drawn in the browser, once per animation frame (the display's rate, so at least the
+// video's), from the page's one telemetry feed (telemetry.js: WS /ws/telemetry?ack=1, so
+// what it shows is never a backlog). The horizon and the heading tape are canvases; every
+// other element is text, outlined so that it reads over sky and grass. Every element
+// carries data-osd="<name>" and its text is the value shown (tests read them; the two
+// canvases carry theirs as fallback text and data- attributes). A value whose telemetry
+// group is older than its threshold greys out and shows its age. Elements can be switched
+// off in a menu ("OSD" button, or the O key on the goggles); the choice is kept in
+// localStorage. Cost per frame: window.fpv.osdStats (benchmarks/osd_frame_cost.py).
+import { el, api } from "/lib.js";
+import { feed, groupAge } from "/telemetry.js";
+
+const HIDDEN_KEY = "fpv.osd.hidden";
+const LOW_BATTERY_PCT = 20;
+const MESSAGE_SHOWN_S = 10; // a vehicle message stays on the messages line this long
+const WARNING_SHOWN_S = 15; // an emergency/crash/failsafe message keeps its warning this long
+const VIDEO_STALE_S = 1.0;
+const PITCH_FOV_DEG = 60; // the ladder's scale: the view's height spans this many degrees
+const FIX_NAMES = ["NO GPS", "NO FIX", "2D", "3D", "DGPS", "RTK FLT", "RTK FIX"];
+const SEVERITY = ["EMERG", "ALERT", "CRIT", "ERR", "WARN", "NOTE", "INFO", "DEBUG"];
+const M_PER_DEG_LAT = 111_320;
+
+// name -> [telemetry groups whose age greys it, seconds before it is stale]
+const ELEMENTS = {
+  horizon: [["attitude"], 1.0],
+  heading: [["global_position", "vfr_hud"], 2.0],
+  altitude: [["altitude"], 2.0],
+  climb: [["vfr_hud", "global_position"], 2.0],
+  speed: [["vfr_hud", "global_position", "gps"], 2.0],
+  battery: [["battery"], 5.0],
+  gps: [["gps"], 2.0],
+  mode: [["heartbeat"], 3.0],
+  armed: [["heartbeat"], 3.0],
+  timer: [[], 0],
+  home: [["global_position", "gps"], 2.0],
+  link: [[], 0],
+  age: [[], 0],
+  warning: [[], 0],
+  messages: [[], 0],
+};
+export const OSD_ELEMENTS = Object.keys(ELEMENTS);
+
+const first = (...vals) => vals.find((v) => v !== null && v !== undefined) ?? null;
+const fixed = (v, d = 1) => (v === null || v === undefined ? "--" : Number(v).toFixed(d));
+
+export function mountOsd(view, { menu = true } = {}) {
+  const fpv = (window.fpv = window.fpv || {});
+  const stats = (fpv.osdStats = { frames: 0, totalMs: 0, maxMs: 0, recent: [] });
+  const root = el("div", { class: "osd", "aria-label": "on-screen display" });
+  const horizon = el("canvas", { class: "osd-horizon", "data-osd": "horizon" });
+  const heading = el("canvas", { class: "osd-heading", "data-osd": "heading" });
+  const nodes = { horizon, heading };
+  root.append(horizon, heading);
+  for (const name of OSD_ELEMENTS) {
+    if (nodes[name]) continue;
+    nodes[name] = el("div", { class: `osd-item osd-${name}`, "data-osd": name }, "");
+    root.append(nodes[name]);
+  }
+  // The arrow to home: an SVG whose rotation is an attribute (scripts set no styles).
+  const homeArrow = el("span", { class: "osd-home-arrow" });
+  homeArrow.innerHTML = '<svg viewBox="-10 -10 20 20" width="1.1em" height="1.1em"><path d="M0 -9 L6 7 L0 3 L-6 7 Z" fill="currentColor" stroke="#000" stroke-width="1.5"/></svg>';
+  const homeText = el("span", {}, "");
+  nodes.home.append(homeArrow, homeText);
+  const lines = el("div", { class: "osd-lines" }); // extra lines a page adds (the task step)
+  root.append(lines);
+  view.append(root);
+
+  // -- switching elements on and off --------------------------------------------------
+  let hidden = new Set();
+  try { hidden = new Set(JSON.parse(localStorage.getItem(HIDDEN_KEY) || "[]")); } catch (err) { /* reset below */ }
+  const menuBox = el("div", { class: "osd-menu", hidden: true, "aria-label": "OSD elements" });
+  for (const name of OSD_ELEMENTS) {
+    const box = el("input", { type: "checkbox", "data-osd-toggle": name, checked: !hidden.has(name) });
+    box.addEventListener("change", () => {
+      if (box.checked) hidden.delete(name); else hidden.add(name);
+      localStorage.setItem(HIDDEN_KEY, JSON.stringify([...hidden]));
+      applyHidden();
+    });
+    menuBox.append(el("label", {}, box, ` ${name}`));
+  }
+  const menuButton = el("button", { type: "button", class: "osd-menu-button", title: "OSD elements (O)" }, "OSD");
+  menuButton.addEventListener("click", () => { menuBox.hidden = !menuBox.hidden; });
+  if (menu) root.append(menuButton);
+  root.append(menuBox);
+  function applyHidden() {
+    for (const name of OSD_ELEMENTS) nodes[name].hidden = hidden.has(name);
+    dirty = true;
+  }
+
+  // -- state kept across messages: flight timer, mAh used ----------------------------
+  let armedSince = null, timerS = 0, lastArmed = false;
+  let mah = 0, lastBatteryT = null;
+  let attitudeKey = "", headingKey = "", sizeKey = "", dirty = true;
+  window.addEventListener("fpv:telemetry", (e) => {
+    const msg = e.detail, s = msg.state;
+    const armed = s.heartbeat.t_mono !== null && s.heartbeat.armed;
+    if (armed && !lastArmed) { armedSince = msg.t_server_mono; mah = 0; }
+    if (armed) timerS = msg.t_server_mono - armedSince;
+    lastArmed = armed;
+    // mAh used: the pack's current integrated over the station's clock since arming
+    // (the state carries current, not BATTERY_STATUS's consumed charge).
+    const b = s.battery;
+    if (b.t_mono !== null && b.t_mono !== lastBatteryT) {
+      if (lastBatteryT !== null && b.current_a !== null) {
+        mah += (b.current_a * Math.min(b.t_mono - lastBatteryT, 5)) / 3.6;
+      }
+      lastBatteryT = b.t_mono;
+    }
+  });
+
+  const setText = (node, text) => { if (node.textContent !== text) node.textContent = text; };
+  function setValue(name, text, extraClass = "") {
+    const [groups, limit] = ELEMENTS[name];
+    let age = null;
+    for (const g of groups) {
+      const a = groupAge(g);
+      if (a !== null && (age === null || a < age)) age = a;
+    }
+    const stale = groups.length > 0 && (!feed.flowing() || age === null || age > limit);
+    const node = name === "home" ? homeText : nodes[name];
+    const shown = stale && age !== null ? `${text} (${age.toFixed(0)}s)` : text;
+    setText(node, shown);
+    const cls = `osd-item osd-${name}${stale ? " osd-stale" : ""}${extraClass ? " " + extraClass : ""}`;
+    if (nodes[name].className !== cls) nodes[name].className = cls;
+  }
+
+  // -- one frame -----------------------------------------------------------------------
+  function frame() {
+    requestAnimationFrame(frame);
+    const t0 = performance.now();
+    draw();
+    const ms = performance.now() - t0;
+    stats.frames += 1;
+    stats.totalMs += ms;
+    stats.maxMs = Math.max(stats.maxMs, ms);
+    stats.recent.push(ms);
+    if (stats.recent.length > 600) stats.recent.shift();
+  }
+
+  function draw() {
+    const msg = feed.latest;
+    const s = msg ? msg.state : null;
+    const w = view.clientWidth, h = view.clientHeight;
+    const dpr = window.devicePixelRatio || 1;
+    const newSize = `${w}x${h}x${dpr}`;
+    if (newSize !== sizeKey) {
+      sizeKey = newSize;
+      for (const c of [horizon, heading]) {
+        c.width = Math.round(c.clientWidth * dpr);
+        c.height = Math.round(c.clientHeight * dpr);
+      }
+      dirty = true;
+    }
+    if (!s) { setText(nodes.warning, feed.socketOpen ? "NO TELEMETRY" : "STATION UNREACHABLE"); return; }
+    const gp = s.global_position, att = s.attitude, hud = s.vfr_hud;
+
+    // Horizon and pitch ladder.
+    const roll = att.roll_rad === null ? null : (att.roll_rad * 180) / Math.PI;
+    const pitch = att.pitch_rad === null ? null : (att.pitch_rad * 180) / Math.PI;
+    const aKey = `${fixed(roll, 1)},${fixed(pitch, 1)}`;
+    if (!hidden.has("horizon") && (aKey !== attitudeKey || dirty)) {
+      attitudeKey = aKey;
+      drawHorizon(horizon, roll, pitch, dpr);
+      horizon.dataset.roll = fixed(roll, 1);
+      horizon.dataset.pitch = fixed(pitch, 1);
+    }
+    setValue("horizon", `roll ${fixed(roll, 0)}° pitch ${fixed(pitch, 0)}°`);
+    // Heading tape.
+    let hdg = first(gp.heading_deg, hud.heading_deg,
+      att.yaw_rad === null ? null : (((att.yaw_rad * 180) / Math.PI) + 360) % 360);
+    const hKey = fixed(hdg, 0);
+    if (!hidden.has("heading") && (hKey !== headingKey || dirty)) {
+      headingKey = hKey;
+      drawTape(heading, hdg, dpr);
+      heading.dataset.heading = hKey;
+    }
+    setValue("heading", hdg === null ? "---" : String(Math.round(hdg) % 360).padStart(3, "0"));
+    dirty = false;
+
+    const alt = s.altitude.relative_alt_m;
+    setValue("altitude", `ALT ${fixed(alt)} m`);
+    const climb = first(hud.climb_mps, gp.vz_mps !== null ? -gp.vz_mps : null);
+    setValue("climb", `VS ${climb !== null && climb > 0 ? "+" : ""}${fixed(climb)} m/s`);
+    const speed = first(hud.ground_speed_mps, gp.vx_mps !== null ? Math.hypot(gp.vx_mps, gp.vy_mps) : null,
+      s.gps.ground_speed_mps);
+    setValue("speed", `GS ${fixed(speed)} m/s`);
+    const b = s.battery;
+    const low = b.remaining_pct !== null && b.remaining_pct < LOW_BATTERY_PCT;
+    setValue("battery", `${fixed(b.voltage_v, 1)} V ${fixed(b.remaining_pct, 0)}% ${fixed(mah, 0)} mAh`,
+      low ? "osd-bad" : "");
+    const fix = s.gps.t_mono === null ? "NO GPS" : FIX_NAMES[s.gps.fix_type] ?? `FIX ${s.gps.fix_type}`;
+    setValue("gps", `${fix} ${s.gps.satellites ?? "?"} sats`, s.gps.fix_type < 3 ? "osd-bad" : "");
+    setValue("mode", s.heartbeat.t_mono === null ? "--" : s.heartbeat.mode);
+    setValue("armed", s.heartbeat.t_mono === null ? "--" : s.heartbeat.armed ? "ARMED" : "DISARMED",
+      s.heartbeat.armed ? "osd-bad" : "");
+    const mm = Math.floor(timerS / 60), ss = Math.floor(timerS % 60);
+    setText(nodes.timer, `${String(mm).padStart(2, "0")}:${String(ss).padStart(2, "0")}`);
+
+    // Home: distance and an arrow relative to the nose.
+    const pos = gp.lat_deg !== null ? gp : s.gps;
+    const home = s.altitude;
+    let homeTxt = "H --";
+    if (pos.lat_deg !== null && home.home_lat_deg !== null && home.home_lat_deg !== undefined) {
+      const north = (home.home_lat_deg - pos.lat_deg) * M_PER_DEG_LAT;
+      const east = (home.home_lon_deg - pos.lon_deg) * M_PER_DEG_LAT * Math.cos((pos.lat_deg * Math.PI) / 180);
+      const bearing = ((Math.atan2(east, north) * 180) / Math.PI + 360) % 360;
+      const rel = (((bearing - (hdg ?? 0)) % 360) + 360) % 360;
+      homeTxt = `H ${fixed(Math.hypot(north, east), 0)} m`;
+      const rot = `rotate(${rel.toFixed(0)})`;
+      const path = homeArrow.firstChild.firstChild;
+      if (path.getAttribute("transform") !== rot) path.setAttribute("transform", rot);
+      nodes.home.dataset.bearing = rel.toFixed(0);
+    }
+    setValue("home", homeTxt);
+
+    // Link: loss from /api/status (polled), RSSI from RC_CHANNELS when the receiver has it.
+    const rssi = s.rc.rssi !== null && s.rc.rssi !== 255 ? ` RSSI ${Math.round((s.rc.rssi / 254) * 100)}%` : "";
+    const loss = linkLoss === null ? "" : `LQ ${fixed(100 * (1 - linkLoss), 0)}%`;
+    setText(nodes.link, `${loss}${rssi}`.trim() || "LQ --");
+
+    // Ages: the newest vehicle telemetry and the front camera's newest frame.
+    const tAge = ageOfNewest(s);
+    const cam = (fpv.cameras || {}).front;
+    const vAge = cam && cam.last_frame_age_s !== null && cam.last_frame_age_s !== undefined
+      ? cam.last_frame_age_s + (performance.now() - (fpv.camerasAt || performance.now())) / 1000 : null;
+    setText(nodes.age, `TLM ${tAge === null ? "--" : tAge.toFixed(1) + "s"} VID ${vAge === null ? "--" : vAge.toFixed(1) + "s"}`);
+
+    // Messages line and centre warnings.
+    const recent = s.messages.recent.filter((m) => msg.t_server_mono - m.t_mono < MESSAGE_SHOWN_S);
+    const newest = recent[recent.length - 1];
+    setText(nodes.messages, newest ? `${SEVERITY[newest.severity] ?? "MSG"} ${newest.text}` : "");
+    const warnings = [];
+    if (!feed.flowing() || s.link.link_lost) warnings.push("LINK LOST");
+    if (low) warnings.push("LOW BATTERY");
+    if (s.gps.t_mono !== null && (s.gps.fix_type < 3 || (groupAge("gps") ?? 0) > 3)) warnings.push("GPS LOST");
+    const serious = s.messages.recent.filter((m) => m.kind === "statustext" && msg.t_server_mono - m.t_mono < WARNING_SHOWN_S);
+    if (serious.some((m) => /fail-?safe/i.test(m.text)) || /failsafe/i.test(s.heartbeat.mode)) warnings.push("FAILSAFE");
+    if (serious.some((m) => /crash/i.test(m.text))) warnings.push("CRASH");
+    else if (serious.some((m) => m.severity <= 2)) warnings.push("EMERGENCY");
+    if (cam && (!cam.signal || (vAge !== null && vAge > VIDEO_STALE_S))) warnings.push("VIDEO STALE");
+    setText(nodes.warning, warnings.join(" · "));
+  }
+
+  // The link's packet loss: one cheap GET every 2 s (not part of the vehicle state).
+  let linkLoss = null;
+  async function pollLink() {
+    try {
+      const st = await api("/api/status");
+      linkLoss = st.link ? st.link.loss_ratio : null;
+    } catch (err) {
+      linkLoss = null;
+    }
+  }
+  pollLink();
+  setInterval(pollLink, 2000);
+
+  applyHidden();
+  requestAnimationFrame(frame);
+  return {
+    toggleMenu() { menuBox.hidden = !menuBox.hidden; },
+    // A page's own OSD line (e.g. the task step on the goggles), data-osd=<name>.
+    setLine(name, text) {
+      let node = lines.querySelector(`[data-osd="${name}"]`);
+      if (!node) { node = el("div", { class: "osd-item", "data-osd": name }); lines.append(node); }
+      setText(node, text);
+    },
+  };
+}
+
+// Seconds since the vehicle was last heard, as the browser sees it now.
+function ageOfNewest(s) {
+  const msg = feed.latest;
+  let newest = null;
+  for (const g of ["heartbeat", "gps", "global_position", "vfr_hud", "attitude", "battery"]) {
+    const t = s[g].t_mono;
+    if (t !== null && (newest === null || t > newest)) newest = t;
+  }
+  if (newest === null) return null;
+  return Math.max(0, msg.t_server_mono - newest) + (performance.now() - feed.receivedAt) / 1000;
+}
+
+function outlined(ctx, text, x, y) {
+  ctx.strokeText(text, x, y);
+  ctx.fillText(text, x, y);
+}
+
+function drawHorizon(c, roll, pitch, dpr) {
+  const ctx = c.getContext("2d");
+  const W = c.width, H = c.height;
+  ctx.clearRect(0, 0, W, H);
+  if (roll === null || pitch === null) return;
+  const pxPerDeg = H / PITCH_FOV_DEG;
+  ctx.save();
+  ctx.translate(W / 2, H / 2);
+  ctx.rotate((-roll * Math.PI) / 180); // the world turns against the vehicle's roll
+  ctx.translate(0, pitch * pxPerDeg); // nose up: the horizon goes down
+  ctx.lineWidth = 2 * dpr;
+  ctx.strokeStyle = "#fff";
+  ctx.fillStyle = "#fff";
+  ctx.shadowColor = "#000";
+  ctx.shadowBlur = 3 * dpr;
+  ctx.font = `${12 * dpr}px ui-monospace, monospace`;
+  ctx.textBaseline = "middle";
+  ctx.beginPath(); // the horizon line, with a gap for the aircraft symbol
+  ctx.moveTo(-W * 0.4, 0); ctx.lineTo(-W * 0.06, 0);
+  ctx.moveTo(W * 0.06, 0); ctx.lineTo(W * 0.4, 0);
+  ctx.stroke();
+  for (let p = -50; p <= 50; p += 10) { // the pitch ladder: dashed below the horizon
+    if (p === 0) continue;
+    const y = -p * pxPerDeg;
+    if (Math.abs(y + pitch * pxPerDeg) > H * 0.4) continue; // only what is near the centre
+    ctx.setLineDash(p < 0 ? [6 * dpr, 4 * dpr] : []);
+    ctx.beginPath();
+    ctx.moveTo(-W * 0.1, y); ctx.lineTo(-W * 0.04, y);
+    ctx.moveTo(W * 0.04, y); ctx.lineTo(W * 0.1, y);
+    ctx.stroke();
+    ctx.fillText(String(p), W * 0.105, y);
+  }
+  ctx.restore();
+  ctx.save(); // the aircraft symbol, fixed at the centre
+  ctx.translate(W / 2, H / 2);
+  ctx.strokeStyle = "#ffd24a";
+  ctx.lineWidth = 3 * dpr;
+  ctx.shadowColor = "#000";
+  ctx.shadowBlur = 3 * dpr;
+  ctx.beginPath();
+  ctx.moveTo(-W * 0.05, 0); ctx.lineTo(-W * 0.015, 0); ctx.lineTo(0, 6 * dpr);
+  ctx.lineTo(W * 0.015, 0); ctx.lineTo(W * 0.05, 0);
+  ctx.stroke();
+  ctx.restore();
+}
+
+function drawTape(c, hdg, dpr) {
+  const ctx = c.getContext("2d");
+  const W = c.width, H = c.height;
+  ctx.clearRect(0, 0, W, H);
+  if (hdg === null) return;
+  const pxPerDeg = W / 90; // the tape shows 90 degrees
+  ctx.strokeStyle = "#000";
+  ctx.fillStyle = "#fff";
+  ctx.lineWidth = 3 * dpr;
+  ctx.font = `bold ${13 * dpr}px ui-monospace, monospace`;
+  ctx.textAlign = "center";
+  ctx.textBaseline = "top";
+  const names = { 0: "N", 45: "NE", 90: "E", 135: "SE", 180: "S", 225: "SW", 270: "W", 315: "NW" };
+  const start = Math.ceil((hdg - 45) / 5) * 5;
+  for (let d = start; d <= hdg + 45; d += 5) {
+    const x = W / 2 + (d - hdg) * pxPerDeg;
+    const deg = ((d % 360) + 360) % 360;
+    const tall = deg % 15 === 0;
+    ctx.fillRect(x - dpr, H * 0.55, 2 * dpr, tall ? H * 0.4 : H * 0.2);
+    if (deg % 45 === 0) outlined(ctx, names[deg], x, 0);
+    else if (deg % 15 === 0) outlined(ctx, String(deg), x, 0);
+  }
+  // The heading itself, boxed over the centre of the tape.
+  const label = String(Math.round(hdg) % 360).padStart(3, "0");
+  ctx.fillStyle = "#000";
+  ctx.fillRect(W / 2 - 22 * dpr, H * 0.5, 44 * dpr, H * 0.5);
+  ctx.fillStyle = "#ffd24a";
+  ctx.textBaseline = "middle";
+  ctx.fillText(label, W / 2, H * 0.75);
+}
+
+const view = document.querySelector("[data-osd-view]");
+if (view) (window.fpv = window.fpv || {}).osd = mountOsd(view);
