@@ -192,6 +192,28 @@ def run_cameras(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_doctor_parser(sub: Any) -> None:
+    p = sub.add_parser("doctor", help="check the wiring, cameras, disk, clock and ports")
+    p.add_argument("--config", type=Path, help="TOML settings file")
+    p.add_argument("--source", dest="link.source", help="MAVLink source to listen on")
+    p.add_argument("--heartbeat-s", type=float, default=5.0, help="wait this long for one")
+    add_camera_flags(p)
+    add_viser_flags(p)
+    p.add_argument("--port", dest="server.port", type=int, help="the web port to check")
+    p.add_argument("--sessions-dir", dest="recording.sessions_dir", type=Path)
+    p.set_defaults(func=run_doctor)
+
+
+def run_doctor(args: argparse.Namespace) -> int:
+    from server.doctor import format_table, run_checks
+
+    checks = run_checks(settings_from_args(args), heartbeat_s=args.heartbeat_s)
+    print(format_table(checks))
+    failed = [c.name for c in checks if c.status == "FAIL"]
+    print(f"\n{len(failed)} failed: {', '.join(failed)}" if failed else "\nall checks passed")
+    return 1 if failed else 0
+
+
 def add_install_service_parser(sub: Any) -> None:
     p = sub.add_parser(
         "install-service",
@@ -271,6 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_learn_parsers(sub)
     add_cameras_parser(sub)
     add_install_service_parser(sub)
+    add_doctor_parser(sub)
     return parser
 
 

@@ -17,6 +17,7 @@ import pwd
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -146,16 +147,16 @@ class ServicePlan:
 
 
 def _group_exists(name: str) -> bool:
-    try:
-        grp.getgrnam(name)
-        return True
-    except KeyError:
-        return False
+    return _known(grp.getgrnam, name)
 
 
 def _user_exists(name: str) -> bool:
+    return _known(pwd.getpwnam, name)
+
+
+def _known(lookup: Callable[[str], object], name: str) -> bool:
     try:
-        pwd.getpwnam(name)
+        lookup(name)
         return True
     except KeyError:
         return False

@@ -25,6 +25,9 @@ from tests import synthetic as syn
 from tests.test_flights import _sorties
 
 FPS = 10
+# The module's fixtures fly a twin demo with both cameras and export it (~15 s alone);
+# on a shared machine the first test to use them can take minutes.
+pytestmark = pytest.mark.timeout(600)
 
 
 @pytest.fixture(scope="module")

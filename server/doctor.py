@@ -1,0 +1,378 @@
+"""`fpv-station doctor`: is this Pi wired and set up to fly? A table of checks, each with
+the fix for a failure; the exit code is 1 when any check fails.
+
+Each check reads the real thing with the station's own settings: the serial node, the
+Pi's boot config, a MAVLink link (the station's MavlinkLink, so the same stream requests),
+the cameras, the sessions folder, the kernel's clock state, the ports.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import platform
+import shutil
+import socket
+import stat
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from server.settings import Settings
+
+Status = Literal["ok", "FAIL", "warn", "skip"]
+# JPEG bytes per 640x480 frame when no camera delivers one to measure (typical USB MJPEG).
+ASSUMED_JPEG_BYTES = 40_000
+TELEMETRY_BYTES_PER_S = 20_000  # tlog + telemetry.csv at the default rates, generously
+
+
+@dataclass(frozen=True)
+class Check:
+    name: str
+    status: Status
+    detail: str
+    fix: str = ""
+
+
+def check_serial(settings: Settings, proc: Path = Path("/proc")) -> list[Check]:
+    from companion.transports import parse_connection
+
+    spec = parse_connection(settings.link.source)
+    if spec.kind != "serial":
+        return [Check("serial device", "skip", f"source is {spec.kind} ({spec.text})")]
+    path = Path(spec.path)
+    if not path.exists():
+        return [
+            Check(
+                "serial device",
+                "FAIL",
+                f"{path} does not exist",
+                "Check the cable; on a Pi UART enable it (raspi-config > Interface Options > "
+                "Serial Port: login shell No, hardware Yes) and reboot; USB: /dev/ttyACM0.",
+            )
+        ]
+    if not stat.S_ISCHR(path.stat().st_mode):
+        return [Check("serial device", "FAIL", f"{path} is not a character device", "")]
+    if not os.access(path, os.R_OK | os.W_OK):
+        return [
+            Check(
+                "serial device",
+                "FAIL",
+                f"{path} is not readable and writable by this user",
+                f"sudo usermod -aG dialout {_user()} (then log in again)",
+            )
+        ]
+    holders = _holders(path, proc)
+    if holders:
+        return [
+            Check(
+                "serial device",
+                "FAIL",
+                f"{path} is open by {', '.join(holders)}",
+                "A login shell on the UART: raspi-config > Serial Port: login shell No; "
+                "or stop the program named.",
+            )
+        ]
+    return [Check("serial device", "ok", f"{path} at {spec.baud} baud, free, read/write")]
+
+
+def _holders(device: Path, proc: Path) -> list[str]:
+    """Other processes with `device` open (`pid name`), from /proc/*/fd."""
+    target = device.resolve()
+    found = []
+    for pid_dir in proc.glob("[0-9]*"):
+        if pid_dir.name == str(os.getpid()):
+            continue
+        try:
+            fds = list((pid_dir / "fd").iterdir())
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                if Path(os.readlink(fd)) == target:
+                    name = (pid_dir / "comm").read_text().strip()
+                    found.append(f"{pid_dir.name} {name}")
+                    break
+            except OSError:
+                continue
+    return found
+
+
+def check_pi_uart(model_file: Path = Path("/proc/device-tree/model")) -> list[Check]:
+    try:
+        model = model_file.read_bytes().rstrip(b"\0").decode()
+    except OSError:
+        return [Check("Pi UART config", "skip", "not a Raspberry Pi")]
+    if "Raspberry Pi" not in model:
+        return [Check("Pi UART config", "skip", f"not a Raspberry Pi ({model})")]
+    config = next(
+        (p for p in (Path("/boot/firmware/config.txt"), Path("/boot/config.txt")) if p.exists()),
+        None,
+    )
+    if config is None:
+        return [Check("Pi UART config", "warn", f"{model}: no config.txt found")]
+    lines = {ln.split("#")[0].strip() for ln in config.read_text().splitlines()}
+    missing = [want for want in ("enable_uart=1", "dtoverlay=disable-bt") if want not in lines]
+    if missing:
+        return [
+            Check(
+                "Pi UART config",
+                "FAIL",
+                f"{config} lacks {', '.join(missing)}",
+                f"Add {' and '.join(missing)} to {config} and reboot (the mini UART drifts at "
+                "921600 baud).",
+            )
+        ]
+    return [Check("Pi UART config", "ok", f"{model}: enable_uart=1, dtoverlay=disable-bt")]
+
+
+def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) -> list[Check]:
+    from companion.link import MavlinkLink
+
+    if settings.link.source.strip() in ("none", "sim"):
+        return [Check("MAVLink heartbeat", "skip", f"source is {settings.link.source}")]
+    link = MavlinkLink(settings.link)
+    link.start()
+    try:
+        deadline = time.monotonic() + timeout_s
+        hb = None
+        while time.monotonic() < deadline:
+            current = link.state.get()
+            if current is not None and current.value.heartbeat.sysid is not None:
+                hb = current.value.heartbeat
+                break
+            time.sleep(0.05)
+        if hb is None:
+            health = link.health()
+            why = health.last_error or (
+                f"{health.bytes_total} bytes, {health.packets} packets, none from an autopilot"
+            )
+            return [
+                Check(
+                    "MAVLink heartbeat",
+                    "FAIL",
+                    f"nothing heard on {settings.link.source} in {timeout_s:g} s ({why})",
+                    "Check TX/RX are crossed, the baud rate matches (PX4 SER_TEL2_BAUD, "
+                    "ArduPilot SERIALn_BAUD) and MAVLink is enabled on that port.",
+                )
+            ]
+        time.sleep(rates_s)  # the stream requests have been sent; let the rates settle
+        health = link.health()
+    finally:
+        link.stop()
+    rates = ", ".join(f"{k} {v:.0f}" for k, v in sorted(health.rates_hz.items()) if v > 0)
+    return [
+        Check(
+            "MAVLink heartbeat",
+            "ok",
+            f"{hb.autopilot} {hb.vehicle_type}, sysid {hb.sysid} compid {hb.compid}, "
+            f"MAVLink {hb.mavlink_version}, mode {hb.mode}, streams via {health.stream_request}",
+        ),
+        Check("MAVLink rates (Hz)", "ok" if rates else "warn", rates or "no messages"),
+    ]
+
+
+def check_cameras(settings: Settings, seconds: float = 2.0) -> tuple[list[Check], float]:
+    """Each configured camera: does it deliver, at what fps; and the bytes per second."""
+    from companion.cameras.rig import CAMERA_NAMES, build_camera
+
+    checks, bytes_per_s = [], 0.0
+    for name in CAMERA_NAMES:
+        cfg = getattr(settings.cameras, name)
+        if cfg.spec in (None, "none"):
+            checks.append(Check(f"camera {name}", "skip", "not configured"))
+            continue
+        if cfg.spec.startswith("sim"):
+            checks.append(Check(f"camera {name}", "skip", "sim camera (needs the twin)"))
+            continue
+        camera = build_camera(name, cfg, link_source=settings.link.source)
+        camera.start()
+        try:
+            time.sleep(seconds)
+            stats, frame = camera.stats(), camera.frames.get()
+        finally:
+            camera.stop()
+        if not stats.signal or frame is None or not frame.signal:
+            checks.append(
+                Check(
+                    f"camera {name}",
+                    "FAIL",
+                    f"{cfg.spec}: no picture in {seconds:g} s ({stats.reason or 'no frame'})",
+                    "fpv-station cameras lists the devices and their formats; check the "
+                    "cable and that this user is in the video group.",
+                )
+            )
+            continue
+        fps = stats.delivered_fps
+        bytes_per_s += fps * len(frame.jpeg)
+        mjpeg = "MJPEG passed through" if stats.passthrough_frames else "re-encoded (no MJPEG)"
+        checks.append(
+            Check(
+                f"camera {name}",
+                "ok" if fps >= 0.8 * stats.configured_fps else "warn",
+                f"{stats.description}: {stats.width}x{stats.height}, {fps:.1f} fps delivered "
+                f"(asked {stats.configured_fps:g}), {mjpeg}, {len(frame.jpeg) // 1000} kB/frame",
+                ""
+                if fps >= 0.8 * stats.configured_fps
+                else "Lower fps or resolution, or a "
+                "camera that delivers MJPEG (fpv-station cameras).",
+            )
+        )
+    return checks, bytes_per_s
+
+
+def check_disk(settings: Settings, video_bytes_per_s: float, probe_mb: int = 16) -> list[Check]:
+    folder = settings.recording.sessions_dir
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        usage = shutil.disk_usage(folder)
+    except OSError as exc:
+        return [Check("sessions disk", "FAIL", f"{folder}: {exc}", "Make the folder writable.")]
+    min_free = settings.recording.min_free_mb * 1024 * 1024
+    usable = usage.free - min_free
+    rate = video_bytes_per_s + TELEMETRY_BYTES_PER_S
+    minutes = max(usable, 0) / rate / 60
+    free = f"{usage.free / 1e9:.1f} GB free of {usage.total / 1e9:.1f} GB"
+    if usable <= 0:
+        return [
+            Check(
+                "sessions disk",
+                "FAIL",
+                f"{folder}: {free}, under recording.min_free_mb = "
+                f"{settings.recording.min_free_mb:g}",
+                "Pull and delete old sessions (see README 'Where sessions go'), or use a "
+                "bigger SD card.",
+            )
+        ]
+    speed = _write_speed(folder, probe_mb)
+    if isinstance(speed, str):
+        return [Check("sessions disk", "FAIL", f"{folder}: write failed: {speed}", "")]
+    ok = speed * 1e6 > 2 * rate
+    return [
+        Check(
+            "sessions disk",
+            "ok" if ok else "warn",
+            f"{folder}: {free}, writes {speed:.0f} MB/s, ~{minutes:.0f} min of recording "
+            f"at {rate / 1e6:.1f} MB/s",
+            "" if ok else "A faster SD card (A1/A2, U3) or a USB SSD.",
+        )
+    ]
+
+
+def _write_speed(folder: Path, mb: int) -> float | str:
+    """MB/s of a synced write of `mb` MB into `folder`; the error text if it fails."""
+    probe = folder / ".doctor-write-probe"
+    block = os.urandom(1024 * 1024)
+    try:
+        t0 = time.perf_counter()
+        with open(probe, "wb") as f:
+            for _ in range(mb):
+                f.write(block)
+            f.flush()
+            os.fsync(f.fileno())
+        return mb / (time.perf_counter() - t0)
+    except OSError as exc:
+        return str(exc)
+    finally:
+        probe.unlink(missing_ok=True)
+
+
+class _Timex(ctypes.Structure):
+    # struct timex begins with `unsigned int modes`; the rest (~200 bytes) we do not read.
+    _fields_ = [("modes", ctypes.c_uint), ("rest", ctypes.c_byte * 512)]
+
+
+TIME_ERROR = 5  # adjtimex(2): the clock is not synchronised
+
+
+def check_clock() -> list[Check]:
+    libc_name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(libc_name, use_errno=True)
+        state = libc.adjtimex(ctypes.byref(_Timex()))
+    except (OSError, AttributeError):
+        return [Check("clock sync", "skip", "adjtimex is not available")]
+    now = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+    if state == TIME_ERROR:
+        return [
+            Check(
+                "clock sync",
+                "warn",
+                f"system clock not synchronised ({now})",
+                "A Pi has no RTC: without network time, session names and stamps use this "
+                "clock. Give it internet once (NTP), or fit an RTC HAT.",
+            )
+        ]
+    return [Check("clock sync", "ok", f"synchronised ({now})")]
+
+
+def check_ports(settings: Settings) -> list[Check]:
+    wanted = {"web": settings.server.port}
+    if settings.viser.enabled:
+        wanted["3D panel"] = settings.viser.port
+        wanted["replay 3D"] = settings.viser.replay_port_resolved
+    busy = []
+    for what, port in wanted.items():
+        if port == 0:
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind((settings.server.host, port))
+            except OSError:
+                busy.append(f"{port} ({what})")
+    if busy:
+        return [
+            Check(
+                "ports",
+                "FAIL",
+                f"in use: {', '.join(busy)}",
+                "Another station running? systemctl status fpv-station; or choose --port.",
+            )
+        ]
+    return [Check("ports", "ok", "free: " + ", ".join(f"{p} ({w})" for w, p in wanted.items()))]
+
+
+def check_versions() -> list[Check]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    parts = [f"python {platform.python_version()}", platform.machine()]
+    for dist in ("fpv-station", "pymavlink", "opencv-python-headless", "numpy", "viser"):
+        try:
+            parts.append(f"{dist} {version(dist)}")
+        except PackageNotFoundError:
+            parts.append(f"{dist} missing")
+    return [Check("versions", "ok", ", ".join(parts))]
+
+
+def run_checks(settings: Settings, heartbeat_s: float = 5.0) -> list[Check]:
+    cameras, video_rate = check_cameras(settings)
+    if not any(c.status == "ok" for c in cameras):  # none measured: assume typical ones
+        video_rate = 2 * 30 * ASSUMED_JPEG_BYTES
+    return [
+        *check_serial(settings),
+        *check_pi_uart(),
+        *check_heartbeat(settings, heartbeat_s),
+        *cameras,
+        *check_disk(settings, video_rate),
+        *check_clock(),
+        *check_ports(settings),
+        *check_versions(),
+    ]
+
+
+def format_table(checks: list[Check]) -> str:
+    width = max(len(c.name) for c in checks)
+    lines = []
+    for c in checks:
+        lines.append(f"{c.status:<4}  {c.name:<{width}}  {c.detail}")
+        if c.fix and c.status in ("FAIL", "warn"):
+            lines.append(f"{'':<4}  {'':<{width}}  fix: {c.fix}")
+    return "\n".join(lines)
+
+
+def _user() -> str:
+    import pwd
+
+    return pwd.getpwuid(os.geteuid()).pw_name

@@ -1,0 +1,112 @@
+"""`fpv-station doctor` against the test MAVLink vehicle over UDP and a pty, a missing
+serial device, a disk under the configured minimum, and a port already taken."""
+
+from __future__ import annotations
+
+import os
+import pty
+import re
+import socket
+import subprocess
+import sys
+import threading
+import tty
+from pathlib import Path
+
+from server.doctor import check_disk, check_heartbeat, check_ports, check_serial
+from server.settings import Settings
+from tests.helpers import free_port, station_settings
+from tests.mav_vehicle import MavVehicle
+
+FPV_STATION = str(Path(sys.executable).parent / "fpv-station")
+
+
+def doctor(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [FPV_STATION, "doctor", "--no-3d", "--port", str(free_port()), *args],
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+
+
+def test_doctor_hears_the_vehicle_over_udp(tmp_path):
+    with MavVehicle("udp", sysid=7) as v:
+        done = doctor("--source", v.station_source, "--sessions-dir", str(tmp_path))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "px4 quadrotor, sysid 7 compid 1, MAVLink 2" in done.stdout
+    # The vehicle sends ATTITUDE at 20 Hz of its own; doctor shows what it gets after asking.
+    asked = Settings().link.message_rates_hz["ATTITUDE"]
+    got = float(re.search(r"ATTITUDE (\d+)", done.stdout).group(1))
+    assert asked > 30 and got > 30, done.stdout
+    assert "min of recording" in done.stdout
+    assert "all checks passed" in done.stdout
+
+
+def test_doctor_over_a_serial_pty():
+    master, slave = pty.openpty()
+    tty.setraw(master)
+    vehicle = MavVehicle("udp", autopilot="ardupilot")  # its encoder and flight state only
+    vehicle._sock.close()
+    stop = threading.Event()
+
+    def feed() -> None:
+        while not stop.wait(0.05):
+            for name in ("HEARTBEAT", "ATTITUDE"):
+                os.write(master, vehicle.build(name).pack(vehicle.mav))
+            try:
+                os.read(master, 4096)  # what the station sends; keep the pty from filling
+            except BlockingIOError:
+                pass
+
+    os.set_blocking(master, False)
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    try:
+        settings = station_settings(f"{os.ttyname(slave)}:921600")
+        serial = check_serial(settings)
+        assert serial[0].status == "ok", serial
+        hb = check_heartbeat(settings, timeout_s=5, rates_s=1)
+        assert hb[0].status == "ok", hb
+        assert "ardupilot" in hb[0].detail and "sysid 1" in hb[0].detail
+    finally:
+        stop.set()
+        feeder.join()
+        os.close(master)
+        os.close(slave)
+
+
+def test_doctor_reports_a_missing_serial_device_with_a_fix(tmp_path):
+    done = doctor(
+        "--source", "/dev/ttyDOESNOTEXIST:921600", "--heartbeat-s", "1",
+        "--sessions-dir", str(tmp_path),
+    )  # fmt: skip
+    assert done.returncode == 1
+    assert "FAIL  serial device" in done.stdout
+    assert "/dev/ttyDOESNOTEXIST does not exist" in done.stdout
+    assert "fix: Check the cable" in done.stdout
+    assert "FAIL  MAVLink heartbeat" in done.stdout
+    assert "failed: serial device, MAVLink heartbeat" in done.stdout
+
+
+def test_doctor_fails_a_disk_under_the_configured_minimum(tmp_path):
+    free_mb = os.statvfs(tmp_path).f_bavail * os.statvfs(tmp_path).f_frsize / 2**20
+    full = station_settings("none", tmp_path, **{"recording.min_free_mb": free_mb + 1024})
+    (check,) = check_disk(full, video_bytes_per_s=2e6)
+    assert check.status == "FAIL" and "min_free_mb" in check.detail and check.fix
+    roomy = station_settings("none", tmp_path, **{"recording.min_free_mb": 0})
+    (check,) = check_disk(roomy, video_bytes_per_s=2e6, probe_mb=2)
+    assert check.status in ("ok", "warn") and "MB/s" in check.detail
+    assert list(tmp_path.iterdir()) == []  # the write probe is gone
+
+
+def test_doctor_fails_a_port_in_use():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        settings = station_settings(
+            "none", **{"server.port": port, "server.host": "127.0.0.1", "viser.enabled": False}
+        )
+        (check,) = check_ports(settings)
+    assert check.status == "FAIL" and f"{port} (web)" in check.detail
