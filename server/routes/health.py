@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from typing import Literal
 
 from fastapi import APIRouter, Request
@@ -18,6 +19,7 @@ class Health(BaseModel):
     reasons: list[str]  # why degraded, in words
     version: str
     failed_tasks: dict[str, str]
+    asyncio_tasks: int  # all tasks on the event loop: flat under steady load (soak)
 
 
 @router.get("/api/health", response_model=Health, summary="Is the station up and well")
@@ -35,4 +37,5 @@ async def get_health(request: Request) -> Health:
         reasons=reasons,
         version=__version__,
         failed_tasks=station.tasks.failures,
+        asyncio_tasks=len(asyncio.all_tasks()),
     )

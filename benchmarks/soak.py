@@ -1,0 +1,236 @@
+"""Soak: the station on the twin, recording, under 100 telemetry clients, 20 MJPEG viewers,
+5 stalled clients and connection churn, for N minutes.
+
+    python benchmarks/soak.py [--minutes 10] [--telemetry 100] [--viewers 20]
+
+Runs `fpv-station serve --source sim` in a subprocess (both cameras on image folders, so
+the viewers cost what a USB camera's would), starts a recording, and holds the load from
+this process over loopback. Prints at the start and at the end of the load: the server's
+RSS, file descriptors and asyncio tasks (from /api/health and /proc), per-client telemetry
+message and MJPEG frame rates, and the session's rows against its rate (dropped rows).
+Figures and load average go in docs/PERFORMANCE.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import platform
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import psutil
+from websockets.asyncio.client import connect
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
+
+TOKEN = "soak-benchmark-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+class Counts:
+    def __init__(self) -> None:
+        self.telemetry: list[int] = []  # messages per client, since the last snapshot
+        self.churned = 0
+        self.churn_refused = 0
+
+
+async def telemetry_client(url: str, counts: Counts, i: int, stop: asyncio.Event) -> None:
+    async with connect(url, max_size=1 << 20) as ws:
+        while not stop.is_set():
+            try:
+                await asyncio.wait_for(ws.recv(), 1.0)
+            except TimeoutError:
+                continue
+            counts.telemetry[i] += 1
+
+
+async def stalled_clients(port: int, n: int, stop: asyncio.Event) -> None:
+    """Open a WebSocket and an MJPEG stream each and never read (a frozen browser)."""
+    socks = []
+    for i in range(n):
+        s = socket.socket()
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        s.setblocking(False)
+        await asyncio.get_running_loop().sock_connect(s, ("127.0.0.1", port))
+        if i % 2:
+            s.send(b"GET /video/front.mjpg HTTP/1.1\r\nHost: s\r\n\r\n")
+        else:
+            s.send(
+                b"GET /ws/telemetry HTTP/1.1\r\nHost: s\r\nUpgrade: websocket\r\n"
+                b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                b"Sec-WebSocket-Version: 13\r\n\r\n"
+            )
+        socks.append(s)
+    await stop.wait()
+    for s in socks:
+        s.close()
+
+
+async def churn(url: str, counts: Counts, stop: asyncio.Event) -> None:
+    """Clients that connect, take one message and leave, ten per second."""
+    while not stop.is_set():
+        try:
+            async with connect(url) as ws:
+                await asyncio.wait_for(ws.recv(), 5.0)
+            counts.churned += 1
+        except Exception:
+            counts.churn_refused += 1
+        await asyncio.sleep(0.1)
+
+
+def server_figures(base: str, proc: psutil.Process) -> dict:
+    health = httpx.get(f"{base}/api/health", timeout=10).json()
+    rec = httpx.get(f"{base}/api/recording", timeout=10).json()
+    return {
+        "rss_mb": proc.memory_info().rss / 1e6,
+        "fds": proc.num_fds(),
+        "tasks": health["asyncio_tasks"],
+        "status": health["status"],
+        "rows": rec["telemetry_rows"],
+        "frames": sum(rec["frames_written"].values()),
+        "frames_dropped": sum(rec["frames_dropped"].values()),
+        "t": time.monotonic(),
+    }
+
+
+async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Process) -> None:
+    ws_url = f"ws://127.0.0.1:{port}/ws/telemetry"
+    counts = Counts()
+    counts.telemetry = [0] * args.telemetry
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    tasks = [
+        asyncio.create_task(telemetry_client(ws_url, counts, i, stop))
+        for i in range(args.telemetry)
+    ]
+    viewers, transports = [], []
+    for i in range(args.viewers):
+        done = loop.create_future()
+        transport, viewer = await loop.create_connection(
+            lambda d=done: MjpegViewer(d), "127.0.0.1", port
+        )
+        cam = "front" if i % 2 == 0 else "bottom"
+        transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: b\r\n\r\n".encode())
+        viewers.append(viewer)
+        transports.append(transport)
+    tasks.append(asyncio.create_task(stalled_clients(port, args.stalled, stop)))
+    tasks.append(asyncio.create_task(churn(ws_url, counts, stop)))
+    await asyncio.sleep(args.warmup)
+
+    def snapshot(label: str, since: dict | None) -> dict:
+        fig = server_figures(base, proc)
+        msgs, parts = list(counts.telemetry), [len(v.parts) for v in viewers]
+        if since is not None:
+            dt = fig["t"] - since["t"]
+            msg_rates = [(m - m0) / dt for m, m0 in zip(msgs, since["msgs"], strict=True)]
+            fps = [(p - p0) / dt for p, p0 in zip(parts, since["parts"], strict=True)]
+            rows_rate = (fig["rows"] - since["rows"]) / dt
+            print(
+                f"  telemetry msg/s per client: min {min(msg_rates):.1f}, median "
+                f"{statistics.median(msg_rates):.1f}; MJPEG fps per viewer: min {min(fps):.1f}, "
+                f"median {statistics.median(fps):.1f}; session rows/s {rows_rate:.1f} "
+                f"(rate {args.rate_hz:g} Hz)"
+            )
+        print(
+            f"{label}: RSS {fig['rss_mb']:.1f} MB, fds {fig['fds']}, tasks {fig['tasks']}, "
+            f"health {fig['status']}, rows {fig['rows']}, frames {fig['frames']} "
+            f"(dropped {fig['frames_dropped']}), churned {counts.churned} "
+            f"(refused {counts.churn_refused}), load {os.getloadavg()[0]:.2f}",
+            flush=True,
+        )
+        return {**fig, "msgs": msgs, "parts": parts}
+
+    start = snapshot("start", None)
+    end_at = time.monotonic() + args.minutes * 60
+    last = start
+    while time.monotonic() < end_at:
+        await asyncio.sleep(min(60.0, max(0.0, end_at - time.monotonic())))
+        last = snapshot(f"t+{(time.monotonic() - start['t']) / 60:.1f} min", last)
+    end = last
+    growth = (end["rss_mb"] - start["rss_mb"]) / start["rss_mb"] * 100
+    expected_rows = (end["t"] - start["t"]) * args.rate_hz
+    print(
+        f"RSS growth {growth:+.1f} %, fds {end['fds'] - start['fds']:+d}, tasks "
+        f"{end['tasks'] - start['tasks']:+d}, rows {end['rows'] - start['rows']} of "
+        f"~{expected_rows:.0f} expected at {args.rate_hz:g} Hz"
+    )
+    stop.set()
+    for t in transports:
+        t.close()
+    await asyncio.gather(*tasks, return_exceptions=True)
+
+
+def run(args: argparse.Namespace) -> None:
+    tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-soak-"))
+    front, bottom = make_frames(tmp / "front", ".jpg"), make_frames(tmp / "bottom", ".jpg")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cmd = [
+        *(sys.executable, "-m", "server", "serve", "--host", "127.0.0.1", "--port", str(port)),
+        *("--source", "sim", "--front", f"folder:{front}", "--bottom", f"folder:{bottom}"),
+    ]
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        "XDG_CONFIG_HOME": str(tmp / "config"),
+        "FPV_SERVER__TOKEN": json.dumps(TOKEN),
+        "FPV_VISER__ENABLED": "false",
+        "FPV_RECORDING__SESSIONS_DIR": json.dumps(str(tmp / "sessions")),
+        "FPV_RECORDING__RATE_HZ": str(args.rate_hz),
+    }
+    log = (tmp / "server.log").open("w")  # uvicorn logs every connection: keep it out
+    server = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        base = f"http://127.0.0.1:{port}"
+        for _ in range(300):
+            try:
+                if httpx.get(f"{base}/api/health", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                time.sleep(0.1)
+        proc = psutil.Process(server.pid)
+        print(
+            f"# fpv-station soak: {args.minutes:g} min, {args.telemetry} telemetry clients, "
+            f"{args.viewers} MJPEG viewers, {args.stalled} stalled, churn 10/s, recording "
+            f"at {args.rate_hz:g} Hz on the twin; machine {platform.machine()}, "
+            f"{os.cpu_count()} cores, Python {platform.python_version()}"
+        )
+        r = httpx.post(f"{base}/api/recording/start", headers=AUTH, json={}, timeout=10)
+        r.raise_for_status()
+        asyncio.run(load(args, port, base, proc))
+        stop = httpx.post(f"{base}/api/recording/stop", headers=AUTH, json={}, timeout=30)
+        sid = stop.json()["last_stop"]["id"]
+        meta = json.loads((tmp / "sessions" / sid / "session.json").read_text())
+        print(f"session {sid}: status {meta['status']}, stop_reason {meta.get('stop_reason')}")
+    finally:
+        server.terminate()
+        server.wait(30)
+        log.close()
+        print(f"server log: {tmp / 'server.log'}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--telemetry", type=int, default=100)
+    ap.add_argument("--viewers", type=int, default=20)
+    ap.add_argument("--stalled", type=int, default=5)
+    ap.add_argument("--rate-hz", type=float, default=50.0)
+    ap.add_argument("--warmup", type=float, default=10.0)
+    run(ap.parse_args())
+
+
+if __name__ == "__main__":
+    main()
