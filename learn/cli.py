@@ -24,7 +24,12 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("sessions", nargs="+", type=Path, metavar="SESSION")
     p.add_argument("--format", required=True, choices=FORMATS)
     p.add_argument("--out", required=True, type=Path, help="output folder")
-    p.add_argument("--task", type=int, default=1, help="the scene's task id (1-4)")
+    p.add_argument(
+        "--task",
+        type=int,
+        default=None,
+        help="the scene's task id (1-4); default: the task the sessions were recorded for, else 1",
+    )
     p.add_argument("--description", help="free-text task description stored with episodes")
     p.add_argument("--fps", type=int, default=DEFAULT_FPS, help="frames per second")
     p.add_argument(

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from core.scene import Scene, load_scene
@@ -25,7 +25,9 @@ DEFAULT_FPS = 10  # the twin env's control rate: a dataset step is an env step
 
 @dataclass(frozen=True)
 class ExportOptions:
-    task_id: int = 1
+    # The scene's task; None: the task the sessions were recorded for (session.json
+    # `task`, chosen on the pilot page), else task 1.
+    task_id: int | None = None
     description: str | None = None  # free text; default: the scene's task name and procedure
     fps: int = DEFAULT_FPS
     channel_map: ChannelMap = field(default_factory=ChannelMap)
@@ -51,6 +53,24 @@ def task_description(scene: Scene, task_id: int) -> str:
     return " ".join([f"{t.name}:", *t.procedure]) if t.procedure else t.name
 
 
+def recorded_task_id(paths: Sequence[Path]) -> int:
+    """The one flight task the recordings were made for (session.json `task`), 1 if none
+    says; recordings of different tasks must be exported separately (a Minari dataset is
+    one task's environment)."""
+    ids = set()
+    for path in paths:
+        with open_recording(path) as rec:
+            task = rec.meta.get("task") if isinstance(rec.meta, dict) else None
+            if isinstance(task, dict) and isinstance(task.get("id"), int):
+                ids.add(task["id"])
+    if len(ids) > 1:
+        raise RecordingError(
+            f"these recordings were flown for tasks {sorted(ids)}: export each task's "
+            "recordings separately, or choose one with --task."
+        )
+    return ids.pop() if ids else 1
+
+
 def export_recordings(
     paths: Sequence[Path],
     fmt: str,
@@ -61,6 +81,8 @@ def export_recordings(
     if fmt not in FORMATS:
         raise ValueError(f"unknown format '{fmt}'; use one of: {', '.join(FORMATS)}")
     scene = options.scene or load_scene()
+    if options.task_id is None:
+        options = replace(options, task_id=recorded_task_id(paths))
     scene.task(options.task_id)  # a wrong task fails before anything is written
     task = options.description or task_description(scene, options.task_id)
     summary = ExportSummary(Path(out), fmt)

@@ -379,3 +379,33 @@ def test_a_session_zip_exports_like_its_folder(session, tmp_path):
     b = export_recordings([Path(archive)], "minari", tmp_path / "b", ExportOptions(task_id=1))
     assert (a.episodes, a.frames) == (b.episodes, b.frames) == (1, a.frames)
     assert unpacked() == before  # the unpacked copy is gone
+
+
+def test_an_episode_carries_the_task_its_session_was_flown_for(session, tmp_path):
+    """The pilot chose task 2 on the page (session.json `task`): with no --task the export
+    labels the episode with it; sessions of two tasks are refused together."""
+    import shutil
+
+    from learn.recording_reader import RecordingError
+
+    def flown_for(task_id: int, name: str) -> Path:
+        copy = tmp_path / f"{session.name[:-4]}_t{task_id}"
+        shutil.copytree(session, copy)
+        meta = json.loads((copy / "session.json").read_text())
+        meta["task"] = {"id": task_id, "name": name}
+        (copy / "session.json").write_text(json.dumps(meta))
+        return copy
+
+    a_to_b = flown_for(2, "A to B")
+    out = tmp_path / "ds"
+    s = export_recordings([a_to_b], "lerobot", out, ExportOptions(fps=FPS, cameras=()))
+    assert s.episodes == 1
+    tasks = pq.read_table(out / "meta/tasks.parquet").column("task").to_pylist()
+    assert len(tasks) == 1 and tasks[0].startswith("A to B")
+    with pytest.raises(RecordingError, match=r"tasks \[1, 2\]"):
+        export_recordings(
+            [a_to_b, flown_for(1, "Take off, hover, land")],
+            "lerobot",
+            tmp_path / "mixed",
+            ExportOptions(fps=FPS, cameras=()),
+        )

@@ -178,6 +178,19 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     page.keyboard.press("b")
     expect(bottom).to_be_hidden()
 
+    # Side-by-side stereo: two halves, each with its own OSD; off again stops the second.
+    page.keyboard.press("s")
+    right = page.locator("#front-view-right")
+    expect(right).to_be_visible()
+    expect(right.locator("[data-osd=heading]")).to_have_text("045", timeout=5000)
+    halves = page.evaluate(
+        """() => ['#front-view', '#front-view-right'].map(
+            (s) => document.querySelector(s).getBoundingClientRect().width)"""
+    )
+    assert all(abs(wd - w / 2) <= 1 for wd in halves), halves
+    page.keyboard.press("s")
+    expect(right).to_be_hidden()
+
 
 def test_goggles_show_the_task_step_as_an_osd_line(station, browser):
     vehicle, base = station

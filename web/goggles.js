@@ -1,12 +1,13 @@
 // fpv-station goggles page (/goggles.html): the front camera full screen under the OSD
 // (osd.js), for HDMI goggles at 1280x720 or 1920x1080 and phones; no page chrome.
 //   F or a tap   fullscreen          B   bottom camera picture-in-picture
-//   O            OSD elements menu
+//   O            OSD elements menu   S   side-by-side stereo (phone headsets)
 // The screen is kept awake (Screen Wake Lock, re-taken when the page is shown again), and
 // the flight task's current step (task-panel.js, "fpv:task-step") is an OSD line. The
 // picture fills the screen (object-fit: cover in style.css): a 4:3 camera on 16:9
 // goggles loses its edges rather than a quarter of the screen to black bars.
-import { $ } from "/lib.js";
+import { $, el } from "/lib.js";
+import { mountOsd } from "/osd.js";
 
 const fpv = (window.fpv = window.fpv || {});
 
@@ -21,6 +22,7 @@ window.addEventListener("keydown", (e) => {
   if (key === "f") toggleFullscreen();
   else if (key === "b") $("bottom-view").hidden = !$("bottom-view").hidden;
   else if (key === "o" && fpv.osd) fpv.osd.toggleMenu();
+  else if (key === "s") toggleStereo();
   else return;
   e.preventDefault();
 });
@@ -46,3 +48,20 @@ keepAwake();
 window.addEventListener("fpv:task-step", (e) => {
   if (fpv.osd) fpv.osd.setLine("task", e.detail ? `TASK ${e.detail}` : "");
 });
+
+// Side-by-side stereo for phone headsets: the same front picture and OSD for each eye.
+// The right eye is a second viewer of the same MJPEG stream (the station encodes once per
+// camera, not per viewer), stopped when stereo is switched off.
+let right = null;
+function toggleStereo() {
+  const on = !document.body.classList.contains("stereo");
+  document.body.classList.toggle("stereo", on);
+  if (on && !right) {
+    right = el("section", { id: "front-view-right", class: "view", "aria-label": "front view, right eye" });
+    right.append(el("img", { class: "video-stream", alt: "front camera, right eye" }));
+    $("goggles").append(right);
+    mountOsd(right, { menu: false });
+  }
+  right.hidden = !on;
+  right.querySelector("img").src = on ? `/video/front.mjpg?t=${Date.now()}` : "";
+}
