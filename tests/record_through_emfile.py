@@ -1,0 +1,79 @@
+"""A recording process that runs out of file descriptors mid-flight and gets them back.
+
+    python -m tests.record_through_emfile SESSIONS_DIR
+Lowers RLIMIT_NOFILE, arms a fake vehicle (auto-record), then opens files until EMFILE so
+the writer's next JPEG fails for real, prints the recorder's failure, frees the files, and
+prints the session it resumed into. Lines: "FIRST id", "PROBLEM text", "RESUMED id".
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import resource
+import sys
+from pathlib import Path
+
+from companion.recording.recorder import Recorder, RecorderOptions
+from companion.recording.session import SessionConfig
+from companion.recording.writer import WriterLimits
+from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+
+
+async def until(predicate, within_s: float) -> bool:
+    """Poll `predicate` on the loop (the recorder's state has no event to wait on)."""
+    for _ in range(int(within_s / 0.05)):
+        if predicate():
+            return True
+        await asyncio.sleep(0.05)
+    return bool(predicate())
+
+
+async def main(root: Path) -> None:
+    _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (256, hard))
+    jpegs = make_jpegs()
+    cams = {n: FakeCamera(n, 30.0, jpegs).start() for n in ("front",)}
+    vehicle = FakeVehicle().start()
+    options = RecorderOptions(
+        session=SessionConfig(rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=1)),
+        auto_record_on_arm=True,
+    )
+    rec = Recorder(root, vehicle.state, {n: c.frames for n, c in cams.items()}, options)
+    vehicle.listeners.append(rec.on_packet)
+    await rec.open()
+    vehicle.armed = True
+    assert await until(lambda: rec.session is not None, 30), "no session on arming"
+    first = rec.session.id
+    print(f"FIRST {first}", flush=True)
+    await asyncio.sleep(0.5)
+    hog: list[int] = []
+
+    def starved() -> bool:
+        # Take every free descriptor, again on each poll: one the writer closes after a
+        # JPEG would otherwise be its next one, and it would never fail.
+        try:
+            while True:
+                hog.append(os.open(os.devnull, os.O_RDONLY))
+        except OSError:
+            pass
+        return rec.failure is not None
+
+    got_problem = await until(starved, 30)
+    print(f"PROBLEM {rec.failure}", flush=True)
+    await asyncio.sleep(1.0)  # a few retries fail while the descriptors are gone
+    for fd in hog:
+        os.close(fd)
+    if got_problem and await until(lambda: rec.session is not None, 30):
+        print(f"RESUMED {rec.session.id}", flush=True)
+        await asyncio.sleep(1.0)
+        print(f"STATUS failure={rec.failure}", flush=True)
+    await rec.aclose()
+    for c in cams.values():
+        c.stop()
+    vehicle.stop()
+    print("DONE", flush=True)
+
+
+if __name__ == "__main__":
+    asyncio.run(main(Path(sys.argv[1])))
