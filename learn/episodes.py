@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from analysis.flights import Flight, split_flights
+from analysis.report import SCENE_RADIUS_M
 from core.geodesy import geodetic_to_enu
 from core.scene import Scene
 from learn.recording_reader import RC_CHANNELS, Recording
@@ -38,7 +39,8 @@ from twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 Array = NDArray[np.float64]
 
-ANCHOR_RADIUS_M = 150.0  # as analysis: a flight starting farther from the pads is elsewhere
+# As analysis: a flight starting farther from the pads is flown elsewhere.
+ANCHOR_RADIUS_M = SCENE_RADIUS_M
 ON_GROUND_M = 0.2
 PWM_UNUSED = (0, 65535)
 

@@ -160,20 +160,13 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
 
 
 async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
-    from core.scene import SceneError, load_scene
     from server.trajectory3d.service import open_trajectory3d
 
     s = station.settings
-    # The field: an explicit scene file, else the twin's own scene when flying the twin;
-    # a real flight elsewhere gets a plain ground grid.
-    field = None
-    try:
-        if s.viser.field_file is not None:
-            field = load_scene(s.viser.field_file)
-        elif s.link.source.strip() == "sim":
-            field = load_scene(s.twin.scene)
-    except SceneError as exc:  # the panel still shows the flight, on a plain grid
-        log.error("3D panel: no field drawn: %s", exc)
+    # The station's one field (server.trials.station_scene, loaded once): drawn when it is
+    # the field being flown; a real flight without a scene file gets a plain ground grid.
+    trials = station.trials
+    field = trials.scene if trials is not None and trials.is_field else None
     service = await open_trajectory3d(s.viser, station.state, s.server.host, field)
     station.trajectory3d = service
     # viser's stop joins its thread: keep that wait off the event loop.
