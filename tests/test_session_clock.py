@@ -10,7 +10,10 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.recording import layout
+from companion.recording.meta import SessionMeta, write_meta
+from companion.recording.recovery import mark_interrupted
 from companion.recording.session_clock import choose_session_clock
+from companion.recording.store import SessionStore
 from companion.state_tracker import StateTracker
 from companion.system_clock import clock_synchronised
 from core.mavlink.framing import MavFramer
@@ -161,3 +164,21 @@ def test_a_vehicle_without_gps_time_leaves_the_station_clock(tmp_path):
     assert clock["used"] == "station" and clock["offset_s"] == 0.0
     assert clock["vehicle_start_utc"] is None and clock["station_synced"] == clock_synchronised()
     assert abs(layout.session_start_from_id(sid) - clock["station_start_wall"]) < 1.0
+
+
+def test_an_interrupted_session_ends_in_its_own_clock(tmp_path):
+    """kill -9 mid-flight: the next start's recovery stamps the end in the session's UTC."""
+    clock = choose_session_clock(NOW, False, NOW - WEEK_S, "SYSTEM_TIME")
+    sid = layout.session_id_for(NOW + clock.offset_s, "serial")
+    folder = tmp_path / sid
+    folder.mkdir()
+    start_utc = layout.utc_label(NOW + clock.offset_s)
+    meta = SessionMeta(id=sid, start_wall=NOW, start_utc=start_utc, clock=clock)
+    write_meta(folder / layout.SESSION_JSON, meta)
+    lines = ["t_s,wall_time", *(f"{i * 0.5},{NOW + i * 0.5}" for i in range(21)), "10.5,17"]
+    (folder / layout.TELEMETRY_CSV).write_text("\n".join(lines))  # cut mid-row
+    assert mark_interrupted(SessionStore(tmp_path)) == [sid]
+    meta = json.loads((folder / layout.SESSION_JSON).read_text())
+    assert meta["status"] == "interrupted" and meta["duration_s"] == 10.0
+    assert meta["end_utc"] == layout.utc_label(NOW - WEEK_S + 10.0)
+    assert meta["start_utc"].startswith("2026-11-11")

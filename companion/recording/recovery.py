@@ -35,7 +35,8 @@ def mark_interrupted(store: SessionStore, skip: set[str] | None = None) -> list[
         meta.quality.telemetry_rows = rows
         if last_wall is not None:
             meta.end_wall = last_wall
-            meta.end_utc = layout.utc_label(last_wall)
+            offset = meta.clock.offset_s if meta.clock is not None else 0.0
+            meta.end_utc = layout.utc_label(last_wall + offset)
             meta.duration_s = round(last_wall - meta.start_wall, 3)
         for cam, cq in meta.quality.cameras.items():
             frames = _count_frames(folder / layout.frames_csv_relpath(cam))
