@@ -8,8 +8,6 @@ the cameras, the sessions folder, the kernel's clock state, the ports.
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import os
 import platform
 import shutil
@@ -20,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from companion.system_clock import clock_synchronised
 from server.settings import Settings
 
 Status = Literal["ok", "FAIL", "warn", "skip"]
@@ -279,30 +278,20 @@ def _write_speed(folder: Path, mb: int) -> float | str:
         probe.unlink(missing_ok=True)
 
 
-class _Timex(ctypes.Structure):
-    # struct timex begins with `unsigned int modes`; the rest (~200 bytes) we do not read.
-    _fields_ = [("modes", ctypes.c_uint), ("rest", ctypes.c_byte * 512)]
-
-
-TIME_ERROR = 5  # adjtimex(2): the clock is not synchronised
-
-
 def check_clock() -> list[Check]:
-    libc_name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(libc_name, use_errno=True)
-        state = libc.adjtimex(ctypes.byref(_Timex()))
-    except (OSError, AttributeError):
-        return [Check("clock sync", "skip", "adjtimex is not available")]
+    synced = clock_synchronised()
     now = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
-    if state == TIME_ERROR:
+    if synced is None:
+        return [Check("clock sync", "skip", f"the kernel does not say ({now})")]
+    if not synced:
         return [
             Check(
                 "clock sync",
                 "warn",
                 f"system clock not synchronised ({now})",
-                "A Pi has no RTC: without network time, session names and stamps use this "
-                "clock. Give it internet once (NTP), or fit an RTC HAT.",
+                "A Pi has no RTC: sessions take UTC from the vehicle's GPS (SYSTEM_TIME) "
+                "once it has a fix, and from this clock before. Give the Pi network time "
+                "once (NTP), or fit an RTC HAT.",
             )
         ]
     return [Check("clock sync", "ok", f"synchronised ({now})")]

@@ -37,6 +37,7 @@ DEFAULT_RATES_HZ = {
     "SERVO_OUTPUT_RAW": 5.0,
     "BATTERY_STATUS": 1.0,
     "LOCAL_POSITION_NED": 5.0,
+    "SYSTEM_TIME": 1.0,
 }
 
 
@@ -80,6 +81,8 @@ class MavVehicle:
         self.vx_mps, self.vy_mps, self.vz_mps = 0.0, 0.0, 0.0
         self.roll_rad, self.pitch_rad, self.yaw_rad = 0.0, 0.0, 0.0
         self.fix_type, self.satellites = 3, 12
+        # Its GPS UTC minus this host's clock; None: no UTC yet (SYSTEM_TIME says 0).
+        self.gps_utc_offset_s: float | None = 0.0
         self.voltage_v, self.current_a, self.remaining_pct = 12.3, 4.5, 87
         self.rc_pwm = [1500] * 8 + [0] * 10
         self.servo_pwm = [1100] * 4 + [0] * 12
@@ -265,6 +268,9 @@ class MavVehicle:
             return m.local_position_ned_encode(
                 t, 1.0, 2.0, -self.relative_alt_m, self.vx_mps, self.vy_mps, self.vz_mps
             )
+        if name == "SYSTEM_TIME":
+            off = self.gps_utc_offset_s
+            return m.system_time_encode(0 if off is None else int((time.time() + off) * 1e6), t)
         raise ValueError(f"MavVehicle cannot build {name}")
 
     # -- threads -------------------------------------------------------------------------

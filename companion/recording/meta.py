@@ -112,13 +112,31 @@ class TrialScore(_Model):
     result: dict[str, Any] | None = None  # analysis.tasks.TaskResult as a dict
 
 
+class SessionClock(_Model):
+    """Which clock named and stamped the session (companion.recording.session_clock):
+    a Pi has no real-time clock, the vehicle's GPS knows UTC."""
+
+    used: str  # "station", "vehicle" (its GPS time) or "source" (a replayed log's own)
+    reason: str
+    # UTC used = any wall time of this session (start_wall, wall_time, t_wall) + offset_s.
+    offset_s: float = 0.0
+    station_synced: bool | None = None  # the kernel's answer at the start; None: unknown
+    station_start_wall: float  # the station's clock at the start
+    vehicle_start_utc: float | None = None  # the vehicle's GPS time then, None: it had none
+    vehicle_source: str | None = None  # "SYSTEM_TIME" or "GPS_RAW_INT"
+    max_disagree_s: float
+    # The folder name is chosen once, at the start; stamps follow a GPS time first heard
+    # later in the session. This says which clock the name used.
+    named_by: str | None = None
+
+
 class SessionMeta(_Model):
     format_version: int = FORMAT_VERSION
     id: str
     status: str = STATUS_RECORDING
     stop_reason: str | None = None
-    start_wall: float
-    start_utc: str
+    start_wall: float  # the station's clock; see clock.offset_s for UTC
+    start_utc: str  # in the clock chosen (clock.used)
     end_wall: float | None = None
     end_utc: str | None = None
     duration_s: float | None = None
@@ -132,6 +150,7 @@ class SessionMeta(_Model):
     task: SessionTask | None = None
     score: TrialScore | None = None
     recovery: Recovery | None = None  # set when the counts were taken from the files
+    clock: SessionClock | None = None  # None: written before the station chose clocks
 
 
 def write_meta(path: Path, meta: SessionMeta) -> None:

@@ -197,7 +197,8 @@ def apply_census(meta: SessionMeta, census: Census, recovered_utc: str) -> None:
         cq.frames_captured = cq.frames_written + cq.frames_dropped
     if census.last_row_wall is not None:
         meta.end_wall = round(census.last_row_wall, 6)
-        meta.end_utc = layout.utc_label(census.last_row_wall)
+        offset = meta.clock.offset_s if meta.clock is not None else 0.0  # the session's UTC
+        meta.end_utc = layout.utc_label(census.last_row_wall + offset)
         meta.duration_s = round(census.last_row_wall - meta.start_wall, 3)
     meta.recovery = Recovery(
         utc=recovered_utc,
