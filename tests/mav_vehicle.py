@@ -200,6 +200,16 @@ class MavVehicle:
             mavlink.MAV_TYPE_QUADROTOR, ap, base | armed, custom, status
         )
 
+    def autopilot_version(self) -> mavlink.MAVLink_message:
+        """PX4 1.14.3 (git hash bytes, binary) or ArduCopter 4.5.7 (hash as text)."""
+        if self.autopilot == "ardupilot":
+            sw, custom = (4 << 24) | (5 << 16) | (7 << 8) | 255, list(b"2a3dc4b7")
+        else:
+            sw, custom = (1 << 24) | (14 << 16) | (3 << 8) | 255, [0x77, 0x17, 0, 0, 1, 2, 3, 4]
+        return self.mav.autopilot_version_encode(
+            0, sw, 0, 0, 0, custom, [0] * 8, [0] * 8, 0x26AC, 0x11, 0
+        )
+
     def build(self, name: str) -> mavlink.MAVLink_message:
         m, t = self.mav, self.time_boot_ms()
         lat, lon = int(self.lat_deg * 1e7), int(self.lon_deg * 1e7)
@@ -330,6 +340,14 @@ class MavVehicle:
                     self._handle(msg)
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        if (
+            msg.get_type() == "COMMAND_LONG"
+            and msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE
+            and int(msg.param1) == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+        ):
+            self.send_message(self.mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_ACCEPTED))
+            self.send_message(self.autopilot_version())
+            return
         if msg.get_type() != "COMMAND_LONG" or msg.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             return
         if self.interval_reply == "ignore":

@@ -111,6 +111,10 @@ def test_a_session_is_named_by_the_vehicles_gps_time(tmp_path, offset_s):
             status = lambda: httpx.get(f"{base}/api/recording").json()  # noqa: E731
             assert wait_until(lambda: v.sent["SYSTEM_TIME"] >= 2, timeout=10)
             time.sleep(0.3)
+            clock = httpx.get(f"{base}/api/health").json()["clock"]  # what the page shows
+            assert clock["sessions_use"] == "vehicle"
+            assert clock["vehicle_offset_s"] == pytest.approx(offset_s, abs=0.5)
+            assert clock["station_synced"] == clock_synchronised()
             station_start = time.time()
             v.arm()
             assert wait_until(lambda: status()["recording"], timeout=5)
@@ -154,6 +158,8 @@ def test_a_vehicle_without_gps_time_leaves_the_station_clock(tmp_path):
         with run_uvicorn(create_app(settings)) as base:
             status = lambda: httpx.get(f"{base}/api/recording").json()  # noqa: E731
             assert wait_until(lambda: v.sent["SYSTEM_TIME"] >= 2, timeout=10)
+            clock = httpx.get(f"{base}/api/health").json()["clock"]
+            assert clock["sessions_use"] == "station" and clock["vehicle_offset_s"] is None
             v.arm()
             assert wait_until(lambda: status()["recording"], timeout=5)
             time.sleep(0.5)
