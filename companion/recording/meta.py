@@ -69,6 +69,21 @@ class Arming(_Model):
     home_lon_deg: float | None = None
 
 
+class Recovery(_Model):
+    """What the station found in the files of a session whose writer was cut off (kill -9,
+    power loss, a failed write) and what it repaired (companion.recording.ondisk); the
+    quality counts of such a session are those on disk."""
+
+    utc: str  # when the files were counted
+    telemetry_cut_line: bool = False  # telemetry.csv ends in a partial line (readers skip it)
+    tlog_cut_record: bool = False  # mavlink.tlog ends in a partial record (readers skip it)
+    frames_added: dict[str, int] = Field(default_factory=dict)  # complete JPEGs listed again
+    frame_rows_removed: dict[str, int] = Field(default_factory=dict)  # rows of missing files
+    partial_frames_removed: list[str] = Field(default_factory=list)  # cut JPEGs deleted
+    # Complete JPEGs that frames.csv still does not list (it could not be rewritten).
+    frames_unlisted: dict[str, int] = Field(default_factory=dict)
+
+
 class SessionTask(_Model):
     """The flight task the pilot chose before the session (from the scene file), so that
     the session, its analysis and an exported episode know what the flight was for."""
@@ -134,6 +149,7 @@ class SessionMeta(_Model):
     quality: Quality = Field(default_factory=Quality)
     task: SessionTask | None = None
     score: TrialScore | None = None
+    recovery: Recovery | None = None  # set when the counts were taken from the files
     clock: SessionClock | None = None  # None: written before the station chose clocks
 
 
