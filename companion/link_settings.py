@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from pathlib import Path
 
+from pydantic import Field, field_validator
+
+from core.mavlink.signing import load_key_file
 from core.settings_section import Section
 
 
@@ -37,3 +40,24 @@ class LinkSettings(Section):
         }
     )
     request_streams: bool = True  # False: listen only (another GCS already asks)
+    # udpin: hear only the host that spoke first (its port may change: a restarted
+    # bridge); datagrams from other hosts are dropped and counted in the link health.
+    # False: hear anyone and answer whoever spoke last (several hosts feed one port).
+    udpin_lock: bool = True
+    # MAVLink 2 signing (core/mavlink/signing.py): a file holding the passphrase given to
+    # MAVProxy's `signing setup` or Mission Planner, readable by its owner only (chmod
+    # 600). Set: everything we send is signed, and unsigned or badly signed packets are
+    # refused and counted (a radio's RADIO_STATUS excepted). None: no signing. Replays
+    # of a tlog are never checked; `--source sim` signs the twin with the same key.
+    signing_key_file: Path | None = None
+
+    @field_validator("signing_key_file")
+    @classmethod
+    def _key_loads(cls, value: Path | None) -> Path | None:
+        if value is not None:
+            load_key_file(value)  # SigningKeyError (a ValueError) says what is wrong
+        return value
+
+    def signing_key(self) -> bytes | None:
+        """The 32-byte key, read now (None without signing)."""
+        return None if self.signing_key_file is None else load_key_file(self.signing_key_file)
