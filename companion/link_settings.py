@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
-from pydantic import Field, field_validator
+from pydantic import Field
 
 from core.mavlink.signing import load_key_file
-from core.settings_section import Section
+from core.settings_section import Section, checked_by
 
 
 class LinkSettings(Section):
@@ -50,14 +51,7 @@ class LinkSettings(Section):
     # 600). Set: everything we send is signed, and unsigned or badly signed packets are
     # refused and counted (a radio's RADIO_STATUS excepted). None: no signing. Replays
     # of a tlog are never checked; `--source sim` signs the twin with the same key.
-    signing_key_file: Path | None = None
-
-    @field_validator("signing_key_file")
-    @classmethod
-    def _key_loads(cls, value: Path | None) -> Path | None:
-        if value is not None:
-            load_key_file(value)  # SigningKeyError (a ValueError) says what is wrong
-        return value
+    signing_key_file: Annotated[Path | None, checked_by(load_key_file)] = None
 
     def signing_key(self) -> bytes | None:
         """The 32-byte key, read now (None without signing)."""

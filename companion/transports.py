@@ -107,14 +107,14 @@ class UdpTransport:
     """udpout sends to a fixed peer and hears only it; udpin binds and answers the host
     that spoke first (`lock`) or whoever spoke last (no lock).
 
-    A datagram from any other address is dropped before it is parsed and counted
-    (`foreign`, a `ForeignSenders` the owner may share across reconnects): on a shared network anyone can send to our
-    port, and one forged GLOBAL_POSITION_INT would otherwise move the vehicle on the map
-    and into the recording. udpout matches the peer's address and port exactly (a UDP
-    peer answers from the port it listens on). A locked udpin matches the first sender's
-    host and follows its port: a bridge or router that restarts comes back from a new
-    ephemeral port on the same host, and must not lose the vehicle until the station
-    restarts. Several systems behind one address (autopilot, SiK radio, a GCS through
+    A datagram from any other address is dropped before it is parsed and counted in
+    `foreign` (a `ForeignSenders` the owner may keep across reconnects): on a shared
+    network anyone can send to our port, and one forged GLOBAL_POSITION_INT would
+    otherwise move the vehicle on the map and into the recording. udpout matches the
+    peer's address and port exactly (a UDP peer answers from the port it listens on). A
+    locked udpin matches the first sender's host and follows its port: a bridge or
+    router that restarts comes back from a new ephemeral port on the same host, and must
+    not lose the vehicle until the station restarts. Several systems behind one address (autopilot, SiK radio, a GCS through
     mavlink-router) all pass; telling them apart is MAVLink signing's work, not this.
 
     `confirm_senders` (set when the link signs): a udpin sender becomes the peer (the one
