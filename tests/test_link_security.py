@@ -326,3 +326,32 @@ def test_unusable_key_files_say_why(tmp_path, content, mode, error) -> None:
         os.chmod(path, mode)
     with pytest.raises(SettingsError, match=error):
         station_settings("sim", **{"link.signing_key_file": str(path)})
+
+
+def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
+    """While the station refuses datagrams, the OSD over the front video says so."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+
+    with MavVehicle("udp") as v, station(v.station_source, tmp_path) as (app, base):
+        with sync_playwright() as p:
+            browser = p.chromium.launch(
+                executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True
+            )
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(base + "/")
+            warning = page.locator("[data-osd=warning]")
+            expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+            time.sleep(2.5)  # a poll of /api/status with nothing refused
+            expect(warning).not_to_contain_text("MAVLINK REFUSED")
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+                attacker.bind(("127.0.0.2", 0))
+                deadline = time.monotonic() + 8
+                while time.monotonic() < deadline:
+                    attacker.sendto(forged_position(FORGED_LAT), ("127.0.0.1", v.station_port))
+                    time.sleep(0.5)
+                    if "MAVLINK REFUSED" in (warning.text_content() or ""):
+                        break
+            expect(warning).to_contain_text("MAVLINK REFUSED")
+            browser.close()
