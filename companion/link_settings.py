@@ -34,6 +34,7 @@ class LinkSettings(Section):
             "SERVO_OUTPUT_RAW": 10.0,
             "SYS_STATUS": 2.0,
             "BATTERY_STATUS": 1.0,
+            "SYSTEM_TIME": 1.0,  # the vehicle's GPS UTC: a Pi has no real-time clock
         }
     )
     request_streams: bool = True  # False: listen only (another GCS already asks)

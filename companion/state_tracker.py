@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.vehicle_state import (
     MESSAGES_KEPT,
+    UTC_PLAUSIBLE_AFTER_S,
     Attitude,
     Battery,
     GlobalPosition,
@@ -29,6 +30,7 @@ from companion.vehicle_state import (
     VehicleMessage,
     VehicleMessages,
     VehicleState,
+    VehicleUtc,
     VfrHud,
 )
 from core.mavlink.framing import packet_version
@@ -58,6 +60,14 @@ _ORIGIN_STEP_MIN_MPS = 20.0
 _DISAGREE_M = 40.0
 _FRESH_GPS_S = 2.0
 _SLIDE_MPS = 2.0  # offset changing faster than this after agreeing: the frame still moves
+
+
+# SYSTEM_TIME is the autopilot's UTC; a Unix GPS_RAW_INT time only stands in without it.
+_SYSTEM_TIME_PREFERRED_S = 10.0
+
+
+def _plausible_utc(usec: int) -> bool:
+    return UTC_PLAUSIBLE_AFTER_S <= usec * 1e-6 < 4_102_444_800.0  # before 2100
 
 
 _STATE_FIELDS = tuple(f.name for f in fields(VehicleState))
@@ -207,8 +217,24 @@ class StateTracker:
             course_deg=_scaled(m.cog, 0.01, _UINT16_UNKNOWN),
         )
         self.state = _replace_state(self.state, gps=g)
+        utc = self.state.utc
+        if (
+            m.fix_type >= 2
+            and _plausible_utc(m.time_usec)
+            and (utc.source != "SYSTEM_TIME" or t - (utc.t_mono or t) > _SYSTEM_TIME_PREFERRED_S)
+        ):
+            self.state = _replace_state(
+                self.state, utc=VehicleUtc(t, m.time_usec * 1e-6, "GPS_RAW_INT")
+            )
         if not self._gp_seen:
             self._altitude_changed(t)
+
+    def _system_time(self, m: mavlink.MAVLink_message, t: float) -> None:
+        # 0 (or a time in 1970) until the autopilot's clock is set, from its GPS.
+        if _plausible_utc(m.time_unix_usec):
+            self.state = _replace_state(
+                self.state, utc=VehicleUtc(t, m.time_unix_usec * 1e-6, "SYSTEM_TIME")
+            )
 
     def _global_position(self, m: mavlink.MAVLink_message, t: float) -> None:
         old_alt = self._current_alt_m()
@@ -509,4 +535,5 @@ _HANDLERS = {
     "BATTERY_STATUS": StateTracker._battery_status,
     "LOCAL_POSITION_NED": StateTracker._local_position,
     "STATUSTEXT": StateTracker._statustext,
+    "SYSTEM_TIME": StateTracker._system_time,
 }

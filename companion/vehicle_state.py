@@ -166,6 +166,30 @@ class LinkStatus:
     last_heartbeat_mono: float | None = None
 
 
+# Vehicle times before this are no UTC (an unset RTC counts from 1970 or from boot).
+UTC_PLAUSIBLE_AFTER_S = 1_577_836_800.0  # 2020-01-01
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleUtc:
+    """UTC as the vehicle knows it, from its GPS: SYSTEM_TIME's `time_unix_usec` (PX4 and
+    ArduPilot set it from the GPS), or a GPS_RAW_INT `time_usec` that is a Unix time
+    (most autopilots put time since boot there). A Pi has no real-time clock, so this is
+    the field's best UTC when the Pi has had no network time (see companion.recording
+    .session_clock)."""
+
+    t_mono: float | None = None  # station's clock when it arrived
+    unix_s: float | None = None  # the vehicle's UTC at t_mono
+    source: str = "none"  # "SYSTEM_TIME" or "GPS_RAW_INT"
+
+    def at(self, t_mono: float) -> float | None:
+        """The vehicle's UTC at station time `t_mono` (elapsed on the monotonic clock, which
+        a time service stepping the wall clock does not move)."""
+        if self.unix_s is None or self.t_mono is None:
+            return None
+        return self.unix_s + (t_mono - self.t_mono)
+
+
 @dataclass(frozen=True, slots=True)
 class VehicleMessage:
     """One thing the vehicle said: a STATUSTEXT, or a COMMAND_ACK (the command it answers
@@ -212,6 +236,7 @@ class VehicleState:
     local_position: LocalPosition = field(default_factory=LocalPosition)
     altitude: PilotAltitude = field(default_factory=PilotAltitude)
     link: LinkStatus = field(default_factory=LinkStatus)
+    utc: VehicleUtc = field(default_factory=VehicleUtc)
     messages: VehicleMessages = field(default_factory=VehicleMessages)
 
     def last_heard_mono(self) -> float | None:

@@ -8,8 +8,6 @@ the cameras, the sessions folder, the kernel's clock state, the ports.
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import os
 import platform
 import shutil
@@ -18,9 +16,16 @@ import stat
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.system_clock import clock_synchronised
+from core.mavlink.framing import MavFramer
 from server.settings import Settings
+
+if TYPE_CHECKING:
+    from companion.link import MavlinkLink
 
 Status = Literal["ok", "FAIL", "warn", "skip"]
 # JPEG bytes per 640x480 frame when no camera delivers one to measure (typical USB MJPEG).
@@ -134,6 +139,8 @@ def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) 
     if settings.link.source.strip() in ("none", "sim"):
         return [Check("MAVLink heartbeat", "skip", f"source is {settings.link.source}")]
     link = MavlinkLink(settings.link)
+    version = AutopilotVersionProbe()
+    link.add_packet_listener(version.on_packet)
     link.start()
     try:
         deadline = time.monotonic() + timeout_s
@@ -158,6 +165,7 @@ def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) 
                     "ArduPilot SERIALn_BAUD) and MAVLink is enabled on that port.",
                 )
             ]
+        version.ask(link, hb.sysid, hb.compid)
         time.sleep(rates_s)  # the stream requests have been sent; let the rates settle
         health = link.health()
     finally:
@@ -170,8 +178,69 @@ def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) 
             f"{hb.autopilot} {hb.vehicle_type}, sysid {hb.sysid} compid {hb.compid}, "
             f"MAVLink {hb.mavlink_version}, mode {hb.mode}, streams via {health.stream_request}",
         ),
+        version.check(),
         Check("MAVLink rates (Hz)", "ok" if rates else "warn", rates or "no messages"),
     ]
+
+
+# FIRMWARE_VERSION_TYPE, the low byte of AUTOPILOT_VERSION.flight_sw_version.
+_RELEASE_TYPES = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
+
+
+def firmware_version(flight_sw_version: int, custom: bytes | list[int] = b"") -> str:
+    """ "1.14.0 official (git 7717abcd)": AUTOPILOT_VERSION's packed major.minor.patch.type
+    and the first bytes of the firmware's git hash, as PX4 and ArduPilot fill them."""
+    v = flight_sw_version
+    kind = _RELEASE_TYPES.get(v & 0xFF, f"type {v & 0xFF}")
+    text = f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF} {kind}"
+    git = bytes(custom).rstrip(b"\0")
+    if git:
+        text += (
+            f" (git {git.decode('ascii', 'replace')})"
+            if git.isascii() and git.isalnum()
+            else (f" (git {git.hex()})")
+        )
+    return text
+
+
+class AutopilotVersionProbe:
+    """Asks the autopilot for AUTOPILOT_VERSION (MAV_CMD_REQUEST_MESSAGE, and the older
+    REQUEST_AUTOPILOT_CAPABILITIES that ArduPilot before 4.1 answers) and keeps its answer.
+    `on_packet` runs in the link's thread; `check` reads what it kept."""
+
+    def __init__(self) -> None:
+        self._framer = MavFramer()
+        self._sysid: int | None = None
+        self.version: str | None = None
+
+    def ask(self, link: MavlinkLink, sysid: int | None, compid: int | None) -> None:
+        self._sysid = sysid
+        mav = link.mav
+        for cmd, p1 in (
+            (mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION),
+            (mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1),
+        ):
+            link.send(
+                mav.command_long_encode(sysid or 1, compid or 1, cmd, 0, p1, 0, 0, 0, 0, 0, 0)
+            )
+
+    def on_packet(self, t_wall: float, packet: bytes) -> None:
+        if self.version is not None or self._sysid is None:
+            return
+        for msg in self._framer.feed(packet):
+            if msg.get_type() == "AUTOPILOT_VERSION" and msg.get_srcSystem() == self._sysid:
+                self.version = firmware_version(msg.flight_sw_version, msg.flight_custom_version)
+
+    def check(self) -> Check:
+        if self.version is None:
+            return Check(
+                "autopilot firmware",
+                "warn",
+                "no AUTOPILOT_VERSION in answer to MAV_CMD_REQUEST_MESSAGE",
+                "Old firmware may not answer; the version shows in QGroundControl's "
+                "Summary or Mission Planner's Messages tab.",
+            )
+        return Check("autopilot firmware", "ok", self.version)
 
 
 def check_cameras(settings: Settings, seconds: float = 2.0) -> tuple[list[Check], float]:
@@ -279,30 +348,20 @@ def _write_speed(folder: Path, mb: int) -> float | str:
         probe.unlink(missing_ok=True)
 
 
-class _Timex(ctypes.Structure):
-    # struct timex begins with `unsigned int modes`; the rest (~200 bytes) we do not read.
-    _fields_ = [("modes", ctypes.c_uint), ("rest", ctypes.c_byte * 512)]
-
-
-TIME_ERROR = 5  # adjtimex(2): the clock is not synchronised
-
-
 def check_clock() -> list[Check]:
-    libc_name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(libc_name, use_errno=True)
-        state = libc.adjtimex(ctypes.byref(_Timex()))
-    except (OSError, AttributeError):
-        return [Check("clock sync", "skip", "adjtimex is not available")]
+    synced = clock_synchronised()
     now = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
-    if state == TIME_ERROR:
+    if synced is None:
+        return [Check("clock sync", "skip", f"the kernel does not say ({now})")]
+    if not synced:
         return [
             Check(
                 "clock sync",
                 "warn",
                 f"system clock not synchronised ({now})",
-                "A Pi has no RTC: without network time, session names and stamps use this "
-                "clock. Give it internet once (NTP), or fit an RTC HAT.",
+                "A Pi has no RTC: sessions take UTC from the vehicle's GPS (SYSTEM_TIME) "
+                "once it has a fix, and from this clock before. Give the Pi network time "
+                "once (NTP), or fit an RTC HAT.",
             )
         ]
     return [Check("clock sync", "ok", f"synchronised ({now})")]

@@ -39,6 +39,7 @@ def recorder_options(settings: Settings, camera_fps: Mapping[str, float | None])
         software_version=__version__,
         settings=_provenance(settings),
         camera_fps=dict(camera_fps),
+        clock_max_disagree_s=r.clock_max_disagree_s,
     )
     return RecorderOptions(
         session=session,

@@ -37,6 +37,7 @@ DEFAULT_RATES_HZ = {
     "SERVO_OUTPUT_RAW": 5.0,
     "BATTERY_STATUS": 1.0,
     "LOCAL_POSITION_NED": 5.0,
+    "SYSTEM_TIME": 1.0,
 }
 
 
@@ -80,6 +81,8 @@ class MavVehicle:
         self.vx_mps, self.vy_mps, self.vz_mps = 0.0, 0.0, 0.0
         self.roll_rad, self.pitch_rad, self.yaw_rad = 0.0, 0.0, 0.0
         self.fix_type, self.satellites = 3, 12
+        # Its GPS UTC minus this host's clock; None: no UTC yet (SYSTEM_TIME says 0).
+        self.gps_utc_offset_s: float | None = 0.0
         self.voltage_v, self.current_a, self.remaining_pct = 12.3, 4.5, 87
         self.rc_pwm = [1500] * 8 + [0] * 10
         self.servo_pwm = [1100] * 4 + [0] * 12
@@ -197,6 +200,16 @@ class MavVehicle:
             mavlink.MAV_TYPE_QUADROTOR, ap, base | armed, custom, status
         )
 
+    def autopilot_version(self) -> mavlink.MAVLink_message:
+        """PX4 1.14.3 (git hash bytes, binary) or ArduCopter 4.5.7 (hash as text)."""
+        if self.autopilot == "ardupilot":
+            sw, custom = (4 << 24) | (5 << 16) | (7 << 8) | 255, list(b"2a3dc4b7")
+        else:
+            sw, custom = (1 << 24) | (14 << 16) | (3 << 8) | 255, [0x77, 0x17, 0, 0, 1, 2, 3, 4]
+        return self.mav.autopilot_version_encode(
+            0, sw, 0, 0, 0, custom, [0] * 8, [0] * 8, 0x26AC, 0x11, 0
+        )
+
     def build(self, name: str) -> mavlink.MAVLink_message:
         m, t = self.mav, self.time_boot_ms()
         lat, lon = int(self.lat_deg * 1e7), int(self.lon_deg * 1e7)
@@ -265,6 +278,9 @@ class MavVehicle:
             return m.local_position_ned_encode(
                 t, 1.0, 2.0, -self.relative_alt_m, self.vx_mps, self.vy_mps, self.vz_mps
             )
+        if name == "SYSTEM_TIME":
+            off = self.gps_utc_offset_s
+            return m.system_time_encode(0 if off is None else int((time.time() + off) * 1e6), t)
         raise ValueError(f"MavVehicle cannot build {name}")
 
     # -- threads -------------------------------------------------------------------------
@@ -324,6 +340,14 @@ class MavVehicle:
                     self._handle(msg)
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        if (
+            msg.get_type() == "COMMAND_LONG"
+            and msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE
+            and int(msg.param1) == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+        ):
+            self.send_message(self.mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_ACCEPTED))
+            self.send_message(self.autopilot_version())
+            return
         if msg.get_type() != "COMMAND_LONG" or msg.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             return
         if self.interval_reply == "ignore":

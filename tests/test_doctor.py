@@ -13,7 +13,7 @@ import threading
 import tty
 from pathlib import Path
 
-from server.doctor import check_disk, check_heartbeat, check_ports, check_serial
+from server.doctor import check_disk, check_heartbeat, check_ports, check_serial, firmware_version
 from server.settings import Settings
 from tests.helpers import free_port, station_settings
 from tests.mav_vehicle import MavVehicle
@@ -35,6 +35,10 @@ def test_doctor_hears_the_vehicle_over_udp(tmp_path):
         done = doctor("--source", v.station_source, "--sessions-dir", str(tmp_path))
     assert done.returncode == 0, done.stdout + done.stderr
     assert "px4 quadrotor, sysid 7 compid 1, MAVLink 2" in done.stdout
+    assert (
+        "autopilot firmware" in done.stdout
+        and "1.14.3 official (git 7717000001020304)" in done.stdout
+    )
     # The vehicle sends ATTITUDE at 20 Hz of its own; doctor shows what it gets after asking.
     asked = Settings().link.message_rates_hz["ATTITUDE"]
     got = float(re.search(r"ATTITUDE (\d+)", done.stdout).group(1))
@@ -110,3 +114,9 @@ def test_doctor_fails_a_port_in_use():
         )
         (check,) = check_ports(settings)
     assert check.status == "FAIL" and f"{port} (web)" in check.detail
+
+
+def test_firmware_version_as_ardupilot_and_px4_pack_it():
+    ardupilot = (4 << 24) | (5 << 16) | (7 << 8) | 255
+    assert firmware_version(ardupilot, list(b"2a3dc4b7")) == "4.5.7 official (git 2a3dc4b7)"
+    assert firmware_version((1 << 24) | (15 << 16) | 192, [0] * 8) == "1.15.0 rc"

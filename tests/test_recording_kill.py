@@ -9,7 +9,9 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import httpx
+import numpy as np
 from pymavlink import mavutil
 
 from companion.recording import layout
@@ -33,6 +35,31 @@ def spawn(args: list[str], env: dict | None = None) -> subprocess.Popen:
         text=True,
         env={**os.environ, **(env or {})},
     )
+
+
+def serve_args(source: str, port: int) -> list[str]:
+    """`fpv-station serve` on loopback; --open: these tests are not about the token."""
+    return ["-m", "server", "serve", "--source", source, "--host", "127.0.0.1"] + [
+        *("--port", str(port), "--no-3d", "--open")
+    ]
+
+
+def station_up(base: str) -> bool:
+    try:
+        return httpx.get(f"{base}/api/health", timeout=1).status_code == 200
+    except httpx.HTTPError:
+        return False
+
+
+def terminate(proc: subprocess.Popen, timeout: float = 30.0) -> None:
+    """SIGTERM, then SIGKILL if it has not ended within `timeout` (a hang guard)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def read_line(proc: subprocess.Popen, prefix: str, timeout: float = 20.0) -> str:
@@ -94,30 +121,12 @@ def test_kill_9_of_the_server_and_restart(tmp_path):
     """The real CLI: start over REST, SIGKILL the server, start it again, see it marked."""
     port = free_port()
     env = {"FPV_RECORDING__SESSIONS_DIR": str(tmp_path), "FPV_RECORDING__MIN_FREE_MB": "0"}
-    args = [
-        "-m",
-        "server",
-        "serve",
-        "--source",
-        "none",
-        "--host",
-        "127.0.0.1",
-        "--port",
-        str(port),
-        "--no-3d",
-        "--open",  # this test is about kill -9, not about the control token
-    ]
+    args = serve_args("none", port)
     base = f"http://127.0.0.1:{port}"
-
-    def up() -> bool:
-        try:
-            return httpx.get(f"{base}/api/health", timeout=1).status_code == 200
-        except httpx.HTTPError:
-            return False
 
     proc = spawn(args, env)
     try:
-        assert wait_until(up, timeout=30), "server did not start"
+        assert wait_until(lambda: station_up(base), timeout=30), "server did not start"
         sid = httpx.post(f"{base}/api/recording/start").json()["id"]
         time.sleep(2.0)
         killed_wall = time.time()
@@ -126,15 +135,96 @@ def test_kill_9_of_the_server_and_restart(tmp_path):
         rows = complete_rows(tmp_path / sid / layout.TELEMETRY_CSV)
         assert killed_wall - float(rows[-1]["wall_time"]) < 1.0 and len(rows) >= 30
         proc = spawn(args, env)
-        assert wait_until(up, timeout=30), "server did not restart"
+        assert wait_until(lambda: station_up(base), timeout=30), "server did not restart"
         listed = {s["id"]: s for s in httpx.get(f"{base}/api/sessions").json()}
         assert listed[sid]["status"] == "interrupted"
         assert listed[sid]["telemetry_rows"] == len(rows)
     finally:
+        terminate(proc)
+
+
+def frames_on_disk(folder: Path, cam: str) -> dict[str, bytes]:
+    """Every JPEG file of a camera, by relative path."""
+    return {f"{cam}/{p.name}": p.read_bytes() for p in sorted((folder / cam).glob("*.jpg"))}
+
+
+def test_kill_9_of_the_station_on_the_twin_lists_every_complete_frame(tmp_path):
+    """Issue 13 item 8: `serve --source sim` recording the twin's two cameras is killed
+    while frames it wrote are not yet in frames.csv (its buffer goes with the process);
+    the next start lists exactly the complete JPEGs, deletes a cut one, and session.json
+    counts what is on disk."""
+    port = free_port()
+    env = {
+        "FPV_RECORDING__SESSIONS_DIR": str(tmp_path / "sessions"),
+        "FPV_RECORDING__MIN_FREE_MB": "0",
+        "FPV_RECORDING__FLUSH_INTERVAL_S": "1.0",
+        "XDG_CONFIG_HOME": str(tmp_path / "config"),
+    }
+    args = serve_args("sim", port)
+    base = f"http://127.0.0.1:{port}"
+
+    def listed(folder: Path, cam: str) -> list[dict[str, str]]:
+        path = folder / layout.frames_csv_relpath(cam)
+        return complete_rows(path) if path.exists() else []
+
+    def unlisted(folder: Path) -> int:
+        return sum(
+            len(list((folder / cam).glob("*.jpg"))) - len(listed(folder, cam))
+            for cam in layout.CAMERAS
+        )
+
+    proc = spawn(args, env)
+    try:
+        assert wait_until(lambda: station_up(base), timeout=60), "server did not start"
+        sid = httpx.post(f"{base}/api/recording/start", timeout=10).json()["id"]
+        folder = tmp_path / "sessions" / sid
+        # Kill between two flushes, once the writer has frames on disk it has not listed.
+        assert wait_until(lambda: unlisted(folder) >= 6, timeout=60, interval=0.01)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    finally:
         if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            proc.kill()
+            proc.wait()
+    jpegs = {c: frames_on_disk(folder, c) for c in layout.CAMERAS}
+    missing = {c: len(jpegs[c]) - len(listed(folder, c)) for c in layout.CAMERAS}
+    assert sum(missing.values()) > 0, missing  # the case to recover
+    # The frame being written at the kill: a JPEG without its end marker.
+    last = max(jpegs["front"])
+    cut_rel = layout.frame_relpath("front", int(Path(last).stem) + 1)
+    (folder / cut_rel).write_bytes(jpegs["front"][last][: len(jpegs["front"][last]) // 2])
+    rows = complete_rows(folder / layout.TELEMETRY_CSV)
+    packets = 0
+    mlog = mavutil.mavlink_connection(str(folder / layout.MAVLINK_TLOG))
+    while mlog.recv_msg() is not None:
+        packets += 1
+
+    proc = spawn(args, env)
+    try:
+        assert wait_until(lambda: station_up(base), timeout=60), "server did not restart"
+        listed_api = {s["id"]: s for s in httpx.get(f"{base}/api/sessions", timeout=10).json()}
+        assert listed_api[sid]["status"] == "interrupted"
+    finally:
+        terminate(proc)
+    meta = json.loads((folder / layout.SESSION_JSON).read_text())
+    assert meta["status"] == "interrupted"
+    assert not (folder / cut_rel).exists()
+    assert meta["recovery"]["partial_frames_removed"] == [cut_rel]
+    assert meta["recovery"]["frames_added"] == missing
+    assert meta["quality"]["telemetry_rows"] == len(rows)
+    assert meta["quality"]["tlog_packets"] == packets
+    t0 = meta["start_wall"]
+    for cam in layout.CAMERAS:
+        frames = listed(folder, cam)
+        assert [r["file"] for r in frames] == sorted(jpegs[cam])  # exactly the complete ones
+        for r in frames:
+            data = jpegs[cam][r["file"]]
+            assert int(r["bytes"]) == len(data) and data.endswith(b"\xff\xd9")
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+            assert (int(r["width"]), int(r["height"])) == (image.shape[1], image.shape[0])
+        times = [float(r["t_s"]) for r in frames]
+        assert times == sorted(times) and t0 + times[-1] < time.time()
+        cq = meta["quality"]["cameras"][cam]
+        assert cq["frames_written"] == len(frames)
+        assert cq["last_seq"] == int(frames[-1]["seq"])
+        assert cq["frames_captured"] == cq["frames_written"] + cq["frames_dropped"]

@@ -70,6 +70,7 @@ def test_every_group_is_filled():
         "SYS_STATUS",
         "BATTERY_STATUS",
         "LOCAL_POSITION_NED",
+        "SYSTEM_TIME",
     )
     s = tracker.state
     assert s.gps.fix_type == 3 and s.gps.satellites == 12 and s.gps.eph_m == pytest.approx(0.8)

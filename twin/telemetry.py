@@ -5,6 +5,8 @@ where PX4 reports its own outputs: modes, sticks, motors).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -116,6 +118,13 @@ class Telemetry:
             int(fix.course_deg * 100),
             fix.satellites,
         )
+
+    def _send_system_time(self, sim: Sim, t_ms: int) -> None:
+        # PX4 knows UTC from its GPS only. The twin's receiver tells the host's clock: it
+        # flies on this machine, in real time (a faster-than-real-time gym run has no UTC).
+        if sim.sensors.last_fix[0] is None:
+            return
+        self.mav.system_time_send(int(time.time() * 1e6), t_ms)
 
     def _fused(self, sim: Sim) -> tuple[np.ndarray, np.ndarray]:
         home = sim.scene.home

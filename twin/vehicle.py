@@ -52,6 +52,7 @@ DEFAULT_RATES_HZ = {
     "EXTENDED_SYS_STATE": 1.0,
     "HOME_POSITION": 0.5,
     "MISSION_CURRENT": 1.0,
+    "SYSTEM_TIME": 1.0,
 }
 STICK_TIMEOUT_S = 1.0  # no MANUAL_CONTROL/override for this long = sticks centred
 _MISSION_MESSAGES = frozenset(

@@ -73,7 +73,8 @@ async function load() {
   $("empty").hidden = sessions.length > 0;
   for (const s of sessions) {
     const tr = el("tr", { "data-id": s.id });
-    const start = s.start_wall != null ? new Date(s.start_wall * 1000).toLocaleString() : s.id;
+    // start_utc is in the clock the session chose (the vehicle's GPS when the Pi's was off).
+    const start = s.start_utc ? new Date(s.start_utc).toLocaleString() : s.id;
     cell(tr, start).title = s.id;
     cell(tr, s.recording_now ? "recording..." : fmtDuration(s.duration_s), "num");
     cell(tr, s.source);

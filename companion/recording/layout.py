@@ -55,6 +55,7 @@ FRAME_PATH_TEMPLATE = "{camera}/{seq:08d}.jpg"  # relative to the session folder
 STATUS_RECORDING = "recording"  # being written now (or cut off, until the next start)
 STATUS_COMPLETE = "complete"  # stopped cleanly
 STATUS_INTERRUPTED = "interrupted"  # the process died while recording (power cut, kill -9)
+STATUS_CUT_SHORT = "cut_short"  # stopped by a failed write (disk full, EMFILE, EIO)
 
 # The session clock and wall clock columns, first in telemetry.csv.
 TIME_COLUMNS: tuple[str, ...] = ("t_s", "wall_time")

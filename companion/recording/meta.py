@@ -69,6 +69,21 @@ class Arming(_Model):
     home_lon_deg: float | None = None
 
 
+class Recovery(_Model):
+    """What the station found in the files of a session whose writer was cut off (kill -9,
+    power loss, a failed write) and what it repaired (companion.recording.ondisk); the
+    quality counts of such a session are those on disk."""
+
+    utc: str  # when the files were counted
+    telemetry_cut_line: bool = False  # telemetry.csv ends in a partial line (readers skip it)
+    tlog_cut_record: bool = False  # mavlink.tlog ends in a partial record (readers skip it)
+    frames_added: dict[str, int] = Field(default_factory=dict)  # complete JPEGs listed again
+    frame_rows_removed: dict[str, int] = Field(default_factory=dict)  # rows of missing files
+    partial_frames_removed: list[str] = Field(default_factory=list)  # cut JPEGs deleted
+    # Complete JPEGs that frames.csv still does not list (it could not be rewritten).
+    frames_unlisted: dict[str, int] = Field(default_factory=dict)
+
+
 class SessionTask(_Model):
     """The flight task the pilot chose before the session (from the scene file), so that
     the session, its analysis and an exported episode know what the flight was for."""
@@ -97,13 +112,31 @@ class TrialScore(_Model):
     result: dict[str, Any] | None = None  # analysis.tasks.TaskResult as a dict
 
 
+class SessionClock(_Model):
+    """Which clock named and stamped the session (companion.recording.session_clock):
+    a Pi has no real-time clock, the vehicle's GPS knows UTC."""
+
+    used: str  # "station", "vehicle" (its GPS time) or "source" (a replayed log's own)
+    reason: str
+    # UTC used = any wall time of this session (start_wall, wall_time, t_wall) + offset_s.
+    offset_s: float = 0.0
+    station_synced: bool | None = None  # the kernel's answer at the start; None: unknown
+    station_start_wall: float  # the station's clock at the start
+    vehicle_start_utc: float | None = None  # the vehicle's GPS time then, None: it had none
+    vehicle_source: str | None = None  # "SYSTEM_TIME" or "GPS_RAW_INT"
+    max_disagree_s: float
+    # The folder name is chosen once, at the start; stamps follow a GPS time first heard
+    # later in the session. This says which clock the name used.
+    named_by: str | None = None
+
+
 class SessionMeta(_Model):
     format_version: int = FORMAT_VERSION
     id: str
     status: str = STATUS_RECORDING
     stop_reason: str | None = None
-    start_wall: float
-    start_utc: str
+    start_wall: float  # the station's clock; see clock.offset_s for UTC
+    start_utc: str  # in the clock chosen (clock.used)
     end_wall: float | None = None
     end_utc: str | None = None
     duration_s: float | None = None
@@ -116,6 +149,8 @@ class SessionMeta(_Model):
     quality: Quality = Field(default_factory=Quality)
     task: SessionTask | None = None
     score: TrialScore | None = None
+    recovery: Recovery | None = None  # set when the counts were taken from the files
+    clock: SessionClock | None = None  # None: written before the station chose clocks
 
 
 def write_meta(path: Path, meta: SessionMeta) -> None:

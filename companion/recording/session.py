@@ -25,15 +25,18 @@ from companion.recording.meta import (
     Arming,
     CameraQuality,
     Quality,
+    SessionClock,
     SessionMeta,
     SessionTask,
     write_meta,
 )
 from companion.recording.quality import LinkLossTracker, SkewStats
 from companion.recording.rows import FrameRef, RowFormatter, Sample
+from companion.recording.session_clock import DEFAULT_MAX_DISAGREE_S, choose_session_clock
 from companion.recording.store import create_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
 from companion.source_clock import SourceClock
+from companion.system_clock import clock_synchronised
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
 
@@ -50,6 +53,7 @@ class SessionConfig:
     settings: Mapping[str, Any] = field(default_factory=dict)
     camera_fps: Mapping[str, float | None] = field(default_factory=dict)
     meta_interval_s: float = 2.0
+    clock_max_disagree_s: float = DEFAULT_MAX_DISAGREE_S
 
 
 class _CameraTrack:
@@ -88,7 +92,12 @@ class RecordingSession:
         self.t0_wall = self.clock.wall()
         self.t0_mono = self.clock.mono()
         self._next_sample = self.t0_mono
-        self.id, self.folder = create_session_dir(root, self.t0_wall, config.source)
+        self._station_synced = None if self.clock.own else clock_synchronised()
+        self.utc_clock = self._choose_clock()
+        self.id, self.folder = create_session_dir(
+            root, self.t0_wall + self.utc_clock.offset_s, config.source
+        )
+        self._named_by = self.utc_clock.used
         self._tracks = {c: _CameraTrack() for c in self.cameras}
         self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
         self._arming: Arming | None = None
@@ -290,8 +299,23 @@ class RecordingSession:
             except OSError as exc:
                 log.warning("cannot write %s: %s", self.folder / layout.SESSION_JSON, exc)
 
+    def _choose_clock(self) -> SessionClock:
+        """The session's UTC (companion.recording.session_clock). Chosen again at each
+        session.json write: a GPS time first heard mid-session corrects the stamps."""
+        current = self._state.get()
+        utc = current.value.utc if current is not None else None
+        return choose_session_clock(
+            self.t0_wall,
+            self._station_synced,
+            None if utc is None else utc.at(self.t0_mono),
+            None if utc is None else utc.source,
+            replay=self.clock.own,
+            max_disagree_s=self.config.clock_max_disagree_s,
+        )
+
     def meta(self, status: str) -> SessionMeta:
         st = self.writer.stats
+        utc = self._choose_clock().model_copy(update={"named_by": self._named_by})
         end_wall = self.end_wall if status == layout.STATUS_COMPLETE else st.last_row_wall
         duration = None if end_wall is None else round(end_wall - self.t0_wall, 3)
         cams: dict[str, CameraQuality] = {}
@@ -339,9 +363,9 @@ class RecordingSession:
             status=status,
             stop_reason=self.stop_reason if status != layout.STATUS_RECORDING else None,
             start_wall=round(self.t0_wall, 6),
-            start_utc=layout.utc_label(self.t0_wall),
+            start_utc=layout.utc_label(self.t0_wall + utc.offset_s),
             end_wall=None if end_wall is None else round(end_wall, 6),
-            end_utc=None if end_wall is None else layout.utc_label(end_wall),
+            end_utc=None if end_wall is None else layout.utc_label(end_wall + utc.offset_s),
             duration_s=duration,
             source=self.config.source,
             cameras=list(self.cameras),
@@ -351,6 +375,7 @@ class RecordingSession:
             arming=self._arming,
             quality=quality,
             task=self.task,
+            clock=utc,
         )
 
 

@@ -20,4 +20,7 @@ class RecordingSettings(Section):
     row_queue: int = Field(2000, ge=10)  # bounded writer buffers (items)
     frame_queue: int = Field(90, ge=2)  # per camera
     packet_queue: int = Field(20000, ge=100)
+    # Take UTC from the vehicle's GPS when the station's clock is this far off it (or not
+    # synchronised at all): companion.recording.session_clock.
+    clock_max_disagree_s: float = Field(5.0, gt=0)
     flush_interval_s: float = Field(0.5, gt=0, le=1.0)  # at most 1 s: kill -9 keeps all but it

@@ -3,14 +3,29 @@
 from __future__ import annotations
 
 import asyncio
-from typing import Literal
+import time
+from typing import TYPE_CHECKING, Literal
 
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
+from companion.recording.session_clock import choose_session_clock
+from companion.system_clock import clock_synchronised
 from server import __version__
 
+if TYPE_CHECKING:
+    from server.station import Station
+
 router = APIRouter(tags=["health"])
+
+
+class ClockReport(BaseModel):
+    """The time a session starting now would be named by (a Pi has no real-time clock)."""
+
+    station_synced: bool | None  # the kernel's answer (adjtimex); None: unknown
+    vehicle_offset_s: float | None  # the vehicle's GPS time minus the station's clock
+    sessions_use: str  # "station", "vehicle" (its GPS time) or "source" (a replay's own)
+    reason: str
 
 
 class Health(BaseModel):
@@ -20,6 +35,7 @@ class Health(BaseModel):
     version: str
     failed_tasks: dict[str, str]
     asyncio_tasks: int  # all tasks on the event loop: flat under steady load (soak)
+    clock: ClockReport
 
 
 @router.get("/api/health", response_model=Health, summary="Is the station up and well")
@@ -38,4 +54,29 @@ async def get_health(request: Request) -> Health:
         version=__version__,
         failed_tasks=station.tasks.failures,
         asyncio_tasks=len(asyncio.all_tasks()),
+        clock=_clock_report(station),
+    )
+
+
+def _clock_report(station: Station) -> ClockReport:
+    current = station.state.get()
+    utc = current.value.utc if current is not None else None
+    link = station.link
+    replay = link is not None and link.clock.own
+    now_wall, now_mono = time.time(), time.monotonic()
+    vehicle = None if utc is None or replay else utc.at(now_mono)
+    synced = None if replay else clock_synchronised()
+    choice = choose_session_clock(
+        now_wall,
+        synced,
+        vehicle,
+        None if utc is None else utc.source,
+        replay=replay,
+        max_disagree_s=station.settings.recording.clock_max_disagree_s,
+    )
+    return ClockReport(
+        station_synced=synced,
+        vehicle_offset_s=None if vehicle is None else round(vehicle - now_wall, 3),
+        sessions_use=choice.used,
+        reason=choice.reason,
     )

@@ -57,7 +57,10 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
     data: dict[str, Any] = {
         k: getattr(s, k) for k in SessionSummaryModel.model_fields if hasattr(s, k)
     }
-    data["start_utc"] = layout.utc_label(s.start_wall) if s.start_wall is not None else None
+    if s.meta is not None:  # stamped in the clock the session chose (session.json "clock")
+        data["start_utc"] = s.meta.start_utc
+    else:
+        data["start_utc"] = layout.utc_label(s.start_wall) if s.start_wall is not None else None
     data["recording_now"] = s.id == recording_id
     cams = s.meta.quality.cameras if s.meta is not None else {}
     data["skew_p99_s"] = {c: q.skew_p99_s for c, q in cams.items()}

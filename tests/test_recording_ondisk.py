@@ -1,0 +1,90 @@
+"""Counting a cut-off session's files and reconciling frames.csv with the JPEGs on disk
+(companion.recording.ondisk), on real files: what a power loss can leave, beyond kill -9."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+from companion.recording import layout
+from companion.recording.ondisk import take_census
+from tests.recording_fakes import make_jpegs
+
+START = 1_700_000_000.0
+
+
+def frames_csv(rows: list[tuple]) -> bytes:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(layout.FRAME_COLUMNS)
+    w.writerows(rows)
+    return buf.getvalue().encode()
+
+
+def test_frames_csv_lists_exactly_the_complete_jpegs(tmp_path):
+    jpegs = make_jpegs(6, 160, 120)
+    cam = tmp_path / "front"
+    cam.mkdir()
+    for seq in (1, 2, 3, 5, 6):
+        (cam / f"{seq:08d}.jpg").write_bytes(jpegs[seq - 1])
+    (cam / "00000007.jpg").write_bytes(jpegs[5][:500])  # cut mid-write
+    rows = [
+        (s, layout.frame_relpath("front", s), 0.1 * s, START + 0.1 * s, 160, 120, len(jpegs[s - 1]))
+        for s in (1, 2, 3, 4)  # 4: listed, but the power loss took its blocks
+    ]
+    # Frame 5 and 6 were written after the last flush; the file ends in a partial row.
+    (cam / "frames.csv").write_bytes(frames_csv(rows) + b"5,front/000")
+    header = ",".join(layout.telemetry_columns(("front",)))
+    telemetry = (
+        header + "\n" + _row(header, t_s=0.61, wall=START + 0.61, seq=6, t_wall=START + 0.6)
+    ).encode()
+    (tmp_path / layout.TELEMETRY_CSV).write_bytes(telemetry + b"0.64,17000")
+
+    census = take_census(tmp_path, ["front"], START)
+
+    assert census.telemetry_rows == 1 and census.telemetry_cut_line
+    front = census.frames["front"]
+    assert (front.added, front.rows_removed) == (2, 1)
+    assert front.partial_removed == ["front/00000007.jpg"]
+    assert not (cam / "00000007.jpg").exists()
+    on_disk = list(csv.DictReader(io.StringIO((cam / "frames.csv").read_text())))
+    assert [int(r["seq"]) for r in on_disk] == [1, 2, 3, 5, 6]
+    six = on_disk[-1]
+    assert float(six["t_wall"]) == START + 0.6  # from the telemetry row that named it
+    assert abs(float(six["t_s"]) - 0.6) < 1e-6
+    assert (six["width"], six["height"], six["bytes"]) == ("160", "120", str(len(jpegs[5])))
+    five = on_disk[-2]  # no row named it: the file's time
+    assert abs(float(five["t_wall"]) - (cam / "00000005.jpg").stat().st_mtime) < 1e-5
+    # A second look finds nothing to do.
+    again = take_census(tmp_path, ["front"], START).frames["front"]
+    assert (again.added, again.rows_removed, again.partial_removed) == (0, 0, [])
+
+
+def test_a_cut_last_row_alone_is_trimmed_and_new_frames_appended(tmp_path):
+    jpegs = make_jpegs(3, 160, 120)
+    cam = tmp_path / "bottom"
+    cam.mkdir()
+    for seq in (10, 11, 12):
+        (cam / f"{seq:08d}.jpg").write_bytes(jpegs[seq - 10])
+    rows = [(10, layout.frame_relpath("bottom", 10), 0.0, START, 160, 120, len(jpegs[0]))]
+    (cam / "frames.csv").write_bytes(frames_csv(rows) + b"11,bot")
+    bottom = take_census(tmp_path, ["bottom"], START).frames["bottom"]
+    assert bottom.added == 2 and bottom.rows_removed == 0
+    text = (cam / "frames.csv").read_bytes().decode()
+    assert text.startswith(frames_csv(rows).decode()) and "bot\r" not in text
+    assert [int(r["seq"]) for r in csv.DictReader(io.StringIO(text))] == [10, 11, 12]
+
+
+def _row(header: str, t_s: float, wall: float, seq: int, t_wall: float) -> str:
+    cols = header.split(",")
+    values = dict.fromkeys(cols, "")
+    values.update(
+        {
+            "t_s": repr(t_s),
+            "wall_time": repr(wall),
+            "front.seq": str(seq),
+            "front.t_wall": repr(t_wall),
+            "front.skew_s": repr(round(t_s - (t_wall - START), 6)),
+        }
+    )
+    return ",".join(values[c] for c in cols) + "\n"
