@@ -10,7 +10,14 @@ from playwright.sync_api import expect, sync_playwright
 
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, wait_until
+from tests.helpers import (
+    CHROMIUM_ARGS,
+    CHROMIUM_PATH,
+    arm_and_climb,
+    run_uvicorn,
+    sticks_on,
+    wait_until,
+)
 
 
 @pytest.fixture()
@@ -166,10 +173,7 @@ def test_gamepad_panel_shows_live_axes_and_the_sticks_sent(twin_station, chromiu
     app, url = twin_station
     page = chromium.new_page()
     page.add_init_script(FAKE_PAD)
-    page.goto(url + "/")
-    page.wait_for_selector("#control-widget:not([hidden])", timeout=10000)
-    page.click("#ctl-toggle")
-    page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
+    sticks_on(page, url)
     page.click("#ctl-pad summary")
     bars = page.locator("#ctl-bars")
     expect(bars.locator("[data-bar=axis-3]")).to_have_count(1, timeout=3000)
@@ -192,17 +196,9 @@ def test_gamepad_panel_shows_live_axes_and_the_sticks_sent(twin_station, chromiu
 @pytest.mark.timeout(120)
 def test_a_refused_disarm_is_shown_with_its_reason(twin_station, chromium):
     app, url = twin_station
-    twin = app.state.station.twin
     page = chromium.new_page()
-    page.goto(url + "/")
-    page.wait_for_selector("#control-widget:not([hidden])", timeout=10000)
-    page.click("#ctl-toggle")
-    page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
-    page.click("#ctl-arm")
-    assert wait_until(lambda: state(app).heartbeat.armed, timeout=10)
-    page.keyboard.down("ArrowUp")
-    assert wait_until(lambda: twin.pose().pos_enu_m[2] > 1.5, timeout=15)
-    page.keyboard.up("ArrowUp")
+    sticks_on(page, url)
+    arm_and_climb(page, app.state.station)
     expect(page.locator("#ctl-toast")).to_be_hidden()
     page.click("#ctl-disarm")
     # The vehicle refuses (in the air): the toast says so and why, as does the OSD.
