@@ -19,6 +19,9 @@ import { feed, groupAge } from "/telemetry.js";
 const HIDDEN_KEY = "fpv.osd.hidden";
 const LOW_BATTERY_PCT = 20;
 const MESSAGE_SHOWN_S = 10; // a vehicle message stays on the messages line this long
+// Lines of messages shown, newest last: a refusal (COMMAND_ACK) and the vehicle's reason
+// (its STATUSTEXT) arrive together, in either order.
+const MESSAGE_LINES = 2;
 const WARNING_SHOWN_S = 15; // an emergency/crash/failsafe message keeps its warning this long
 const VIDEO_STALE_S = 1.0;
 const REFUSED_SHOWN_S = 10; // "MAVLINK REFUSED" stays this long after the station last refused some
@@ -234,8 +237,8 @@ export function mountOsd(view, { menu = true } = {}) {
 
     // Messages line and centre warnings.
     const recent = s.messages.recent.filter((m) => msg.t_server_mono - m.t_mono < MESSAGE_SHOWN_S);
-    const newest = recent[recent.length - 1];
-    setText(nodes.messages, newest ? `${SEVERITY[newest.severity] ?? "MSG"} ${newest.text}` : "");
+    setText(nodes.messages, recent.slice(-MESSAGE_LINES)
+      .map((m) => `${SEVERITY[m.severity] ?? "MSG"} ${m.text}`).join("\n"));
     const warnings = [];
     if (!feed.flowing() || s.link.link_lost) warnings.push("LINK LOST");
     if (low) warnings.push("LOW BATTERY");
