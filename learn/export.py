@@ -21,7 +21,6 @@ from learn.formats import DEFAULT_FPS, FORMATS
 from learn.recording_reader import Recording, RecordingError, open_recording
 
 
-
 @dataclass(frozen=True)
 class ExportOptions:
     # The scene's task; None: the task the sessions were recorded for (session.json
