@@ -7,12 +7,14 @@ import subprocess
 import time
 
 import pytest
+from pymavlink import mavutil
 
 from companion.recording import layout
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+from tests.test_recording_kill import complete_rows
 
 
 @contextlib.contextmanager
@@ -41,6 +43,7 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
         auto_record_on_arm=False,
     )
     rec = Recorder(root, vehicle.state, {"front": cam.frames}, options)
+    vehicle.listeners.append(rec.on_packet)
 
     async def run():
         await rec.open()
@@ -61,17 +64,34 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
     "min_free_kb,expect", [(5120, "MB free, under the"), (0, "No space left on device")]
 )
 def test_full_tmpfs_stops_cleanly_with_reason(tmp_path, min_free_kb, expect):
-    """5 MB: the free-space threshold stops it; 0: writes fail with ENOSPC and stop it."""
+    """5 MB: the free-space threshold stops it; 0: writes fail with ENOSPC and stop it.
+    Either way the session is marked cut short."""
     with tmpfs(tmp_path / "disk", 8192) as root:
         st = record_until_stopped(root, min_free_kb * 1024)
         assert not st.recording, "recording did not stop on a full disk"
         reason = st.last_stop.reason
         assert reason.startswith("disk full") and expect in reason, reason
-        meta = json.loads((root / st.last_stop.id / layout.SESSION_JSON).read_text())
-        assert meta["status"] == "complete" and meta["stop_reason"] == reason
-        assert meta["quality"]["cameras"]["front"]["frames_written"] > 5
-        with open(root / st.last_stop.id / layout.TELEMETRY_CSV) as f:
+        folder = root / st.last_stop.id
+        meta = json.loads((folder / layout.SESSION_JSON).read_text())
+        assert meta["status"] == "cut_short" and meta["stop_reason"] == reason
+        with open(folder / layout.TELEMETRY_CSV) as f:
             assert f.readline().startswith("t_s,wall_time,")
+        # The report states what is on disk (issue 13 item 7), not what the writer had
+        # handed to buffers that the failed flush lost.
+        q = meta["quality"]
+        assert q["telemetry_rows"] == len(complete_rows(folder / layout.TELEMETRY_CSV)) > 0
+        mlog = mavutil.mavlink_connection(str(folder / layout.MAVLINK_TLOG))
+        packets = 0
+        while mlog.recv_msg() is not None:
+            packets += 1
+        assert q["tlog_packets"] == packets
+        jpegs = sorted(folder.glob("front/*.jpg"))
+        assert all(p.read_bytes().endswith(b"\xff\xd9") for p in jpegs)  # no cut frame
+        listed = [r["file"] for r in complete_rows(folder / layout.frames_csv_relpath("front"))]
+        assert listed == [f"front/{p.name}" for p in jpegs]
+        front = q["cameras"]["front"]
+        assert front["frames_written"] == len(jpegs) > 5
+        assert front["frames_captured"] == front["frames_written"] + front["frames_dropped"]
 
 
 def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
