@@ -17,7 +17,7 @@ Printed per run: start-up (spawn to the first healthy /api/health), the process'
 % of one core over the window (CPU seconds from /proc, not wall time), RSS, CPU per
 thread (/proc/PID/task/TID/stat; names from `py-spy dump`), and per component: link,
 cameras, fan-out (frames and telemetry to clients), recorder, web (the rest of the event
-loop), 3D panel, other. The event loop thread is split between fan-out and web by
+loop), 3D panel, other. The event loop thread is split between fan-out, 3D panel and web by
 py-spy's samples of it that hold the GIL (`--no-profile`: not split); the busiest
 functions (self time in those samples, every thread) follow.
 Figures, machine and load average go in docs/PERFORMANCE.md.
@@ -58,6 +58,7 @@ FANOUT_FILES = (
     "server/routes/telemetry.py",
     "server/telemetry_json.py",
 )
+PANEL_FILES = ("server/trajectory3d/", "/viser/")  # the live 3D panel's steps on the loop
 
 
 @dataclass
@@ -76,6 +77,7 @@ class Run:
     rss_mb: float
     load: tuple[float, float]  # 1-min load average at the window's start and end
     threads: list[tuple[ThreadInfo, float]]  # (thread, CPU seconds in the window)
+    thread_sys_s: dict[int, float]  # system (kernel) seconds of each thread in the window
     components: dict[str, float]
     top: list[tuple[str, float]] = field(default_factory=list)  # (function, share of samples)
     packets_per_s: float = 0.0
@@ -87,8 +89,8 @@ class Run:
 # -- /proc -----------------------------------------------------------------------------
 
 
-def thread_cpu_s(pid: int) -> dict[int, float]:
-    """CPU seconds (user + system) of each live thread of `pid`."""
+def thread_cpu_s(pid: int) -> dict[int, tuple[float, float]]:
+    """CPU seconds (user, system) of each live thread of `pid`."""
     out = {}
     for task in Path(f"/proc/{pid}/task").iterdir():
         try:
@@ -96,7 +98,7 @@ def thread_cpu_s(pid: int) -> dict[int, float]:
         except OSError:
             continue  # ended meanwhile
         fields = stat[stat.rindex(")") + 2 :].split()
-        out[int(task.name)] = (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+        out[int(task.name)] = (int(fields[11]) / CLOCK_TICKS, int(fields[12]) / CLOCK_TICKS)
     return out
 
 
@@ -193,21 +195,26 @@ def component_of(info: ThreadInfo, loop_tid: int) -> str:
     return "other"
 
 
+def loop_component(frames: list[str]) -> str:
+    """Who an event-loop sample works for: the 3D panel, fan-out, or web (the rest)."""
+    if any(f in s for s in frames for f in PANEL_FILES):
+        return "3D panel"
+    if any(f in s for s in frames for f in FANOUT_FILES):
+        return "fan-out"
+    return "web"
+
+
 def split_components(
     threads: list[tuple[ThreadInfo, float]], loop_tid: int, samples: dict
 ) -> dict[str, float]:
     out = dict.fromkeys(COMPONENTS, 0.0)
     for info, cpu in threads:
         comp = component_of(info, loop_tid)
-        if comp == "web" and samples.get(loop_tid):
-            total = sum(n for _, n in samples[loop_tid])
-            fan = sum(
-                n
-                for frames, n in samples[loop_tid]
-                if any(f in s for s in frames for f in FANOUT_FILES)
-            )
-            out["fan-out"] += cpu * fan / total
-            out["web"] += cpu * (total - fan) / total
+        loop_samples = samples.get(loop_tid) if comp == "web" else None
+        if loop_samples:
+            total = sum(n for _, n in loop_samples)
+            for frames, n in loop_samples:
+                out[loop_component(frames)] += cpu * n / total
         else:
             out[comp] += cpu
     return out
@@ -321,11 +328,21 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
     if spy is not None:
         spy.wait(30)
         samples = read_profile(profile)
+        if args.profile_out is not None and profile.exists():
+            args.profile_out.mkdir(parents=True, exist_ok=True)
+            name = re.sub(r"\W+", "-", label).strip("-")
+            shutil.copy(profile, args.profile_out / f"py-spy-{name}.txt")
     names = thread_names(pid)
+    user0 = {tid: u for tid, (u, _) in threads0.items()}
+    sys0 = {tid: s for tid, (_, s) in threads0.items()}
+    thread_sys = {tid: s - sys0.get(tid, 0.0) for tid, (_, s) in threads1.items()}
     threads = sorted(
         (
-            (names.get(tid, ThreadInfo(tid, comm(pid, tid))), cpu - threads0.get(tid, 0.0))
-            for tid, cpu in threads1.items()
+            (
+                names.get(tid, ThreadInfo(tid, comm(pid, tid))),
+                u - user0.get(tid, 0.0) + thread_sys[tid],
+            )
+            for tid, (u, _) in threads1.items()
         ),
         key=lambda x: -x[1],
     )
@@ -343,6 +360,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
         rss_mb=rss_mb(pid),
         load=(load0, load1),
         threads=threads,
+        thread_sys_s=thread_sys,
         components=split_components(threads, pid, samples),
         top=top_functions(samples),
         packets_per_s=packets / seconds,
@@ -398,9 +416,17 @@ def report(run: Run) -> None:
         "   per component (% of one core): "
         + ", ".join(f"{c} {s / run.seconds * 100:.2f}" for c, s in run.components.items())
     )
-    print(f"   {'thread':<40} {'tid':>7} {'% core':>7}")
+    print(f"   {'thread':<40} {'tid':>7} {'% core':>7} {'of it sys':>9}")
     for info, cpu in run.threads:
-        print(f"   {info.name[:40]:<40} {info.tid:>7} {cpu / run.seconds * 100:>7.2f}")
+        if cpu > 0:
+            sys_pct = run.thread_sys_s[info.tid] / run.seconds * 100
+            print(
+                f"   {info.name[:40]:<40} {info.tid:>7} {cpu / run.seconds * 100:>7.2f} "
+                f"{sys_pct:>9.2f}"
+            )
+    idle = [info.name for info, cpu in run.threads if cpu <= 0]
+    if idle:
+        print(f"   idle threads: {', '.join(idle)}")
     if run.top:
         print("   busiest functions (self time, share of py-spy samples):")
         for fn, share in run.top:
@@ -415,6 +441,7 @@ def main() -> None:
     ap.add_argument("--3d", dest="three_d", choices=("both", "on", "off"), default="both")
     ap.add_argument("--viewers", type=int, default=2, help="MJPEG viewers per camera")
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
+    ap.add_argument("--profile-out", type=Path, help="keep py-spy's raw samples in this folder")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-pi-"))
     make_frames(tmp / "front", ".jpg")

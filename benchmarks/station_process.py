@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-import socket
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -26,16 +26,12 @@ import httpx
 import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from tests.helpers import free_port  # noqa: E402
 
 
 class StationFailed(RuntimeError):
     """The station exited or did not get healthy in time; the message has its log's tail."""
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass
@@ -70,6 +66,7 @@ def serve_station(
     `log_path` (a temporary file by default: uvicorn logs every connection)."""
     port = free_port()
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-station-"))
+    keep_tmp = log_path is not None  # the caller keeps the log: leave it where it is
     log_path = log_path or tmp / "server.log"
     cmd = [sys.executable, *launcher, "serve", "--host", "127.0.0.1", "--port", str(port), *args]
     full_env = {
@@ -91,6 +88,8 @@ def serve_station(
             except subprocess.TimeoutExpired:
                 popen.kill()
                 popen.wait()
+            if not keep_tmp:
+                shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _wait_healthy(

@@ -271,6 +271,22 @@ def test_signing_refuses_unsigned_wrong_key_and_replayed_packets(tmp_path) -> No
             assert sec["replay_refused"] == 1 and sec["bad_signature_refused"] >= 4
 
 
+def test_a_vehicle_whose_signing_clock_is_behind_is_heard_once_it_hears_us(tmp_path) -> None:
+    """A vehicle that booted with its signing clock a week behind (no GPS yet; ArduPilot
+    keeps the last one it saved): its new stream is refused as too old until our signed
+    heartbeats move its clock forward, as the protocol asks; then it is heard and locked."""
+    port = free_port(socket.SOCK_DGRAM)
+    overrides = {"link.signing_key_file": str(key_file(tmp_path))}
+    with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
+        week = 7 * 86400.0
+        with MavVehicle(
+            "udp", station_port=port, rates_hz=QUIET, signing_key=KEY, signing_clock_s=-week
+        ) as v:
+            assert wait_until(lambda: security(base)["replay_refused"] >= 1, timeout=5)
+            position_fixed(v, app)
+            assert security(base)["peer"] == f"127.0.0.1:{v.port}"
+
+
 def test_signing_off_hears_unsigned_and_signed_packets(tmp_path) -> None:
     with MavVehicle("udp", rates_hz=QUIET) as v:
         with station(v.station_source, tmp_path) as (app, base):
@@ -326,3 +342,32 @@ def test_unusable_key_files_say_why(tmp_path, content, mode, error) -> None:
         os.chmod(path, mode)
     with pytest.raises(SettingsError, match=error):
         station_settings("sim", **{"link.signing_key_file": str(path)})
+
+
+def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
+    """While the station refuses datagrams, the OSD over the front video says so."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+
+    with MavVehicle("udp") as v, station(v.station_source, tmp_path) as (app, base):
+        with sync_playwright() as p:
+            browser = p.chromium.launch(
+                executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True
+            )
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(base + "/")
+            warning = page.locator("[data-osd=warning]")
+            expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+            time.sleep(2.5)  # a poll of /api/status with nothing refused
+            expect(warning).not_to_contain_text("MAVLINK REFUSED")
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+                attacker.bind(("127.0.0.2", 0))
+                deadline = time.monotonic() + 8
+                while time.monotonic() < deadline:
+                    attacker.sendto(forged_position(FORGED_LAT), ("127.0.0.1", v.station_port))
+                    time.sleep(0.5)
+                    if "MAVLINK REFUSED" in (warning.text_content() or ""):
+                        break
+            expect(warning).to_contain_text("MAVLINK REFUSED")
+            browser.close()

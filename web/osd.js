@@ -24,6 +24,7 @@ const MESSAGE_SHOWN_S = 10; // a vehicle message stays on the messages line this
 const MESSAGE_LINES = 2;
 const WARNING_SHOWN_S = 15; // an emergency/crash/failsafe message keeps its warning this long
 const VIDEO_STALE_S = 1.0;
+const REFUSED_SHOWN_S = 10; // "MAVLINK REFUSED" stays this long after the station last refused some
 const PITCH_FOV_DEG = 60; // the ladder's scale: the view's height spans this many degrees
 const FIX_NAMES = ["NO GPS", "NO FIX", "2D", "3D", "DGPS", "RTK FLT", "RTK FIX"];
 const SEVERITY = ["EMERG", "ALERT", "CRIT", "ERR", "WARN", "NOTE", "INFO", "DEBUG"];
@@ -255,15 +256,26 @@ export function mountOsd(view, { menu = true } = {}) {
     if (serious.some((m) => /crash/i.test(m.text))) warnings.push("CRASH");
     else if (serious.some((m) => m.severity <= 2)) warnings.push("EMERGENCY");
     if (cam && (!cam.signal || (vAge !== null && vAge > VIDEO_STALE_S))) warnings.push("VIDEO STALE");
+    if (refusedAt !== null && performance.now() - refusedAt < REFUSED_SHOWN_S * 1000) warnings.push("MAVLINK REFUSED");
     setText(nodes.warning, warnings.join(" · "));
   }
 
   // The link's packet loss: one cheap GET every 2 s (not part of the vehicle state).
+  // Also whether the station is refusing MAVLink (datagrams from hosts other than the
+  // link's peer, packets failing signing): someone may be injecting; warn while it grows.
   let linkLoss = null;
+  let refusedTotal = null, refusedAt = null;
   async function pollLink() {
     try {
       const st = await api("/api/status");
       linkLoss = st.link ? st.link.loss_ratio : null;
+      const sec = st.link && st.link.security;
+      if (sec) {
+        const total = sec.foreign_datagrams + sec.forward_foreign_datagrams + sec.unsigned_refused
+          + sec.bad_signature_refused + sec.replay_refused;
+        if (refusedTotal !== null && total > refusedTotal) refusedAt = performance.now();
+        refusedTotal = total;
+      }
     } catch (err) {
       linkLoss = null;
     }
