@@ -4,7 +4,9 @@ flight with its analysis window shaded.
 
 Figures are built on `matplotlib.figure.Figure` with the Agg canvas, never pyplot: pyplot
 keeps global state, and the REST routes render in worker threads. Every figure has a
-fixed size in pixels (`SIZE_PX`), so pages and papers can lay them out.
+fixed size in pixels (`SIZE_PX`), so pages and papers can lay them out. matplotlib is
+imported by the first figure, not with this module: the station serves without it until
+someone asks for a plot (about 30 MB and half a second on a Pi).
 """
 
 from __future__ import annotations
@@ -12,15 +14,16 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Polygon, Rectangle
 
 from analysis.field_layout import FieldLayout, Obstacle
 from analysis.flight_frame import AlignedTrack
 from analysis.tasks import TASK_TITLES, TaskResult
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 PLOTS = ("trajectory3d", "birdseye", "history")
 DPI = 150
@@ -30,6 +33,9 @@ COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf")
 
 
 def _new_figure() -> Figure:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
@@ -87,6 +93,8 @@ def trajectory_3d(aligned: Sequence[AlignedTrack], results: Sequence[TaskResult]
 
 
 def birds_eye(aligned: Sequence[AlignedTrack], results: Sequence[TaskResult]) -> bytes:
+    from matplotlib.patches import Polygon, Rectangle
+
     fig = _new_figure()
     ax = fig.add_subplot()
     field = _field(aligned)

@@ -20,7 +20,6 @@ import os
 import platform
 import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -32,6 +31,7 @@ from websockets.asyncio.client import connect
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from benchmarks.station_process import serve_station  # noqa: E402
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
 
 TOKEN = "soak-benchmark-token"
@@ -174,33 +174,15 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
 def run(args: argparse.Namespace) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-soak-"))
     front, bottom = make_frames(tmp / "front", ".jpg"), make_frames(tmp / "bottom", ".jpg")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    cmd = [
-        *(sys.executable, "-m", "server", "serve", "--host", "127.0.0.1", "--port", str(port)),
-        *("--source", "sim", "--front", f"folder:{front}", "--bottom", f"folder:{bottom}"),
-    ]
+    cmd = ["--source", "sim", "--front", f"folder:{front}", "--bottom", f"folder:{bottom}"]
     env = {
-        **os.environ,
-        "PYTHONPATH": str(ROOT),
-        "XDG_CONFIG_HOME": str(tmp / "config"),
         "FPV_SERVER__TOKEN": json.dumps(TOKEN),
         "FPV_VISER__ENABLED": "false",
         "FPV_RECORDING__SESSIONS_DIR": json.dumps(str(tmp / "sessions")),
         "FPV_RECORDING__RATE_HZ": str(args.rate_hz),
     }
-    log = (tmp / "server.log").open("w")  # uvicorn logs every connection: keep it out
-    server = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    try:
-        base = f"http://127.0.0.1:{port}"
-        for _ in range(300):
-            try:
-                if httpx.get(f"{base}/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.1)
-        proc = psutil.Process(server.pid)
+    with serve_station(cmd, env, log_path=tmp / "server.log") as station:
+        base, proc = station.base, station.process
         print(
             f"# fpv-station soak: {args.minutes:g} min, {args.telemetry} telemetry clients, "
             f"{args.viewers} MJPEG viewers, {args.stalled} stalled, churn 10/s, recording "
@@ -209,16 +191,12 @@ def run(args: argparse.Namespace) -> None:
         )
         r = httpx.post(f"{base}/api/recording/start", headers=AUTH, json={}, timeout=10)
         r.raise_for_status()
-        asyncio.run(load(args, port, base, proc))
+        asyncio.run(load(args, station.port, base, proc))
         stop = httpx.post(f"{base}/api/recording/stop", headers=AUTH, json={}, timeout=30)
         sid = stop.json()["last_stop"]["id"]
         meta = json.loads((tmp / "sessions" / sid / "session.json").read_text())
         print(f"session {sid}: status {meta['status']}, stop_reason {meta.get('stop_reason')}")
-    finally:
-        server.terminate()
-        server.wait(30)
-        log.close()
-        print(f"server log: {tmp / 'server.log'}")
+    print(f"server log: {tmp / 'server.log'}")
 
 
 def main() -> None:

@@ -24,7 +24,6 @@ import argparse
 import asyncio
 import contextlib
 import json
-import os
 import shutil
 import socket
 import statistics
@@ -36,6 +35,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from benchmarks.station_process import serve_station  # noqa: E402
+from tests.helpers import free_port  # noqa: E402
 
 RATE_HZ = 250.0
 # Telemetry only: the 3D panel and recorder are measured by their own benchmarks.
@@ -44,12 +45,6 @@ SERVER_ENV = {
     "FPV_VISER__ENABLED": "false",
     "FPV_RECORDING__AUTO_RECORD_ON_ARM": "false",
 }
-
-
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def run_sender(port: int, epoch: float, seconds: float) -> None:
@@ -145,53 +140,31 @@ def _spawn(*args: str) -> subprocess.Popen:
 def station_under_load(seconds: float):
     """A `fpv-station serve` process fed at RATE_HZ for `seconds` after a 1 s warm-up;
     yields (http_port, epoch, server process, t0 of the measured window)."""
-    import httpx
 
-    http_port, udp_port = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
+    udp_port = free_port(socket.SOCK_DGRAM)
     tmp = tempfile.mkdtemp(prefix="fpv-bench-")
-    server = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "server",
-            "serve",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(http_port),
-            "--source",
-            f"udpin:127.0.0.1:{udp_port}",
-        ],
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, **SERVER_ENV, "FPV_RECORDING__SESSIONS_DIR": tmp},
-    )
     sender = None
     try:
-        base = f"http://127.0.0.1:{http_port}"
-        for _ in range(300):
-            try:
-                if httpx.get(f"{base}/api/health").status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.05)
-        epoch = time.monotonic()
-        warmup_s = 1.0
+        with serve_station(
+            ["--source", f"udpin:127.0.0.1:{udp_port}"],
+            {**SERVER_ENV, "FPV_RECORDING__SESSIONS_DIR": tmp},
+        ) as station:
+            epoch = time.monotonic()
+            warmup_s = 1.0
 
-        def start_sender() -> float:
-            nonlocal sender
-            sender = _spawn("--sender", str(udp_port), str(epoch), str(seconds + warmup_s + 0.5))
-            return time.monotonic() + warmup_s
+            def start_sender() -> float:
+                nonlocal sender
+                sender = _spawn(
+                    "--sender", str(udp_port), str(epoch), str(seconds + warmup_s + 0.5)
+                )
+                return time.monotonic() + warmup_s
 
-        yield http_port, epoch, server, start_sender
-        if sender is not None:
-            sender.communicate(timeout=30)
+            yield station.port, epoch, station.popen, start_sender
+            if sender is not None:
+                sender.communicate(timeout=30)
     finally:
         if sender is not None and sender.poll() is None:
             sender.kill()
-        server.terminate()
-        server.wait(10)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

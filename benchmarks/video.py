@@ -16,9 +16,7 @@ import argparse
 import asyncio
 import os
 import platform
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,9 +25,11 @@ from pathlib import Path
 import cv2
 import httpx
 import numpy as np
-import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.station_process import serve_station  # noqa: E402
+
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
 
 
@@ -167,38 +167,9 @@ def run(args: argparse.Namespace) -> None:
     # BMP decodes at memcpy cost, so `encode` measures the JPEG encode, as for a raw camera.
     suffix = ".bmp" if args.mode == "encode" else ".jpg"
     front, bottom = make_frames(tmp / "front", suffix), make_frames(tmp / "bottom", suffix)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    cmd = [
-        sys.executable,
-        "-m",
-        "server",
-        "serve",
-        "--host",
-        "127.0.0.1",
-        "--port",
-        str(port),
-        "--source",
-        "none",
-        "--front",
-        f"folder:{front}",
-        "--bottom",
-        f"folder:{bottom}",
-    ]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    server = subprocess.Popen(
-        cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
-    try:
-        base = f"http://127.0.0.1:{port}"
-        for _ in range(100):
-            try:
-                if httpx.get(f"{base}/api/cameras", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.1)
-        proc = psutil.Process(server.pid)
+    cmd = ["--source", "none", "--front", f"folder:{front}", "--bottom", f"folder:{bottom}"]
+    with serve_station([*cmd, "--viser-port", "0"]) as station:
+        base, port, proc = station.base, station.port, station.process
         print(
             f"# fpv-station video benchmark: 2 cameras {WIDTH}x{HEIGHT} @ {FPS:g} fps, "
             f"mode={args.mode}, {args.seconds:g} s per run, loopback"
@@ -244,12 +215,6 @@ def run(args: argparse.Namespace) -> None:
                 f"{encodes / max(made, 1):>13.2f}"
             )
             time.sleep(0.5)
-    finally:
-        server.terminate()
-        try:
-            server.wait(10)
-        except subprocess.TimeoutExpired:
-            server.kill()
 
 
 def _cpu_model() -> str:

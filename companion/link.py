@@ -9,6 +9,11 @@ rates, reconnects when the port or peer goes away, and flags `link_lost` after
 `link_lost_s` without an autopilot heartbeat. When another ground station changes the rates we asked for, it says so in the
 health report and asks again. Nothing here ever runs on the event loop: `send()` only
 queues and wakes.
+
+Who may feed it: a UDP link hears only its peer (`companion.transports.UdpTransport`), and
+with `signing_key_file` set every packet we send is signed and every packet that comes in
+must carry a good signature (`core.mavlink.signing`); what is refused never reaches the
+state, the recording or the forward targets, and is counted in `health().security`.
 """
 
 from __future__ import annotations
@@ -25,20 +30,23 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.latest import Latest
-from companion.link_health import HealthMeter, LinkHealth, RateChange
+from companion.link_health import HealthMeter, LinkHealth, LinkSecurity, RateChange
 from companion.link_settings import LinkSettings
 from companion.source_clock import SourceClock
 from companion.state_tracker import StateTracker
 from companion.stream_request import StreamRequester
 from companion.transports import (
     ConnectionStringError,
+    ForeignSenders,
     Transport,
     UdpTransport,
+    format_addr,
     open_transport,
     parse_connection,
 )
 from companion.vehicle_state import VehicleState
 from core.mavlink.framing import MavFramer, packet_version
+from core.mavlink.signing import SignatureCheck, Verdict, enable_signing
 from core.mavlink.tlog_records import TlogReader
 
 log = logging.getLogger(__name__)
@@ -69,6 +77,12 @@ class MavlinkLink:
         self.mav = mavlink.MAVLink(
             None, srcSystem=settings.gcs_sysid, srcComponent=settings.gcs_compid
         )
+        # Signing guards a live link; a replay's packets are what was recorded, as it was.
+        key = settings.signing_key() if self.spec.kind != "replay" else None
+        self._signing: SignatureCheck | None = enable_signing(self.mav, key) if key else None
+        self._foreign = ForeignSenders()
+        self._forward_foreign = ForeignSenders()
+        self._next_foreign_log = 1  # log foreign senders at 1, 10, 100, ... datagrams
         self.state: Latest[VehicleState] = Latest(VehicleState())
         # A replay runs on its own clock (the log's); a live vehicle on the station's.
         self.clock = SourceClock(own=self.spec.kind == "replay")
@@ -100,7 +114,15 @@ class MavlinkLink:
     def start(self) -> None:
         if self._thread is not None:
             raise RuntimeError("MavlinkLink already started")
-        self._forwarders = [UdpTransport(spec) for spec in self._forward_specs]
+        self._forwarders = []
+        for spec in self._forward_specs:
+            try:
+                self._forwarders.append(
+                    UdpTransport(spec, self.settings.udpin_lock, self._forward_foreign)
+                )
+            except OSError as exc:  # a name that does not resolve: the vehicle still flies
+                self._meter.last_error = f"--forward {spec.text}: {exc}; not forwarding there"
+                log.error("%s", self._meter.last_error)
         self._forward_framers = {fwd: MavFramer() for fwd in self._forwarders}
         self._thread = threading.Thread(
             target=self._run, name=f"mavlink {self.spec.text}", daemon=True
@@ -135,6 +157,10 @@ class MavlinkLink:
         self._wake()
 
     def health(self) -> LinkHealth:
+        security = self._security()
+        refused = (
+            security.unsigned_refused + security.bad_signature_refused + security.replay_refused
+        )
         return self._meter.report(
             self._framer.counters,
             self.state.get().value.link.link_lost if self.state.get() else True,
@@ -142,6 +168,26 @@ class MavlinkLink:
             self.clock.mono(),
             self._tracker.sysid if self._tracker.compid is not None else self._tracker.pinned_sysid,
             self._tracker.compid,
+            security,
+            refused,
+        )
+
+    def _security(self) -> LinkSecurity:
+        transport = self._transport
+        peer = transport.peer if isinstance(transport, UdpTransport) else None
+        counts = self._signing.counts if self._signing is not None else None
+        return LinkSecurity(
+            peer=format_addr(peer),
+            udpin_lock=self.settings.udpin_lock,
+            foreign_datagrams=self._foreign.datagrams,
+            last_foreign_sender=format_addr(self._foreign.last),
+            forward_foreign_datagrams=self._forward_foreign.datagrams,
+            signing=counts is not None,
+            signed=counts.signed if counts else 0,
+            unsigned_allowed=counts.unsigned_allowed if counts else 0,
+            unsigned_refused=counts.unsigned if counts else 0,
+            bad_signature_refused=counts.bad_signature if counts else 0,
+            replay_refused=counts.replayed if counts else 0,
         )
 
     @property
@@ -179,12 +225,14 @@ class MavlinkLink:
                     return
             first = False
             try:
-                transport = open_transport(self.spec)
+                transport = open_transport(self.spec, self.settings.udpin_lock, self._foreign)
             except OSError as exc:
                 self._meter.last_error = f"cannot open {self.spec.text}: {exc}"
                 log.warning("%s", self._meter.last_error)
                 continue
             self._transport = transport
+            if isinstance(transport, UdpTransport):
+                transport.confirm_senders = self._signing is not None
             self._meter.connected = True
             self._framer.reset()
             self._meter.on_reconnect()
@@ -209,8 +257,8 @@ class MavlinkLink:
             for r in ready:
                 if r is transport:
                     data = transport.read()
-                    if data:
-                        self._on_bytes(data, now)
+                    if data and self._on_bytes(data, now) and self._signing is not None:
+                        transport.adopt_sender()  # type: ignore[attr-defined]
                 elif r == self._wake_r:
                     try:
                         os.read(self._wake_r, 4096)
@@ -277,16 +325,23 @@ class MavlinkLink:
 
     # -- per packet and periodic work -------------------------------------------------
 
-    def _on_bytes(self, data: bytes, now: float) -> None:
+    def _on_bytes(self, data: bytes, now: float) -> int:
+        """Handle what arrived; returns how many packets carried a good signature."""
         self._meter.on_bytes(len(data))
         msgs = self._framer.feed(data)
         if not msgs:
-            return
+            return 0
+        signed = 0
         t_wall = self.clock.wall()  # a replay's packets keep their log times
         tracker = self._tracker
         changed = False
         for msg in msgs:
             packet = bytes(msg.get_msgbuf())
+            if self._signing is not None:
+                verdict = self._check_signature(packet)
+                if verdict not in ("signed", "unsigned_allowed"):
+                    continue  # not the vehicle's: kept out of the state, recording, forwards
+                signed += verdict == "signed"
             mtype = msg.get_type()
             self._meter.on_packet(mtype, msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq())
             if mtype == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS:
@@ -306,6 +361,26 @@ class MavlinkLink:
                     self._write(self._transport, req)
         if changed:
             self.state.publish(tracker.state)
+        return signed
+
+    def _check_signature(self, packet: bytes) -> Verdict:
+        assert self._signing is not None
+        verdict = self._signing.check(packet)
+        if verdict in ("signed", "unsigned_allowed"):
+            return verdict
+        c = self._signing.counts
+        refused = c.unsigned + c.bad_signature + c.replayed
+        if refused in (1, 10, 100, 1000) or refused % 10000 == 0:
+            log.warning(
+                "MAVLink signing refused %d packets (%d unsigned, %d bad signature, "
+                "%d replayed); latest: %s",
+                refused,
+                c.unsigned,
+                c.bad_signature,
+                c.replayed,
+                verdict,
+            )
+        return verdict
 
     def _notify(self, t_wall: float, packet: bytes) -> None:
         for cb in self._listeners:
@@ -390,6 +465,15 @@ class MavlinkLink:
                     self._write(transport, req)
                 self._meter.rates_reasserted += bool(requests)
         self._meter.stream_request = self._streams.mode
+        foreign = self._foreign.datagrams + self._forward_foreign.datagrams
+        if foreign >= self._next_foreign_log:
+            self._next_foreign_log = foreign * 10
+            last = self._foreign.last or self._forward_foreign.last
+            log.warning(
+                "dropped %d UDP datagrams from senders other than the link's peer; latest from %s",
+                foreign,
+                format_addr(last),
+            )
         lost = self._last_hb_mono is None or now - self._last_hb_mono > self.settings.link_lost_s
         if lost and not self._tracker.state.link.link_lost:
             self._tracker.set_link_lost(True, now, self._last_hb_mono)
@@ -398,7 +482,9 @@ class MavlinkLink:
         self._meter.tick(now)
 
     def _write(self, transport: Transport, msg: mavlink.MAVLink_message) -> None:
-        packet = bytes(msg.pack(self.mav, force_mavlink1=self._force_v1))
+        # MAVLink 1 cannot carry a signature: a signed link speaks MAVLink 2 only.
+        v1 = self._force_v1 and self._signing is None
+        packet = bytes(msg.pack(self.mav, force_mavlink1=v1))
         transport.write(packet)
         self.mav.seq = (self.mav.seq + 1) % 256
         self._notify(self.clock.wall(), packet)  # what we sent belongs in the recording too

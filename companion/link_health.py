@@ -29,6 +29,23 @@ class RateChange:
 
 
 @dataclass(frozen=True, slots=True)
+class LinkSecurity:
+    """Who may feed the link and what was refused (docs/SECURITY.md)."""
+
+    peer: str | None = None  # UDP: the address heard and answered ("ip:port")
+    udpin_lock: bool = True  # udpin hears only the first host that spoke
+    foreign_datagrams: int = 0  # UDP datagrams dropped: sent by another address
+    last_foreign_sender: str | None = None  # the latest such address ("ip:port")
+    forward_foreign_datagrams: int = 0  # the same, on the --forward sockets
+    signing: bool = False  # MAVLink 2 signing on (link.signing_key_file)
+    signed: int = 0  # packets accepted with a good signature
+    unsigned_allowed: int = 0  # unsigned radio packets let through (RADIO_STATUS, RADIO)
+    unsigned_refused: int = 0  # refused: no signature (MAVLink 1 included)
+    bad_signature_refused: int = 0  # refused: wrong key or altered bytes
+    replay_refused: int = 0  # refused: good signature but an old timestamp (a replay)
+
+
+@dataclass(frozen=True, slots=True)
 class LinkHealth:
     source: str
     connected: bool  # transport open (serial port, TCP connection, socket, replay file)
@@ -37,7 +54,7 @@ class LinkHealth:
     autopilot_sysid: int | None
     autopilot_compid: int | None
     rates_hz: dict[str, float] = field(default_factory=dict)  # per message type, ~2 s window
-    packets: int = 0  # good packets received (all systems)
+    packets: int = 0  # good packets received (all systems; refused ones not included)
     lost_packets: int = 0  # the autopilot's: gaps in its sequence numbers (0 before it is heard)
     loss_ratio: float = 0.0  # the autopilot's: lost / (lost + received)
     streams: tuple[StreamLoss, ...] = ()  # loss of every sender on the link, autopilot included
@@ -56,6 +73,7 @@ class LinkHealth:
     last_rate_change: RateChange | None = None
     rates_reasserted: int = 0  # times we asked for our rates again after such a change
     gcs_identity_clash: bool = False  # another ground station uses our sysid/compid
+    security: LinkSecurity = field(default_factory=LinkSecurity)
 
 
 class HealthMeter:
@@ -116,7 +134,11 @@ class HealthMeter:
         now_mono: float,
         sysid: int | None,
         compid: int | None,
+        security: LinkSecurity,
+        refused: int = 0,
     ) -> LinkHealth:
+        """`refused`: packets the framer passed but signing refused (not counted as
+        received)."""
         streams = self.loss.report(
             (sysid, compid) if sysid is not None and compid is not None else None
         )
@@ -131,7 +153,7 @@ class HealthMeter:
             autopilot_sysid=sysid,
             autopilot_compid=compid,
             rates_hz=self._rates,
-            packets=framer.packets,
+            packets=framer.packets - refused,
             lost_packets=autopilot.lost if autopilot else 0,
             loss_ratio=autopilot.loss_ratio if autopilot else 0.0,
             streams=streams,
@@ -150,4 +172,5 @@ class HealthMeter:
             last_rate_change=self.last_rate_change,
             rates_reasserted=self.rates_reasserted,
             gcs_identity_clash=self.gcs_identity_clash,
+            security=security,
         )

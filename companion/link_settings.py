@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
 from pydantic import Field
 
-from core.settings_section import Section
+from core.mavlink.signing import load_key_file
+from core.settings_section import Section, checked_by
 
 
 class LinkSettings(Section):
@@ -38,3 +42,17 @@ class LinkSettings(Section):
         }
     )
     request_streams: bool = True  # False: listen only (another GCS already asks)
+    # udpin: hear only the host that spoke first (its port may change: a restarted
+    # bridge); datagrams from other hosts are dropped and counted in the link health.
+    # False: hear anyone and answer whoever spoke last (several hosts feed one port).
+    udpin_lock: bool = True
+    # MAVLink 2 signing (core/mavlink/signing.py): a file holding the passphrase given to
+    # MAVProxy's `signing setup` or Mission Planner, readable by its owner only (chmod
+    # 600). Set: everything we send is signed, and unsigned or badly signed packets are
+    # refused and counted (a radio's RADIO_STATUS excepted). None: no signing. Replays
+    # of a tlog are never checked; `--source sim` signs the twin with the same key.
+    signing_key_file: Annotated[Path | None, checked_by(load_key_file)] = None
+
+    def signing_key(self) -> bytes | None:
+        """The 32-byte key, read now (None without signing)."""
+        return None if self.signing_key_file is None else load_key_file(self.signing_key_file)

@@ -2,8 +2,9 @@
 
     /dev/serial0:921600        serial port with baud rate (Pi UART to the Pixhawk TELEM2)
     /dev/ttyACM0               serial port, default baud (USB: the rate does not matter)
-    udpin:0.0.0.0:14550        listen; replies go to whoever sent last (udp: is the same)
-    udpout:192.168.1.5:14550   send to a fixed peer; its replies come back to our port
+    udpin:0.0.0.0:14550        listen; hear and answer the first host that speaks (udp: is
+                               the same; `link.udpin_lock = false`: whoever sent last)
+    udpout:192.168.1.5:14550   send to a fixed peer; only its replies are heard
     tcp:127.0.0.1:5760         TCP client (SITL, mavlink-router, ser2net)
     replay:FILE.tlog[?speed=N] play a telemetry log back, real time unless speed says
     none                       no vehicle link
@@ -14,6 +15,7 @@ Transports are blocking-free for the reader (it selects on `fileno()` first) and
 
 from __future__ import annotations
 
+import ipaddress
 import socket
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,19 +95,63 @@ class Transport(Protocol):
     def close(self) -> None: ...
 
 
-class UdpTransport:
-    """udpin binds and answers the last sender; udpout sends to a fixed peer."""
+@dataclass(slots=True)
+class ForeignSenders:
+    """Datagrams refused because another address sent them; kept across reconnects."""
 
-    def __init__(self, spec: ConnSpec) -> None:
+    datagrams: int = 0
+    last: tuple[str, int] | None = None
+
+
+class UdpTransport:
+    """udpout sends to a fixed peer and hears only it; udpin binds and answers the host
+    that spoke first (`lock`) or whoever spoke last (no lock).
+
+    A datagram from any other address is dropped before it is parsed and counted in
+    `foreign` (a `ForeignSenders` the owner may keep across reconnects): on a shared
+    network anyone can send to our port, and one forged GLOBAL_POSITION_INT would
+    otherwise move the vehicle on the map and into the recording. udpout matches the
+    peer's address and port exactly (a UDP peer answers from the port it listens on). A
+    locked udpin matches the first sender's host and follows its port: a bridge or
+    router that restarts comes back from a new ephemeral port on the same host, and must
+    not lose the vehicle until the station restarts. Several systems behind one address (autopilot, SiK radio, a GCS through
+    mavlink-router) all pass; telling them apart is MAVLink signing's work, not this.
+
+    `confirm_senders` (set when the link signs): a udpin sender becomes the peer (the one
+    answered, and the host the lock holds) only when its datagram held a packet signed
+    with the key (`adopt_sender`), so that an unsigned datagram sent first cannot take
+    the lock, nor one sent later take our answers. Until then the last sender is
+    answered.
+    """
+
+    def __init__(
+        self, spec: ConnSpec, lock: bool = True, foreign: ForeignSenders | None = None
+    ) -> None:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.setblocking(False)
-        if spec.kind == "udpin":
-            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self._sock.bind((spec.host, spec.port))
-            self._peer: tuple[str, int] | None = None
-        else:
-            self._peer = (spec.host, spec.port)
+        self._lock = lock
+        self.foreign = foreign if foreign is not None else ForeignSenders()
+        self.confirm_senders = False
+        self._sender: tuple[str, int] | None = None  # of the last datagram read
+        try:
+            if spec.kind == "udpin":
+                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                self._sock.bind((spec.host, spec.port))
+                self._peer: tuple[str, int] | None = None
+            else:
+                self._peer = resolve_udp_peer(spec.host, spec.port)
+                if ipaddress.ip_address(self._peer[0]).is_loopback:
+                    # A peer on this host: nothing off the host needs to reach our port.
+                    self._sock.bind(("127.0.0.1", 0))
+        except BaseException:
+            self._sock.close()
+            raise
         self._fixed_peer = spec.kind == "udpout"
+
+    @property
+    def peer(self) -> tuple[str, int] | None:
+        """Where replies go (udpin: None until someone spoke)."""
+        return self._peer
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -116,15 +162,36 @@ class UdpTransport:
         except (BlockingIOError, ConnectionRefusedError):
             # udpout: an ICMP "port unreachable" for our last send; the peer may come back
             return b""
-        if not self._fixed_peer:
-            self._peer = addr
+        addr = addr[:2]
+        if not self._accepts(addr):
+            self.foreign.datagrams += 1
+            self.foreign.last = addr
+            return b""
+        self._sender = addr
+        if not self.confirm_senders:
+            self.adopt_sender()
         return data
 
+    def adopt_sender(self) -> None:
+        """udpin: the last datagram's sender becomes the peer (answered; the lock's host)."""
+        if not self._fixed_peer and self._sender is not None:
+            self._peer = self._sender
+
+    def _accepts(self, addr: tuple[str, int]) -> bool:
+        peer = self._peer
+        if self._fixed_peer:
+            return addr == peer
+        return peer is None or not self._lock or addr[0] == peer[0]
+
     def write(self, data: bytes) -> None:
-        if self._peer is None:
+        # udpin waiting for a signed packet: answer the last sender meanwhile. A vehicle
+        # whose signing clock is behind ours is refused until our signed packets move its
+        # clock forward, so it must hear them; this sets no lock.
+        target = self._peer if self._peer is not None else self._sender
+        if target is None:
             return  # udpin: nobody has spoken yet, so nobody to answer
         try:
-            self._sock.sendto(data, self._peer)
+            self._sock.sendto(data, target)
         except OSError:
             # UDP: a full buffer, a refused port, an unreachable network (WiFi down) all
             # mean a lost datagram, the protocol's normal loss; never a reason to drop
@@ -133,6 +200,20 @@ class UdpTransport:
 
     def close(self) -> None:
         self._sock.close()
+
+
+def resolve_udp_peer(host: str, port: int) -> tuple[str, int]:
+    """The IPv4 address datagrams from `host:port` come from. Resolved once: a name
+    looked up per packet blocks the link thread. 0.0.0.0 means this host (Linux sends
+    there over loopback, and the answer comes from 127.0.0.1)."""
+    if host == "0.0.0.0":
+        return ("127.0.0.1", port)
+    info = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    return (str(info[0][4][0]), port)
+
+
+def format_addr(addr: tuple[str, int] | None) -> str | None:
+    return None if addr is None else f"{addr[0]}:{addr[1]}"
 
 
 class TcpTransport:
@@ -183,9 +264,11 @@ class SerialTransport:
         self._port.close()
 
 
-def open_transport(spec: ConnSpec) -> Transport:
+def open_transport(
+    spec: ConnSpec, udpin_lock: bool = True, foreign: ForeignSenders | None = None
+) -> Transport:
     if spec.kind in ("udpin", "udpout"):
-        return UdpTransport(spec)
+        return UdpTransport(spec, lock=udpin_lock, foreign=foreign)
     if spec.kind == "tcp":
         return TcpTransport(spec)
     if spec.kind == "serial":

@@ -19,7 +19,7 @@ from pathlib import Path
 
 
 def add_export_arguments(p: argparse.ArgumentParser) -> None:
-    from learn.export import DEFAULT_FPS, FORMATS
+    from learn.formats import DEFAULT_FPS, FORMATS
 
     p.add_argument("sessions", nargs="+", type=Path, metavar="SESSION")
     p.add_argument("--format", required=True, choices=FORMATS)

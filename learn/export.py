@@ -17,10 +17,8 @@ from pathlib import Path
 
 from core.scene import Scene, load_scene
 from learn.episodes import ChannelMap, episodes
+from learn.formats import DEFAULT_FPS, FORMATS
 from learn.recording_reader import Recording, RecordingError, open_recording
-
-FORMATS = ("lerobot", "minari", "mcap")
-DEFAULT_FPS = 10  # the twin env's control rate: a dataset step is an env step
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ def add_serve_parser(sub: Any) -> None:
         help="also copy raw MAVLink to this connection (udpout:HOST:PORT), repeatable",
     )
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
+    add_signing_flag(p)
     add_camera_flags(p)
     add_viser_flags(p)
     add_recording_flags(p)
@@ -108,7 +109,18 @@ def add_sim_parser(sub: Any) -> None:
     p.add_argument("--speed", dest="twin.realtime_factor", type=float, help="real-time factor")
     p.add_argument("--wind", dest="twin.wind_east_mps", type=float, help="east wind (m/s)")
     p.add_argument("--gusts", dest="twin.gust_std_mps", type=float, help="gust std (m/s)")
+    add_signing_flag(p)
     p.set_defaults(func=run_sim)
+
+
+def add_signing_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--signing-key",
+        dest="link.signing_key_file",
+        type=Path,
+        help="MAVLink 2 signing: a file (chmod 600) holding the passphrase given to "
+        "MAVProxy's 'signing setup'; unsigned packets are then refused",
+    )
 
 
 def run_sim(args: argparse.Namespace) -> int:
@@ -120,7 +132,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
     settings = settings_from_args(args)
     try:
-        twin = twin_from_settings(settings.twin, args.mavlink)
+        twin = twin_from_settings(settings.twin, args.mavlink, settings.link.signing_key())
         twin.start()
     except (SceneError, ValueError, OSError) as exc:
         print(f"fpv-station sim: {exc}", file=sys.stderr)

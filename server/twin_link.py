@@ -3,7 +3,8 @@
 The twin listens on an ephemeral UDP port (`udpin:127.0.0.1:0`, so there is no port race)
 and the station's ordinary `MavlinkLink` connects to it with `udpout:`, exactly as it
 would to a vehicle: the link's first GCS heartbeat tells the twin where to send its
-telemetry. `open_twin_link` returns both; the station keeps them (`station.twin` is what the
+telemetry. With `link.signing_key_file` both ends sign with that key, as a vehicle set up
+for signing would. `open_twin_link` returns both; the station keeps them (`station.twin` is what the
 sim cameras render from).
 """
 
@@ -23,7 +24,9 @@ def open_twin_link(
     settings: Settings, stack: contextlib.AsyncExitStack
 ) -> tuple[Twin, MavlinkLink]:
     """Start the twin and the link to it; both stop with `stack`, the link first."""
-    twin = twin_from_settings(settings.twin, "udpin:127.0.0.1:0")
+    twin = twin_from_settings(
+        settings.twin, "udpin:127.0.0.1:0", signing_key=settings.link.signing_key()
+    )
     twin.start()
     stack.callback(twin.stop)
     port = twin.vehicle.sock.getsockname()[1]

@@ -130,3 +130,22 @@ class RawWsClient:
 
     def close(self):
         self.sock.close()
+
+
+def sticks_on(page, base: str) -> None:
+    """Open the pilot page of a station on the twin and turn the browser's sticks on."""
+    page.goto(base + "/")
+    page.wait_for_selector("#control-widget:not([hidden])", timeout=10000)
+    page.click("#ctl-toggle")
+    page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
+
+
+def arm_and_climb(page, station, height_m: float = 1.5, timeout: float = 15.0) -> None:
+    """With the sticks on (sticks_on): Arm, then climb on ArrowUp until the twin is
+    `height_m` up, and let go of the key."""
+    armed = lambda: (latest := station.state.get()) and latest.value.heartbeat.armed  # noqa: E731
+    page.click("#ctl-arm")
+    assert wait_until(armed, timeout=timeout), "the twin did not arm"
+    page.keyboard.down("ArrowUp")
+    assert wait_until(lambda: station.twin.pose().pos_enu_m[2] > height_m, timeout=timeout)
+    page.keyboard.up("ArrowUp")

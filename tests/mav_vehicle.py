@@ -10,6 +10,12 @@ UDP: the vehicle sends from its own socket to `station_port` (station source
 It answers SET_MESSAGE_INTERVAL (or refuses, or ignores it: `interval_reply`), records
 what the station sends, and changes its own rates on request. Parsing of what the station
 sends uses pymavlink's own parser, not the station's code.
+
+`answer_sender=True` (UDP): the vehicle listens on `port` and answers whoever spoke last,
+as PX4 SITL or a network bridge does; the station then connects with `udpout:`.
+`signing_key`: MAVLink 2 signing as pymavlink (and so MAVProxy) does it: everything sent
+is signed with the key; what arrives is checked by pymavlink and `signed(msg)` says
+whether it carried a good signature.
 """
 
 from __future__ import annotations
@@ -63,6 +69,9 @@ class MavVehicle:
         station_port: int | None = None,
         port: int | None = None,
         interval_reply: Literal["accept", "unsupported", "ignore"] = "accept",
+        answer_sender: bool = False,
+        signing_key: bytes | None = None,
+        signing_clock_s: float = 0.0,
     ) -> None:
         self.transport = transport
         self.sysid, self.compid = sysid, compid
@@ -73,6 +82,20 @@ class MavVehicle:
         self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
+        if signing_key is not None:
+            # As mavutil's setup_signing does, with one signing state for what is sent and
+            # what is received (an accepted timestamp moves the next one sent forward);
+            # `signing_clock_s` ahead (+) or behind (-) the wall clock.
+            self._parser.signing = self.mav.signing
+            self.mav.signing.secret_key = signing_key
+            self.mav.signing.link_id = 0
+            t = time.time() + signing_clock_s - 1420070400
+            self.mav.signing.timestamp = int(t * 1e5)
+            self.mav.signing.sign_outgoing = True
+            # Let unsigned packets through to `received`; `signed(msg)` tells them apart.
+            self._parser.signing.allow_unsigned_callback = lambda mav, msg_id: True
+        self.answer_sender = answer_sender
+        self.reply_to: tuple[str, int] | None = None  # answer_sender: the last sender
         # The flight state it reports; tests change these attributes directly.
         self.armed = False
         self.mode = "POSCTL" if autopilot == "px4" else "LOITER"
@@ -100,7 +123,11 @@ class MavVehicle:
             self._sock.bind(("127.0.0.1", port or 0))
             self._sock.settimeout(0.05)
             self.port = self._sock.getsockname()[1]
-            self.station_source = f"udpin:127.0.0.1:{self.station_port}"
+            self.station_source = (
+                f"udpout:127.0.0.1:{self.port}"
+                if answer_sender
+                else f"udpin:127.0.0.1:{self.station_port}"
+            )
         else:
             self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -174,6 +201,11 @@ class MavVehicle:
                 conn.close()
             except OSError:
                 pass
+
+    @staticmethod
+    def signed(msg: mavlink.MAVLink_message) -> bool:
+        """The packet carried a signature pymavlink found good with our key."""
+        return bool(msg.get_signed())
 
     def received_types(self) -> list[str]:
         return [m.get_type() for m in list(self.received)]
@@ -288,7 +320,11 @@ class MavVehicle:
     def _write(self, data: bytes) -> None:
         try:
             if self.transport == "udp":
-                self._sock.sendto(data, ("127.0.0.1", self.station_port))
+                if self.answer_sender:
+                    if self.reply_to is not None:
+                        self._sock.sendto(data, self.reply_to)
+                else:
+                    self._sock.sendto(data, ("127.0.0.1", self.station_port))
             elif self._conn is not None:
                 self._conn.sendall(data)
         except OSError:
@@ -315,7 +351,9 @@ class MavVehicle:
         while not self._stop.is_set():
             try:
                 if self.transport == "udp":
-                    data, _ = self._sock.recvfrom(65535)
+                    data, addr = self._sock.recvfrom(65535)
+                    if self.answer_sender:
+                        self.reply_to = addr
                 elif self._conn is None:
                     conn, _ = self._sock.accept()
                     conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

@@ -4,6 +4,7 @@ station's clock is unsynchronised or wrong (issue 15 item 3)."""
 import datetime as dt
 import json
 import time
+from dataclasses import dataclass
 
 import httpx
 import pytest
@@ -89,14 +90,20 @@ def test_the_kernel_answers():
     assert clock_synchronised() in (True, False)  # Linux: adjtimex always answers
 
 
-@pytest.mark.parametrize("offset_s", [-WEEK_S, 3 * 365 * 86400.0])
-def test_a_session_is_named_by_the_vehicles_gps_time(tmp_path, offset_s):
-    """A vehicle whose GPS time is a week behind (the station's clock ran on) or three years
-    ahead of this machine's clock: the session is named and stamped in the GPS time, the
-    rows keep the station's clock, and session.json says which, and by how much."""
+@dataclass
+class Flight:
+    """One armed-then-disarmed flight recorded by a real station over UDP."""
+
+    health_clock: dict  # /api/health "clock" before arming: what the page shows
+    station_start: float  # this machine's clock at arming
+    meta: dict  # the session's session.json
+    listed: dict  # its entry in GET /api/sessions
+
+
+def fly_one_session(tmp_path, gps_utc_offset_s: float | None) -> Flight:
     root = tmp_path / "sessions"
     with MavVehicle("udp") as v:
-        v.gps_utc_offset_s = offset_s
+        v.gps_utc_offset_s = gps_utc_offset_s
         settings = load_settings(
             environ={},
             overrides={
@@ -111,10 +118,7 @@ def test_a_session_is_named_by_the_vehicles_gps_time(tmp_path, offset_s):
             status = lambda: httpx.get(f"{base}/api/recording").json()  # noqa: E731
             assert wait_until(lambda: v.sent["SYSTEM_TIME"] >= 2, timeout=10)
             time.sleep(0.3)
-            clock = httpx.get(f"{base}/api/health").json()["clock"]  # what the page shows
-            assert clock["sessions_use"] == "vehicle"
-            assert clock["vehicle_offset_s"] == pytest.approx(offset_s, abs=0.5)
-            assert clock["station_synced"] == clock_synchronised()
+            health_clock = httpx.get(f"{base}/api/health").json()["clock"]
             station_start = time.time()
             v.arm()
             assert wait_until(lambda: status()["recording"], timeout=5)
@@ -122,54 +126,43 @@ def test_a_session_is_named_by_the_vehicles_gps_time(tmp_path, offset_s):
             v.disarm()
             assert wait_until(lambda: not status()["recording"], timeout=5)
             sid = status()["last_stop"]["id"]
-            listed = httpx.get(f"{base}/api/sessions").json()
+            listed = next(s for s in httpx.get(f"{base}/api/sessions").json() if s["id"] == sid)
     meta = json.loads((root / sid / layout.SESSION_JSON).read_text())
-    clock = meta["clock"]
+    return Flight(health_clock, station_start, meta, listed)
+
+
+@pytest.mark.parametrize("offset_s", [-WEEK_S, 3 * 365 * 86400.0])
+def test_a_session_is_named_by_the_vehicles_gps_time(tmp_path, offset_s):
+    """A vehicle whose GPS time is a week behind (the station's clock ran on) or three years
+    ahead of this machine's clock: the session is named and stamped in the GPS time, the
+    rows keep the station's clock, and session.json says which, and by how much."""
+    f = fly_one_session(tmp_path, offset_s)
+    assert f.health_clock["sessions_use"] == "vehicle"
+    assert f.health_clock["vehicle_offset_s"] == pytest.approx(offset_s, abs=0.5)
+    assert f.health_clock["station_synced"] == clock_synchronised()
+    meta, clock = f.meta, f.meta["clock"]
     assert clock["used"] == "vehicle" and clock["named_by"] == "vehicle"
     assert clock["vehicle_source"] == "SYSTEM_TIME"
     assert clock["offset_s"] == pytest.approx(offset_s, abs=0.5)
-    assert clock["station_start_wall"] == pytest.approx(station_start, abs=2.0)
-    assert meta["start_wall"] == pytest.approx(station_start, abs=2.0)  # the rows' clock
-    gps_start = dt.datetime.fromtimestamp(station_start + offset_s, dt.UTC)
-    assert abs(layout.session_start_from_id(sid) - gps_start.timestamp()) < 3.0
-    assert abs(dt.datetime.fromisoformat(meta["start_utc"]).timestamp() - gps_start.timestamp()) < 3
-    end = dt.datetime.fromisoformat(meta["end_utc"]).timestamp()
-    assert end - dt.datetime.fromisoformat(meta["start_utc"]).timestamp() == pytest.approx(
-        meta["duration_s"], abs=0.01
-    )
-    entry = next(s for s in listed if s["id"] == sid)
-    assert entry["start_utc"] == meta["start_utc"]  # the list shows the stamp, not the wall
+    assert clock["station_start_wall"] == pytest.approx(f.station_start, abs=2.0)
+    assert meta["start_wall"] == pytest.approx(f.station_start, abs=2.0)  # the rows' clock
+    gps_start = f.station_start + offset_s
+    assert abs(layout.session_start_from_id(meta["id"]) - gps_start) < 3.0
+    start_utc = dt.datetime.fromisoformat(meta["start_utc"]).timestamp()
+    assert abs(start_utc - gps_start) < 3.0
+    end_utc = dt.datetime.fromisoformat(meta["end_utc"]).timestamp()
+    assert end_utc - start_utc == pytest.approx(meta["duration_s"], abs=0.01)
+    assert f.listed["start_utc"] == meta["start_utc"]  # the list shows the stamp, not the wall
 
 
 def test_a_vehicle_without_gps_time_leaves_the_station_clock(tmp_path):
-    root = tmp_path / "sessions"
-    with MavVehicle("udp") as v:
-        v.gps_utc_offset_s = None  # SYSTEM_TIME says 0: no fix yet
-        settings = load_settings(
-            environ={},
-            overrides={
-                "link.source": v.station_source,
-                "viser.enabled": False,
-                "recording.sessions_dir": str(root),
-                "recording.post_disarm_tail_s": 0.2,
-                "recording.min_free_mb": 0,
-            },
-        )
-        with run_uvicorn(create_app(settings)) as base:
-            status = lambda: httpx.get(f"{base}/api/recording").json()  # noqa: E731
-            assert wait_until(lambda: v.sent["SYSTEM_TIME"] >= 2, timeout=10)
-            clock = httpx.get(f"{base}/api/health").json()["clock"]
-            assert clock["sessions_use"] == "station" and clock["vehicle_offset_s"] is None
-            v.arm()
-            assert wait_until(lambda: status()["recording"], timeout=5)
-            time.sleep(0.5)
-            v.disarm()
-            assert wait_until(lambda: not status()["recording"], timeout=5)
-            sid = status()["last_stop"]["id"]
-    clock = json.loads((root / sid / layout.SESSION_JSON).read_text())["clock"]
+    f = fly_one_session(tmp_path, None)  # SYSTEM_TIME says 0: no fix yet
+    assert f.health_clock["sessions_use"] == "station"
+    assert f.health_clock["vehicle_offset_s"] is None
+    clock = f.meta["clock"]
     assert clock["used"] == "station" and clock["offset_s"] == 0.0
     assert clock["vehicle_start_utc"] is None and clock["station_synced"] == clock_synchronised()
-    assert abs(layout.session_start_from_id(sid) - clock["station_start_wall"]) < 1.0
+    assert abs(layout.session_start_from_id(f.meta["id"]) - clock["station_start_wall"]) < 1.0
 
 
 def test_an_interrupted_session_ends_in_its_own_clock(tmp_path):

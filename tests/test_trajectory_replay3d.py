@@ -178,3 +178,44 @@ def test_replay_scene_turns_the_field_with_the_papers_alignment(replay):
     np.testing.assert_allclose(np.abs(frame.wxyz), [np.sqrt(0.5), 0, 0, np.sqrt(0.5)], atol=1e-3)
     assert frame.wxyz[3] * frame.wxyz[0] < 0  # a clockwise turn
     np.testing.assert_allclose(all_segments(replay)[-1, 1], [9.9, 0.0, 0.0], atol=0.02)
+
+
+@pytest.mark.timeout(240)  # the viewer renders in software here
+def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
+    """In Chromium: viser's developer controls (Save Canvas, the scene tree) stay hidden
+    behind the panel's own GUI, and the viewer's camera looks at the path's centre."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, wait_until
+
+    replay.load(straight_line("a"), straight_line("b", n=300))
+    path = np.concatenate([replay.primary.enu_m, replay.overlay.enu_m])
+    centre = (path.min(axis=0) + path.max(axis=0)) / 2
+    assert centre[0] == pytest.approx(29.975, abs=0.01)  # 0.5 m/s for 120 s, east
+
+    def cameras():
+        return [c.camera for c in replay.server.get_clients().values()]
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 640, "height": 480})
+        page.goto(f"http://127.0.0.1:{replay.port}/")
+        page.locator("canvas").first.wait_for(timeout=90_000)
+        frame_button = page.get_by_role("button", name="Frame the path")
+        expect(frame_button).to_be_visible(timeout=90_000)
+        expect(page.get_by_text("a with b, 120 s")).to_be_visible()
+        for dev in ("Save Canvas", "Scene tree", "Dev Settings", "Reset View"):
+            expect(page.get_by_text(dev).first).to_be_hidden(timeout=5000)  # (folds away)
+        # The client's camera, as the browser reports it back: on the path's centre.
+        assert wait_until(
+            lambda: cameras() and np.allclose(cameras()[0].look_at, centre, atol=0.5), 30
+        ), [c.look_at for c in cameras()]
+        # The pilot looks away; the panel's button brings the whole path back.
+        cam = cameras()[0]
+        cam.position, cam.look_at = (100.0, 100.0, 50.0), (80.0, 80.0, 0.0)
+        assert wait_until(lambda: np.allclose(cameras()[0].look_at, (80, 80, 0), atol=0.5), 30)
+        frame_button.click()
+        assert wait_until(lambda: np.allclose(cameras()[0].look_at, centre, atol=0.5), 30), (
+            cameras()[0].look_at
+        )
+        browser.close()

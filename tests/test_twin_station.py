@@ -118,7 +118,7 @@ def test_control_is_refused_without_the_twin(tmp_path) -> None:
 def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
     from playwright.sync_api import sync_playwright
 
-    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, arm_and_climb, sticks_on
 
     app = sim_app(**{"recording.sessions_dir": str(tmp_path)})
     with run_uvicorn(app) as url, sync_playwright() as p:
@@ -126,15 +126,8 @@ def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
         assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
         browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
         page = browser.new_page()
-        page.goto(url + "/")
-        page.wait_for_selector("#control-widget:not([hidden])", timeout=5000)
-        page.click("#ctl-toggle")
-        page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
-        page.click("#ctl-arm")
-        assert wait_until(lambda: state(app).heartbeat.armed, timeout=5)
-        page.keyboard.down("ArrowUp")
-        assert wait_until(lambda: twin.pose().pos_enu_m[2] > 1.5, timeout=8)
-        page.keyboard.up("ArrowUp")
+        sticks_on(page, url)
+        arm_and_climb(page, app.state.station)
         # Sticks are sampled on the page's 50 Hz tick: the release shows by the next one.
         page.wait_for_function("window.fpv.control.sticks.throttle === 0.5", timeout=2000)
         sticks = page.evaluate("window.fpv.control.sticks")

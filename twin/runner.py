@@ -38,6 +38,7 @@ class Twin:
         realtime_factor: float = 1.0,
         tick_hz: float = 100.0,
         render_options: dict[str, Any] | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         if realtime_factor <= 0:
             raise ValueError("realtime_factor must be > 0")
@@ -45,6 +46,7 @@ class Twin:
         self.sim = Sim(self.scene, config)
         self.mavlink_url = mavlink
         self.rates_hz = rates_hz
+        self.signing_key = signing_key  # MAVLink 2 signing of its vehicle (None: off)
         self.realtime_factor = realtime_factor
         self.tick_s = 1.0 / tick_hz
         self.vehicle: MavlinkVehicle | None = None
@@ -63,7 +65,9 @@ class Twin:
         if self._thread is not None:
             raise RuntimeError("The twin is already running.")
         if self.mavlink_url and self.vehicle is None:
-            self.vehicle = MavlinkVehicle(self.mavlink_url, self.rates_hz)
+            self.vehicle = MavlinkVehicle(
+                self.mavlink_url, self.rates_hz, signing_key=self.signing_key
+            )
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="twin", daemon=True)
         self._thread.start()
@@ -125,7 +129,9 @@ class Twin:
         a peer reading UDP slower than that loses the excess in its socket buffer.
         """
         if self.mavlink_url and self.vehicle is None:
-            self.vehicle = MavlinkVehicle(self.mavlink_url, self.rates_hz)
+            self.vehicle = MavlinkVehicle(
+                self.mavlink_url, self.rates_hz, signing_key=self.signing_key
+            )
         per_tick = max(1, int(round(self.tick_s / self.sim.dt_s)))
         for _ in range(int(round(seconds / (per_tick * self.sim.dt_s)))):
             with self.lock:
@@ -190,8 +196,11 @@ class Twin:
             return self._renderer
 
 
-def twin_from_settings(ts: TwinSettings, mavlink: str | None) -> Twin:
-    """Build a Twin from its settings section (`[twin]`)."""
+def twin_from_settings(
+    ts: TwinSettings, mavlink: str | None, signing_key: bytes | None = None
+) -> Twin:
+    """Build a Twin from its settings section (`[twin]`); `signing_key` signs its MAVLink
+    (the link's key, `link.signing_key_file`)."""
     from twin.control import ControlGains
     from twin.dynamics import Wind
     from twin.sensors import SensorParams
@@ -212,4 +221,5 @@ def twin_from_settings(ts: TwinSettings, mavlink: str | None) -> Twin:
         rates_hz=dict(ts.rates_hz),
         realtime_factor=ts.realtime_factor,
         render_options={"fpv_noise": ts.fpv_noise, "seed": ts.seed},
+        signing_key=signing_key,
     )

@@ -3,16 +3,24 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
-from pydantic import Field, field_validator
+from pydantic import Field
 
-from core.settings_section import Section
+from core.settings_section import Section, checked_by
+
+
+def _scene_loads(path: Path) -> None:
+    from core.scene import load_scene  # here: settings load without the scene code
+
+    load_scene(path)  # SceneError (a ValueError) says which file and key
 
 
 class TwinSettings(Section):
     """The embedded digital twin (`--source sim` and `fpv-station sim`)."""
 
-    scene: Path | None = None  # scene TOML; None = the built-in field of the paper
+    # scene TOML; None = the built-in field of the paper
+    scene: Annotated[Path | None, checked_by(_scene_loads)] = None
     seed: int = 0
     physics_hz: float = Field(250.0, ge=250.0, le=2000.0)
     realtime_factor: float = Field(1.0, gt=0, le=100.0)
@@ -24,12 +32,3 @@ class TwinSettings(Section):
     max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
     rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
     fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
-
-    @field_validator("scene")
-    @classmethod
-    def _scene_loads(cls, value: Path | None) -> Path | None:
-        if value is not None:
-            from core.scene import load_scene
-
-            load_scene(value)  # SceneError (a ValueError) says which file and key
-        return value

@@ -15,6 +15,10 @@ It owns one UDP socket (`udpout:HOST:PORT` sends to a ground station as PX4 SITL
 `udpin:HOST:PORT` listens and answers whoever spoke last) and pymavlink's MAVLink 2
 encoder/parser. It is driven by `poll(sim)` from the twin's thread, never blocks, and
 counts what it cannot parse instead of failing.
+
+With a signing key it behaves as a Pixhawk set up with MAVProxy's `signing setup`: it
+signs all it sends and obeys only packets signed with the key (`core.mavlink.signing`;
+`signing.counts` says what it refused), so that signing can be tested end to end.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink
 
 from core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES, px4_main_sub, px4_mode_name
+from core.mavlink.signing import SignatureCheck, enable_signing
 from twin.control import AUTO_LOITER, AUTO_MISSION
 from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu, up_m
 from twin.mission_protocol import MissionProtocol
@@ -111,12 +116,18 @@ class MavlinkVehicle:
         rates_hz: dict[str, float] | None = None,
         sysid: int = 1,
         compid: int = 1,
+        signing_key: bytes | None = None,
     ) -> None:
         self.sysid, self.compid = sysid, compid
         self.sock, self._peer = self._open(connection)
         self._listening = self._peer is None  # udpin: answer whoever spoke last
-        self.mav = mavlink.MAVLink(self, srcSystem=sysid, srcComponent=compid)
-        self.mav.robust_parsing = True
+        self.mav = mavlink.MAVLink(self, srcSystem=sysid, srcComponent=compid)  # encoder
+        # A parser of its own: the encoder's key must never reach pymavlink's decoder.
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        self.signing: SignatureCheck | None = (
+            enable_signing(self.mav, signing_key) if signing_key else None
+        )
         self.defaults_hz = dict(DEFAULT_RATES_HZ)
         self.defaults_hz.update(rates_hz or {})
         self.interval_s = {k: (1.0 / v if v > 0 else None) for k, v in self.defaults_hz.items()}
@@ -178,21 +189,30 @@ class MavlinkVehicle:
                 break
             except OSError:  # e.g. ICMP port unreachable surfacing on Linux
                 continue
-            if self._listening:
+            # Signing on: only a sender that signed with the key is answered from now on
+            # (a refused datagram must not turn the telemetry to its sender).
+            if self._listening and self.signing is None:
                 self._peer = addr
             self.stats.peers.add(addr)
-            for msg in self.mav.parse_buffer(data) or []:
+            parser = self._parser
+            for msg in parser.parse_buffer(data) or []:
                 if msg.get_type() == "BAD_DATA":
                     self.stats.bad += 1
                     continue
+                if self.signing is not None:
+                    verdict = self.signing.check(msg.get_msgbuf())
+                    if verdict not in ("signed", "unsigned_allowed"):
+                        continue  # counted in signing.counts
+                    if verdict == "signed" and self._listening:
+                        self._peer = addr
                 self.stats.received += 1
                 self._handle(sim, msg, now_s)
-            if self.mav.buf_len():
+            if parser.buf_len():
                 # A datagram holds whole packets: a truncated or bogus header must not
                 # swallow the next datagram's packet.
                 self.stats.bad += 1
-                self.mav.buf, self.mav.buf_index = bytearray(), 0
-                self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+                parser.buf, parser.buf_index = bytearray(), 0
+                parser.expected_length = mavlink.HEADER_LEN_V1 + 2
         if now_s - self.stats.last_input_s > STICK_TIMEOUT_S and self.stats.last_input_s > -1e8:
             sim.set_sticks(0.0, 0.0, 0.0, 0.5)
             self.stats.last_input_s = -1e9

@@ -8,13 +8,19 @@
 // ArrowUp/ArrowDown climb/descend (R/F too); Shift = full deflection. Arm: ArrowDown+E
 // (throttle down, yaw right); disarm: ArrowDown+Q. "?" shows the key legend.
 // Sticks are centred (hold) while the window has no focus or the tab is hidden.
+// Touch (phones, tablets): two virtual sticks, Mode 2 (touch-sticks.js); left stick to
+// the bottom-right corner arms, bottom-left disarms.
 // Gamepad: axis mapping, inversion and calibration are kept in localStorage
 // ("fpv.control.gamepad"); default = Mode 2 on a standard pad (left: yaw/throttle,
 // right: roll/pitch).
 // A station with a control token refuses the socket (close 4401): lib.js asks for the
 // token and the socket opens again with it.
+// The gamepad panel shows every axis of the pad and the four sticks sent, live (the send
+// rate). A command the vehicle refuses (COMMAND_ACK not accepted) shows as a toast with
+// the vehicle's reason.
 // Test hook: window.fpv.control = {enabled, sticks, input, lastReply}.
-import { $, el, api, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
+import { $, el, svgEl, api, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
+import { mountTouchSticks, touchDevice } from "/touch-sticks.js";
 
 const RATE_MS = 20;
 const STORE_KEY = "fpv.control.gamepad";
@@ -31,6 +37,11 @@ let socket = null;
 let timer = null;
 let calibrating = null; // {min: [], max: []} while the user sweeps the sticks
 const keys = new Set();
+let sentRows = {}; // the gamepad panel's rows of the sticks sent, by function
+const touch = mountTouchSticks(document.body);
+const toast = el("div", { id: "ctl-toast", class: "toast", role: "status", hidden: true });
+document.body.append(toast);
+let toastTimer = null;
 
 // ---- widget in the toolbar ----
 const box = $("control-widget");
@@ -61,6 +72,7 @@ function start() {
     let msg;
     try { msg = JSON.parse(ev.data); } catch (err) { return; }
     ctl.lastReply = msg;
+    if (msg.type === "ack") showAck(msg);
     if (msg.error) {
       $("ctl-input").textContent = msg.error_msg.slice(0, 60);
       $("ctl-input").className = "pill bad";
@@ -72,6 +84,7 @@ function start() {
     $("ctl-toggle").textContent = "Sticks: on";
     $("ctl-toggle").classList.add("on");
     timer = setInterval(tick, RATE_MS);
+    touch.show(touchDevice());
   };
   ws.onclose = (ev) => {
     if (ws !== socket) return; // an old socket, already replaced
@@ -86,6 +99,7 @@ function stop() {
   timer = null;
   if (socket && socket.readyState <= 1) socket.close();
   socket = null;
+  touch.show(false);
   $("ctl-toggle").textContent = "Sticks: off";
   $("ctl-toggle").classList.remove("on");
 }
@@ -97,19 +111,35 @@ function command(msg, tries = 10) {
   if (tries > 0) setTimeout(() => command(msg, tries - 1), 300);
 }
 
+// The vehicle's answer to arm, disarm, mode, land: a refusal says so, and why.
+function showAck(msg) {
+  if (msg.ok) return;
+  const why = msg.text ? `: ${msg.text}` : "";
+  toast.textContent = `${msg.cmd} refused (${msg.result ?? "no answer"})${why}`;
+  toast.hidden = false;
+  clearTimeout(toastTimer);
+  toastTimer = setTimeout(() => { toast.hidden = true; }, 8000);
+}
+
 function tick() {
   const pad = firstGamepad();
-  const sticks = released() ? { ...CENTRED } : pad ? fromGamepad(pad) : fromKeyboard();
-  ctl.input = pad ? "gamepad" : "keyboard";
+  // A gamepad wins; touch sticks once a finger has moved them and no key is held.
+  const input = pad ? "gamepad" : touch.touched && keys.size === 0 ? "touch" : "keyboard";
+  const sticks = released() ? { ...CENTRED }
+    : input === "gamepad" ? fromGamepad(pad) : input === "touch" ? touch.read() : fromKeyboard();
+  ctl.input = input;
   ctl.sticks = sticks;
   if (calibrating && pad) sweep(pad);
   const pill = $("ctl-input");
   if (!pill.classList.contains("bad")) {
     // Some browsers offer gamepads only to secure pages (https or localhost).
     const noPads = !navigator.getGamepads && !window.isSecureContext;
-    pill.textContent = pad ? pad.id.slice(0, 24) : noPads ? "keyboard (gamepad needs https)" : "keyboard";
+    const text = pad ? pad.id.slice(0, 24) : input === "touch" ? "touch"
+      : noPads ? "keyboard (gamepad needs https)" : "keyboard";
+    if (pill.textContent !== text) pill.textContent = text;
   }
   if (socket && socket.readyState === 1) socket.send(JSON.stringify({ type: "sticks", ...sticks }));
+  if ($("ctl-pad").open) drawBars(pad, sticks);
 }
 
 // ---- inputs ----
@@ -138,7 +168,10 @@ function fromKeyboard() {
 const CENTRED = { roll: 0, pitch: 0, yaw: 0, throttle: 0.5 };
 let focused = document.hasFocus();
 window.addEventListener("focus", () => { focused = true; });
-window.addEventListener("blur", () => { focused = false; });
+window.addEventListener("blur", () => { focused = false; touch.release(); });
+document.addEventListener("visibilitychange", () => {
+  if (document.visibilityState !== "visible") { keys.clear(); touch.release(); }
+});
 const released = () => !focused || document.visibilityState !== "visible";
 
 function firstGamepad() {
@@ -191,7 +224,11 @@ function renderPadPanel() {
       value="${config.map[f].index}">
       <input type="checkbox" data-f="${f}" data-k="invert" ${config.map[f].invert ? "checked" : ""}> invert</label>`).join("") +
     `<button type="button" id="ctl-cal">${calibrating ? "Done (centre sticks)" : "Calibrate"}</button>
-     <button type="button" id="ctl-defaults">Defaults</button>`;
+     <button type="button" id="ctl-defaults">Defaults</button>
+     <table id="ctl-bars" aria-label="live axes"><tbody id="ctl-bars-sent"></tbody>
+       <tbody id="ctl-bars-pad"></tbody></table>`;
+  sentRows = Object.fromEntries(FUNCS.map((f) => [f, barRow(`sent-${f}`, `sent ${f}`)]));
+  $("ctl-bars-sent").append(...Object.values(sentRows));
   body.querySelectorAll("input").forEach((el) => {
     el.onchange = () => {
       const m = config.map[el.dataset.f];
@@ -222,6 +259,39 @@ function renderPadPanel() {
   };
 }
 
+// ---- live axis bars (the gamepad panel): each pad axis, and what the station is sent ----
+function barRow(name, label) {
+  const svg = svgEl("svg", { viewBox: "-1 0 2 1", preserveAspectRatio: "none", class: "axis-bar" },
+    svgEl("rect", { x: 0, y: 0.15, width: 0, height: 0.7 }), svgEl("path", { d: "M0 0V1" }));
+  const value = el("td", { class: "num" }, "--");
+  return el("tr", { "data-bar": name }, el("th", {}, label), el("td", {}, svg), value);
+}
+
+// v in -1..1: the bar runs from the centre to v.
+function setBar(row, v, text = v === null || v === undefined ? "--" : v.toFixed(2)) {
+  const cell = row.lastChild;
+  if (cell.textContent === text) return;
+  cell.textContent = text;
+  const rect = row.querySelector("rect");
+  const x = clamp(v ?? 0, -1, 1);
+  rect.setAttribute("x", String(Math.min(0, x)));
+  rect.setAttribute("width", String(Math.abs(x)));
+}
+
+function drawBars(pad, sticks) {
+  const padBody = $("ctl-bars-pad");
+  const axes = pad ? pad.axes : [];
+  if (padBody.children.length !== axes.length) {
+    padBody.replaceChildren(...axes.map((_, i) => barRow(`axis-${i}`, `axis ${i}`)));
+  }
+  axes.forEach((v, i) => setBar(padBody.children[i], v));
+  // Throttle is sent as 0..1 (0.5 = hold): its bar shows it around the hold point.
+  for (const f of FUNCS) {
+    const v = f === "throttle" ? 2 * sticks.throttle - 1 : sticks[f];
+    setBar(sentRows[f], v, sticks[f].toFixed(2));
+  }
+}
+
 // Text fields keep their keys; a focused <select> (the task, a mode) does not get the
 // arrow keys while the sticks are active: they fly, they never change a selection.
 const typing = (e) => ["INPUT", "TEXTAREA"].includes(e.target.tagName) && e.target.type !== "checkbox";
@@ -239,6 +309,8 @@ const LEGEND = [
   ["W / S", "pitch forward / back"], ["A / D", "roll left / right"], ["Q / E", "yaw left / right"],
   ["\u2191 / \u2193 (R / F)", "climb / descend"], ["Shift", "full deflection"],
   ["\u2193 + E", "arm (throttle down, yaw right)"], ["\u2193 + Q", "disarm (throttle down, yaw left)"],
+  ["touch", "left stick: throttle / yaw (throttle stays), right: pitch / roll"],
+  ["touch \u2198", "left stick bottom-right: arm; bottom-left: disarm"],
   ["?", "this legend"],
 ];
 const legend = el("div", { id: "key-legend", class: "key-legend", role: "dialog", "aria-label": "keys", hidden: true },

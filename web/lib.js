@@ -6,6 +6,9 @@
 //   el(tag, attrs, ...children)  a new element: attrs are attributes ("class", "id", "href",
 //                                ...; true = present, false/null = absent), children are
 //                                nodes or text
+//   svgEl(tag, attrs, ...children)  the same for an SVG element (<svg>, <rect>, ...): what
+//                                a script moves (a knob, a bar) moves by attributes,
+//                                never by styles
 //   token()                      the station's control token kept in this browser, or null
 //                                (a ?token= in the page's URL is taken into it at load)
 //   askToken(why)                ask the user for the token (a prompt), keep it; returns it,
@@ -44,6 +47,14 @@ export function el(tag, attrs = {}, ...children) {
     if (v === true) e.setAttribute(k, "");
     else if (v !== false && v !== null && v !== undefined) e.setAttribute(k, v);
   }
+  e.append(...children);
+  return e;
+}
+
+const SVG_NS = "http://www.w3.org/2000/svg";
+export function svgEl(tag, attrs = {}, ...children) {
+  const e = document.createElementNS(SVG_NS, tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
   e.append(...children);
   return e;
 }

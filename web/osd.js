@@ -19,12 +19,18 @@ import { feed, groupAge } from "/telemetry.js";
 const HIDDEN_KEY = "fpv.osd.hidden";
 const LOW_BATTERY_PCT = 20;
 const MESSAGE_SHOWN_S = 10; // a vehicle message stays on the messages line this long
+// Lines of messages shown, newest last: a refusal (COMMAND_ACK) and the vehicle's reason
+// (its STATUSTEXT) arrive together, in either order.
+const MESSAGE_LINES = 2;
 const WARNING_SHOWN_S = 15; // an emergency/crash/failsafe message keeps its warning this long
 const VIDEO_STALE_S = 1.0;
+const REFUSED_SHOWN_S = 10; // "MAVLINK REFUSED" stays this long after the station last refused some
 const PITCH_FOV_DEG = 60; // the ladder's scale: the view's height spans this many degrees
 const FIX_NAMES = ["NO GPS", "NO FIX", "2D", "3D", "DGPS", "RTK FLT", "RTK FIX"];
 const SEVERITY = ["EMERG", "ALERT", "CRIT", "ERR", "WARN", "NOTE", "INFO", "DEBUG"];
 const M_PER_DEG_LAT = 111_320;
+const PAGES = [["/", "Pilot view"], ["/goggles.html", "Goggles"], ["/sessions.html", "Sessions"],
+  ["/analysis.html", "Analysis"]];
 
 // name -> [telemetry groups whose age greys it, seconds before it is stale]
 const ELEMENTS = {
@@ -84,6 +90,12 @@ export function mountOsd(view, { menu = true } = {}) {
     });
     menuBox.append(el("label", {}, box, ` ${name}`));
   }
+  // The other pages, from the menu: the goggles page has no other chrome to hold them.
+  const nav = el("nav", { class: "osd-nav", "aria-label": "pages" });
+  for (const [href, name] of PAGES) {
+    if (href !== location.pathname) nav.append(el("a", { href }, name));
+  }
+  menuBox.append(nav);
   const menuButton = el("button", { type: "button", class: "osd-menu-button", title: "OSD elements (O)" }, "OSD");
   menuButton.addEventListener("click", () => { menuBox.hidden = !menuBox.hidden; });
   if (menu) root.append(menuButton);
@@ -233,8 +245,8 @@ export function mountOsd(view, { menu = true } = {}) {
 
     // Messages line and centre warnings.
     const recent = s.messages.recent.filter((m) => msg.t_server_mono - m.t_mono < MESSAGE_SHOWN_S);
-    const newest = recent[recent.length - 1];
-    setText(nodes.messages, newest ? `${SEVERITY[newest.severity] ?? "MSG"} ${newest.text}` : "");
+    setText(nodes.messages, recent.slice(-MESSAGE_LINES)
+      .map((m) => `${SEVERITY[m.severity] ?? "MSG"} ${m.text}`).join("\n"));
     const warnings = [];
     if (!feed.flowing() || s.link.link_lost) warnings.push("LINK LOST");
     if (low) warnings.push("LOW BATTERY");
@@ -244,15 +256,26 @@ export function mountOsd(view, { menu = true } = {}) {
     if (serious.some((m) => /crash/i.test(m.text))) warnings.push("CRASH");
     else if (serious.some((m) => m.severity <= 2)) warnings.push("EMERGENCY");
     if (cam && (!cam.signal || (vAge !== null && vAge > VIDEO_STALE_S))) warnings.push("VIDEO STALE");
+    if (refusedAt !== null && performance.now() - refusedAt < REFUSED_SHOWN_S * 1000) warnings.push("MAVLINK REFUSED");
     setText(nodes.warning, warnings.join(" · "));
   }
 
   // The link's packet loss: one cheap GET every 2 s (not part of the vehicle state).
+  // Also whether the station is refusing MAVLink (datagrams from hosts other than the
+  // link's peer, packets failing signing): someone may be injecting; warn while it grows.
   let linkLoss = null;
+  let refusedTotal = null, refusedAt = null;
   async function pollLink() {
     try {
       const st = await api("/api/status");
       linkLoss = st.link ? st.link.loss_ratio : null;
+      const sec = st.link && st.link.security;
+      if (sec) {
+        const total = sec.foreign_datagrams + sec.forward_foreign_datagrams + sec.unsigned_refused
+          + sec.bad_signature_refused + sec.replay_refused;
+        if (refusedTotal !== null && total > refusedTotal) refusedAt = performance.now();
+        refusedTotal = total;
+      }
     } catch (err) {
       linkLoss = null;
     }

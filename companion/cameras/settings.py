@@ -3,28 +3,23 @@
 
 from __future__ import annotations
 
-from pydantic import Field, field_validator
+from typing import Annotated
+
+from pydantic import Field
 
 from companion.cameras.spec import parse_spec
-from core.settings_section import Section
+from core.settings_section import Section, checked_by
 
 
 class CameraConfig(Section):
     # A camera spec (see companion/cameras/spec.py): v4l2:/dev/video0, v4l2:0, file:X.mp4,
     # folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none. None = sim:<name> when
     # link.source is "sim", else none. Spec options (?width=..&fps=..) override the rest.
-    spec: str | None = None
+    spec: Annotated[str | None, checked_by(parse_spec)] = None  # CameraSpecError says why
     width: int = Field(640, ge=16, le=8192)
     height: int = Field(480, ge=16, le=8192)
     fps: float = Field(30.0, gt=0, le=240)
     jpeg_quality: int = Field(80, ge=1, le=100)
-
-    @field_validator("spec")
-    @classmethod
-    def _spec_is_usable(cls, value: str | None) -> str | None:
-        if value is not None:
-            parse_spec(value)  # CameraSpecError (a ValueError) says what is wrong
-        return value
 
 
 class CameraSettings(Section):

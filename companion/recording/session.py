@@ -21,6 +21,7 @@ from typing import Any
 
 from companion.latest import Latest
 from companion.recording import layout
+from companion.recording.flags import QUALITY_THRESHOLDS
 from companion.recording.meta import (
     Arming,
     CameraQuality,
@@ -101,6 +102,7 @@ class RecordingSession:
         self._named_by = self.utc_clock.used
         self._tracks = {c: _CameraTrack() for c in self.cameras}
         self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
+        self._gaps = LinkLossTracker(self.t0_mono, QUALITY_THRESHOLDS.telemetry_gap_s)
         self._arming: Arming | None = None
         self._was_armed: bool | None = None
         self.ticks_late = 0  # sample instants skipped because the sampler ran late
@@ -265,7 +267,9 @@ class RecordingSession:
         self.writer.put_row(Sample(now_mono, wall, state, tuple(refs)))
         # Link loss is about the autopilot: a radio's or another ground station's packets
         # keep arriving while the vehicle is silent, so only the autopilot's messages count.
-        self._links.update(now_mono, state.last_heard_mono() if state is not None else None)
+        last_heard = state.last_heard_mono() if state is not None else None
+        self._links.update(now_mono, last_heard)
+        self._gaps.update(now_mono, last_heard)
         if state is not None:
             self._note_arming(state, now_mono)
 
@@ -369,6 +373,8 @@ class RecordingSession:
             tlog_packets_dropped=st.packets_dropped,
             cameras=cams,
             link_loss=[iv.model_copy() for iv in self._links.intervals],
+            telemetry_gap_s=self._gaps.lost_after_s,
+            telemetry_gaps=[iv.model_copy() for iv in self._gaps.intervals],
         )
         return SessionMeta(
             id=self.id,

@@ -101,6 +101,8 @@ class Replay3D:
         self.overlay_handles: list[viser.SceneNodeHandle] = []
         self.overlay_vehicle: viser.IcosphereHandle | None = None
         self.t_s = 0.0
+        self._framing: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # look, eye
+        self._title: viser.GuiMarkdownHandle | None = None
         self._lock = threading.Lock()  # load runs in a worker thread, set_time on the loop
 
     def start(self) -> None:
@@ -114,6 +116,7 @@ class Replay3D:
         self.server.scene.set_up_direction("+z")
         self.server.initial_camera.position = (-25.0, -30.0, 20.0)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
+        self._add_gui()
         self.scene = LiveScene(
             self.server,
             height_range_m=s.height_range_m,
@@ -122,6 +125,21 @@ class Replay3D:
             field=self.field,
         )
         log.info("3D replay panel (viser) on port %d", self.port)
+
+    def _add_gui(self) -> None:
+        """A user's panel, not a developer's: viser shows its own controls (Save Canvas,
+        Reset View, the scene tree) only while a server has no GUI of its own, so the
+        panel carries what a user wants instead: which session, and the path framed."""
+        assert self.server is not None
+        gui = self.server.gui
+        gui.configure_theme(show_logo=False, show_share_button=False, control_width="small")
+        self._title = gui.add_markdown("No session loaded")
+        frame = gui.add_button("Frame the path", hint="Look at the whole path again")
+
+        @frame.on_click
+        def _(event: viser.GuiEvent) -> None:
+            if event.client is not None and self._framing is not None:
+                self._move_camera(event.client, *self._framing)
 
     @property
     def port(self) -> int:
@@ -155,6 +173,9 @@ class Replay3D:
                 self._draw_overlay(b)
             self.primary, self.overlay = a, b
             self._set_time(0.0)
+            if self._title is not None:
+                also = f" with **{b.id}**" if b is not None else ""
+                self._title.content = f"**{a.id}**{also}, {a.duration_s:.0f} s"
             self._frame_camera(np.concatenate([a.enu_m] + ([b.enu_m] if b else [])))
 
     def _frame_camera(self, pts_enu_m: np.ndarray) -> None:
@@ -165,16 +186,23 @@ class Replay3D:
         span = max(float(np.linalg.norm(hi - lo)), 10.0)
         eye = centre + np.array([-0.45, -0.65, 0.6]) * span
         look, pos = tuple(float(v) for v in centre), tuple(float(v) for v in eye)
+        # New viewers start from initial_camera (and viser's own "Reset View" goes back to
+        # it); open ones are moved.
         self.server.initial_camera.look_at = look
         self.server.initial_camera.position = pos
+        self._framing = (look, pos)
         for client in self.server.get_clients().values():
-            # The position setter drags look_at along: set look_at second. A client that
-            # has not reported its camera yet fails viser's assert and gets initial_camera.
-            try:
-                client.camera.position = pos
-                client.camera.look_at = look
-            except AssertionError:
-                continue
+            self._move_camera(client, look, pos)
+
+    @staticmethod
+    def _move_camera(client: viser.ClientHandle, look: tuple, pos: tuple) -> None:
+        # The position setter drags look_at along: set look_at second. A client that has
+        # not reported its camera yet fails viser's assert and gets initial_camera.
+        try:
+            client.camera.position = pos
+            client.camera.look_at = look
+        except AssertionError:
+            pass
 
     def _place_field(self, a: ReplayPath) -> None:
         """The field in the session's (possibly aligned) ENU frame."""

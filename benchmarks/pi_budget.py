@@ -1,0 +1,473 @@
+"""The Pi's budget: CPU per thread and per component, RSS and start-up of the whole station.
+
+    python benchmarks/pi_budget.py [--seconds 20] [--warmup 5] [--repeat 2] [--3d both|on|off]
+                                   [--no-profile]
+
+Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subprocess
+(benchmarks/station_process.py):
+- the test vehicle (tests/mav_vehicle.py) over UDP, at the rates the station asks for
+  (SET_MESSAGE_INTERVAL: about 140 packets/s);
+- two USB MJPEG cameras at 640x480, 30 fps, through the station's own V4L2 source and its
+  passthrough (the grabber is simulated at OpenCV's VideoCapture: usb_mjpeg_camera.py);
+- recording on (telemetry, tlog and both videos);
+- two telemetry WebSocket clients and two MJPEG viewers per camera, in this process;
+- the 3D panel on (its viser servers up, nobody looking), off, or both runs side by side.
+
+Printed per run: start-up (spawn to the first healthy /api/health), the process's CPU in
+% of one core over the window (CPU seconds from /proc, not wall time), RSS, CPU per
+thread (/proc/PID/task/TID/stat; names from `py-spy dump`), and per component: link,
+cameras, fan-out (frames and telemetry to clients), recorder, web (the rest of the event
+loop), 3D panel, other. The event loop thread is split between fan-out, 3D panel and web by
+py-spy's samples of it that hold the GIL (`--no-profile`: not split); the busiest
+functions (self time in those samples, every thread) follow.
+Figures, machine and load average go in docs/PERFORMANCE.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import collections
+import json
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.station_process import StationProcess, serve_station  # noqa: E402
+from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
+from tests.mav_vehicle import MavVehicle  # noqa: E402
+
+TOKEN = "pi-budget-token"
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+COMPONENTS = ("link", "cameras", "fan-out", "recorder", "web", "3D panel", "other")
+# Event-loop samples whose stack passes through these files are fan-out, the rest web.
+FANOUT_FILES = (
+    "server/video_fanout.py",
+    "server/routes/video.py",
+    "server/routes/telemetry.py",
+    "server/telemetry_json.py",
+)
+PANEL_FILES = ("server/trajectory3d/", "/viser/")  # the live 3D panel's steps on the loop
+
+
+@dataclass
+class ThreadInfo:
+    tid: int
+    name: str
+    stack: str = ""  # from py-spy dump, to tell viser's threads by their code
+
+
+@dataclass
+class Run:
+    label: str
+    ready_s: float
+    seconds: float
+    cpu_s: float
+    rss_mb: float
+    load: tuple[float, float]  # 1-min load average at the window's start and end
+    threads: list[tuple[ThreadInfo, float]]  # (thread, CPU seconds in the window)
+    thread_sys_s: dict[int, float]  # system (kernel) seconds of each thread in the window
+    components: dict[str, float]
+    top: list[tuple[str, float]] = field(default_factory=list)  # (function, share of samples)
+    packets_per_s: float = 0.0
+    fps: dict[str, float] = field(default_factory=dict)
+    telemetry_msgs_per_s: list[float] = field(default_factory=list)
+    viewer_fps: list[float] = field(default_factory=list)
+
+
+# -- /proc -----------------------------------------------------------------------------
+
+
+def thread_cpu_s(pid: int) -> dict[int, tuple[float, float]]:
+    """CPU seconds (user, system) of each live thread of `pid`."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            stat = (task / "stat").read_text()
+        except OSError:
+            continue  # ended meanwhile
+        fields = stat[stat.rindex(")") + 2 :].split()
+        out[int(task.name)] = (int(fields[11]) / CLOCK_TICKS, int(fields[12]) / CLOCK_TICKS)
+    return out
+
+
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds of the whole process, ended threads included."""
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    fields = stat[stat.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def comm(pid: int, tid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/task/{tid}/comm").read_text().strip()
+    except OSError:
+        return "?"
+
+
+# -- py-spy ----------------------------------------------------------------------------
+
+
+def py_spy() -> str | None:
+    found = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    return found if Path(found).exists() else None
+
+
+def thread_names(pid: int) -> dict[int, ThreadInfo]:
+    """Python thread names by OS thread id (py-spy dump); /proc's comm where unknown."""
+    infos = {tid: ThreadInfo(tid, comm(pid, tid)) for tid in thread_cpu_s(pid)}
+    spy = py_spy()
+    if spy is None:
+        return infos
+    dump = subprocess.run(
+        [spy, "dump", "--pid", str(pid), "--nonblocking"], capture_output=True, text=True
+    ).stdout
+    current: ThreadInfo | None = None
+    for line in dump.splitlines():
+        m = re.match(r'Thread (\d+) \((\w+)\): "(.*)"', line)
+        if m:
+            current = infos.setdefault(int(m[1]), ThreadInfo(int(m[1]), m[3]))
+            current.name = m[3]
+        elif current is not None:
+            current.stack += line + "\n"
+    return infos
+
+
+def start_profile(pid: int, seconds: float, out: Path) -> subprocess.Popen | None:
+    spy = py_spy()
+    if spy is None:
+        return None
+    return subprocess.Popen(
+        [spy, "record", "--pid", str(pid), "--duration", str(int(seconds)), "--rate", "100"]
+        + ["--format", "raw", "--threads", "--gil", "--nonblocking", "--full-filenames"]
+        + ["-o", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+def read_profile(path: Path) -> dict[int, list[tuple[list[str], int]]]:
+    """py-spy raw samples: OS thread id -> [(frames, outermost first; count)]."""
+    samples: dict[int, list[tuple[list[str], int]]] = collections.defaultdict(list)
+    if not path.exists():
+        return samples
+    for line in path.read_text().splitlines():
+        stack, _, count = line.rpartition(" ")
+        m = re.match(r"thread \((\d+)\): [^;]*;?(.*)", stack)
+        if m and count.isdigit():
+            samples[int(m[1])].append((m[2].split(";") if m[2] else [], int(count)))
+    return samples
+
+
+# -- components -------------------------------------------------------------------------
+
+
+def component_of(info: ThreadInfo, loop_tid: int) -> str:
+    name = info.name
+    if info.tid == loop_tid:
+        return "web"
+    if name.startswith("mavlink"):
+        return "link"
+    if name.startswith("camera-"):
+        return "cameras"
+    if name.startswith("recorder-"):
+        return "recorder"
+    if "viser" in info.stack or "websockets" in info.stack:
+        return "3D panel"
+    return "other"
+
+
+def loop_component(frames: list[str]) -> str:
+    """Who an event-loop sample works for: the 3D panel, fan-out, or web (the rest)."""
+    if any(f in s for s in frames for f in PANEL_FILES):
+        return "3D panel"
+    if any(f in s for s in frames for f in FANOUT_FILES):
+        return "fan-out"
+    return "web"
+
+
+def split_components(
+    threads: list[tuple[ThreadInfo, float]], loop_tid: int, samples: dict
+) -> dict[str, float]:
+    out = dict.fromkeys(COMPONENTS, 0.0)
+    for info, cpu in threads:
+        comp = component_of(info, loop_tid)
+        loop_samples = samples.get(loop_tid) if comp == "web" else None
+        if loop_samples:
+            total = sum(n for _, n in loop_samples)
+            for frames, n in loop_samples:
+                out[loop_component(frames)] += cpu * n / total
+        else:
+            out[comp] += cpu
+    return out
+
+
+def top_functions(samples: dict, n: int = 12) -> list[tuple[str, float]]:
+    """The innermost frame of each sample (self time), as a share of all samples."""
+    counts: collections.Counter[str] = collections.Counter()
+    for per_thread in samples.values():
+        for frames, k in per_thread:
+            if frames:
+                counts[_short(frames[-1])] += k
+    total = sum(counts.values()) or 1
+    return [(fn, k / total) for fn, k in counts.most_common(n)]
+
+
+def _short(frame: str) -> str:
+    root = str(ROOT) + "/"
+    frame = frame.replace(root, "")
+    return re.sub(r"\(/.*?(site-packages|lib/python3\.\d+)/", "(", frame)
+
+
+# -- the clients ---------------------------------------------------------------------------
+
+
+async def clients(port: int, seconds: float, warmup: float, telemetry: int, viewers: int):
+    """Telemetry WebSocket clients and MJPEG viewers for warmup + seconds; their rates."""
+    from websockets.asyncio.client import connect
+
+    loop = asyncio.get_running_loop()
+    counts = [0] * telemetry
+    stop = asyncio.Event()
+
+    async def telemetry_client(i: int) -> None:
+        async with connect(f"ws://127.0.0.1:{port}/ws/telemetry", max_size=1 << 20) as ws:
+            while not stop.is_set():
+                try:
+                    await asyncio.wait_for(ws.recv(), 1.0)
+                except TimeoutError:
+                    continue
+                counts[i] += 1
+
+    tasks = [asyncio.create_task(telemetry_client(i)) for i in range(telemetry)]
+    mjpeg, transports = [], []
+    for cam in ("front", "bottom"):
+        for _ in range(viewers):
+            transport, viewer = await loop.create_connection(
+                lambda: MjpegViewer(loop.create_future()), "127.0.0.1", port
+            )
+            transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: b\r\n\r\n".encode())
+            mjpeg.append(viewer)
+            transports.append(transport)
+    await asyncio.sleep(warmup)
+    c0, p0 = list(counts), [len(v.parts) for v in mjpeg]
+    await asyncio.sleep(seconds)
+    msgs = [(c - b) / seconds for c, b in zip(counts, c0, strict=True)]
+    fps = [(len(v.parts) - b) / seconds for v, b in zip(mjpeg, p0, strict=True)]
+    stop.set()
+    for t in transports:
+        t.close()
+    await asyncio.gather(*tasks, return_exceptions=True)
+    return msgs, fps
+
+
+# -- one run ---------------------------------------------------------------------------------
+
+
+def one_run(args: argparse.Namespace, tmp: Path, with_3d: bool, label: str) -> Run:
+    front, bottom = tmp / "front", tmp / "bottom"
+    sessions = tmp / f"sessions-{label}"
+    vehicle = MavVehicle("udp").start()
+    cmd = [
+        *("--source", vehicle.station_source),
+        *("--front", f"v4l2:{front}?fourcc=MJPG", "--bottom", f"v4l2:{bottom}?fourcc=MJPG"),
+        *("--viser-port", "0", "--sessions-dir", str(sessions)),
+        *(() if with_3d else ("--no-3d",)),
+    ]
+    env = {"FPV_SERVER__TOKEN": json.dumps(TOKEN)}
+    launcher = ("-m", "benchmarks.usb_mjpeg_camera")
+    try:
+        with serve_station(cmd, env, launcher=launcher) as station:
+            return measure(args, station, label)
+    finally:
+        vehicle.stop()
+
+
+def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Run:
+    pid = station.popen.pid
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    httpx.post(f"{station.base}/api/recording/start", headers=auth, json={}, timeout=10)
+    # The clients connect and warm up; the window starts after `warmup` s.
+    result: dict = {}
+
+    async def drive() -> None:
+        task = asyncio.create_task(
+            clients(station.port, args.seconds, args.warmup, 2, args.viewers)
+        )
+        await asyncio.sleep(args.warmup)
+        result["start"] = await asyncio.to_thread(window_start, station, args)
+        result["rates"] = await task
+        result["end"] = await asyncio.to_thread(window_end, station)
+
+    asyncio.run(drive())
+    (cpu0, threads0, status0, t0, load0, spy), (cpu1, threads1, status1, t1, load1) = (
+        result["start"],
+        result["end"],
+    )
+    seconds = t1 - t0
+    profile = profile_path(station)
+    samples: dict = {}
+    if spy is not None:
+        spy.wait(30)
+        samples = read_profile(profile)
+        if args.profile_out is not None and profile.exists():
+            args.profile_out.mkdir(parents=True, exist_ok=True)
+            name = re.sub(r"\W+", "-", label).strip("-")
+            shutil.copy(profile, args.profile_out / f"py-spy-{name}.txt")
+    names = thread_names(pid)
+    user0 = {tid: u for tid, (u, _) in threads0.items()}
+    sys0 = {tid: s for tid, (_, s) in threads0.items()}
+    thread_sys = {tid: s - sys0.get(tid, 0.0) for tid, (_, s) in threads1.items()}
+    threads = sorted(
+        (
+            (
+                names.get(tid, ThreadInfo(tid, comm(pid, tid))),
+                u - user0.get(tid, 0.0) + thread_sys[tid],
+            )
+            for tid, (u, _) in threads1.items()
+        ),
+        key=lambda x: -x[1],
+    )
+    cams = httpx.get(f"{station.base}/api/cameras", timeout=10).json()["cameras"]
+    rec = httpx.post(f"{station.base}/api/recording/stop", headers=auth, json={}, timeout=30)
+    if not rec.json().get("last_stop"):
+        print(f"# recording stop: {rec.text[:300]}", file=sys.stderr)
+    packets = status1["link"]["packets"] - status0["link"]["packets"]
+    msgs, fps = result["rates"]
+    return Run(
+        label=label,
+        ready_s=station.ready_s,
+        seconds=seconds,
+        cpu_s=cpu1 - cpu0,
+        rss_mb=rss_mb(pid),
+        load=(load0, load1),
+        threads=threads,
+        thread_sys_s=thread_sys,
+        components=split_components(threads, pid, samples),
+        top=top_functions(samples),
+        packets_per_s=packets / seconds,
+        fps={c["name"]: c["delivered_fps"] for c in cams},
+        telemetry_msgs_per_s=msgs,
+        viewer_fps=fps,
+    )
+
+
+def profile_path(station: StationProcess) -> Path:
+    return station.log_path.with_name("profile.txt")  # each station has its own folder
+
+
+def window_start(station: StationProcess, args: argparse.Namespace):
+    pid = station.popen.pid
+    status = httpx.get(f"{station.base}/api/status", timeout=10).json()
+    spy = None if args.no_profile else start_profile(pid, args.seconds, profile_path(station))
+    return (
+        process_cpu_s(pid),
+        thread_cpu_s(pid),
+        status,
+        time.monotonic(),
+        os.getloadavg()[0],
+        spy,
+    )
+
+
+def window_end(station: StationProcess):
+    pid = station.popen.pid
+    cpu, threads, t = process_cpu_s(pid), thread_cpu_s(pid), time.monotonic()
+    status = httpx.get(f"{station.base}/api/status", timeout=10).json()
+    return cpu, threads, status, t, os.getloadavg()[0]
+
+
+# -- printing ----------------------------------------------------------------------------------
+
+
+def report(run: Run) -> None:
+    pct = run.cpu_s / run.seconds * 100
+    print(
+        f"\n## {run.label}: CPU {pct:.1f} % of one core, RSS {run.rss_mb:.0f} MB, "
+        f"ready in {run.ready_s:.2f} s (load {run.load[0]:.2f} -> {run.load[1]:.2f})"
+    )
+    print(
+        f"   link {run.packets_per_s:.0f} packets/s; cameras "
+        + ", ".join(f"{k} {v:.1f} fps" for k, v in run.fps.items())
+        + "; telemetry msg/s per client "
+        + ", ".join(f"{m:.1f}" for m in run.telemetry_msgs_per_s)
+        + "; MJPEG fps per viewer "
+        + ", ".join(f"{f:.1f}" for f in run.viewer_fps)
+    )
+    print(
+        "   per component (% of one core): "
+        + ", ".join(f"{c} {s / run.seconds * 100:.2f}" for c, s in run.components.items())
+    )
+    print(f"   {'thread':<40} {'tid':>7} {'% core':>7} {'of it sys':>9}")
+    for info, cpu in run.threads:
+        if cpu > 0:
+            sys_pct = run.thread_sys_s[info.tid] / run.seconds * 100
+            print(
+                f"   {info.name[:40]:<40} {info.tid:>7} {cpu / run.seconds * 100:>7.2f} "
+                f"{sys_pct:>9.2f}"
+            )
+    idle = [info.name for info, cpu in run.threads if cpu <= 0]
+    if idle:
+        print(f"   idle threads: {', '.join(idle)}")
+    if run.top:
+        print("   busiest functions (self time, share of py-spy samples):")
+        for fn, share in run.top:
+            print(f"   {share * 100:5.1f} %  {fn}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seconds", type=float, default=20.0, help="measured window per run")
+    ap.add_argument("--warmup", type=float, default=5.0, help="after start, before the window")
+    ap.add_argument("--repeat", type=int, default=2, help="runs per configuration")
+    ap.add_argument("--3d", dest="three_d", choices=("both", "on", "off"), default="both")
+    ap.add_argument("--viewers", type=int, default=2, help="MJPEG viewers per camera")
+    ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
+    ap.add_argument("--profile-out", type=Path, help="keep py-spy's raw samples in this folder")
+    args = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-pi-"))
+    make_frames(tmp / "front", ".jpg")
+    make_frames(tmp / "bottom", ".jpg")
+    print(
+        f"# fpv-station Pi budget: UDP test vehicle, 2 USB MJPEG cameras 640x480 @ 30 fps "
+        f"(passthrough), recording, 2 telemetry clients, {args.viewers} viewers per camera; "
+        f"{args.seconds:g} s windows after {args.warmup:g} s; machine {platform.machine()}, "
+        f"{os.cpu_count()} cores, Python {platform.python_version()}; "
+        f"py-spy {'yes' if py_spy() and not args.no_profile else 'no'}"
+    )
+    configs = {"both": (True, False), "on": (True,), "off": (False,)}[args.three_d]
+    runs = []
+    for i in range(args.repeat):
+        for with_3d in configs:
+            run = one_run(args, tmp, with_3d, f"3D {'on' if with_3d else 'off'} #{i + 1}")
+            report(run)
+            runs.append(run)
+    print("\n# summary")
+    for run in runs:
+        print(
+            f"{run.label:<12} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
+            f"  ready {run.ready_s:5.2f} s  load {run.load[0]:.2f}->{run.load[1]:.2f}"
+        )
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,373 @@
+"""The vehicle link on a hostile network (issue 13, item 5): datagrams from addresses other
+than the link's peer, and MAVLink 2 signing on and off. Real uvicorn stations, real UDP
+sockets, real MAVLink bytes from pymavlink's encoder (and its signing, as MAVProxy uses
+it); what is checked is what the station shows (/api/status, its state) and records."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import hashlib
+import json
+import os
+import socket
+import time
+
+import httpx
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from websockets.sync.client import connect
+
+from companion.recording import layout
+from core.mavlink.signing import write_key_file
+from server.app import create_app
+from server.cli import main as cli_main
+from server.settings import SettingsError
+from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
+from tests.mav_vehicle import MavVehicle
+from twin.runner import Twin
+
+REAL_LAT, FORGED_LAT = 43.0021, 12.5
+PASSPHRASE = "field day 2026"
+KEY = hashlib.sha256(PASSPHRASE.encode()).digest()  # MAVProxy's `signing setup PASSPHRASE`
+WRONG_KEY = hashlib.sha256(b"not the field's passphrase").digest()
+
+
+@contextlib.contextmanager
+def station(source: str, tmp_path, **overrides):
+    # The station asks for no rates: a position stays as the last packet set it.
+    overrides = {"link.request_streams": False, **overrides}
+    app = create_app(station_settings(source, tmp_path / "sessions", **overrides))
+    with run_uvicorn(app) as base:
+        yield app, base
+
+
+def security(base: str) -> dict:
+    return httpx.get(f"{base}/api/status").json()["link"]["security"]
+
+
+def state(app):
+    latest = app.state.station.state.get()
+    return latest.value if latest else None
+
+
+def forged_position(lat_deg: float, sysid: int = 1, compid: int = 1) -> bytes:
+    """GPS_RAW_INT and GLOBAL_POSITION_INT in the vehicle's name, in one datagram."""
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    lat, lon = int(lat_deg * 1e7), int(-78.7875e7)
+    gps = mav.gps_raw_int_encode(1, 3, lat, lon, 180000, 80, 120, 0, 0, 12)
+    gpi = mav.global_position_int_encode(1000, lat, lon, 180000, 0, 0, 0, 0, 0)
+    return gps.pack(mav) + gpi.pack(mav)
+
+
+def sync(v: MavVehicle, app, roll: float) -> None:
+    """Send a marker through the vehicle's own path and wait until the station applied it:
+    everything sent to the station's socket before it has been handled."""
+    v.roll_rad = roll
+    v.send_now("ATTITUDE")
+    assert wait_until(lambda: state(app).attitude.roll_rad == pytest.approx(roll), timeout=5)
+
+
+def position_fixed(v: MavVehicle, app) -> None:
+    """The vehicle's real position in the state (after its heartbeat made it the one
+    followed)."""
+    assert wait_until(lambda: state(app) and state(app).heartbeat.sysid == v.sysid, timeout=5)
+    v.send_now("GPS_RAW_INT")
+    v.send_now("GLOBAL_POSITION_INT")
+    assert wait_until(lambda: state(app) and state(app).gps.lat_deg == pytest.approx(REAL_LAT))
+    assert wait_until(lambda: state(app).global_position.lat_deg == pytest.approx(REAL_LAT))
+
+
+def assert_position_real(app) -> None:
+    s = state(app)
+    assert s.gps.lat_deg == pytest.approx(REAL_LAT)
+    assert s.global_position.lat_deg == pytest.approx(REAL_LAT)
+
+
+# -- who may send: the link's peer only ---------------------------------------------------
+
+# Only heartbeats on their own: positions are sent by the test, so that a forged one would
+# stay in the state until the next real one.
+QUIET = {"HEARTBEAT": 2.0}
+
+
+def test_udpout_drops_a_forged_position_from_another_socket(tmp_path) -> None:
+    with MavVehicle("udp", answer_sender=True, rates_hz=QUIET) as v:
+        overrides = {"recording.auto_record_on_arm": True, "recording.post_disarm_tail_s": 0.2}
+        with station(v.station_source, tmp_path, **overrides) as (app, base):
+            assert wait_until(lambda: v.reply_to is not None, timeout=5)  # the station spoke
+            assert wait_until(lambda: state(app) and state(app).heartbeat.autopilot == "px4")
+            position_fixed(v, app)
+            v.arm()
+            assert wait_until(lambda: httpx.get(f"{base}/api/recording").json()["recording"])
+            forged = forged_position(FORGED_LAT)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+                attacker.bind(("127.0.0.1", 0))
+                for _ in range(3):
+                    attacker.sendto(forged, v.reply_to)  # the station's own link socket
+                sync(v, app, 0.25)
+                assert_position_real(app)
+                sec = security(base)
+                assert sec["foreign_datagrams"] == 3
+                host, port = attacker.getsockname()
+                assert sec["last_foreign_sender"] == f"{host}:{port}"
+                assert sec["peer"] == f"127.0.0.1:{v.port}" and sec["signing"] is False
+            time.sleep(0.3)  # recorder rows past the forged packets
+            v.disarm()
+            assert wait_until(lambda: not httpx.get(f"{base}/api/recording").json()["recording"])
+            session = httpx.get(f"{base}/api/recording").json()["last_stop"]["id"]
+    folder = tmp_path / "sessions" / session
+    tlog = (folder / layout.MAVLINK_TLOG).read_bytes()
+    assert forged[:20] not in tlog and len(tlog) > 0
+    with open(folder / layout.TELEMETRY_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    lats = {r[k] for r in rows for k in ("gps.lat_deg", "global_position.lat_deg")}
+    assert lats == {"43.0021"}
+
+
+def test_udpin_locks_to_the_first_sender_and_counts_others(tmp_path) -> None:
+    with MavVehicle("udp", rates_hz=QUIET) as v:
+        with station(v.station_source, tmp_path) as (app, base):
+            assert wait_until(lambda: state(app) and state(app).heartbeat.autopilot == "px4")
+            position_fixed(v, app)
+            # Another host on the network (127.0.0.2 is another address on this host's
+            # loopback): same ids as the vehicle, to the station's udpin port.
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+                attacker.bind(("127.0.0.2", 0))
+                attacker.sendto(forged_position(FORGED_LAT), ("127.0.0.1", v.station_port))
+                sync(v, app, 0.5)
+                assert_position_real(app)
+                sec = security(base)
+                assert sec["foreign_datagrams"] == 1 and sec["udpin_lock"] is True
+                assert sec["last_foreign_sender"].startswith("127.0.0.2:")
+                assert sec["peer"] == f"127.0.0.1:{v.port}"
+                # The station still answers the vehicle, not the other host.
+                before = len(v.received)
+                assert wait_until(lambda: len(v.received) > before, timeout=3)
+
+
+def test_udpin_unlocked_hears_every_sender(tmp_path) -> None:
+    """`link.udpin_lock = false`: the old behaviour, for several hosts feeding one port."""
+    with MavVehicle("udp", rates_hz=QUIET) as v:
+        with station(v.station_source, tmp_path, **{"link.udpin_lock": False}) as (app, base):
+            assert wait_until(lambda: state(app) and state(app).heartbeat.autopilot == "px4")
+            position_fixed(v, app)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+                other.bind(("127.0.0.2", 0))
+                other.sendto(forged_position(FORGED_LAT), ("127.0.0.1", v.station_port))
+                assert wait_until(
+                    lambda: state(app).gps.lat_deg == pytest.approx(FORGED_LAT), timeout=5
+                )
+            assert security(base)["foreign_datagrams"] == 0
+
+
+def test_udpin_lock_follows_the_hosts_new_port_and_shares_it_with_a_radio(tmp_path) -> None:
+    """A bridge restarted on the same host comes back from another port; a SiK radio
+    (sysid 51, compid 68, a MAVLink 1 RADIO_STATUS) behind the same address is heard."""
+    with MavVehicle("udp", rates_hz=QUIET) as v:
+        with station(v.station_source, tmp_path) as (app, base):
+            assert wait_until(lambda: state(app) and state(app).heartbeat.autopilot == "px4")
+            v.silent = True  # the bridge restarts: its next packets come from another port
+            with MavVehicle(
+                "udp", station_port=v.station_port, sysid=51, compid=68, mavlink1=True, rates_hz={}
+            ) as radio:
+                radio.send_message(radio.mav.radio_status_encode(200, 190, 80, 10, 20, 0, 0))
+                assert wait_until(lambda: security(base)["peer"] == f"127.0.0.1:{radio.port}")
+                streams = httpx.get(f"{base}/api/status").json()["link"]["streams"]
+                assert any(s["sysid"] == 51 and s["compid"] == 68 for s in streams)
+            v.silent = False
+            position_fixed(v, app)  # the vehicle again, from its own port
+            assert wait_until(lambda: security(base)["peer"] == f"127.0.0.1:{v.port}")
+            assert security(base)["foreign_datagrams"] == 0
+
+
+# -- MAVLink 2 signing --------------------------------------------------------------------
+
+
+def key_file(tmp_path, passphrase: str = PASSPHRASE):
+    return write_key_file(tmp_path / "mavlink.key", passphrase)
+
+
+def test_signed_twin_and_station_work_end_to_end(tmp_path) -> None:
+    """`--source sim` with a key: the twin signs and obeys only signed packets; the
+    station's state follows it and its commands (arm, take-off) reach it."""
+    overrides = {"link.signing_key_file": str(key_file(tmp_path)), "twin.realtime_factor": 2.0}
+    with station("sim", tmp_path, **overrides) as (app, base):
+        twin = app.state.station.twin
+        assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
+        # Arming commands to the twin's own port, unsigned and with the wrong key: refused,
+        # and its telemetry still goes to the station, not to the sender.
+        twin_addr = twin.vehicle.sock.getsockname()
+        counts = twin.vehicle.signing.counts
+        for n, key in enumerate((None, WRONG_KEY), start=1):
+            mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+            if key is not None:
+                mav.signing.secret_key, mav.signing.sign_outgoing = key, True
+                mav.signing.timestamp = int((time.time() - 1420070400) * 1e5)
+            arm = mav.command_long_encode(1, 1, 400, 0, 1, 21196, 0, 0, 0, 0, 0)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+                attacker.sendto(arm.pack(mav), twin_addr)
+                assert wait_until(lambda n=n: counts.unsigned + counts.bad_signature == n)
+        assert counts.unsigned == 1 and counts.bad_signature == 1
+        assert not twin.sim.commander.armed[0]
+        version = app.state.station.state.get().version
+        assert wait_until(lambda: app.state.station.state.get().version > version + 10)
+        ws_url = base.replace("http", "ws")
+        with connect(ws_url + "/ws/control") as ws:
+            json.loads(ws.recv(timeout=5))  # hello
+            ws.send(json.dumps({"type": "arm"}))
+            reply = json.loads(ws.recv(timeout=5))
+            assert (reply["type"], reply["cmd"], reply["ok"]) == ("ack", "arm", True)
+            assert wait_until(lambda: state(app).heartbeat.armed, timeout=5)
+        sec = security(base)
+        assert sec["signing"] is True and sec["signed"] > 20
+        assert sec["unsigned_refused"] == sec["bad_signature_refused"] == 0
+        assert counts.signed > 0 and counts.unsigned == counts.bad_signature == 1
+
+
+def test_signing_refuses_unsigned_wrong_key_and_replayed_packets(tmp_path) -> None:
+    port = free_port(socket.SOCK_DGRAM)
+    overrides = {"link.signing_key_file": str(key_file(tmp_path))}
+    with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
+        # Another host speaks first, unsigned: refused, and it does not take the lock.
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+            attacker.bind(("127.0.0.2", 0))
+            attacker.sendto(forged_position(FORGED_LAT), ("127.0.0.1", port))
+            assert wait_until(lambda: security(base)["unsigned_refused"] == 2, timeout=5)
+        assert security(base)["peer"] is None
+        # A vehicle without the key: heard at the socket, refused by signing.
+        with MavVehicle("udp", station_port=port, rates_hz=QUIET) as unsigned:
+            unsigned.send_now("GPS_RAW_INT")
+            assert wait_until(lambda: security(base)["unsigned_refused"] >= 3, timeout=5)
+        assert state(app).heartbeat.sysid is None and state(app).gps.lat_deg is None
+        # The same address with the wrong key: refused too.
+        with MavVehicle("udp", station_port=port, rates_hz=QUIET, signing_key=WRONG_KEY) as w:
+            w.send_now("GPS_RAW_INT")
+            assert wait_until(lambda: security(base)["bad_signature_refused"] >= 3, timeout=5)
+        assert state(app).heartbeat.sysid is None and state(app).gps.lat_deg is None
+        # The right key: heard, and what the station sends it is signed.
+        with MavVehicle("udp", station_port=port, rates_hz=QUIET, signing_key=KEY) as v:
+            position_fixed(v, app)
+            assert wait_until(lambda: state(app).heartbeat.autopilot == "px4", timeout=5)
+            assert wait_until(lambda: len(v.received) >= 2, timeout=5)
+            assert all(v.signed(m) for m in list(v.received))
+            # A captured good packet sent again (a replay) is refused.
+            v.lat_deg = FORGED_LAT
+            captured = v.send_now("GPS_RAW_INT")
+            assert wait_until(lambda: state(app).gps.lat_deg == pytest.approx(FORGED_LAT))
+            v.lat_deg = REAL_LAT
+            position_fixed(v, app)
+            v.inject(captured)
+            assert wait_until(lambda: security(base)["replay_refused"] == 1, timeout=5)
+            sync(v, app, 0.75)
+            assert_position_real(app)
+            # A forged signed packet with a far-future timestamp and a bad signature must
+            # not make the vehicle's genuine packets look old (pymavlink's own check would).
+            forged = bytearray(captured)
+            forged[-12:-6] = (2**48 - 1).to_bytes(6, "little")
+            v.inject(bytes(forged))
+            sync(v, app, 1.0)
+            sec = security(base)
+            assert sec["replay_refused"] == 1 and sec["bad_signature_refused"] >= 4
+
+
+def test_a_vehicle_whose_signing_clock_is_behind_is_heard_once_it_hears_us(tmp_path) -> None:
+    """A vehicle that booted with its signing clock a week behind (no GPS yet; ArduPilot
+    keeps the last one it saved): its new stream is refused as too old until our signed
+    heartbeats move its clock forward, as the protocol asks; then it is heard and locked."""
+    port = free_port(socket.SOCK_DGRAM)
+    overrides = {"link.signing_key_file": str(key_file(tmp_path))}
+    with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
+        week = 7 * 86400.0
+        with MavVehicle(
+            "udp", station_port=port, rates_hz=QUIET, signing_key=KEY, signing_clock_s=-week
+        ) as v:
+            assert wait_until(lambda: security(base)["replay_refused"] >= 1, timeout=5)
+            position_fixed(v, app)
+            assert security(base)["peer"] == f"127.0.0.1:{v.port}"
+
+
+def test_signing_off_hears_unsigned_and_signed_packets(tmp_path) -> None:
+    with MavVehicle("udp", rates_hz=QUIET) as v:
+        with station(v.station_source, tmp_path) as (app, base):
+            position_fixed(v, app)
+            assert wait_until(lambda: len(v.received) >= 2, timeout=5)  # the station's beats
+            assert not any(v.signed(m) for m in list(v.received))
+            assert security(base)["signing"] is False
+    with MavVehicle("udp", rates_hz=QUIET, signing_key=KEY) as signed:
+        with station(signed.station_source, tmp_path) as (app, base):
+            position_fixed(signed, app)  # a signature it cannot check is no reason to refuse
+            sec = security(base)
+            assert sec["signing"] is False and sec["unsigned_refused"] == 0
+
+
+# -- the key file --------------------------------------------------------------------------
+
+
+def test_a_key_file_others_can_read_is_refused_with_a_clear_error(tmp_path, capsys) -> None:
+    path = key_file(tmp_path)
+    os.chmod(path, 0o644)
+    with pytest.raises(SettingsError, match="chmod 600"):
+        station_settings("sim", **{"link.signing_key_file": str(path)})
+    assert cli_main(["serve", "--source", "sim", "--signing-key", str(path)]) == 2
+    assert "open to other users" in capsys.readouterr().err
+
+
+def test_the_key_is_the_passphrase_hashed_as_mavproxy_does(tmp_path) -> None:
+    """A twin given MAVProxy's key for the passphrase (SHA-256 of it) talks to a station
+    given the passphrase file (with the newline `echo` leaves)."""
+    port = free_port(socket.SOCK_DGRAM)
+    overrides = {"link.signing_key_file": str(key_file(tmp_path))}
+    with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
+        with Twin(mavlink=f"udpout:127.0.0.1:{port}", signing_key=KEY) as twin:
+            assert wait_until(lambda: state(app) and state(app).heartbeat.autopilot == "px4")
+            assert wait_until(lambda: twin.vehicle.signing.counts.signed > 0, timeout=5)
+        sec = security(base)
+        assert sec["signed"] > 0 and sec["unsigned_refused"] == sec["bad_signature_refused"] == 0
+
+
+@pytest.mark.parametrize(
+    ("content", "mode", "error"),
+    [
+        (b"", 0o600, "is empty"),
+        (b"\xff\xfe\x00key", 0o600, "is not text"),
+        (PASSPHRASE.encode(), 0o640, "open to other users"),
+        (None, 0o600, "does not exist"),
+    ],
+)
+def test_unusable_key_files_say_why(tmp_path, content, mode, error) -> None:
+    path = tmp_path / "mavlink.key"
+    if content is not None:
+        path.write_bytes(content)
+        os.chmod(path, mode)
+    with pytest.raises(SettingsError, match=error):
+        station_settings("sim", **{"link.signing_key_file": str(path)})
+
+
+def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
+    """While the station refuses datagrams, the OSD over the front video says so."""
+    from playwright.sync_api import expect, sync_playwright
+
+    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+
+    with MavVehicle("udp") as v, station(v.station_source, tmp_path) as (app, base):
+        with sync_playwright() as p:
+            browser = p.chromium.launch(
+                executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True
+            )
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(base + "/")
+            warning = page.locator("[data-osd=warning]")
+            expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+            time.sleep(2.5)  # a poll of /api/status with nothing refused
+            expect(warning).not_to_contain_text("MAVLINK REFUSED")
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+                attacker.bind(("127.0.0.2", 0))
+                deadline = time.monotonic() + 8
+                while time.monotonic() < deadline:
+                    attacker.sendto(forged_position(FORGED_LAT), ("127.0.0.1", v.station_port))
+                    time.sleep(0.5)
+                    if "MAVLINK REFUSED" in (warning.text_content() or ""):
+                        break
+            expect(warning).to_contain_text("MAVLINK REFUSED")
+            browser.close()
