@@ -120,7 +120,8 @@ class UdpTransport:
     `confirm_senders` (set when the link signs): a udpin sender becomes the peer (the one
     answered, and the host the lock holds) only when its datagram held a packet signed
     with the key (`adopt_sender`), so that an unsigned datagram sent first cannot take
-    the lock, nor one sent later take our answers.
+    the lock, nor one sent later take our answers. Until then the last sender is
+    answered.
     """
 
     def __init__(
@@ -183,10 +184,14 @@ class UdpTransport:
         return peer is None or not self._lock or addr[0] == peer[0]
 
     def write(self, data: bytes) -> None:
-        if self._peer is None:
+        # udpin waiting for a signed packet: answer the last sender meanwhile. A vehicle
+        # whose signing clock is behind ours is refused until our signed packets move its
+        # clock forward, so it must hear them; this sets no lock.
+        target = self._peer if self._peer is not None else self._sender
+        if target is None:
             return  # udpin: nobody has spoken yet, so nobody to answer
         try:
-            self._sock.sendto(data, self._peer)
+            self._sock.sendto(data, target)
         except OSError:
             # UDP: a full buffer, a refused port, an unreachable network (WiFi down) all
             # mean a lost datagram, the protocol's normal loss; never a reason to drop

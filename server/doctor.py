@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Literal
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.link_health import LinkSecurity
 from companion.system_clock import clock_synchronised
 from core.mavlink.framing import MavFramer
 from server.settings import Settings
@@ -156,13 +157,17 @@ def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) 
             why = health.last_error or (
                 f"{health.bytes_total} bytes, {health.packets} packets, none from an autopilot"
             )
+            fix = (
+                "Check TX/RX are crossed, the baud rate matches (PX4 SER_TEL2_BAUD, "
+                "ArduPilot SERIALn_BAUD) and MAVLink is enabled on that port."
+            )
+            refused, refused_fix = _refused(health.security)
             return [
                 Check(
                     "MAVLink heartbeat",
                     "FAIL",
-                    f"nothing heard on {settings.link.source} in {timeout_s:g} s ({why})",
-                    "Check TX/RX are crossed, the baud rate matches (PX4 SER_TEL2_BAUD, "
-                    "ArduPilot SERIALn_BAUD) and MAVLink is enabled on that port.",
+                    f"nothing heard on {settings.link.source} in {timeout_s:g} s ({why}{refused})",
+                    refused_fix or fix,
                 )
             ]
         version.ask(link, hb.sysid, hb.compid)
@@ -181,6 +186,30 @@ def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) 
         version.check(),
         Check("MAVLink rates (Hz)", "ok" if rates else "warn", rates or "no messages"),
     ]
+
+
+def _refused(sec: LinkSecurity) -> tuple[str, str | None]:
+    """What the link refused, in words, and what to do about it (None: nothing refused)."""
+    parts, fixes = [], []
+    if sec.foreign_datagrams:
+        parts.append(
+            f"{sec.foreign_datagrams} datagrams from other addresses, latest "
+            f"{sec.last_foreign_sender}"
+        )
+        fixes.append(
+            "The vehicle answers from another address than the one the link hears: use "
+            "udpin: for it, or set link.udpin_lock = false if several hosts feed one port."
+        )
+    if sec.unsigned_refused or sec.bad_signature_refused or sec.replay_refused:
+        parts.append(
+            f"signing refused {sec.unsigned_refused} unsigned, {sec.bad_signature_refused} "
+            f"wrongly signed, {sec.replay_refused} replayed packets"
+        )
+        fixes.append(
+            "The vehicle does not sign with link.signing_key_file's passphrase: give it "
+            "the same one (MAVProxy 'signing setup PASSPHRASE' over USB) or fix the file."
+        )
+    return ("; " + "; ".join(parts) if parts else ""), (" ".join(fixes) or None)
 
 
 # FIRMWARE_VERSION_TYPE, the low byte of AUTOPILOT_VERSION.flight_sw_version.

@@ -71,6 +71,7 @@ class MavVehicle:
         interval_reply: Literal["accept", "unsupported", "ignore"] = "accept",
         answer_sender: bool = False,
         signing_key: bytes | None = None,
+        signing_clock_s: float = 0.0,
     ) -> None:
         self.transport = transport
         self.sysid, self.compid = sysid, compid
@@ -82,10 +83,14 @@ class MavVehicle:
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
         if signing_key is not None:
-            for m in (self.mav, self._parser):  # as mavutil's setup_signing does
-                m.signing.secret_key = signing_key
-                m.signing.link_id = 0
-                m.signing.timestamp = int((time.time() - 1420070400) * 1e5)
+            # As mavutil's setup_signing does, with one signing state for what is sent and
+            # what is received (an accepted timestamp moves the next one sent forward);
+            # `signing_clock_s` ahead (+) or behind (-) the wall clock.
+            self._parser.signing = self.mav.signing
+            self.mav.signing.secret_key = signing_key
+            self.mav.signing.link_id = 0
+            t = time.time() + signing_clock_s - 1420070400
+            self.mav.signing.timestamp = int(t * 1e5)
             self.mav.signing.sign_outgoing = True
             # Let unsigned packets through to `received`; `signed(msg)` tells them apart.
             self._parser.signing.allow_unsigned_callback = lambda mav, msg_id: True

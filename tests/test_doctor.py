@@ -120,3 +120,17 @@ def test_firmware_version_as_ardupilot_and_px4_pack_it():
     ardupilot = (4 << 24) | (5 << 16) | (7 << 8) | 255
     assert firmware_version(ardupilot, list(b"2a3dc4b7")) == "4.5.7 official (git 2a3dc4b7)"
     assert firmware_version((1 << 24) | (15 << 16) | 192, [0] * 8) == "1.15.0 rc"
+
+
+def test_doctor_says_signing_refused_the_vehicle(tmp_path):
+    """A vehicle that does not sign, heard by a station with a key: the heartbeat check
+    fails and says why (signing), not "check the wiring"."""
+    from core.mavlink.signing import write_key_file
+
+    key = write_key_file(tmp_path / "mavlink.key", "field day 2026")
+    with MavVehicle("udp") as vehicle:
+        settings = station_settings(vehicle.station_source, **{"link.signing_key_file": key})
+        hb = check_heartbeat(settings, timeout_s=1.5, rates_s=0)
+    assert hb[0].status == "FAIL", hb
+    assert "signing refused" in hb[0].detail and "unsigned" in hb[0].detail
+    assert "signing setup" in hb[0].fix

@@ -271,6 +271,22 @@ def test_signing_refuses_unsigned_wrong_key_and_replayed_packets(tmp_path) -> No
             assert sec["replay_refused"] == 1 and sec["bad_signature_refused"] >= 4
 
 
+def test_a_vehicle_whose_signing_clock_is_behind_is_heard_once_it_hears_us(tmp_path) -> None:
+    """A vehicle that booted with its signing clock a week behind (no GPS yet; ArduPilot
+    keeps the last one it saved): its new stream is refused as too old until our signed
+    heartbeats move its clock forward, as the protocol asks; then it is heard and locked."""
+    port = free_port(socket.SOCK_DGRAM)
+    overrides = {"link.signing_key_file": str(key_file(tmp_path))}
+    with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
+        week = 7 * 86400.0
+        with MavVehicle(
+            "udp", station_port=port, rates_hz=QUIET, signing_key=KEY, signing_clock_s=-week
+        ) as v:
+            assert wait_until(lambda: security(base)["replay_refused"] >= 1, timeout=5)
+            position_fixed(v, app)
+            assert security(base)["peer"] == f"127.0.0.1:{v.port}"
+
+
 def test_signing_off_hears_unsigned_and_signed_packets(tmp_path) -> None:
     with MavVehicle("udp", rates_hz=QUIET) as v:
         with station(v.station_source, tmp_path) as (app, base):

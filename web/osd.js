@@ -29,6 +29,8 @@ const PITCH_FOV_DEG = 60; // the ladder's scale: the view's height spans this ma
 const FIX_NAMES = ["NO GPS", "NO FIX", "2D", "3D", "DGPS", "RTK FLT", "RTK FIX"];
 const SEVERITY = ["EMERG", "ALERT", "CRIT", "ERR", "WARN", "NOTE", "INFO", "DEBUG"];
 const M_PER_DEG_LAT = 111_320;
+const PAGES = [["/", "Pilot view"], ["/goggles.html", "Goggles"], ["/sessions.html", "Sessions"],
+  ["/analysis.html", "Analysis"]];
 
 // name -> [telemetry groups whose age greys it, seconds before it is stale]
 const ELEMENTS = {
@@ -88,6 +90,12 @@ export function mountOsd(view, { menu = true } = {}) {
     });
     menuBox.append(el("label", {}, box, ` ${name}`));
   }
+  // The other pages, from the menu: the goggles page has no other chrome to hold them.
+  const nav = el("nav", { class: "osd-nav", "aria-label": "pages" });
+  for (const [href, name] of PAGES) {
+    if (href !== location.pathname) nav.append(el("a", { href }, name));
+  }
+  menuBox.append(nav);
   const menuButton = el("button", { type: "button", class: "osd-menu-button", title: "OSD elements (O)" }, "OSD");
   menuButton.addEventListener("click", () => { menuBox.hidden = !menuBox.hidden; });
   if (menu) root.append(menuButton);
