@@ -171,6 +171,35 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
     await asyncio.gather(*tasks, return_exceptions=True)
 
 
+def print_session_accounting(meta: dict, rate_hz: float) -> None:
+    """Where the session's rows and frames went: lost (a bounded queue refused them: data
+    loss) or never produced (the sampler thread did not run at an instant: CPU starved;
+    the grid stays fixed and the instant is skipped, counted in telemetry_ticks_late)."""
+    q = meta["quality"]
+    expected = (meta["duration_s"] or 0.0) * rate_hz
+    rows, late, dropped = (
+        q["telemetry_rows"],
+        q["telemetry_ticks_late"],
+        q["telemetry_rows_dropped"],
+    )
+    print(
+        f"rows: {rows} written of ~{expected:.0f} instants at {rate_hz:g} Hz over "
+        f"{meta['duration_s']:.1f} s ({100 * rows / max(expected, 1):.1f} %); not produced: "
+        f"{late} instants skipped by a late sampler (CPU starved); lost: {dropped} refused by "
+        f"the writer's queue; unaccounted: {expected - rows - late - dropped:+.0f}"
+    )
+    print(
+        f"tlog: {q['tlog_packets']} packets written, {q['tlog_packets_dropped']} lost to a full "
+        f"buffer"
+    )
+    for cam, c in q["cameras"].items():
+        print(
+            f"{cam}: {c['frames_written']} of {c['frames_captured']} frames written; never "
+            f"seen by the recorder (its consumer starved, the slot kept the newest) "
+            f"{c['frames_missed']}; lost to the writer's full queue {c['frames_dropped_queue']}"
+        )
+
+
 def run(args: argparse.Namespace) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-soak-"))
     front, bottom = make_frames(tmp / "front", ".jpg"), make_frames(tmp / "bottom", ".jpg")
@@ -196,6 +225,7 @@ def run(args: argparse.Namespace) -> None:
         sid = stop.json()["last_stop"]["id"]
         meta = json.loads((tmp / "sessions" / sid / "session.json").read_text())
         print(f"session {sid}: status {meta['status']}, stop_reason {meta.get('stop_reason')}")
+        print_session_accounting(meta, args.rate_hz)
     print(f"server log: {tmp / 'server.log'}")
 
 

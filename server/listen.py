@@ -11,14 +11,17 @@ Accepted connections inherit the option from the listening socket.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import socket
+import time
 
 import uvicorn
 
 log = logging.getLogger(__name__)
 
 NOTSENT_LOWAT_BYTES = 64 * 1024  # about one 640x480 JPEG
+STALLED_GRACE_S = 0.5  # at shutdown, how long a client that does not read may catch up
 _TCP_NOTSENT_LOWAT = getattr(socket, "TCP_NOTSENT_LOWAT", 25)  # 25 on Linux
 
 
@@ -43,12 +46,54 @@ def listening_socket(host: str, port: int, backlog: int = 128) -> socket.socket:
     return sock
 
 
+class StationServer(uvicorn.Server):
+    """uvicorn, ending the station's endless streams when its shutdown begins.
+
+    At shutdown uvicorn closes WebSockets (1012) and waits for HTTP responses to finish;
+    MJPEG streams never finish by themselves, so after `timeout_graceful_shutdown` it
+    would cancel them, logging a traceback per viewer. `app.state.station.end_streams()`
+    ends them first: each viewer's response completes after the part it is sending.
+    """
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        station = getattr(getattr(self.config.app, "state", None), "station", None)
+        if station is not None:
+            station.end_streams()
+        await self._drop_stalled_writers()
+        await super().shutdown(sockets)
+
+    async def _drop_stalled_writers(self) -> None:
+        """A viewer that does not read (a frozen browser) holds its response in a socket
+        write that will never finish, so its stream cannot end: after a short grace,
+        close such connections at once (nothing more can reach that client anyway)."""
+        deadline = time.monotonic() + STALLED_GRACE_S
+        while True:
+            stalled = [c for c in self.server_state.connections if _unsent_bytes(c)]
+            if not stalled or time.monotonic() >= deadline:
+                break
+            await asyncio.sleep(0.05)
+        for conn in stalled:
+            conn.transport.abort()  # type: ignore[attr-defined]
+        if stalled:
+            log.info("shutdown: closed %d connections whose clients stopped reading", len(stalled))
+
+
+def _unsent_bytes(conn: object) -> int:
+    """Bytes a connection (HTTP or WebSocket) holds that its client has not taken: the
+    kernel's buffer is full, so the transport keeps them."""
+    transport = getattr(conn, "transport", None)
+    if transport is None or transport.is_closing():
+        return 0
+    return transport.get_write_buffer_size()
+
+
 def uvicorn_server(app, log_level: str = "info") -> uvicorn.Server:
     """The uvicorn server as `fpv-station serve` runs it (tests run the same one).
 
     No permessage-deflate: browsers ask for it, and it would compress every telemetry
     message once per client, the per-client re-encoding the shared JSON body avoids.
-    MJPEG streams never end by themselves: they get 2 s at shutdown, then are cancelled.
+    Streams end at shutdown (`StationServer`); a response still running after 2 s (a
+    viewer stalled in a socket write, a download) is cancelled.
     """
     config = uvicorn.Config(
         app,
@@ -57,4 +102,4 @@ def uvicorn_server(app, log_level: str = "info") -> uvicorn.Server:
         timeout_graceful_shutdown=2,
         lifespan="on",
     )
-    return uvicorn.Server(config)
+    return StationServer(config)

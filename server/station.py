@@ -65,6 +65,12 @@ class Station:
         default_factory=lambda: ClientLimits(ClientCap("websocket", 200), ClientCap("video", 40))
     )
 
+    def end_streams(self) -> None:
+        """The server is shutting down: end every MJPEG stream after its current part
+        (WebSockets are closed by uvicorn itself, with 1012)."""
+        for fanout in self.video_fanouts.values():
+            fanout.close()
+
 
 @contextlib.asynccontextmanager
 async def open_station(settings: Settings) -> AsyncIterator[Station]:
@@ -171,7 +177,10 @@ async def _start_trajectory3d(station: Station, stack: contextlib.AsyncExitStack
     station.trajectory3d = service
     # viser's stop joins its thread: keep that wait off the event loop.
     stack.push_async_callback(asyncio.to_thread, service.stop)
-    station.tasks.spawn("trajectory3d", service.run())
+    # The task draws into the viser server: it ends before the server stops (the stack
+    # unwinds last in, first out).
+    task = station.tasks.spawn("trajectory3d", service.run())
+    stack.push_async_callback(station.tasks.cancel, task)
     # The replay's own viser server, with the same field (server/trajectory3d/replay_scene.py).
     from server.trajectory3d.replay_scene import Replay3D
 

@@ -41,6 +41,11 @@ class TaskSupervisor:
     def healthy(self) -> bool:
         return not self.failures
 
+    async def cancel(self, task: asyncio.Task[Any]) -> None:
+        """Cancel one task and wait until it has ended (before what it uses is stopped)."""
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+
     async def aclose(self) -> None:
         tasks = [t for t in self._tasks.values() if not t.done()]
         for task in tasks:

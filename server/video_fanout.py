@@ -57,6 +57,13 @@ class FrameFanout:
         self.viewers = 0
         self._event = asyncio.Event()
         self._task: asyncio.Task[Any] | None = None
+        self.closed = False  # the server is shutting down: every stream ends
+
+    def close(self) -> None:
+        """End every viewer's stream after the part it is sending (server shutdown), so
+        that their responses complete instead of being cancelled mid-stream."""
+        self.closed = True
+        self._event.set()
 
     def _ensure_pump(self) -> None:
         if self._task is None or self._task.done():
@@ -67,7 +74,7 @@ class FrameFanout:
 
     async def _pump(self) -> None:
         try:
-            while not self.frames.closed and self.viewers > 0:
+            while not self.frames.closed and not self.closed and self.viewers > 0:
                 item = await self.frames.wait_newer(self.version, timeout=_IDLE_WAIT_S)
                 if item is not None and item.version > self.version:
                     self.part, self.version = multipart_part(item.value), item.version
@@ -91,7 +98,7 @@ class FrameFanout:
             with watching:
                 yield OPENING
                 sent = 0
-                while not self.frames.closed:
+                while not self.frames.closed and not self.closed:
                     if self.version > sent:
                         sent = self.version
                         yield self.part

@@ -233,7 +233,7 @@ def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):
     assert st.last_stop.reason.startswith("disk full") and "50 MB" in st.last_stop.reason
     folder = tmp_path / st.last_stop.id
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
-    assert meta["status"] == "complete" and meta["stop_reason"] == st.last_stop.reason
+    assert meta["status"] == "cut_short" and meta["stop_reason"] == st.last_stop.reason
     rows = read_csv(folder / layout.TELEMETRY_CSV)
     assert len(rows) == meta["quality"]["telemetry_rows"] > 20
     assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])

@@ -1,4 +1,5 @@
-"""A really full disk: the recorder on a tiny tmpfs (needs root to mount; skipped otherwise)."""
+"""A really full disk: the recorder on a tiny tmpfs (needs root to mount; skipped otherwise),
+and a write past RLIMIT_FSIZE (EFBIG, any user), which fails the way ENOSPC does."""
 
 import asyncio
 import contextlib
@@ -7,12 +8,14 @@ import subprocess
 import time
 
 import pytest
+from pymavlink import mavutil
 
 from companion.recording import layout
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+from tests.test_recording_kill import complete_rows, read_line, spawn
 
 
 @contextlib.contextmanager
@@ -41,6 +44,7 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
         auto_record_on_arm=False,
     )
     rec = Recorder(root, vehicle.state, {"front": cam.frames}, options)
+    vehicle.listeners.append(rec.on_packet)
 
     async def run():
         await rec.open()
@@ -61,17 +65,53 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
     "min_free_kb,expect", [(5120, "MB free, under the"), (0, "No space left on device")]
 )
 def test_full_tmpfs_stops_cleanly_with_reason(tmp_path, min_free_kb, expect):
-    """5 MB: the free-space threshold stops it; 0: writes fail with ENOSPC and stop it."""
+    """5 MB: the free-space threshold stops it; 0: writes fail with ENOSPC and stop it.
+    Either way the session is marked cut short."""
     with tmpfs(tmp_path / "disk", 8192) as root:
         st = record_until_stopped(root, min_free_kb * 1024)
         assert not st.recording, "recording did not stop on a full disk"
         reason = st.last_stop.reason
         assert reason.startswith("disk full") and expect in reason, reason
-        meta = json.loads((root / st.last_stop.id / layout.SESSION_JSON).read_text())
-        assert meta["status"] == "complete" and meta["stop_reason"] == reason
-        assert meta["quality"]["cameras"]["front"]["frames_written"] > 5
-        with open(root / st.last_stop.id / layout.TELEMETRY_CSV) as f:
-            assert f.readline().startswith("t_s,wall_time,")
+        meta = assert_report_is_what_is_on_disk(root / st.last_stop.id)
+        assert meta["stop_reason"] == reason
+
+
+def test_a_write_past_the_file_size_limit_cuts_the_session_short(tmp_path):
+    """No root needed: a process under RLIMIT_FSIZE gets EFBIG from the write that would
+    cross it, cut where the limit falls, as ENOSPC cuts writes on a full disk."""
+    proc = spawn(["-m", "tests.record_under_file_limit", str(tmp_path), str(160 * 1024)])
+    try:
+        sid = read_line(proc, "STOPPED ", timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+    meta = assert_report_is_what_is_on_disk(tmp_path / sid)
+    assert meta["stop_reason"].startswith("write error") and "too large" in meta["stop_reason"]
+
+
+def assert_report_is_what_is_on_disk(folder) -> dict:
+    """A session cut short by a failed write: its report states what is on disk (issue 13
+    item 7), not what the writer had handed to buffers that the failed flush lost."""
+    meta = json.loads((folder / layout.SESSION_JSON).read_text())
+    assert meta["status"] == "cut_short"
+    with open(folder / layout.TELEMETRY_CSV) as f:
+        assert f.readline().startswith("t_s,wall_time,")
+    q = meta["quality"]
+    assert q["telemetry_rows"] == len(complete_rows(folder / layout.TELEMETRY_CSV)) > 0
+    mlog = mavutil.mavlink_connection(str(folder / layout.MAVLINK_TLOG))
+    packets = 0
+    while mlog.recv_msg() is not None:
+        packets += 1
+    assert q["tlog_packets"] == packets
+    jpegs = sorted(folder.glob("front/*.jpg"))
+    assert all(p.read_bytes().endswith(b"\xff\xd9") for p in jpegs)  # no cut frame
+    listed = [r["file"] for r in complete_rows(folder / layout.frames_csv_relpath("front"))]
+    assert listed == [f"front/{p.name}" for p in jpegs]
+    front = q["cameras"]["front"]
+    assert front["frames_written"] == len(jpegs) > 5
+    assert front["frames_captured"] == front["frames_written"] + front["frames_dropped"]
+    return meta
 
 
 def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):

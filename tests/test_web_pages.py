@@ -5,6 +5,7 @@ pages that style only through the one stylesheet and load only the station's own
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import httpx
 import pytest
@@ -22,7 +23,9 @@ PAGES = {
     "/sessions.html": f'#sessions tr[data-id="{SESSION_A}"] a.replay',
     "/analysis.html": f'#sessions option[value="{SESSION_A}"]',
     f"/replay.html?session={SESSION_A}": "#replay-status:has-text('fixes')",
+    "/goggles.html": ".osd-menu-button",
 }
+WEB_DIR = Path(__file__).resolve().parents[1] / "web"
 
 
 @pytest.fixture
@@ -227,3 +230,21 @@ def test_live_socket_sends_acks_and_closes_for_good(tmp_path, chromium):
             time.sleep(0.05)
         page.wait_for_timeout(1500)  # longer than the first reconnect delay
         assert page.evaluate("window.__got.length") == before
+
+
+def test_every_page_links_to_the_analysis_page(sessions_dir, chromium):  # noqa: F811
+    pages = {path.split("?")[0].lstrip("/") or "index.html" for path in PAGES}
+    assert pages == {p.name for p in WEB_DIR.glob("*.html")}  # a new page is tested too
+    settings = station_settings("none", sessions_dir)
+    with run_uvicorn(create_app(settings)) as base:
+        page = chromium.new_page(viewport={"width": 1280, "height": 720})
+        for path in PAGES:
+            page.goto(base + path)
+            if path == "/goggles.html":  # no chrome: the links are in the OSD menu (O)
+                page.locator(".osd-menu-button").wait_for(state="attached")
+                page.keyboard.press("o")
+            link = page.locator('a[href="/analysis.html"]').first
+            expect(link).to_be_visible()
+            if path != "/analysis.html":
+                link.click()
+                expect(page).to_have_url(base + "/analysis.html")

@@ -1,5 +1,10 @@
 // fpv-station sessions page: GET /api/sessions as a table; replay, download as zip,
 // delete (DELETE /api/sessions/{id}; lib.js asks for the control token when needed).
+// A session's status says how its recording ended (complete, recovered after the station
+// died, cut short by a failed write); its quality column lists the station's flags
+// (companion/recording/flags.py: a crash, a failsafe, telemetry gaps, link loss, dropped
+// frames; each with its reason and threshold) or "ok" with the counts. A crashed flight's
+// row is marked.
 import { $, el, api } from "/lib.js";
 
 const tbody = document.querySelector("#sessions tbody");
@@ -18,18 +23,31 @@ function fmtDuration(s) {
   return m ? `${m} min ${String(s % 60).padStart(2, "0")} s` : `${s} s`;
 }
 
-function quality(s) {
+// The counts behind the flags (the cell's tooltip, and its text when nothing is flagged).
+function counts(s) {
   const parts = [];
   if (s.telemetry_rows != null) parts.push(`${s.telemetry_rows} rows`);
-  let bad = false;
   for (const cam of Object.keys(s.frames_written)) {
     const dropped = s.frames_dropped[cam] || 0;
-    if (dropped) bad = true;
     const skew = s.skew_p99_s[cam];
     parts.push(`${cam} ${s.frames_written[cam]} frames` + (dropped ? ` (${dropped} dropped)` : "") +
       (skew != null ? `, skew p99 ${Math.round(skew * 1000)} ms` : ""));
   }
-  return { text: parts.join(", ") || "--", bad };
+  return parts.join(", ");
+}
+
+function qualityCell(tr, s) {
+  const td = cell(tr, "", s.flags.length ? "quality-bad" : "quality-ok");
+  td.title = counts(s);
+  if (!s.flags.length) td.textContent = s.status === "unreadable" ? "--" : `ok: ${td.title || "no data"}`;
+  else td.append(el("ul", { class: "flags" },
+    ...s.flags.map((f) => el("li", { "data-flag": f.kind }, el("b", {}, f.kind.replace("_", " ")), ` ${f.reason}`))));
+}
+
+const STATUS = { complete: "complete", cut_short: "cut short", recording: "recording", unreadable: "unreadable" };
+function statusText(s) {
+  if (s.status === "interrupted") return s.recovered ? "recovered" : "interrupted";
+  return STATUS[s.status] ?? s.status;
 }
 
 function scoreText(s) {
@@ -72,16 +90,18 @@ async function load() {
   tbody.replaceChildren();
   $("empty").hidden = sessions.length > 0;
   for (const s of sessions) {
-    const tr = el("tr", { "data-id": s.id });
+    const crashed = s.flags.some((f) => f.kind === "crash");
+    const tr = el("tr", { "data-id": s.id, class: crashed ? "crashed" : null });
     // start_utc is in the clock the session chose (the vehicle's GPS when the Pi's was off).
     const start = s.start_utc ? new Date(s.start_utc).toLocaleString() : s.id;
     cell(tr, start).title = s.id;
     cell(tr, s.recording_now ? "recording..." : fmtDuration(s.duration_s), "num");
     cell(tr, s.source);
     cell(tr, fmtSize(s.size_bytes), "num");
-    cell(tr, s.status, `status-${s.status}`).title = s.stop_reason || "";
-    const q = quality(s);
-    cell(tr, q.text, q.bad ? "quality-bad" : "");
+    const status = cell(tr, statusText(s), `status status-${s.status}`);
+    status.title = s.stop_reason || "";
+    if (crashed) status.append(" ", el("span", { class: "crash-mark" }, "CRASHED"));
+    qualityCell(tr, s);
     cell(tr, s.task ? `${s.task.id}. ${s.task.name}` : "--", "task");
     cell(tr, scoreText(s), s.score && !s.score.ok ? "quality-bad score" : "score").title =
       s.score && s.score.reason ? s.score.reason : "";

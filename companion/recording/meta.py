@@ -58,6 +58,10 @@ class Quality(_Model):
     tlog_packets_dropped: int = 0
     cameras: dict[str, CameraQuality] = Field(default_factory=dict)
     link_loss: list[LinkLoss] = Field(default_factory=list)
+    # Silences of the autopilot longer than telemetry_gap_s (flags.QUALITY_THRESHOLDS),
+    # shorter than a link loss but already a hole in the flight's record.
+    telemetry_gap_s: float | None = None
+    telemetry_gaps: list[LinkLoss] = Field(default_factory=list)
 
 
 class Arming(_Model):

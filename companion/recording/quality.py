@@ -42,7 +42,8 @@ class SkewStats:
 
 
 class LinkLossTracker:
-    """Intervals (session clock) with nothing from the autopilot for longer than `lost_after_s`."""
+    """Intervals (session clock) with nothing from the autopilot for longer than `lost_after_s`
+    (the link loss, and the shorter telemetry gaps of flags.QUALITY_THRESHOLDS)."""
 
     def __init__(self, t0_mono: float, lost_after_s: float) -> None:
         self.t0_mono = t0_mono

@@ -21,6 +21,7 @@ from typing import Any
 
 from companion.latest import Latest
 from companion.recording import layout
+from companion.recording.flags import QUALITY_THRESHOLDS
 from companion.recording.meta import (
     Arming,
     CameraQuality,
@@ -30,6 +31,7 @@ from companion.recording.meta import (
     SessionTask,
     write_meta,
 )
+from companion.recording.ondisk import apply_census, take_census
 from companion.recording.quality import LinkLossTracker, SkewStats
 from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.session_clock import DEFAULT_MAX_DISAGREE_S, choose_session_clock
@@ -100,6 +102,7 @@ class RecordingSession:
         self._named_by = self.utc_clock.used
         self._tracks = {c: _CameraTrack() for c in self.cameras}
         self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
+        self._gaps = LinkLossTracker(self.t0_mono, QUALITY_THRESHOLDS.telemetry_gap_s)
         self._arming: Arming | None = None
         self._was_armed: bool | None = None
         self.ticks_late = 0  # sample instants skipped because the sampler ran late
@@ -145,15 +148,23 @@ class RecordingSession:
         for task in self._consumers:
             task.cancel()
         await asyncio.gather(*self._consumers, return_exceptions=True)
-        await asyncio.to_thread(self._finish)
-        return self.meta(layout.STATUS_COMPLETE)
+        return await asyncio.to_thread(self._finish)
 
-    def _finish(self) -> None:
+    def _finish(self) -> SessionMeta:
         if self._sampler.is_alive():
             self._sampler.join(5.0)
         self.writer.close()
         self.end_wall = self.writer.stats.last_row_wall or self.clock.wall()
-        self._write_meta(layout.STATUS_COMPLETE)
+        if self.writer.failure is None:
+            meta = self.meta(layout.STATUS_COMPLETE)
+        else:
+            # A failed write (a full disk) loses what the files' buffers held, which the
+            # writer had counted: the report says what the files hold, and that it was cut.
+            meta = self.meta(layout.STATUS_CUT_SHORT)
+            census = take_census(self.folder, list(self.cameras), self.t0_wall)
+            apply_census(meta, census, layout.utc_label())
+        self._save(meta)
+        return meta
 
     @property
     def stopping(self) -> bool:
@@ -256,7 +267,9 @@ class RecordingSession:
         self.writer.put_row(Sample(now_mono, wall, state, tuple(refs)))
         # Link loss is about the autopilot: a radio's or another ground station's packets
         # keep arriving while the vehicle is silent, so only the autopilot's messages count.
-        self._links.update(now_mono, state.last_heard_mono() if state is not None else None)
+        last_heard = state.last_heard_mono() if state is not None else None
+        self._links.update(now_mono, last_heard)
+        self._gaps.update(now_mono, last_heard)
         if state is not None:
             self._note_arming(state, now_mono)
 
@@ -293,9 +306,12 @@ class RecordingSession:
             self._write_meta(layout.STATUS_RECORDING)
 
     def _write_meta(self, status: str) -> None:
+        self._save(self.meta(status))
+
+    def _save(self, meta: SessionMeta) -> None:
         with self._meta_lock:
             try:
-                write_meta(self.folder / layout.SESSION_JSON, self.meta(status))
+                write_meta(self.folder / layout.SESSION_JSON, meta)
             except OSError as exc:
                 log.warning("cannot write %s: %s", self.folder / layout.SESSION_JSON, exc)
 
@@ -316,7 +332,7 @@ class RecordingSession:
     def meta(self, status: str) -> SessionMeta:
         st = self.writer.stats
         utc = self._choose_clock().model_copy(update={"named_by": self._named_by})
-        end_wall = self.end_wall if status == layout.STATUS_COMPLETE else st.last_row_wall
+        end_wall = self.end_wall if status != layout.STATUS_RECORDING else st.last_row_wall
         duration = None if end_wall is None else round(end_wall - self.t0_wall, 3)
         cams: dict[str, CameraQuality] = {}
         for cam in self.cameras:
@@ -357,6 +373,8 @@ class RecordingSession:
             tlog_packets_dropped=st.packets_dropped,
             cameras=cams,
             link_loss=[iv.model_copy() for iv in self._links.intervals],
+            telemetry_gap_s=self._gaps.lost_after_s,
+            telemetry_gaps=[iv.model_copy() for iv in self._gaps.intervals],
         )
         return SessionMeta(
             id=self.id,

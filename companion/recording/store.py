@@ -16,10 +16,11 @@ from __future__ import annotations
 import os
 import shutil
 import stat
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from companion.recording import layout
+from companion.recording.flags import QualityFlag, session_flags
 from companion.recording.meta import SessionMeta, read_meta
 
 
@@ -59,6 +60,7 @@ class SessionSummary:
     frames_written: dict[str, int]
     frames_dropped: dict[str, int]
     meta: SessionMeta | None  # None when session.json is missing or unreadable
+    flags: list[QualityFlag] = field(default_factory=list)  # flags.session_flags
 
 
 class SessionStore:
@@ -71,6 +73,8 @@ class SessionStore:
         # Folder sizes by id, valid while session.json keeps its mtime: a finished session
         # does not change, and walking thousands of frames on every list costs a Pi.
         self._sizes: dict[str, tuple[int, int]] = {}
+        # Quality flags by id, valid while session.json and messages.csv keep their mtimes.
+        self._flags: dict[str, tuple[tuple[int, int], list[QualityFlag]]] = {}
 
     # -- untrusted input -> safe paths -----------------------------------------------
 
@@ -162,13 +166,22 @@ class SessionStore:
             frames_written={c: cq.frames_written for c, cq in q.cameras.items()},
             frames_dropped={c: cq.frames_dropped for c, cq in q.cameras.items()},
             meta=meta,
+            flags=self._quality_flags(session_id, folder, meta),
         )
 
+    def _quality_flags(self, session_id: str, folder: Path, meta: SessionMeta) -> list[QualityFlag]:
+        stamp = tuple(
+            _mtime_ns(folder / name) for name in (layout.SESSION_JSON, layout.MESSAGES_CSV)
+        )
+        cached = self._flags.get(session_id)
+        if cached is not None and cached[0] == stamp:
+            return cached[1]
+        flags = session_flags(meta, folder)
+        self._flags[session_id] = (stamp, flags)
+        return flags
+
     def _size(self, session_id: str, folder: Path) -> int:
-        try:
-            stamp = os.stat(folder / layout.SESSION_JSON).st_mtime_ns
-        except OSError:
-            stamp = -1
+        stamp = _mtime_ns(folder / layout.SESSION_JSON)
         cached = self._sizes.get(session_id)
         if cached is not None and cached[0] == stamp and stamp != -1:
             return cached[1]
@@ -195,6 +208,7 @@ class SessionStore:
         folder = self.resolve(session_id)
         shutil.rmtree(folder)
         self._sizes.pop(session_id, None)
+        self._flags.pop(session_id, None)
 
     def files(self, session_id: str) -> list[tuple[str, Path]]:
         """(relative posix path, absolute path) of every regular file, sorted; no symlinks."""
@@ -234,6 +248,14 @@ def _safe_parts(relpath: str) -> list[str]:
         if len(part.encode()) > MAX_NAME_BYTES:  # the file system's own limit (NAME_MAX)
             raise InvalidPath(f"'{part[:80]}...' is longer than a file name can be.")
     return parts
+
+
+def _mtime_ns(path: Path) -> int:
+    """A file's mtime (ns), -1 when it is missing: the stamp of a cached value."""
+    try:
+        return os.stat(path).st_mtime_ns
+    except OSError:
+        return -1
 
 
 def folder_size(folder: Path) -> int:

@@ -7,6 +7,7 @@ the sessions directory; its typed errors map onto the one error shape here.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from typing import Any
 
 from fastapi import APIRouter, Depends
@@ -27,6 +28,11 @@ from server.zipstream import stream_zip
 router = APIRouter(tags=["sessions"])
 
 
+class QualityFlagModel(BaseModel):
+    kind: str  # crash, failsafe, telemetry_gap, link_loss, dropped_frames, telemetry_rows
+    reason: str  # in plain words, with the threshold it went over
+
+
 class SessionSummaryModel(BaseModel):
     id: str
     start_wall: float | None
@@ -34,7 +40,8 @@ class SessionSummaryModel(BaseModel):
     end_wall: float | None
     duration_s: float | None
     source: str
-    status: str  # recording, complete, interrupted, unreadable
+    status: str  # recording, complete, interrupted, cut_short, unreadable
+    recovered: bool = False  # interrupted, and its files counted and repaired afterwards
     stop_reason: str | None
     size_bytes: int
     telemetry_rows: int | None
@@ -44,6 +51,8 @@ class SessionSummaryModel(BaseModel):
     recording_now: bool
     task: SessionTask | None = None  # the flight task chosen before the session
     score: TrialScore | None = None  # its score, once the vehicle disarmed
+    # Real problems (companion.recording.flags.QUALITY_THRESHOLDS), not every imperfection.
+    flags: list[QualityFlagModel] = []
 
 
 class SessionDetailModel(BaseModel):
@@ -66,6 +75,8 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
     data["skew_p99_s"] = {c: q.skew_p99_s for c, q in cams.items()}
     if s.meta is not None:
         data["task"], data["score"] = s.meta.task, s.meta.score
+        data["recovered"] = s.meta.recovery is not None
+    data["flags"] = [dataclasses.asdict(f) for f in s.flags]
     return SessionSummaryModel.model_validate(data)
 
 
