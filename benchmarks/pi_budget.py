@@ -72,6 +72,7 @@ class ThreadInfo:
 class Run:
     label: str
     ready_s: float
+    ready_cpu_s: float
     seconds: float
     cpu_s: float
     rss_mb: float
@@ -355,6 +356,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
     return Run(
         label=label,
         ready_s=station.ready_s,
+        ready_cpu_s=station.ready_cpu_s,
         seconds=seconds,
         cpu_s=cpu1 - cpu0,
         rss_mb=rss_mb(pid),
@@ -402,7 +404,8 @@ def report(run: Run) -> None:
     pct = run.cpu_s / run.seconds * 100
     print(
         f"\n## {run.label}: CPU {pct:.1f} % of one core, RSS {run.rss_mb:.0f} MB, "
-        f"ready in {run.ready_s:.2f} s (load {run.load[0]:.2f} -> {run.load[1]:.2f})"
+        f"ready in {run.ready_s:.2f} s ({run.ready_cpu_s:.2f} CPU s); "
+        f"load {run.load[0]:.2f} -> {run.load[1]:.2f}"
     )
     print(
         f"   link {run.packets_per_s:.0f} packets/s; cameras "
@@ -464,7 +467,8 @@ def main() -> None:
     for run in runs:
         print(
             f"{run.label:<12} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
-            f"  ready {run.ready_s:5.2f} s  load {run.load[0]:.2f}->{run.load[1]:.2f}"
+            f"  ready {run.ready_s:5.2f} s ({run.ready_cpu_s:4.2f} CPU s)"
+            f"  load {run.load[0]:.2f}->{run.load[1]:.2f}"
         )
     shutil.rmtree(tmp, ignore_errors=True)
 

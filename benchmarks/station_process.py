@@ -39,6 +39,7 @@ class StationProcess:
     popen: subprocess.Popen
     port: int
     ready_s: float  # spawn -> first healthy /api/health
+    ready_cpu_s: float  # its CPU seconds by then: load on the machine does not stretch it
     log_path: Path
 
     @property
@@ -80,7 +81,8 @@ def serve_station(
         popen = subprocess.Popen(cmd, cwd=ROOT, env=full_env, stdout=log, stderr=subprocess.STDOUT)
         try:
             ready_s = _wait_healthy(popen, f"http://127.0.0.1:{port}", t0, timeout_s, log_path)
-            yield StationProcess(popen, port, ready_s, log_path)
+            times = psutil.Process(popen.pid).cpu_times()
+            yield StationProcess(popen, port, ready_s, times.user + times.system, log_path)
         finally:
             popen.terminate()
             try:

@@ -3,15 +3,17 @@
     python benchmarks/trajectory3d.py [--minutes 30] [--hz 10]
 
 Feeds a flight (figure 8 with GPS noise and a 2 s dropout every 5 minutes) into the live
-scene one state per step, as the update loop does, on a real viser server with no viewer
-connected, and prints per 5-minute block: CPU time per step (p50/p99), messages and
-array bytes queued for viewers per step, and the scene's trail handles. A flat cost means
-the last block matches the first. Then times `build_trajectory` for the same flight.
+scene one state per step, as the update loop does, on a real viser server, twice: with one
+viewer connected (tests.helpers.viser_viewer: the scene is drawn) and with none (only the
+trail is kept). Prints per 5-minute block: CPU time of the step's thread (p50/p99),
+messages and array bytes queued for viewers per step, and the scene's trail handles. A
+flat cost means the last block matches the first. Then times `build_trajectory`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import sys
 import time
@@ -28,6 +30,7 @@ from core.scene import load_scene  # noqa: E402
 from server.settings import ViserSettings  # noqa: E402
 from server.trajectory3d.replay import build_trajectory  # noqa: E402
 from server.trajectory3d.service import Trajectory3D  # noqa: E402
+from tests.helpers import viser_viewer, wait_until  # noqa: E402
 
 
 def array_bytes(obj) -> int:
@@ -38,6 +41,56 @@ def array_bytes(obj) -> int:
     if isinstance(obj, dict):
         return sum(array_bytes(v) for v in obj.values())
     return 0
+
+
+def fly(args: argparse.Namespace, field, geo: np.ndarray, t: np.ndarray, watched: bool) -> None:
+    n = len(t)
+    svc = Trajectory3D(ViserSettings(port=0), Latest(), host="127.0.0.1", field=field)
+    svc.start()
+    with contextlib.ExitStack() as stack:
+        if watched:
+            stack.enter_context(viser_viewer(svc.port))
+            assert wait_until(svc.watched)
+        buffer = svc.server._websock_server.get_message_buffer()
+        cpu, msgs, nbytes = np.zeros(n), np.zeros(n), np.zeros(n)
+        for i in range(n):
+            lat, lon, alt = (float(v) for v in geo[i])
+            ti = float(t[i])
+            fix = 1 if (i % int(300 * args.hz)) < int(2 * args.hz) else 3
+            state = VehicleState(
+                gps=GpsRaw(t_mono=ti, fix_type=fix, lat_deg=lat, lon_deg=lon, alt_m=alt),
+                global_position=GlobalPosition(
+                    t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.2, vy_mps=0.3
+                ),
+                attitude=Attitude(t_mono=ti, roll_rad=0.05, pitch_rad=-0.1, yaw_rad=ti / 20),
+            )
+            first = buffer.message_counter
+            c0 = time.thread_time()
+            svc.step(state)
+            cpu[i] = time.thread_time() - c0
+            ids = range(first, buffer.message_counter)
+            msgs[i] = len(ids)
+            nbytes[i] = sum(array_bytes(buffer.message_from_id.get(m)) for m in ids)
+        chunks = len(svc.scene.chunk_handles)
+    svc.stop()
+
+    block = int(300 * args.hz)
+    print(
+        f"live scene, {'one viewer' if watched else 'no viewer'}: {args.minutes:.0f} min at "
+        f"{args.hz:.0f} Hz ({n} steps), chunk of {svc.settings.chunk_segments} segments"
+    )
+    print("minutes   cpu/step p50   p99      msgs/step  bytes/step")
+    for b0 in range(0, n, block):
+        sl = slice(b0, min(n, b0 + block))
+        print(
+            f"{b0 / args.hz / 60:5.0f}-{min(n, b0 + block) / args.hz / 60:<4.0f}"
+            f" {np.median(cpu[sl]) * 1e3:8.3f} ms {np.percentile(cpu[sl], 99) * 1e3:6.3f} ms"
+            f" {msgs[sl].mean():9.2f} {nbytes[sl].mean():11.0f}"
+        )
+    print(
+        f"trail handles at the end: {chunks}; CPU at 15 Hz: "
+        f"{np.mean(cpu) * 15 * 100:.2f}% of one core"
+    )
 
 
 def main() -> None:
@@ -54,48 +107,8 @@ def main() -> None:
     enu[:, :2] += rng.normal(0, 0.5, (n, 2))  # M8N-like horizontal noise
     geo = enu_to_geodetic(enu, *origin)
 
-    svc = Trajectory3D(ViserSettings(port=0), Latest(), host="127.0.0.1", field=field)
-    svc.start()
-    buffer = svc.server._websock_server.get_message_buffer()
-    cpu, msgs, nbytes = np.zeros(n), np.zeros(n), np.zeros(n)
-    for i in range(n):
-        lat, lon, alt = (float(v) for v in geo[i])
-        ti = float(t[i])
-        fix = 1 if (i % int(300 * args.hz)) < int(2 * args.hz) else 3
-        state = VehicleState(
-            gps=GpsRaw(t_mono=ti, fix_type=fix, lat_deg=lat, lon_deg=lon, alt_m=alt),
-            global_position=GlobalPosition(
-                t_mono=ti, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.2, vy_mps=0.3
-            ),
-            attitude=Attitude(t_mono=ti, roll_rad=0.05, pitch_rad=-0.1, yaw_rad=ti / 20),
-        )
-        first = buffer.message_counter
-        c0 = time.process_time()
-        svc.step(state)
-        cpu[i] = time.process_time() - c0
-        ids = range(first, buffer.message_counter)
-        msgs[i] = len(ids)
-        nbytes[i] = sum(array_bytes(buffer.message_from_id.get(m)) for m in ids)
-    chunks = len(svc.scene.chunk_handles)
-    svc.stop()
-
-    block = int(300 * args.hz)
-    print(
-        f"live scene, {args.minutes:.0f} min at {args.hz:.0f} Hz ({n} steps), "
-        f"chunk of {svc.settings.chunk_segments} segments"
-    )
-    print("minutes   cpu/step p50   p99      msgs/step  bytes/step")
-    for b0 in range(0, n, block):
-        sl = slice(b0, min(n, b0 + block))
-        print(
-            f"{b0 / args.hz / 60:5.0f}-{min(n, b0 + block) / args.hz / 60:<4.0f}"
-            f" {np.median(cpu[sl]) * 1e3:8.3f} ms {np.percentile(cpu[sl], 99) * 1e3:6.3f} ms"
-            f" {msgs[sl].mean():9.2f} {nbytes[sl].mean():11.0f}"
-        )
-    print(
-        f"trail handles at the end: {chunks}; CPU at 10 Hz: "
-        f"{np.mean(cpu) * 10 * 100:.2f}% of one core"
-    )
+    for watched in (True, False):
+        fly(args, field, geo, t, watched)
 
     c0 = time.process_time()
     for _ in range(5):

@@ -99,11 +99,14 @@ class Latest(Generic[T]):
             loop = asyncio.get_running_loop()
             fut: asyncio.Future[None] = loop.create_future()
             self._waiters.append((loop, fut))
+        # A timer that resolves the future, not asyncio.wait_for: that wraps each wait in
+        # a second future and callbacks, and this runs for every client at every publish.
+        timer = loop.call_later(timeout, _wake, [fut]) if timeout is not None else None
         try:
-            await asyncio.wait_for(fut, timeout)
-        except TimeoutError:
-            pass
+            await fut
         finally:
+            if timer is not None:
+                timer.cancel()
             # On timeout or cancellation the waiter must leave the list, or a consumer
             # that polls with a timeout while nothing is published would grow it.
             with self._lock:

@@ -2,7 +2,10 @@
 
 The body is cached by version; each WebSocket message is a short per-send prefix
 (`t_server`, `t_server_mono`: the server's clock at the moment of sending) spliced onto
-that shared body, so twenty browsers cost one `json.dumps`, not twenty.
+that shared body, so twenty browsers cost one `json.dumps`, not twenty. Within a body each
+group's JSON is cached too: a state shares the groups that did not change with the one
+before (companion.vehicle_state), so a new version encodes only the group or two that
+its packet changed.
 
     {"t_server": unix_s, "t_server_mono": monotonic_s, "version": n,
      "state": {"heartbeat": {...}, "gps": {...}, ..., "link": {...}}}
@@ -54,13 +57,23 @@ class SharedStateJson:
         self._current: Versioned[VehicleState] | None = None
         self._body = ""
         self.encodes = 0  # how many times a body was built (for tests and benchmarks)
+        # group name -> (the group, its JSON); holding the group keeps its identity unique
+        self._groups: dict[str, tuple[Any, str]] = {}
 
     def body(self, current: Versioned[VehicleState]) -> str:
         # Identity, not version: each publish makes a new Versioned, and a slot swapped
         # by another service (the twin) may reuse version numbers.
         if current is not self._current:
-            payload = {"version": current.version, "state": state_to_dict(current.value)}
-            self._body = json.dumps(payload, separators=(",", ":"))
+            parts = []
+            for name in _GROUPS:
+                group = getattr(current.value, name)
+                cached = self._groups.get(name)
+                if cached is None or cached[0] is not group:
+                    cached = (group, json.dumps(_group_dict(group), separators=(",", ":")))
+                    self._groups[name] = cached
+                parts.append(f'"{name}":{cached[1]}')
+            # The same text as json.dumps({"version": v, "state": state_to_dict(state)}).
+            self._body = f'{{"version":{current.version},"state":{{{",".join(parts)}}}}}'
             self._current = current
             self.encodes += 1
         return self._body

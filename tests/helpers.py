@@ -58,6 +58,44 @@ def run_uvicorn(app, port: int | None = None, timeout: float = 15.0) -> Iterator
         sock.close()
 
 
+@contextlib.contextmanager
+def viser_viewer(port: int) -> Iterator[None]:
+    """A viewer of the panel at viser's protocol: a WebSocket with viser's subprotocol that
+    reports its camera (viser counts a client from its first camera message) and reads
+    (and drops) what the server sends, as the browser's client does."""
+    import msgspec
+    import viser
+    from viser._messages import ViewerCameraMessage
+    from websockets.sync.client import connect
+
+    ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"])
+    camera = ViewerCameraMessage(
+        wxyz=(1.0, 0.0, 0.0, 0.0),
+        position=(-25.0, -30.0, 20.0),
+        fov=1.0,
+        near=0.01,
+        far=1000.0,
+        image_height=480,
+        image_width=640,
+        look_at=(0.0, 0.0, 0.0),
+        up_direction=(0.0, 0.0, 1.0),
+    )
+    ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+
+    def drain() -> None:
+        with contextlib.suppress(Exception):
+            for _ in ws:
+                pass
+
+    thread = threading.Thread(target=drain, name="viser-viewer", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        ws.close()
+        thread.join(5)
+
+
 def wait_until(predicate, timeout: float = 5.0, interval: float = 0.02) -> bool:
     """Poll `predicate` until it is true or `timeout` passes; returns its last value."""
     deadline = time.monotonic() + timeout

@@ -269,6 +269,20 @@ def test_signing_refuses_unsigned_wrong_key_and_replayed_packets(tmp_path) -> No
             sync(v, app, 1.0)
             sec = security(base)
             assert sec["replay_refused"] == 1 and sec["bad_signature_refused"] >= 4
+            # A SiK radio behind the same address cannot sign: its RADIO_STATUS (MAVLink 1)
+            # passes, as MAVProxy and ArduPilot let it; anything else it sent would not.
+            with MavVehicle(
+                "udp", station_port=port, sysid=51, compid=68, mavlink1=True, rates_hz={}
+            ) as radio:
+                radio.send_message(radio.mav.radio_status_encode(200, 190, 80, 10, 20, 0, 0))
+                assert wait_until(lambda: security(base)["unsigned_allowed"] == 1, timeout=5)
+                unsigned_before = security(base)["unsigned_refused"]
+                radio.send_now("HEARTBEAT")
+                assert wait_until(
+                    lambda: security(base)["unsigned_refused"] == unsigned_before + 1, timeout=5
+                )
+            streams = httpx.get(f"{base}/api/status").json()["link"]["streams"]
+            assert any(s["sysid"] == 51 and s["compid"] == 68 for s in streams)
 
 
 def test_a_vehicle_whose_signing_clock_is_behind_is_heard_once_it_hears_us(tmp_path) -> None:

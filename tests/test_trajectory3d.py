@@ -31,7 +31,7 @@ from server.trajectory3d.colors import ramp_rgb
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.service import Trajectory3D
 from server.trajectory3d.trail import Trail, TrailSample
-from tests.helpers import run_uvicorn
+from tests.helpers import run_uvicorn, viser_viewer, wait_until
 
 FIELD = load_scene()
 ORIGIN = FIELD.home_llh
@@ -66,7 +66,7 @@ def make_state(
 
 
 @pytest.fixture
-def service():
+def unwatched_service():
     svc = Trajectory3D(
         ViserSettings(port=0, chunk_segments=20), Latest(), host="127.0.0.1", field=FIELD
     )
@@ -75,6 +75,14 @@ def service():
         yield svc
     finally:
         svc.stop()
+
+
+@pytest.fixture
+def service(unwatched_service):
+    """The panel with one viewer: the scene is drawn only while someone watches."""
+    with viser_viewer(unwatched_service.port):
+        assert wait_until(unwatched_service.watched)
+        yield unwatched_service
 
 
 # -- pose ------------------------------------------------------------------------------
@@ -199,6 +207,54 @@ def test_scene_gains_segments_while_the_vehicle_moves(service):
     np.testing.assert_allclose(service.scene.vehicle.position[0], pts[:, :, 0].max(), atol=0.3)
     # the scene's own node tree holds them too
     assert all(h.name.startswith("/trail/c") for h in handles.values())
+
+
+def test_an_unwatched_panel_keeps_the_trail_and_draws_it_for_the_first_viewer(
+    unwatched_service,
+):
+    service = unwatched_service
+    before = service.server._websock_server.get_message_buffer().message_counter
+    for i in range(45):  # more than two chunks of 20 segments
+        service.step(make_state(i * 0.1, (i * 0.2, 0.0, 3.0)))
+    assert service.trail.n_points == 45 and len(service.trail.chunks) == 3
+    assert service.scene.chunk_handles == {}  # nothing drawn, nothing sent
+    assert service.server._websock_server.get_message_buffer().message_counter == before
+    with viser_viewer(service.port):
+        assert wait_until(service.watched)
+        service.step(make_state(4.5, (9.0, 0.0, 3.0)))
+        pts = np.concatenate([h.points for h in service.scene.chunk_handles.values()])
+        assert len(pts) == 45  # the whole flight: 46 fixes, 45 segments
+        np.testing.assert_allclose(pts[:, 1, 0].max(), 9.0, atol=1e-3)
+        # about the first fix: x along the flight, the same height
+        np.testing.assert_allclose(service.scene.vehicle.position, (9.0, 0.0, 0.0), atol=1e-3)
+    assert wait_until(lambda: not service.watched())
+    for i in range(46, 60):  # the viewer left: the trail grows, the scene waits again
+        service.step(make_state(i * 0.1, (i * 0.2, 0.0, 3.0)))
+    drawn = np.concatenate([h.points for h in service.scene.chunk_handles.values()])
+    assert service.trail.n_points == 60 and len(drawn) == 45
+
+
+def test_a_viewer_without_telemetry_gets_the_trail_drawn(unwatched_service):
+    service = unwatched_service
+    for i in range(10):
+        service.step(make_state(i * 0.1, (i * 0.2, 0.0, 3.0)))
+
+    async def idle_until_drawn() -> bool:
+        task = asyncio.create_task(service.run())  # nothing is published: no telemetry
+        try:
+            with viser_viewer(service.port):
+                for _ in range(100):
+                    await asyncio.sleep(0.02)
+                    if service.scene.chunk_handles:
+                        return True
+                return False
+        finally:
+            service.state.close()
+            await asyncio.wait_for(task, 2.0)
+
+    assert asyncio.run(idle_until_drawn())
+    pts = np.concatenate([h.points for h in service.scene.chunk_handles.values()])
+    assert len(pts) == 9
 
 
 def test_origin_moves_to_the_arming_point(service):

@@ -83,7 +83,9 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
     for i in range(400):
         slot.publish(state_at(i * 0.1))
         time.sleep(0.004)
-    assert wait_until(lambda: httpx.get(f"{base}/api/viser").json()["chunks"] >= 2, 5.0)
+    # The panel keeps the trail; nobody watches yet, so nothing is drawn (sent) so far.
+    assert wait_until(lambda: httpx.get(f"{base}/api/viser").json()["points"] > 50, 5.0)
+    assert httpx.get(f"{base}/api/viser").json()["chunks"] == 0
     port = httpx.get(f"{base}/api/viser").json()["port"]
 
     outside: list[str] = []
@@ -113,6 +115,8 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
         except Exception:
             page.screenshot(path=str(tmp_path / "panel3d_failed.png"))
             raise
+        # The first viewer gets the whole trail drawn, with no telemetry flowing.
+        assert wait_until(lambda: httpx.get(f"{base}/api/viser").json()["chunks"] >= 2, 10.0)
         page.wait_for_timeout(2500)  # let the software renderer draw the scene
         with_path = panel.screenshot(path=str(tmp_path / "panel3d.png"), timeout=90_000)
         clear.click()  # the viser GUI's own button: the trail goes, the rest stays

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from companion.recording import layout
+from tests.helpers import viser_viewer, wait_until
 from tests.twin_flights import recorded_twin_flight
 
 
@@ -20,11 +21,14 @@ def test_twin_session_trajectory_matches_local_position(tmp_path):
     overrides = {"viser.enabled": True, "viser.port": 0, "recording.rate_hz": 20.0}
     with recorded_twin_flight(tmp_path, 2, overrides) as flight:
         station, base, session_id = flight.station, flight.base_url, flight.session_id
-        # The live panel drew the flight: the field of the twin's scene and a long trail.
+        # The live panel kept the flight: the field of the twin's scene and a long trail,
+        # drawn for its first viewer (nobody watched during the flight).
         panel = station.trajectory3d
         assert {"pad:start", "pad:landing"} <= set(panel.scene.field_handles)
-        assert panel.trail.n_points > 100 and len(panel.scene.chunk_handles) >= 2
-        live_end = np.asarray(panel.scene.vehicle.position)
+        assert panel.trail.n_points > 100
+        with viser_viewer(panel.port):
+            assert wait_until(lambda: len(panel.scene.chunk_handles) >= 2, timeout=10)
+            live_end = np.asarray(panel.scene.vehicle.position)
 
         reply = httpx.get(f"{base}/api/sessions/{session_id}/trajectory", timeout=30)
         assert reply.status_code == 200, reply.text

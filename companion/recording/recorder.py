@@ -70,6 +70,7 @@ class RecordingStatus:
 
 
 RETRY_MAX_S = 30.0
+ARMING_CHECK_S = 0.05  # auto-record looks at the arming state at most this often
 
 
 class RecorderError(Exception):
@@ -264,6 +265,9 @@ class Recorder:
             elif not armed and was_armed is True:
                 self._schedule_tail()
             was_armed = armed
+            # Arming comes with a heartbeat (1-4 Hz): looking at the state of every packet
+            # would wake the event loop a hundred times a second for nothing.
+            await asyncio.sleep(ARMING_CHECK_S)
 
     def _on_source_time(self, t: float | None) -> None:
         """The source's clock moved to `t` (None: it ended); in the source's thread."""

@@ -103,15 +103,16 @@ async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack
         while not watcher.done():
             if ack and not await acks.wait_for(version, _IDLE_CHECK_S):
                 continue  # the last message is still in flight: look again for a leave
+            # The pause first, then the wait: a state that came during the pause is sent
+            # at once, and the states the pause skipped never wake this handler.
+            delay = next_send - time.monotonic()
+            if delay > 0:
+                await asyncio.sleep(delay)
             current = await slot.wait_newer(version, timeout=_IDLE_CHECK_S)
             if slot.closed:
                 break
             if current is None or current.version <= version:
                 continue
-            delay = next_send - time.monotonic()
-            if delay > 0:
-                await asyncio.sleep(delay)
-                current = slot.get() or current  # whatever is newest after the pause
             await ws.send_text(shared.message(current))
             version = current.version
             next_send = time.monotonic() + min_interval_s

@@ -12,7 +12,7 @@ class ViserPanel(BaseModel):
     enabled: bool
     port: int | None  # the port actually bound (viser moves on when the asked one is taken)
     points: int  # trail points drawn so far
-    chunks: int  # trail chunks (scene handles) drawn so far
+    chunks: int  # trail chunks (scene handles) drawn so far (none until someone watches)
     replay_port: int | None = None  # the replay page's own viser server (PUT /api/replay3d)
 
 

@@ -174,7 +174,11 @@ class LiveScene:
                 handle.remove()
 
     def redraw_trail(self, trail: Trail) -> None:
-        """Resend every chunk (after a new origin or colour-coding): a one-off cost."""
+        """Resend every chunk (after a new origin, colour-coding, or a time nobody watched)
+        and remove those the trail no longer holds: a one-off cost."""
+        kept = {chunk.id for chunk in trail.chunks}
+        for chunk_id in [i for i in self.chunk_handles if i not in kept]:
+            self.chunk_handles.pop(chunk_id).remove()
         for chunk in trail.chunks:
             self.sync_chunk(chunk)
 

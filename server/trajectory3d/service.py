@@ -4,6 +4,10 @@
 `update_hz` of them per second (the newest wins; a 50 Hz GLOBAL_POSITION_INT stream costs
 no more than a 10 Hz one). `step()` is the whole per-update work and is synchronous, so
 tests drive it directly with a sequence of states.
+
+The scene is drawn only while someone has the panel open: until then a step only extends
+the trail (the flight's history), and the first viewer gets the whole trail drawn at once.
+A panel nobody looks at costs a fraction of one drawn (docs/PERFORMANCE.md).
 """
 
 from __future__ import annotations
@@ -103,6 +107,7 @@ class Trajectory3D:
         self._status_due = 0.0
         self._ground_for: Origin | None = None
         self._ground_up = 0.0
+        self._stale = True  # the scene lags the trail: redraw it for the next viewer
 
     # -- lifecycle ----------------------------------------------------------------
 
@@ -155,6 +160,9 @@ class Trajectory3D:
                 next_step = time.monotonic() + period_s
             else:
                 self.apply_requests()  # GUI actions while no telemetry flows
+                if self._stale and self.watched():  # a viewer came while none flows
+                    with self.server.atomic():  # type: ignore[union-attr]
+                        self._catch_up()
 
     # -- one update ----------------------------------------------------------------
 
@@ -169,36 +177,59 @@ class Trajectory3D:
             self.scene.color_by = req.color_by
             self.scene.redraw_trail(self.trail)
 
+    def watched(self) -> bool:
+        """Whether anyone has the panel open (a viser client is connected)."""
+        return self.server is not None and bool(self.server.get_clients())
+
     def step(self, state: VehicleState) -> None:
-        """Bring the scene up to `state`: origin, trail, vehicle, footprint, camera."""
+        """Bring the trail up to `state`, and while someone watches the scene too: origin,
+        trail, vehicle, footprint, camera."""
         assert self.server is not None
         self.steps += 1
+        if not self.watched():
+            self._stale = True
+            self._step(state, draw=False)
+            return
         # One atomic batch per update: viewers apply it as a whole, and viser wakes its
         # sender once per step instead of once per message.
         with self.server.atomic():
-            self._step(state)
+            if self._stale:
+                self._catch_up()
+            self._step(state, draw=True)
 
-    def _step(self, state: VehicleState) -> None:
+    def _catch_up(self) -> None:
+        """Draw what changed while nobody watched: the origin and the whole trail."""
+        assert self.scene is not None
+        self._stale = False
+        if self.trail.origin is not None:
+            self.scene.set_origin(self.trail.origin)
+        self.scene.redraw_trail(self.trail)
+
+    def _step(self, state: VehicleState, draw: bool) -> None:
         assert self.scene is not None and self.controls is not None
         self.apply_requests()
         origin = origin_from_state(state)
-        if origin is not None and self.trail.set_origin(origin):
+        if origin is not None and self.trail.set_origin(origin) and draw:
             self.scene.set_origin(origin)
             self.scene.redraw_trail(self.trail)
         sample = sample_from_state(state)
         if sample is None:
             self.trail.mark_gap()
-            self.scene.set_footprint(None)
-            self._status(state, "no position fix: the trail pauses")
+            if draw:
+                self.scene.set_footprint(None)
+                self._status(state, "no position fix: the trail pauses")
             return
         if self._last_sample_t is None or sample.t_s > self._last_sample_t:
             self._last_sample_t = sample.t_s
             new_origin = self.trail.origin is None
             chunk, dropped = self.trail.append(sample)
-            if new_origin:
-                self.scene.set_origin(self.trail.origin)  # type: ignore[arg-type]
-            self.scene.drop_chunks(dropped)
-            self.scene.sync_chunk(chunk)
+            if draw:
+                if new_origin:
+                    self.scene.set_origin(self.trail.origin)  # type: ignore[arg-type]
+                self.scene.drop_chunks(dropped)
+                self.scene.sync_chunk(chunk)
+        if not draw:
+            return
         assert self.trail.origin is not None
         pos = self.trail.last_enu_m
         if pos is None:  # the trail was just cleared and this fix is not new

@@ -94,7 +94,10 @@ class Trail:
 
     def set_origin(self, origin: Origin) -> bool:
         """Move the ENU origin; re-projects every point. True if it moved."""
-        if self.origin is not None and np.allclose(origin, self.origin, rtol=0, atol=1e-9):
+        # Plain floats, not np.allclose: this runs on every update of the panel.
+        if self.origin is not None and all(
+            abs(a - b) <= 1e-9 for a, b in zip(origin, self.origin, strict=True)
+        ):
             return False
         self.origin = origin
         for chunk in self.chunks:
