@@ -7,8 +7,14 @@ UDP (attitude at 50 Hz, the rest at its default rates, the vehicle rolling and y
 the time so that the horizon and the tape redraw on every new message), opens
 /goggles.html in headless Debian chromium at each size, and after a warm-up reads
 window.fpv.osdStats: osd.js times each animation frame's OSD work with
-performance.now() (the Performance API's clock). Printed per size: frames, per-frame
-p50/p99/max ms and the share of frames that redrew the canvases. Note the load average.
+performance.now() (the Performance API's clock). Two figures per size:
+
+  draw     the script's work: what it sets and the canvas commands it records;
+  +raster  the same with the canvases rasterized inside the timing (osdStats.raster:
+           one pixel read back from each), which a software canvas (--disable-gpu, and a
+           Pi without GPU canvas) otherwise pays later in the frame, out of sight.
+
+Printed per size and mode: frames, per-frame p50/p99/max ms. Note the load average.
 """
 
 from __future__ import annotations
@@ -65,21 +71,22 @@ def main() -> None:
                     "document.querySelector('[data-osd=mode]').textContent !== ''", timeout=15000
                 )
                 page.wait_for_timeout(2000)  # warm-up: JIT, first layout
-                page.evaluate(
-                    "fpv.osdStats.recent.length = 0; fpv.osdStats.frames = 0; fpv.osdStats.totalMs = 0"
-                )
-                page.evaluate("fpv.osdStats.keep = 1e6")
-                page.wait_for_timeout(args.seconds * 1000)
-                ms = page.evaluate("fpv.osdStats.recent.slice()")
-                frames = page.evaluate("fpv.osdStats.frames")
-                ms.sort()
-                p50 = statistics.median(ms)
-                p99 = ms[min(len(ms) - 1, int(0.99 * len(ms)))]
-                print(
-                    f"{size}: {frames} frames in {args.seconds:.0f} s ({frames / args.seconds:.0f}/s), "
-                    f"OSD per frame p50 {p50:.3f} ms, p99 {p99:.3f} ms, max {ms[-1]:.3f} ms "
-                    f"(last {len(ms)} frames)"
-                )
+                for mode, raster in (("draw", False), ("+raster", True)):
+                    page.evaluate(
+                        "(raster) => { const s = fpv.osdStats; s.recent.length = 0; s.frames = 0;"
+                        " s.totalMs = 0; s.keep = 1e6; s.raster = raster; }",
+                        raster,
+                    )
+                    page.wait_for_timeout(args.seconds * 1000)
+                    ms = sorted(page.evaluate("fpv.osdStats.recent.slice()"))
+                    frames = page.evaluate("fpv.osdStats.frames")
+                    p50 = statistics.median(ms)
+                    p99 = ms[min(len(ms) - 1, int(0.99 * len(ms)))]
+                    print(
+                        f"{size} {mode}: {frames} frames in {args.seconds:.0f} s "
+                        f"({frames / args.seconds:.0f}/s), OSD per frame p50 {p50:.3f} ms, "
+                        f"p99 {p99:.3f} ms, max {ms[-1]:.3f} ms, mean {statistics.fmean(ms):.3f} ms"
+                    )
                 page.close()
             browser.close()
         stop.set()

@@ -12,7 +12,8 @@
 // canvases carry theirs as fallback text and data- attributes). A value whose telemetry
 // group is older than its threshold greys out and shows its age. Elements can be switched
 // off in a menu ("OSD" button, or the O key on the goggles); the choice is kept in
-// localStorage. Cost per frame: window.fpv.osdStats (benchmarks/osd_frame_cost.py).
+// localStorage. Cost per frame: window.fpv.osdStats (benchmarks/osd_frame_cost.py; with
+// osdStats.raster set, the canvases are rasterized inside the timing, as the display would).
 import { el, api } from "/lib.js";
 import { feed, groupAge } from "/telemetry.js";
 
@@ -108,7 +109,9 @@ export function mountOsd(view, { menu = true } = {}) {
   // -- state kept across messages: flight timer, mAh used ----------------------------
   let armedSince = null, timerS = 0, lastArmed = false;
   let mah = 0, lastBatteryT = null;
-  let attitudeKey = "", headingKey = "", sizeKey = "", dirty = true;
+  let attitudeKey = "", headingKey = "", dirty = true;
+  let resized = true, sizeDpr = 0;
+  new ResizeObserver(() => { resized = true; }).observe(view);
   window.addEventListener("fpv:telemetry", (e) => {
     const msg = e.detail, s = msg.state;
     const armed = s.heartbeat.t_mono !== null && s.heartbeat.armed;
@@ -147,6 +150,9 @@ export function mountOsd(view, { menu = true } = {}) {
     requestAnimationFrame(frame);
     const t0 = performance.now();
     draw();
+    if (stats.raster) { // benchmark only: the canvases' pixels made now, inside the timing
+      for (const c of [horizon, heading]) c.getContext("2d").getImageData(0, 0, 1, 1);
+    }
     const ms = performance.now() - t0;
     stats.frames += 1;
     stats.totalMs += ms;
@@ -158,14 +164,16 @@ export function mountOsd(view, { menu = true } = {}) {
   function draw() {
     const msg = feed.latest;
     const s = msg ? msg.state : null;
-    const w = view.clientWidth, h = view.clientHeight;
+    // Sizes are read only after a resize (ResizeObserver below) or a zoom: reading them
+    // every frame forces a layout whenever anything on the page changed since the last.
     const dpr = window.devicePixelRatio || 1;
-    const newSize = `${w}x${h}x${dpr}`;
-    if (newSize !== sizeKey) {
-      sizeKey = newSize;
+    if (resized || dpr !== sizeDpr) {
+      resized = false;
+      sizeDpr = dpr;
       for (const c of [horizon, heading]) {
         c.width = Math.round(c.clientWidth * dpr);
         c.height = Math.round(c.clientHeight * dpr);
+        canvasFont.delete(c); // a resized canvas has lost its drawing state
       }
       dirty = true;
     }
@@ -308,9 +316,46 @@ function ageOfNewest(s) {
   return Math.max(0, msg.t_server_mono - newest) + (performance.now() - feed.receivedAt) / 1000;
 }
 
-function outlined(ctx, text, x, y) {
-  ctx.strokeText(text, x, y);
-  ctx.fillText(text, x, y);
+// Text on the canvases is drawn once per label into a small canvas, outlined, and then
+// copied: shaping and stroking text on every frame is most of what a software canvas
+// pays (benchmarks/osd_frame_cost.py). Labels: the ladder's and the tape's, a few dozen.
+const sprites = new Map();
+function label(text, px, bold = false) {
+  const key = `${text}|${px}|${bold}`;
+  let sprite = sprites.get(key);
+  if (!sprite) {
+    const font = `${bold ? "bold " : ""}${px}px ui-monospace, monospace`;
+    const pad = Math.ceil(px / 4);
+    const canvas = new OffscreenCanvas(1, 1);
+    let ctx = canvas.getContext("2d");
+    ctx.font = font;
+    canvas.width = Math.ceil(ctx.measureText(text).width) + 2 * pad;
+    canvas.height = Math.ceil(px * 1.3) + 2 * pad;
+    ctx = canvas.getContext("2d"); // (resizing reset its state)
+    ctx.font = font;
+    ctx.textBaseline = "middle";
+    ctx.lineJoin = "round";
+    ctx.lineWidth = Math.max(2, px / 4.5);
+    ctx.strokeStyle = "#000";
+    ctx.fillStyle = "#fff";
+    ctx.strokeText(text, pad, canvas.height / 2);
+    ctx.fillText(text, pad, canvas.height / 2);
+    // An ImageBitmap, not the canvas: a bitmap is immutable, so drawing it needs no copy.
+    sprite = canvas.transferToImageBitmap();
+    sprites.set(key, sprite);
+  }
+  return sprite;
+}
+
+// A path stroked twice, black and wide under the colour: an outline that reads over sky
+// and grass, at the cost of a second stroke rather than a shadow blur.
+function outlinedStroke(ctx, path, colour, width, dpr) {
+  ctx.strokeStyle = "#000";
+  ctx.lineWidth = width + 2 * dpr;
+  ctx.stroke(path);
+  ctx.strokeStyle = colour;
+  ctx.lineWidth = width;
+  ctx.stroke(path);
 }
 
 function drawHorizon(c, roll, pitch, dpr) {
@@ -323,41 +368,38 @@ function drawHorizon(c, roll, pitch, dpr) {
   ctx.translate(W / 2, H / 2);
   ctx.rotate((-roll * Math.PI) / 180); // the world turns against the vehicle's roll
   ctx.translate(0, pitch * pxPerDeg); // nose up: the horizon goes down
-  ctx.lineWidth = 2 * dpr;
-  ctx.strokeStyle = "#fff";
-  ctx.fillStyle = "#fff";
-  ctx.shadowColor = "#000";
-  ctx.shadowBlur = 3 * dpr;
-  ctx.font = `${12 * dpr}px ui-monospace, monospace`;
-  ctx.textBaseline = "middle";
-  ctx.beginPath(); // the horizon line, with a gap for the aircraft symbol
-  ctx.moveTo(-W * 0.4, 0); ctx.lineTo(-W * 0.06, 0);
-  ctx.moveTo(W * 0.06, 0); ctx.lineTo(W * 0.4, 0);
-  ctx.stroke();
-  for (let p = -50; p <= 50; p += 10) { // the pitch ladder: dashed below the horizon
+  const solid = new Path2D(), dashed = new Path2D(); // the ladder: dashed below the horizon
+  solid.moveTo(-W * 0.4, 0); solid.lineTo(-W * 0.06, 0); // with a gap for the aircraft
+  solid.moveTo(W * 0.06, 0); solid.lineTo(W * 0.4, 0);
+  const labels = [];
+  for (let p = -50; p <= 50; p += 10) {
     if (p === 0) continue;
     const y = -p * pxPerDeg;
     if (Math.abs(y + pitch * pxPerDeg) > H * 0.4) continue; // only what is near the centre
-    ctx.setLineDash(p < 0 ? [6 * dpr, 4 * dpr] : []);
-    ctx.beginPath();
-    ctx.moveTo(-W * 0.1, y); ctx.lineTo(-W * 0.04, y);
-    ctx.moveTo(W * 0.04, y); ctx.lineTo(W * 0.1, y);
-    ctx.stroke();
-    ctx.fillText(String(p), W * 0.105, y);
+    const path = p < 0 ? dashed : solid;
+    path.moveTo(-W * 0.1, y); path.lineTo(-W * 0.04, y);
+    path.moveTo(W * 0.04, y); path.lineTo(W * 0.1, y);
+    labels.push([p, y]);
+  }
+  outlinedStroke(ctx, solid, "#fff", 2 * dpr, dpr);
+  ctx.setLineDash([6 * dpr, 4 * dpr]);
+  outlinedStroke(ctx, dashed, "#fff", 2 * dpr, dpr);
+  ctx.setLineDash([]);
+  for (const [p, y] of labels) {
+    const sprite = label(String(p), Math.round(12 * dpr));
+    ctx.drawImage(sprite, W * 0.105, y - sprite.height / 2);
   }
   ctx.restore();
-  ctx.save(); // the aircraft symbol, fixed at the centre
-  ctx.translate(W / 2, H / 2);
-  ctx.strokeStyle = "#ffd24a";
-  ctx.lineWidth = 3 * dpr;
-  ctx.shadowColor = "#000";
-  ctx.shadowBlur = 3 * dpr;
-  ctx.beginPath();
-  ctx.moveTo(-W * 0.05, 0); ctx.lineTo(-W * 0.015, 0); ctx.lineTo(0, 6 * dpr);
-  ctx.lineTo(W * 0.015, 0); ctx.lineTo(W * 0.05, 0);
-  ctx.stroke();
-  ctx.restore();
+  // The aircraft symbol, fixed at the centre.
+  const plane = new Path2D();
+  plane.moveTo(W / 2 - W * 0.05, H / 2); plane.lineTo(W / 2 - W * 0.015, H / 2);
+  plane.lineTo(W / 2, H / 2 + 6 * dpr);
+  plane.lineTo(W / 2 + W * 0.015, H / 2); plane.lineTo(W / 2 + W * 0.05, H / 2);
+  outlinedStroke(ctx, plane, "#ffd24a", 3 * dpr, dpr);
 }
+
+const canvasFont = new WeakMap(); // canvas -> the font its context has now
+const COMPASS = { 0: "N", 45: "NE", 90: "E", 135: "SE", 180: "S", 225: "SW", 270: "W", 315: "NW" };
 
 function drawTape(c, hdg, dpr) {
   const ctx = c.getContext("2d");
@@ -365,29 +407,33 @@ function drawTape(c, hdg, dpr) {
   ctx.clearRect(0, 0, W, H);
   if (hdg === null) return;
   const pxPerDeg = W / 90; // the tape shows 90 degrees
-  ctx.strokeStyle = "#000";
-  ctx.fillStyle = "#fff";
-  ctx.lineWidth = 3 * dpr;
-  ctx.font = `bold ${13 * dpr}px ui-monospace, monospace`;
-  ctx.textAlign = "center";
-  ctx.textBaseline = "top";
-  const names = { 0: "N", 45: "NE", 90: "E", 135: "SE", 180: "S", 225: "SW", 270: "W", 315: "NW" };
+  const px = Math.round(13 * dpr);
+  const ticks = new Path2D();
   const start = Math.ceil((hdg - 45) / 5) * 5;
   for (let d = start; d <= hdg + 45; d += 5) {
     const x = W / 2 + (d - hdg) * pxPerDeg;
     const deg = ((d % 360) + 360) % 360;
-    const tall = deg % 15 === 0;
-    ctx.fillRect(x - dpr, H * 0.55, 2 * dpr, tall ? H * 0.4 : H * 0.2);
-    if (deg % 45 === 0) outlined(ctx, names[deg], x, 0);
-    else if (deg % 15 === 0) outlined(ctx, String(deg), x, 0);
+    ticks.rect(x - dpr, H * 0.55, 2 * dpr, deg % 15 === 0 ? H * 0.4 : H * 0.2);
+    if (deg % 15 === 0) {
+      const sprite = label(COMPASS[deg] ?? String(deg), px, true);
+      ctx.drawImage(sprite, x - sprite.width / 2, 0);
+    }
   }
-  // The heading itself, boxed over the centre of the tape.
-  const label = String(Math.round(hdg) % 360).padStart(3, "0");
+  ctx.fillStyle = "#fff";
+  ctx.fill(ticks);
+  // The heading itself, boxed over the centre of the tape (its one text drawn per frame).
+  const text = String(Math.round(hdg) % 360).padStart(3, "0");
   ctx.fillStyle = "#000";
   ctx.fillRect(W / 2 - 22 * dpr, H * 0.5, 44 * dpr, H * 0.5);
+  const font = `bold ${px}px ui-monospace, monospace`;
+  if (canvasFont.get(c) !== font) { // setting a font parses it: only when it changed
+    ctx.font = font;
+    ctx.textAlign = "center";
+    ctx.textBaseline = "middle";
+    canvasFont.set(c, font);
+  }
   ctx.fillStyle = "#ffd24a";
-  ctx.textBaseline = "middle";
-  ctx.fillText(label, W / 2, H * 0.75);
+  ctx.fillText(text, W / 2, H * 0.75);
 }
 
 const view = document.querySelector("[data-osd-view]");
