@@ -168,10 +168,12 @@ def test_kill_9_of_the_station_on_the_twin_lists_every_complete_frame(tmp_path):
         return complete_rows(path) if path.exists() else []
 
     def unlisted(folder: Path) -> int:
-        return sum(
-            len(list((folder / cam).glob("*.jpg"))) - len(listed(folder, cam))
+        """JPEGs on disk that frames.csv does not list yet; 0 until every camera has one."""
+        counts = [
+            (len(list((folder / cam).glob("*.jpg"))), len(listed(folder, cam)))
             for cam in layout.CAMERAS
-        )
+        ]
+        return sum(n - k for n, k in counts) if all(n for n, _ in counts) else 0
 
     proc = spawn(args, env)
     try:
