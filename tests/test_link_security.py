@@ -385,3 +385,23 @@ def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
                         break
             expect(warning).to_contain_text("MAVLINK REFUSED")
             browser.close()
+
+
+def test_serve_flags_set_the_link_defences(tmp_path) -> None:
+    from server.cli import build_parser, settings_from_args
+
+    key = key_file(tmp_path)
+    args = build_parser().parse_args(
+        [
+            "serve",
+            "--source",
+            "udpin:0.0.0.0:14550",
+            "--udpin-any-sender",
+            "--signing-key",
+            str(key),
+        ]
+    )
+    link = settings_from_args(args).link
+    assert link.udpin_lock is False and link.signing_key() == KEY
+    default = settings_from_args(build_parser().parse_args(["serve"])).link
+    assert default.udpin_lock is True and default.signing_key() is None
