@@ -11,10 +11,12 @@ Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subp
   passthrough (the grabber is simulated at OpenCV's VideoCapture: usb_mjpeg_camera.py);
 - recording on (telemetry, tlog and both videos);
 - two telemetry WebSocket clients and two MJPEG viewers per camera, in this process;
-- the 3D panel on (its viser servers up, nobody looking), off, or both runs side by side.
+- the 3D panel on, off, or both runs side by side. "On": the pilot page's GET /api/viser
+  starts its viser servers once the station is ready (`--no-visit`: not), nobody looks.
 
 Printed per run: start-up (spawn to the first healthy /api/health), the process's CPU in
-% of one core over the window (CPU seconds from /proc, not wall time), RSS, CPU per
+% of one core over the window (CPU seconds from /proc, not wall time), RSS (when ready and
+at the end), CPU per
 thread (/proc/PID/task/TID/stat; names from `py-spy dump`), and per component: link,
 cameras, fan-out (frames and telemetry to clients), recorder, web (the rest of the event
 loop), 3D panel, other. The event loop thread is split between fan-out, 3D panel and web by
@@ -75,7 +77,8 @@ class Run:
     ready_cpu_s: float
     seconds: float
     cpu_s: float
-    rss_mb: float
+    rss_mb: float  # at the end of the window
+    rss_ready_mb: float  # when first healthy, before any client (or the 3D panel's visit)
     load: tuple[float, float]  # 1-min load average at the window's start and end
     threads: list[tuple[ThreadInfo, float]]  # (thread, CPU seconds in the window)
     thread_sys_s: dict[int, float]  # system (kernel) seconds of each thread in the window
@@ -295,8 +298,11 @@ def one_run(args: argparse.Namespace, tmp: Path, with_3d: bool, label: str) -> R
     ]
     env = {"FPV_SERVER__TOKEN": json.dumps(TOKEN)}
     launcher = ("-m", "benchmarks.usb_mjpeg_camera")
+    root = args.station_root or ROOT
+    if root != ROOT:  # another checkout: it runs this grabber, whatever it has of its own
+        shutil.copy(ROOT / "benchmarks" / "usb_mjpeg_camera.py", root / "benchmarks")
     try:
-        with serve_station(cmd, env, launcher=launcher) as station:
+        with serve_station(cmd, env, launcher=launcher, root=root) as station:
             return measure(args, station, label)
     finally:
         vehicle.stop()
@@ -304,7 +310,10 @@ def one_run(args: argparse.Namespace, tmp: Path, with_3d: bool, label: str) -> R
 
 def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Run:
     pid = station.popen.pid
+    rss_ready = rss_mb(pid)
     auth = {"Authorization": f"Bearer {TOKEN}"}
+    if not args.no_visit:  # the pilot page asks for the 3D panel at once: it starts then
+        httpx.get(f"{station.base}/api/viser", timeout=30).raise_for_status()
     httpx.post(f"{station.base}/api/recording/start", headers=auth, json={}, timeout=10)
     # The clients connect and warm up; the window starts after `warmup` s.
     result: dict = {}
@@ -360,6 +369,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
         seconds=seconds,
         cpu_s=cpu1 - cpu0,
         rss_mb=rss_mb(pid),
+        rss_ready_mb=rss_ready,
         load=(load0, load1),
         threads=threads,
         thread_sys_s=thread_sys,
@@ -403,7 +413,8 @@ def window_end(station: StationProcess):
 def report(run: Run) -> None:
     pct = run.cpu_s / run.seconds * 100
     print(
-        f"\n## {run.label}: CPU {pct:.1f} % of one core, RSS {run.rss_mb:.0f} MB, "
+        f"\n## {run.label}: CPU {pct:.1f} % of one core, RSS {run.rss_mb:.0f} MB "
+        f"({run.rss_ready_mb:.0f} MB when ready), "
         f"ready in {run.ready_s:.2f} s ({run.ready_cpu_s:.2f} CPU s); "
         f"load {run.load[0]:.2f} -> {run.load[1]:.2f}"
     )
@@ -444,7 +455,19 @@ def main() -> None:
     ap.add_argument("--3d", dest="three_d", choices=("both", "on", "off"), default="both")
     ap.add_argument("--viewers", type=int, default=2, help="MJPEG viewers per camera")
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
+    ap.add_argument(
+        "--no-visit",
+        action="store_true",
+        help="do not ask GET /api/viser (as the pilot page does): the 3D panels stay unstarted",
+    )
     ap.add_argument("--profile-out", type=Path, help="keep py-spy's raw samples in this folder")
+    ap.add_argument(
+        "--baseline",
+        type=Path,
+        dest="station_root",
+        help="also run the station of this checkout (e.g. an older commit's `git archive`), "
+        "alternating with this one, to compare side by side under the same load",
+    )
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-pi-"))
     make_frames(tmp / "front", ".jpg")
@@ -457,16 +480,23 @@ def main() -> None:
         f"py-spy {'yes' if py_spy() and not args.no_profile else 'no'}"
     )
     configs = {"both": (True, False), "on": (True,), "off": (False,)}[args.three_d]
+    roots = (
+        [(None, "")] if args.station_root is None else [(args.station_root, "base "), (None, "")]
+    )
     runs = []
     for i in range(args.repeat):
         for with_3d in configs:
-            run = one_run(args, tmp, with_3d, f"3D {'on' if with_3d else 'off'} #{i + 1}")
-            report(run)
-            runs.append(run)
+            for root, tag in roots:
+                args_i = argparse.Namespace(**{**vars(args), "station_root": root})
+                label = f"{tag}3D {'on' if with_3d else 'off'} #{i + 1}"
+                run = one_run(args_i, tmp, with_3d, label)
+                report(run)
+                runs.append(run)
     print("\n# summary")
     for run in runs:
         print(
-            f"{run.label:<12} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
+            f"{run.label:<17} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
+            f" ({run.rss_ready_mb:3.0f} at ready)"
             f"  ready {run.ready_s:5.2f} s ({run.ready_cpu_s:4.2f} CPU s)"
             f"  load {run.load[0]:.2f}->{run.load[1]:.2f}"
         )

@@ -194,9 +194,9 @@ def print_session_accounting(meta: dict, rate_hz: float) -> None:
     )
     for cam, c in q["cameras"].items():
         print(
-            f"{cam}: {c['frames_written']} of {c['frames_captured']} frames written; never "
-            f"seen by the recorder (its consumer starved, the slot kept the newest) "
-            f"{c['frames_missed']}; lost to the writer's full queue {c['frames_dropped_queue']}"
+            f"{cam}: {c['frames_written']} of {c['frames_captured']} frames written; missed "
+            f"(gaps in the camera's sequence numbers) {c['frames_missed']}; lost to the "
+            f"writer's full queue {c['frames_dropped_queue']}"
         )
 
 

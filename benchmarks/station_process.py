@@ -59,12 +59,14 @@ def serve_station(
     launcher: Sequence[str] = ("-m", "server"),
     log_path: Path | None = None,
     timeout_s: float = 60.0,
+    root: Path = ROOT,
 ) -> Iterator[StationProcess]:
     """Run `python LAUNCHER serve --host 127.0.0.1 --port P ARGS` until the block ends.
 
     `env` is added to this process's environment; `launcher` replaces `-m server` (a
     script that sets something up, then runs the CLI). The server's output goes to
-    `log_path` (a temporary file by default: uvicorn logs every connection)."""
+    `log_path` (a temporary file by default: uvicorn logs every connection). `root` is the
+    checkout whose station runs (another commit's, to compare side by side)."""
     port = free_port()
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-station-"))
     keep_tmp = log_path is not None  # the caller keeps the log: leave it where it is
@@ -72,13 +74,13 @@ def serve_station(
     cmd = [sys.executable, *launcher, "serve", "--host", "127.0.0.1", "--port", str(port), *args]
     full_env = {
         **os.environ,
-        "PYTHONPATH": str(ROOT),
+        "PYTHONPATH": str(root),
         "XDG_CONFIG_HOME": str(tmp / "config"),
         **(env or {}),
     }
     with log_path.open("w") as log:
         t0 = time.monotonic()
-        popen = subprocess.Popen(cmd, cwd=ROOT, env=full_env, stdout=log, stderr=subprocess.STDOUT)
+        popen = subprocess.Popen(cmd, cwd=root, env=full_env, stdout=log, stderr=subprocess.STDOUT)
         try:
             ready_s = _wait_healthy(popen, f"http://127.0.0.1:{port}", t0, timeout_s, log_path)
             times = psutil.Process(popen.pid).cpu_times()

@@ -8,12 +8,17 @@ newest value, so no buffer grows and no consumer delays another (viser's
 
 Waking the waiters goes through `loop.call_soon_threadsafe`, so a thread never touches
 the event loop's objects directly. `publish` is cheap when nobody waits.
+
+A consumer that must see every value, not the newest (the recorder takes every camera
+frame), registers a publish listener instead: called in the producer's thread with each
+value, it must only hand the value to a bounded buffer and return.
 """
 
 from __future__ import annotations
 
 import asyncio
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
@@ -36,6 +41,7 @@ class Latest(Generic[T]):
         self._current: Versioned[T] | None = Versioned(1, initial) if initial is not None else None
         self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]] = []
         self._closed = False
+        self._listeners: tuple[Callable[[T], None], ...] = ()
 
     @property
     def version(self) -> int:
@@ -53,8 +59,21 @@ class Latest(Generic[T]):
             version = self.version + 1
             self._current = Versioned(version, value)
             waiters, self._waiters = self._waiters, []
+            listeners = self._listeners
+        for listener in listeners:
+            listener(value)
         _wake_waiters(waiters)
         return version
+
+    def add_listener(self, listener: Callable[[T], None]) -> None:
+        """Call `listener(value)` in the publisher's thread on every publish; it must not
+        block (hand the value to a bounded buffer)."""
+        with self._lock:
+            self._listeners = (*self._listeners, listener)
+
+    def remove_listener(self, listener: Callable[[T], None]) -> None:
+        with self._lock:
+            self._listeners = tuple(x for x in self._listeners if x is not listener)
 
     def close(self) -> None:
         """Wake every waiter for good; later waits return at once."""

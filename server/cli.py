@@ -44,6 +44,13 @@ def add_serve_parser(sub: Any) -> None:
         help="also copy raw MAVLink to this connection (udpout:HOST:PORT), repeatable",
     )
     p.add_argument("--link-lost-s", dest="link.link_lost_s", type=float)
+    p.add_argument(
+        "--udpin-any-sender",
+        dest="link.udpin_lock",
+        action="store_const",
+        const=False,
+        help="udpin: hear every host and answer the last (default: only the first host)",
+    )
     add_signing_flag(p)
     add_camera_flags(p)
     add_viser_flags(p)

@@ -56,3 +56,19 @@ def test_close_releases_waiters():
         return await asyncio.wait_for(waiter, 1)
 
     assert asyncio.run(main()) is None
+
+
+def test_a_publish_listener_sees_every_value_in_the_publishers_thread():
+    slot: Latest[int] = Latest()
+    seen: list[tuple[int, str]] = []
+
+    def listener(v: int) -> None:
+        seen.append((v, threading.current_thread().name))
+
+    slot.add_listener(listener)
+    t = threading.Thread(target=lambda: [slot.publish(i) for i in range(100)], name="producer")
+    t.start()
+    t.join()
+    slot.remove_listener(listener)
+    slot.publish(100)
+    assert seen == [(i, "producer") for i in range(100)]

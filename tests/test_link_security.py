@@ -269,6 +269,20 @@ def test_signing_refuses_unsigned_wrong_key_and_replayed_packets(tmp_path) -> No
             sync(v, app, 1.0)
             sec = security(base)
             assert sec["replay_refused"] == 1 and sec["bad_signature_refused"] >= 4
+            # A SiK radio behind the same address cannot sign: its RADIO_STATUS (MAVLink 1)
+            # passes, as MAVProxy and ArduPilot let it; anything else it sent would not.
+            with MavVehicle(
+                "udp", station_port=port, sysid=51, compid=68, mavlink1=True, rates_hz={}
+            ) as radio:
+                radio.send_message(radio.mav.radio_status_encode(200, 190, 80, 10, 20, 0, 0))
+                assert wait_until(lambda: security(base)["unsigned_allowed"] == 1, timeout=5)
+                unsigned_before = security(base)["unsigned_refused"]
+                radio.send_now("HEARTBEAT")
+                assert wait_until(
+                    lambda: security(base)["unsigned_refused"] == unsigned_before + 1, timeout=5
+                )
+            streams = httpx.get(f"{base}/api/status").json()["link"]["streams"]
+            assert any(s["sysid"] == 51 and s["compid"] == 68 for s in streams)
 
 
 def test_a_vehicle_whose_signing_clock_is_behind_is_heard_once_it_hears_us(tmp_path) -> None:
@@ -371,3 +385,23 @@ def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
                         break
             expect(warning).to_contain_text("MAVLINK REFUSED")
             browser.close()
+
+
+def test_serve_flags_set_the_link_defences(tmp_path) -> None:
+    from server.cli import build_parser, settings_from_args
+
+    key = key_file(tmp_path)
+    args = build_parser().parse_args(
+        [
+            "serve",
+            "--source",
+            "udpin:0.0.0.0:14550",
+            "--udpin-any-sender",
+            "--signing-key",
+            str(key),
+        ]
+    )
+    link = settings_from_args(args).link
+    assert link.udpin_lock is False and link.signing_key() == KEY
+    default = settings_from_args(build_parser().parse_args(["serve"])).link
+    assert default.udpin_lock is True and default.signing_key() is None

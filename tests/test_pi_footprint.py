@@ -17,7 +17,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 # The `learn` extra's top-level modules (pyproject.toml): absent on a Pi.
 LEARN_EXTRA = ("gymnasium", "pyarrow", "av", "minari", "foxglove", "mcap", "tqdm", "sklearn")
-IDLE_FEATURES = ("matplotlib",)  # analysis plots: loaded by the first plot asked for
+# Loaded by their first use: analysis plots (matplotlib), the 3D panels (viser: their
+# first visit, GET /api/viser).
+IDLE_FEATURES = ("matplotlib", "viser")
 
 CHILD = """
 import json, sys
@@ -36,7 +38,12 @@ settings = station_settings(
 with run_uvicorn(create_app(settings)) as base:
     health = httpx.get(base + "/api/health", timeout=10).json()
     sessions = httpx.get(base + "/api/sessions", timeout=10).status_code
-print(json.dumps({"ok": health["ok"], "sessions": sessions, "modules": sorted(sys.modules)}))
+    modules = sorted(sys.modules)
+    panel = httpx.get(base + "/api/viser", timeout=30).json()  # the first visit
+    client = httpx.get(f"http://127.0.0.1:{panel['port']}/", timeout=10).status_code
+    replay = httpx.get(f"http://127.0.0.1:{panel['replay_port']}/", timeout=10).status_code
+print(json.dumps({"ok": health["ok"], "sessions": sessions, "modules": modules,
+                  "panel": panel, "viser_pages": [client, replay]}))
 """
 
 
@@ -55,3 +62,5 @@ def test_serves_without_the_learn_extra_and_without_idle_features(tmp_path: Path
     assert reply["ok"] and reply["sessions"] == 200
     loaded = {m.split(".")[0] for m in reply["modules"]}
     assert not loaded & set(IDLE_FEATURES), "an idle feature was imported at start"
+    # The first visit starts the 3D panels: both viser servers serve their client.
+    assert reply["panel"]["enabled"] and reply["viser_pages"] == [200, 200]

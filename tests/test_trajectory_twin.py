@@ -22,8 +22,10 @@ def test_twin_session_trajectory_matches_local_position(tmp_path):
     with recorded_twin_flight(tmp_path, 2, overrides) as flight:
         station, base, session_id = flight.station, flight.base_url, flight.session_id
         # The live panel kept the flight: the field of the twin's scene and a long trail,
-        # drawn for its first viewer (nobody watched during the flight).
+        # drawn for its first viewer (nobody visited or watched during the flight).
         panel = station.trajectory3d
+        assert panel.server is None and panel.trail.n_points > 100
+        assert httpx.get(f"{base}/api/viser", timeout=30).json()["enabled"]  # the first visit
         assert {"pad:start", "pad:landing"} <= set(panel.scene.field_handles)
         assert panel.trail.n_points > 100
         with viser_viewer(panel.port):

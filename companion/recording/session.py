@@ -1,16 +1,18 @@
-"""One recording session: a sampler thread, a frame consumer per camera, one writer thread.
+"""One recording session: a sampler thread, a frame listener per camera, one writer thread.
 
 Inputs are exactly the station's objects: the vehicle state `Latest[VehicleState]`, each
 camera's `Latest[Frame]`, and raw packets pushed into `on_packet(t_wall, packet)` by the
 link's thread. Every frame a camera publishes reaches the writer through `_offer_frame`,
-called by the camera's consumer (which awaits each new version) and by the sampler (so a
-row can name the newest frame at its instant even before the consumer woke up); a frame
-is queued once, and gaps in sequence numbers are counted as missed frames.
+called in the camera's capture thread by a publish listener on its slot (so a starved
+event loop or sampler loses no frame) and by the sampler (so a row names the newest frame
+at its instant); a frame is queued once, and gaps in sequence numbers are counted as
+missed frames.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import threading
 import time
@@ -112,7 +114,7 @@ class RecordingSession:
         self._meta_lock = threading.Lock()
         self._next_meta_mono = 0.0
         self._stop = threading.Event()
-        self._consumers: list[asyncio.Task[None]] = []
+        self._frame_listeners: dict[str, Callable[[Frame], None]] = {}
         formatter = RowFormatter(self.cameras, self.t0_mono)
         self.writer = SessionWriter(
             self.folder,
@@ -129,25 +131,25 @@ class RecordingSession:
     # -- lifecycle -----------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the threads and the frame consumers (call on the event loop)."""
+        """Start the threads and take every frame the cameras publish from now on."""
         self.writer.start()
         if not self.clock.own:
             self._sampler.start()
         for cam, slot in self._camera_slots.items():
-            task = asyncio.get_running_loop().create_task(
-                self._consume(cam, slot), name=f"recorder-frames-{cam}"
-            )
-            task.add_done_callback(self._consumer_done)
-            self._consumers.append(task)
+            listener = functools.partial(self._take_frame, cam)
+            self._frame_listeners[cam] = listener
+            slot.add_listener(listener)
+            # The frame shown now is part of what the pilot saw at the start.
+            current = slot.get()
+            if current is not None:
+                self._offer_frame(cam, current.value)
 
     async def stop(self, reason: str) -> SessionMeta:
         """Stop sampling, write what is buffered, close the files, finalize session.json."""
         if self.stop_reason is None:
             self.stop_reason = reason
         self._stop.set()
-        for task in self._consumers:
-            task.cancel()
-        await asyncio.gather(*self._consumers, return_exceptions=True)
+        self._drop_frame_listeners()
         return await asyncio.to_thread(self._finish)
 
     def _finish(self) -> SessionMeta:
@@ -200,21 +202,19 @@ class RecordingSession:
                 track.ref = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
             return track.ref
 
-    async def _consume(self, cam: str, slot: Latest[Frame]) -> None:
-        # Start from the frame shown now: it is part of what the pilot saw at the start.
-        version = max(slot.version - 1, 0)
-        while not self._stop.is_set():
-            got = await slot.wait_newer(version, timeout=0.5)
-            if got is None or got.version <= version:
-                if slot.closed:
-                    return
-                continue
-            version = got.version
-            self._offer_frame(cam, got.value)
+    def _take_frame(self, cam: str, frame: Frame) -> None:
+        """The camera slot's publish listener (the capture thread): never blocks."""
+        if self._stop.is_set():
+            return
+        try:
+            self._offer_frame(cam, frame)
+        except Exception:  # the camera's thread must go on whatever the recorder does
+            log.exception("recording frame %s of %s failed", frame.seq, cam)
 
-    def _consumer_done(self, task: asyncio.Task[None]) -> None:
-        if not task.cancelled() and task.exception() is not None:
-            log.error("frame consumer %s died", task.get_name(), exc_info=task.exception())
+    def _drop_frame_listeners(self) -> None:
+        for cam, listener in self._frame_listeners.items():
+            self._camera_slots[cam].remove_listener(listener)
+        self._frame_listeners.clear()
 
     # -- the sampler thread ------------------------------------------------------------------
 

@@ -1,6 +1,6 @@
 """The session's one writer thread: bounded buffers in, files out, flushed every half second.
 
-Producers (the sampler thread, the frame consumers on the event loop, the link thread's
+Producers (the sampler thread, the cameras' capture threads, the link thread's
 packet listener) only append to bounded deques and never wait; when a buffer is full the
 item is refused and counted, never silently lost. The thread writes frames before rows,
 so a row on disk never names a frame that is not on disk yet, flushes (and fdatasyncs)

@@ -1,9 +1,9 @@
 """MAVLink 2 message signing: the key, signing what we send, and checking what comes in.
 
-The key is a passphrase hashed with SHA-256, as MAVProxy's `signing setup PASSPHRASE`,
-Mission Planner's "MAVLink Signing" dialog and QGroundControl make it: the same
-passphrase gives the same 32-byte key in all of them, so a vehicle set up with one of
-them talks to the station (and the twin) with the same words. The key file holds that
+The key is a passphrase hashed with SHA-256, as MAVProxy's `signing setup PASSPHRASE`
+makes it (`passphrase_to_key` in its signing module): the same passphrase gives the same
+32-byte key, so a vehicle set up with MAVProxy talks to the station (and the twin) with
+the same words. The key file holds that
 passphrase as UTF-8 text (surrounding whitespace, such as the newline `echo` adds, is not
 part of it); it must be a regular file that only its owner can read or write, as ssh
 insists for private keys.

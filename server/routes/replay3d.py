@@ -16,6 +16,7 @@ from pydantic import BaseModel, Field
 from server.errors import BadRequest, Unavailable
 from server.routes.recording import get_recorder
 from server.routes.trajectory import load_trajectory, reference_param
+from server.station import start_3d_panels
 from server.trajectory3d.replay import Align
 
 router = APIRouter(tags=["trajectory"])
@@ -41,7 +42,8 @@ class Replay3DState(BaseModel):
     segments: int  # path segments drawn for the session
 
 
-def _service(request: Request):
+async def _service(request: Request):
+    await start_3d_panels(request.app.state.station)  # a first visit may come here
     service = request.app.state.station.replay3d
     if service is None or service.server is None:
         raise Unavailable("The 3D replay panel is not running (--no-3d).")
@@ -66,7 +68,7 @@ def _state(service) -> Replay3DState:
     summary="Show a session (and an overlay) in the 3D replay panel",
 )
 async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
-    service = _service(request)
+    service = await _service(request)
     settings = request.app.state.settings
     store = get_recorder(request).store  # the station's one SessionStore
     ref = reference_param(body.reference)
@@ -87,7 +89,7 @@ async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     summary="Move the 3D replay panel's vehicle to an instant",
 )
 async def put_replay3d_time(request: Request, body: Replay3DTime) -> Replay3DState:
-    service = _service(request)
+    service = await _service(request)
     if not math.isfinite(body.t_s):
         raise BadRequest("t_s must be a finite number of seconds.")
     if service.primary is None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
+from server.station import start_3d_panels
+
 router = APIRouter(tags=["trajectory"])
 
 
@@ -18,7 +20,9 @@ class ViserPanel(BaseModel):
 
 @router.get("/api/viser", response_model=ViserPanel, summary="The 3D trajectory panel")
 async def get_viser_panel(request: Request) -> ViserPanel:
-    service = request.app.state.station.trajectory3d
+    station = request.app.state.station
+    await start_3d_panels(station)  # the first visit starts the panels' viser servers
+    service = station.trajectory3d
     if service is None or service.server is None:
         return ViserPanel(enabled=False, port=None, points=0, chunks=0)
     replay = request.app.state.station.replay3d

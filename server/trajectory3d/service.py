@@ -7,7 +7,9 @@ tests drive it directly with a sequence of states.
 
 The scene is drawn only while someone has the panel open: until then a step only extends
 the trail (the flight's history), and the first viewer gets the whole trail drawn at once.
-A panel nobody looks at costs a fraction of one drawn (docs/PERFORMANCE.md).
+A panel nobody looks at costs a fraction of one drawn (docs/PERFORMANCE.md). The viser
+server itself (and viser's import) waits for `start()`, which the station calls on the
+first visit (server.station.start_3d_panels); the trail is kept from the station's start.
 """
 
 from __future__ import annotations
@@ -16,19 +18,23 @@ import asyncio
 import logging
 import math
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
-import viser
 
 from companion.latest import Latest
 from companion.vehicle_state import VehicleState
 from core.geodesy import geodetic_to_enu
 from core.scene import Scene
 from server.settings import ViserSettings
-from server.trajectory3d.controls import Controls
-from server.trajectory3d.live_scene import LiveScene
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.trail import Origin, Trail, TrailSample
+
+if TYPE_CHECKING:  # imported by start(): viser costs memory and start-up time
+    import viser
+
+    from server.trajectory3d.controls import Controls
+    from server.trajectory3d.live_scene import LiveScene
 
 log = logging.getLogger(__name__)
 
@@ -112,25 +118,33 @@ class Trajectory3D:
     # -- lifecycle ----------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the viser server (its own thread and event loop). Blocks briefly."""
+        """Start the viser server (its own thread and event loop). Blocks briefly; may run
+        in a worker thread while `run()` steps: `server` is set last, once all is built."""
+        import viser
+
+        from server.trajectory3d.controls import Controls
+        from server.trajectory3d.live_scene import LiveScene
+
         s = self.settings
-        self.server = viser.ViserServer(
+        server = viser.ViserServer(
             host=self.host, port=s.port, label="fpv-station 3D", verbose=False
         )
-        self.server.scene.set_up_direction("+z")
-        self.server.initial_camera.position = (-25.0, -30.0, 20.0)
-        self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
-        self.scene = LiveScene(
-            self.server,
+        server.scene.set_up_direction("+z")
+        server.initial_camera.position = (-25.0, -30.0, 20.0)
+        server.initial_camera.look_at = (0.0, 0.0, 0.0)
+        scene = LiveScene(
+            server,
             height_range_m=s.height_range_m,
             speed_range_mps=s.speed_range_mps,
             color_by=s.color_by,
             field=self.field,
         )
-        self.controls = Controls(self.server, s.color_by)
         if self.field is not None:
             # Before any fix, show the field about its own anchor.
-            self.scene.set_origin(self.field.home_llh)
+            scene.set_origin(self.field.home_llh)
+        self.scene, self.controls = scene, Controls(server, s.color_by)
+        self._stale = True
+        self.server = server
         log.info("3D panel (viser) on port %d", self.port)
 
     @property
@@ -167,7 +181,8 @@ class Trajectory3D:
     # -- one update ----------------------------------------------------------------
 
     def apply_requests(self) -> None:
-        assert self.scene is not None and self.controls is not None
+        if self.server is None or self.scene is None or self.controls is None:
+            return  # not started: nobody could ask for anything
         req = self.controls.take_requests()
         if req.field_visible is not None:
             self.scene.set_field_visible(req.field_visible)
@@ -184,9 +199,8 @@ class Trajectory3D:
     def step(self, state: VehicleState) -> None:
         """Bring the trail up to `state`, and while someone watches the scene too: origin,
         trail, vehicle, footprint, camera."""
-        assert self.server is not None
         self.steps += 1
-        if not self.watched():
+        if self.server is None or not self.watched():
             self._stale = True
             self._step(state, draw=False)
             return
@@ -206,7 +220,6 @@ class Trajectory3D:
         self.scene.redraw_trail(self.trail)
 
     def _step(self, state: VehicleState, draw: bool) -> None:
-        assert self.scene is not None and self.controls is not None
         self.apply_requests()
         origin = origin_from_state(state)
         if origin is not None and self.trail.set_origin(origin) and draw:
@@ -230,6 +243,7 @@ class Trajectory3D:
                 self.scene.sync_chunk(chunk)
         if not draw:
             return
+        assert self.scene is not None and self.controls is not None
         assert self.trail.origin is not None
         pos = self.trail.last_enu_m
         if pos is None:  # the trail was just cleared and this fix is not new
@@ -288,12 +302,3 @@ class Trajectory3D:
         if now >= self._status_due and self.controls is not None:
             self._status_due = now + 1.0  # a readout for people: once a second is plenty
             self.controls.set_status(text)
-
-
-async def open_trajectory3d(
-    settings: ViserSettings, state: Latest[VehicleState], host: str, field: Scene | None
-) -> Trajectory3D:
-    """Build and start the service off the event loop (viser binds and spawns a thread)."""
-    service = Trajectory3D(settings, state, host=host, field=field)
-    await asyncio.to_thread(service.start)
-    return service

@@ -8,7 +8,8 @@ update is therefore bounded by the chunk size, whatever the length of the flight
 Gaps: a sample flagged `starts_run` (after a lost fix or a silence longer than the gap
 threshold) is not joined to the point before it, so a dropout is drawn as a gap, never as
 a straight jump. Samples are kept geodetic, so that a new origin (the arming point)
-re-projects the whole path exactly.
+re-projects the whole path exactly. They are projected to ENU when first drawn, all the
+new ones of a chunk in one vectorized call: a panel nobody watches projects nothing.
 """
 
 from __future__ import annotations
@@ -41,14 +42,25 @@ class TrailChunk:
     geo: list[tuple[float, float, float]] = field(default_factory=list)
     speed_mps: list[float] = field(default_factory=list)
     starts_run: list[bool] = field(default_factory=list)
+    # ENU about `origin` of the first len(enu_m) points of `geo` (`project` does the rest);
+    # a chunk built from ENU alone (the replay's) has no geo and is always complete.
     enu_m: list[NDArray[np.float64]] = field(default_factory=list)
+    origin: Origin | None = None
 
     @property
     def n_segments(self) -> int:
         return sum(1 for s in self.starts_run[1:] if not s)
 
+    def project(self) -> None:
+        """Bring `enu_m` up to `geo`: every point not projected yet, in one call."""
+        done = len(self.enu_m)
+        if done < len(self.geo) and self.origin is not None:
+            g = np.asarray(self.geo[done:])
+            self.enu_m.extend(geodetic_to_enu(g[:, 0], g[:, 1], g[:, 2], *self.origin))
+
     def segments(self) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]:
         """(N, 2, 3) segment end points in ENU, (N, 2) heights, (N, 2) speeds."""
+        self.project()
         if len(self.enu_m) < 2:
             empty = np.zeros((0, 2))
             return np.zeros((0, 2, 3), np.float32), empty, empty
@@ -100,11 +112,9 @@ class Trail:
         ):
             return False
         self.origin = origin
-        for chunk in self.chunks:
-            if chunk.geo:
-                g = np.asarray(chunk.geo)
-                enu = geodetic_to_enu(g[:, 0], g[:, 1], g[:, 2], *origin)
-                chunk.enu_m = list(enu)
+        for chunk in self.chunks:  # re-projected when next drawn
+            chunk.origin = origin
+            chunk.enu_m = []
         return True
 
     def append(self, s: TrailSample) -> tuple[TrailChunk, list[TrailChunk]]:
@@ -122,19 +132,17 @@ class Trail:
         self._last_t_s = s.t_s
         chunk = self.chunks[-1] if self.chunks else None
         if chunk is None or chunk.n_segments >= self.chunk_segments:
-            new = TrailChunk(next(self._ids))
-            if chunk is not None and chunk.enu_m and not starts_run:
+            new = TrailChunk(next(self._ids), origin=self.origin)
+            if chunk is not None and chunk.geo and not starts_run:
                 # Repeat the last point so the line is continuous across chunks.
                 new.geo.append(chunk.geo[-1])
                 new.speed_mps.append(chunk.speed_mps[-1])
                 new.starts_run.append(True)
-                new.enu_m.append(chunk.enu_m[-1])
             self.chunks.append(new)
             chunk = new
         chunk.geo.append((s.lat_deg, s.lon_deg, s.alt_m))
         chunk.speed_mps.append(s.speed_mps)
         chunk.starts_run.append(starts_run)
-        chunk.enu_m.append(geodetic_to_enu(s.lat_deg, s.lon_deg, s.alt_m, *self.origin))
         self.n_points += 1
         dropped = []
         while self.n_points > self.max_points and len(self.chunks) > 1:
@@ -145,6 +153,8 @@ class Trail:
 
     @property
     def last_enu_m(self) -> NDArray[np.float64] | None:
-        if not self.chunks or not self.chunks[-1].enu_m:
+        if not self.chunks:
             return None
-        return self.chunks[-1].enu_m[-1]
+        chunk = self.chunks[-1]
+        chunk.project()
+        return chunk.enu_m[-1] if chunk.enu_m else None
