@@ -7,7 +7,7 @@ import csv
 import io
 
 from companion.recording import layout
-from companion.recording.ondisk import take_census
+from companion.recording.ondisk import TELEMETRY_TAIL_BYTES, take_census
 from tests.recording_fakes import make_jpegs
 
 START = 1_700_000_000.0
@@ -88,3 +88,34 @@ def _row(header: str, t_s: float, wall: float, seq: int, t_wall: float) -> str:
         }
     )
     return ",".join(values[c] for c in cols) + "\n"
+
+
+def test_a_long_telemetry_file_is_counted_without_reading_it_whole(tmp_path):
+    """Rows are counted in chunks; the frame times come from the newest rows (a tail of
+    the file that starts mid-line); the count and the last row are exact."""
+    jpegs = make_jpegs(2, 160, 120)
+    cam = tmp_path / "front"
+    cam.mkdir()
+    n = 12_000  # ~2 MB of rows, more than the tail kept in memory
+    for seq in (n - 1, n):
+        (cam / f"{seq:08d}.jpg").write_bytes(jpegs[seq % 2])
+    (cam / "frames.csv").write_bytes(frames_csv([]))
+    header = ",".join(layout.telemetry_columns(("front",)))
+    rows = [
+        _row(header, t_s=k / 30, wall=START + k / 30, seq=k, t_wall=START + k / 30)
+        for k in range(1, n + 1)
+    ]
+    (tmp_path / layout.TELEMETRY_CSV).write_text(header + "\n" + "".join(rows) + "1.0,17")
+    assert (tmp_path / layout.TELEMETRY_CSV).stat().st_size > 1.5 * TELEMETRY_TAIL_BYTES
+
+    census = take_census(tmp_path, ["front"], START)
+
+    assert census.telemetry_rows == n and census.telemetry_cut_line
+    assert census.last_row_wall == START + n / 30
+    on_disk = list(csv.DictReader(io.StringIO((cam / "frames.csv").read_text())))
+    assert [int(r["seq"]) for r in on_disk] == [n - 1, n]
+    # From the rows that named them (rounded to the microsecond), not the files' times.
+    assert [float(r["t_wall"]) for r in on_disk] == [
+        round(START + (n - 1) / 30, 6),
+        round(START + n / 30, 6),
+    ]

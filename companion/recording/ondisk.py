@@ -78,9 +78,9 @@ class Census:
 
 def take_census(folder: Path, cameras: list[str], start_wall: float) -> Census:
     """Count the session's rows, packets and frames on disk, reconciling each frames.csv."""
-    telemetry = _complete_lines(folder / layout.TELEMETRY_CSV)
+    telemetry = _scan_telemetry(folder / layout.TELEMETRY_CSV)
     lines = telemetry.lines
-    census = Census(telemetry_rows=max(len(lines) - 1, 0), telemetry_cut_line=telemetry.cut)
+    census = Census(telemetry_rows=telemetry.rows, telemetry_cut_line=telemetry.cut)
     if len(lines) >= 2:
         last = _row_dict(lines[0], lines[-1])
         census.last_row_t_s = _float(last.get("t_s"))
@@ -242,8 +242,9 @@ def _replace_rows(path: Path, rows: list[tuple[str, ...]]) -> None:
 
 
 def _frame_times(camera: str, lines: list[str], wanted: set[int]) -> dict[int, tuple[float, float]]:
-    """(t_s, t_wall) of frames named by telemetry rows: the row's time minus its skew.
-    Reads from the end: unlisted frames are the newest."""
+    """(t_s, t_wall) of frames named by telemetry rows (`lines`: the header, then the
+    newest rows): the row's time minus its skew. Reads from the end: unlisted frames are
+    the newest."""
     if len(lines) < 2 or not wanted:
         return {}
     header = next(csv.reader([lines[0]]))
@@ -266,6 +267,43 @@ def _frame_times(camera: str, lines: list[str], wanted: set[int]) -> dict[int, t
         if seq in wanted:
             found.setdefault(seq, t)
     return found
+
+
+TELEMETRY_TAIL_BYTES = 1 << 20  # the newest rows kept in memory: ~10 s at 100 Hz
+
+
+@dataclass
+class _TelemetryScan:
+    rows: int  # complete rows (lines after the header)
+    cut: bool  # a partial last line was left out
+    lines: list[str]  # the header, then the newest complete rows (TELEMETRY_TAIL_BYTES)
+
+
+def _scan_telemetry(path: Path) -> _TelemetryScan:
+    """Count telemetry.csv's rows in chunks, keeping only its header and newest rows: an
+    hour's file is hundreds of MB, more than a Pi should read into memory at once."""
+    try:
+        f = open(path, "rb")  # noqa: SIM115 (closed below, after the tail is read)
+    except OSError:
+        return _TelemetryScan(0, False, [])
+    with f:
+        header = f.readline()
+        if not header.endswith(b"\n"):
+            return _TelemetryScan(0, bool(header), [])
+        rows, pos, last_nl = 0, len(header), len(header)
+        while chunk := f.read(1 << 20):
+            rows += chunk.count(b"\n")
+            nl = chunk.rfind(b"\n")
+            if nl >= 0:
+                last_nl = pos + nl + 1
+            pos += len(chunk)
+        start = max(len(header), last_nl - TELEMETRY_TAIL_BYTES)
+        f.seek(start)
+        tail = f.read(last_nl - start)
+    if start > len(header):  # began mid-line: that line is not whole
+        tail = tail[tail.find(b"\n") + 1 :]
+    text = (header + tail).decode("utf-8", errors="replace")
+    return _TelemetryScan(rows, pos > last_nl, text.splitlines())
 
 
 @dataclass
