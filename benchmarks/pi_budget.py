@@ -314,7 +314,9 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
     auth = {"Authorization": f"Bearer {TOKEN}"}
     if not args.no_visit:  # the pilot page asks for the 3D panel at once: it starts then
         httpx.get(f"{station.base}/api/viser", timeout=30).raise_for_status()
-    httpx.post(f"{station.base}/api/recording/start", headers=auth, json={}, timeout=10)
+    httpx.post(
+        f"{station.base}/api/recording/start", headers=auth, json={}, timeout=10
+    ).raise_for_status()
     # The clients connect and warm up; the window starts after `warmup` s.
     result: dict = {}
 

@@ -54,6 +54,7 @@ class Station:
     trajectory3d: Trajectory3D | None = None
     replay3d: Replay3D | None = None  # the replay's viser panel; None until then
     panels_3d_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    panels_3d_closed: bool = False  # stopped with the station: a late visit starts nothing
     # One MJPEG fan-out per camera, shared by all its viewers (server.video_fanout).
     video_fanouts: dict[str, FrameFanout] = field(default_factory=dict)
     twin: Twin | None = None  # the digital twin when link.source is "sim"
@@ -192,6 +193,8 @@ async def start_3d_panels(station: Station) -> None:
     if live is None:
         return
     async with station.panels_3d_lock:
+        if station.panels_3d_closed:
+            return
         if live.server is None:
             await asyncio.to_thread(live.start)  # viser binds and spawns its thread
         if station.replay3d is None:
@@ -207,6 +210,7 @@ async def start_3d_panels(station: Station) -> None:
 async def _stop_3d_panels(station: Station) -> None:
     # viser's stop joins its thread: keep that wait off the event loop.
     async with station.panels_3d_lock:
+        station.panels_3d_closed = True
         for panel in (station.replay3d, station.trajectory3d):
             if panel is not None:
                 await asyncio.to_thread(panel.stop)

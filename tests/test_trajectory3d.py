@@ -31,7 +31,7 @@ from server.trajectory3d.colors import ramp_rgb
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.service import Trajectory3D
 from server.trajectory3d.trail import Trail, TrailSample
-from tests.helpers import run_uvicorn, viser_viewer, wait_until
+from tests.helpers import run_uvicorn, station_settings, viser_viewer, wait_until
 
 FIELD = load_scene()
 ORIGIN = FIELD.home_llh
@@ -342,6 +342,21 @@ def test_panel_starts_and_stops_with_the_station():
         assert page.status_code == 200 and "<html" in page.text.lower()
     with pytest.raises(httpx.ConnectError):  # the viser server is gone with the station
         httpx.get(f"http://127.0.0.1:{info['port']}/", timeout=2.0)
+
+
+def test_a_visit_after_the_station_stopped_starts_no_panel(tmp_path):
+    from server.station import open_station, start_3d_panels
+
+    settings = station_settings("none", tmp_path, **{"viser.enabled": True, "viser.port": 0})
+
+    async def visit_late():
+        async with open_station(settings) as station:
+            assert station.trajectory3d is not None and station.trajectory3d.server is None
+        await start_3d_panels(station)  # a request that arrives during shutdown
+        return station
+
+    station = asyncio.run(visit_late())
+    assert station.trajectory3d.server is None and station.replay3d is None
 
 
 def test_no_3d_flag():
