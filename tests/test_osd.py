@@ -150,6 +150,22 @@ def test_osd_elements_switch_off_and_stay_off(station, browser):
     expect(page.locator("[data-osd=gps]")).to_be_visible()
 
 
+# Pairs of visible OSD texts, the OSD button and the camera readout in `view` whose boxes
+# overlap by more than a pixel (the horizon and the centre warning may lie over others).
+OVERLAPS = """(view) => {
+  const items = [...document.querySelectorAll(
+    `${view} .osd-item:not(canvas):not(.osd-warning):not(:empty), ${view} .osd-menu-button,`
+    + ` ${view} .video-readout`)].filter((e) => e.offsetParent !== null);
+  const out = [];
+  items.forEach((a, i) => items.slice(i + 1).forEach((b) => {
+    const r = a.getBoundingClientRect(), q = b.getBoundingClientRect();
+    if (r.left < q.right - 1 && q.left < r.right - 1 && r.top < q.bottom - 1 && q.top < r.bottom - 1)
+      out.push([a.className, a.textContent, b.className, b.textContent]);
+  }));
+  return out;
+}"""
+
+
 @pytest.mark.parametrize("size", [(1280, 720), (1920, 1080)])
 def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser, size):
     vehicle, base = station
@@ -170,6 +186,10 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     assert box["sw"] <= box["cw"] and box["sh"] <= box["ch"], box
     assert box["chrome"] == 0
     assert page.evaluate("getComputedStyle(document.body).backgroundColor") == "rgb(0, 0, 0)"
+    # Nothing written over anything else: the OSD's text elements, its menu button and the
+    # camera's readout each have their own place.
+    clashes = page.evaluate(OVERLAPS, "#front-view")
+    assert clashes == [], clashes
 
     bottom = page.locator("#bottom-view")
     expect(bottom).to_be_hidden()
@@ -220,5 +240,6 @@ def test_pilot_page_has_no_horizontal_scroll_on_a_phone(station, browser, size):
         "[document.documentElement.scrollWidth, document.documentElement.clientWidth]"
     )
     assert sw <= cw, (sw, cw)
+    assert page.evaluate(OVERLAPS, "#front-view") == []
     page.locator("#bottom-view").scroll_into_view_if_needed()
     expect(page.locator("#bottom-view img")).to_be_in_viewport()

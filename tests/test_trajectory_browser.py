@@ -156,12 +156,12 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
         page.wait_for_url(f"**/replay.html?session={SESSION_A}*")
         page.wait_for_function(
-            "document.getElementById('replay-status').textContent.includes('fixes')", timeout=10_000
+            "document.getElementById('replay-status').textContent.includes('fixes')", timeout=30_000
         )
         page.locator("#replay-compare").select_option(SESSION_B)  # also turns alignment on
         page.wait_for_function(
             "document.getElementById('replay-status').textContent.includes('overlay')",
-            timeout=10_000,
+            timeout=30_000,
         )
         slider = page.locator("#replay-slider")
         assert slider.is_visible() and int(slider.get_attribute("max")) > 300
@@ -170,7 +170,7 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         page.wait_for_function(
             "['replay-front', 'replay-bottom']"
             ".every(id => document.getElementById(id).naturalWidth > 0)",
-            timeout=10_000,
+            timeout=30_000,
         )
         front_src = page.locator("#replay-front").get_attribute("src")
         # The newest frame at or before the instant's time (the sample times come from the
