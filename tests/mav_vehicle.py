@@ -183,10 +183,13 @@ class MavVehicle:
             self.mav.seq = (self.mav.seq + n) % 256
 
     def send_message(self, msg: mavlink.MAVLink_message) -> bytes:
+        # Written under the lock too: an autopilot sends its packets in sequence order. Two
+        # threads (the send loop and an ACK from the receive loop) writing outside it could
+        # swap two packets on the wire, which the station rightly counts as 255 lost.
         with self._lock:
             buf = msg.pack(self.mav, force_mavlink1=self.mavlink1)
             self.mav.seq = (self.mav.seq + 1) % 256
-        self._write(buf)
+            self._write(buf)
         self.sent[msg.get_type()] += 1
         return buf
 

@@ -93,7 +93,7 @@ def test_loss_counted_from_sequence_numbers():
         v.skip_seq(5)
         time.sleep(0.2)
         v.skip_seq(3)
-        assert wait_until(lambda: link.health().lost_packets == 8)
+        assert wait_until(lambda: link.health().lost_packets == 8), link.health()
         h = link.health()
         assert 0 < h.loss_ratio < 0.5
 
