@@ -140,6 +140,17 @@ def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
                 assert rec.failure is not None and rec.failure.startswith("disk full"), rec.failure
                 first = rec.last_stop.id
                 cam.stop()  # fewer bytes per second, and room made: the cause has passed
+
+                def finalized() -> bool:  # the stop counts the files; let it finish first
+                    try:
+                        meta = json.loads((root / first / layout.SESSION_JSON).read_text())
+                    except (OSError, ValueError):
+                        return False
+                    return meta["status"] != layout.STATUS_RECORDING
+
+                deadline = time.monotonic() + 20
+                while not finalized() and time.monotonic() < deadline:  # noqa: ASYNC110
+                    await asyncio.sleep(0.1)
                 shutil.rmtree(root / first)
                 deadline = time.monotonic() + 20
                 while rec.recording_id in (None, first) and time.monotonic() < deadline:  # noqa: ASYNC110
