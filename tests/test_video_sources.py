@@ -165,7 +165,9 @@ def test_sim_source_at_configured_rate_and_recovers_from_a_failing_twin():
     camera.start()
     try:
         fps, frames = _rate(camera, 1.5)
-        assert 26.0 <= fps <= 31.5, fps  # 30 configured
+        # 30 configured: paced at that rate, not free-running (a starved 2-core CI box
+        # delivers a few frames less in 1.5 s; rate figures belong to benchmarks/video.py)
+        assert 22.0 <= fps <= 31.5, fps
         assert renderer.calls["bottom"] >= len(frames) and "front" not in renderer.calls
         assert _decode(frames[-1].jpeg).shape == (480, 640, 3)  # scaled to the configured size
         renderer.fail.set()
