@@ -18,7 +18,7 @@ from pathlib import Path
 from core.scene import Scene, load_scene
 from learn.episodes import ChannelMap, episodes
 from learn.formats import DEFAULT_FPS, FORMATS
-from learn.recording_reader import Recording, RecordingError, open_recording
+from learn.recording_reader import Recording, RecordingError, open_recording, recording_meta
 
 
 @dataclass(frozen=True)
@@ -57,10 +57,9 @@ def recorded_task_id(paths: Sequence[Path]) -> int:
     one task's environment)."""
     ids = set()
     for path in paths:
-        with open_recording(path) as rec:
-            task = rec.meta.get("task") if isinstance(rec.meta, dict) else None
-            if isinstance(task, dict) and isinstance(task.get("id"), int):
-                ids.add(task["id"])
+        task = recording_meta(path).get("task")
+        if isinstance(task, dict) and isinstance(task.get("id"), int):
+            ids.add(task["id"])
     if len(ids) > 1:
         raise RecordingError(
             f"these recordings were flown for tasks {sorted(ids)}: export each task's "

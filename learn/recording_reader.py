@@ -102,6 +102,29 @@ class Recording:
         return (self.folder / self.cameras[camera].files[k]).read_bytes()
 
 
+def recording_meta(path: str | Path) -> dict:
+    """Only the session.json of a session folder or zip ({} for a bare tlog, or a session
+    without one): what a caller needs to know before it opens recordings, without reading
+    their telemetry or unpacking a zip."""
+    p = Path(path)
+    if p.is_dir():
+        meta_file = p / layout.SESSION_JSON
+        return parse_meta(meta_file.read_bytes()) if meta_file.is_file() else {}
+    if p.suffix.lower() == ".zip":
+        try:
+            with zipfile.ZipFile(p) as zf:
+                # The shallowest session.json, as _unzip picks the session's folder.
+                names = [n for n in zf.namelist() if Path(n).name == layout.SESSION_JSON]
+                if not names:
+                    return {}
+                return parse_meta(zf.read(min(names, key=lambda n: n.count("/"))))
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise RecordingError(f"'{p}' is not a readable zip: {exc}") from None
+    if not p.exists():
+        raise RecordingError(f"'{p}' does not exist; give a session folder, zip or .tlog.")
+    return {}
+
+
 @contextlib.contextmanager
 def open_recording(path: str | Path) -> Iterator[Recording]:
     """Open a session folder, session zip or bare tlog for the duration of a `with`."""
@@ -147,8 +170,7 @@ def _unzip(zip_path: Path, into: Path) -> Path:
 
 
 def _read_session(folder: Path, source: str) -> Recording:
-    meta_file = folder / layout.SESSION_JSON
-    meta = parse_meta(meta_file.read_bytes()) if meta_file.is_file() else {}
+    meta = recording_meta(folder)
     tlog = folder / layout.MAVLINK_TLOG
     if not tlog.is_file():
         tlog = next(iter(sorted(folder.glob("*.tlog"))), None)

@@ -19,7 +19,7 @@ import pytest
 
 from learn.demos import DemoConfig, fly_demo
 from learn.episodes import ChannelMap
-from learn.export import ExportOptions, export_recordings
+from learn.export import ExportOptions, export_recordings, recorded_task_id
 from server.cli import main as cli_main
 from tests import synthetic as syn
 from tests.test_flights import _sorties
@@ -397,6 +397,9 @@ def test_an_episode_carries_the_task_its_session_was_flown_for(session, tmp_path
         return copy
 
     a_to_b = flown_for(2, "A to B")
+    # Zipped (as the sessions page downloads it), the task is read without unpacking.
+    zipped = Path(shutil.make_archive(str(tmp_path / "a_to_b"), "zip", a_to_b.parent, a_to_b.name))
+    assert recorded_task_id([zipped]) == 2 and recorded_task_id([session]) == 1
     out = tmp_path / "ds"
     s = export_recordings([a_to_b], "lerobot", out, ExportOptions(fps=FPS, cameras=()))
     assert s.episodes == 1
