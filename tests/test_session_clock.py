@@ -17,6 +17,7 @@ from companion.recording.session_clock import choose_session_clock
 from companion.recording.store import SessionStore
 from companion.state_tracker import StateTracker
 from companion.system_clock import clock_synchronised
+from companion.vehicle_state import VehicleUtc
 from core.mavlink.framing import MavFramer
 from server.app import create_app
 from server.settings import load_settings
@@ -25,6 +26,11 @@ from tests.mav_vehicle import MavVehicle
 
 WEEK_S = 7 * 86400.0
 NOW = 1_795_000_000.0  # 2026-11-18
+
+
+def gps(unix_s: float | None) -> VehicleUtc:
+    """The vehicle's GPS time as the state holds it, heard at station time 0."""
+    return VehicleUtc(0.0, unix_s, "SYSTEM_TIME") if unix_s is not None else VehicleUtc()
 
 
 @pytest.mark.parametrize(
@@ -40,16 +46,24 @@ NOW = 1_795_000_000.0  # 2026-11-18
     ],
 )
 def test_the_rule(synced, vehicle, used, offset):
-    c = choose_session_clock(NOW, synced, vehicle, "SYSTEM_TIME", max_disagree_s=5.0)
+    c = choose_session_clock(NOW, 0.0, synced, gps(vehicle), max_disagree_s=5.0)
     assert c.used == used and c.offset_s == pytest.approx(offset)
     assert c.station_synced is synced and c.station_start_wall == NOW
     assert c.vehicle_start_utc == vehicle and c.reason
+    assert c.vehicle_source == ("SYSTEM_TIME" if vehicle is not None else None)
     if synced is False and vehicle is None:
         assert "may be wrong" in c.reason
 
 
+def test_the_vehicles_time_runs_on_with_the_monotonic_clock():
+    """GPS time heard 2.5 s before the session started (station monotonic 10.0 -> 12.5)."""
+    heard = VehicleUtc(10.0, NOW + WEEK_S, "SYSTEM_TIME")
+    c = choose_session_clock(NOW, 12.5, True, heard)
+    assert c.vehicle_start_utc == NOW + WEEK_S + 2.5 and c.offset_s == WEEK_S + 2.5
+
+
 def test_a_replay_keeps_its_own_time():
-    c = choose_session_clock(NOW, None, NOW + WEEK_S, "SYSTEM_TIME", replay=True)
+    c = choose_session_clock(NOW, 0.0, None, gps(NOW + WEEK_S), replay=True)
     assert (c.used, c.offset_s) == ("source", 0.0)
 
 
@@ -167,7 +181,7 @@ def test_a_vehicle_without_gps_time_leaves_the_station_clock(tmp_path):
 
 def test_an_interrupted_session_ends_in_its_own_clock(tmp_path):
     """kill -9 mid-flight: the next start's recovery stamps the end in the session's UTC."""
-    clock = choose_session_clock(NOW, False, NOW - WEEK_S, "SYSTEM_TIME")
+    clock = choose_session_clock(NOW, 0.0, False, gps(NOW - WEEK_S))
     sid = layout.session_id_for(NOW + clock.offset_s, "serial")
     folder = tmp_path / sid
     folder.mkdir()

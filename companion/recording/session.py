@@ -97,11 +97,11 @@ class RecordingSession:
         self.t0_mono = self.clock.mono()
         self._next_sample = self.t0_mono
         self._station_synced = None if self.clock.own else clock_synchronised()
-        self.utc_clock = self._choose_clock()
+        naming = self._choose_clock()
         self.id, self.folder = create_session_dir(
-            root, self.t0_wall + self.utc_clock.offset_s, config.source
+            root, self.t0_wall + naming.offset_s, config.source
         )
-        self._named_by = self.utc_clock.used
+        self._named_by = naming.used
         self._tracks = {c: _CameraTrack() for c in self.cameras}
         self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
         self._gaps = LinkLossTracker(self.t0_mono, QUALITY_THRESHOLDS.telemetry_gap_s)
@@ -319,12 +319,11 @@ class RecordingSession:
         """The session's UTC (companion.recording.session_clock). Chosen again at each
         session.json write: a GPS time first heard mid-session corrects the stamps."""
         current = self._state.get()
-        utc = current.value.utc if current is not None else None
         return choose_session_clock(
             self.t0_wall,
+            self.t0_mono,
             self._station_synced,
-            None if utc is None else utc.at(self.t0_mono),
-            None if utc is None else utc.source,
+            current.value.utc if current is not None else None,
             replay=self.clock.own,
             max_disagree_s=self.config.clock_max_disagree_s,
         )

@@ -20,22 +20,26 @@ The session's name and `start_utc`/`end_utc` are in that UTC.
 from __future__ import annotations
 
 from companion.recording.meta import SessionClock
+from companion.vehicle_state import VehicleUtc
 
 DEFAULT_MAX_DISAGREE_S = 5.0  # a few seconds: more than any link delay, less than a mistake
 
 
 def choose_session_clock(
     station_wall: float,
+    station_mono: float,
     station_synced: bool | None,
-    vehicle_utc: float | None,
-    vehicle_source: str | None,
+    vehicle: VehicleUtc | None,
     *,
     replay: bool = False,
     max_disagree_s: float = DEFAULT_MAX_DISAGREE_S,
 ) -> SessionClock:
     """The clock for a session that started at `station_wall` (the station's time.time())
-    when the vehicle's GPS said `vehicle_utc` (None: it has none); `station_synced` is
-    the kernel's answer (None: unknown)."""
+    and `station_mono` (its time.monotonic()), given the vehicle's GPS time as the state
+    has it (`VehicleState.utc`; None or empty: it has none) and `station_synced`, the
+    kernel's answer (None: unknown)."""
+    vehicle_utc = None if vehicle is None else vehicle.at(station_mono)
+    vehicle_source = vehicle.source if vehicle_utc is not None else None
 
     def clock(used: str, reason: str) -> SessionClock:
         offset = 0.0 if used != "vehicle" or vehicle_utc is None else vehicle_utc - station_wall
@@ -46,7 +50,7 @@ def choose_session_clock(
             station_synced=station_synced,
             station_start_wall=round(station_wall, 3),
             vehicle_start_utc=None if vehicle_utc is None else round(vehicle_utc, 3),
-            vehicle_source=vehicle_source if vehicle_utc is not None else None,
+            vehicle_source=vehicle_source,
             max_disagree_s=max_disagree_s,
         )
 

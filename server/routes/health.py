@@ -60,23 +60,20 @@ async def get_health(request: Request) -> Health:
 
 def _clock_report(station: Station) -> ClockReport:
     current = station.state.get()
-    utc = current.value.utc if current is not None else None
-    link = station.link
-    replay = link is not None and link.clock.own
-    now_wall, now_mono = time.time(), time.monotonic()
-    vehicle = None if utc is None or replay else utc.at(now_mono)
-    synced = None if replay else clock_synchronised()
+    replay = station.link is not None and station.link.clock.own
     choice = choose_session_clock(
-        now_wall,
-        synced,
-        vehicle,
-        None if utc is None else utc.source,
+        time.time(),
+        time.monotonic(),
+        None if replay else clock_synchronised(),
+        # a replay's GPS time is on the log's clock, not this one: no offset to show
+        None if replay or current is None else current.value.utc,
         replay=replay,
         max_disagree_s=station.settings.recording.clock_max_disagree_s,
     )
+    vehicle = choice.vehicle_start_utc
     return ClockReport(
-        station_synced=synced,
-        vehicle_offset_s=None if vehicle is None else round(vehicle - now_wall, 3),
+        station_synced=choice.station_synced,
+        vehicle_offset_s=None if vehicle is None else round(vehicle - choice.station_start_wall, 3),
         sessions_use=choice.used,
         reason=choice.reason,
     )
