@@ -58,7 +58,8 @@ def test_forwarded_gcs_cuts_attitude_rate_station_restores_it_and_records_it(tmp
             ]
             assert asks[-2:] == [(255, 500_000), (254, 20_000)]
             time.sleep(2.5)  # a rate window after the change
-            assert status()["rates_hz"]["ATTITUDE"] > 35
+            # 50 Hz asked, against MAVProxy's 2 Hz: far above 2 even on a starved box
+            assert status()["rates_hz"]["ATTITUDE"] > 20
             assert status()["gcs_identity_clash"] is False
             session = httpx.post(f"{base}/api/recording/stop").json()["last_stop"]["id"]
     mavproxy.close()

