@@ -251,14 +251,19 @@ class MavlinkLink:
 
     def _serve(self, transport: Transport) -> None:
         fds: list[object] = [transport, self._wake_r, *self._forwarders]
+        # A udpin sender waiting to be confirmed by a signed packet; TCP and serial have
+        # one peer by construction, so there is no one to confirm.
+        confirm = (
+            transport if isinstance(transport, UdpTransport) and transport.confirm_senders else None
+        )
         while not self._stop.is_set():
             ready, _, _ = select.select(fds, [], [], _TICK_S)
             now = time.monotonic()
             for r in ready:
                 if r is transport:
                     data = transport.read()
-                    if data and self._on_bytes(data, now) and self._signing is not None:
-                        transport.adopt_sender()  # type: ignore[attr-defined]
+                    if data and self._on_bytes(data, now) and confirm is not None:
+                        confirm.adopt_sender()
                 elif r == self._wake_r:
                     try:
                         os.read(self._wake_r, 4096)

@@ -301,6 +301,20 @@ def test_a_vehicle_whose_signing_clock_is_behind_is_heard_once_it_hears_us(tmp_p
             assert security(base)["peer"] == f"127.0.0.1:{v.port}"
 
 
+def test_signing_over_a_stream_link_hears_the_signed_vehicle(tmp_path) -> None:
+    """TCP (and serial, the Pi's usual link) has one peer by construction: a signed
+    vehicle there is heard and answered with signed packets, unsigned packets refused."""
+    overrides = {"link.signing_key_file": str(key_file(tmp_path))}
+    with MavVehicle("tcp", rates_hz=QUIET, signing_key=KEY) as v:
+        with station(v.station_source, tmp_path, **overrides) as (app, base):
+            position_fixed(v, app)
+            assert wait_until(lambda: len(v.received) >= 2, timeout=5)
+            assert all(v.signed(m) for m in list(v.received))
+            sec = security(base)
+            assert sec["signed"] > 0 and sec["peer"] is None
+            assert httpx.get(f"{base}/api/status").json()["link"]["last_error"] is None
+
+
 def test_signing_off_hears_unsigned_and_signed_packets(tmp_path) -> None:
     with MavVehicle("udp", rates_hz=QUIET) as v:
         with station(v.station_source, tmp_path) as (app, base):
