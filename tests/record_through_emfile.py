@@ -3,7 +3,9 @@
     python -m tests.record_through_emfile SESSIONS_DIR
 Lowers RLIMIT_NOFILE, arms a fake vehicle (auto-record), then opens files until EMFILE so
 the writer's next JPEG fails for real, prints the recorder's failure, frees the files, and
-prints the session it resumed into. Lines: "FIRST id", "PROBLEM text", "RESUMED id".
+prints the session it resumed into, then disarms. Lines: "FIRST id", "PROBLEM text",
+"RESUMED id", "STATUS failure=...", "STOPPED reason" (the resumed session ends with the
+flight, as the one armed did).
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ async def main(root: Path) -> None:
     options = RecorderOptions(
         session=SessionConfig(rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=1)),
         auto_record_on_arm=True,
+        post_disarm_tail_s=0.2,
     )
     rec = Recorder(root, vehicle.state, {n: c.frames for n, c in cams.items()}, options)
     vehicle.listeners.append(rec.on_packet)
@@ -68,6 +71,9 @@ async def main(root: Path) -> None:
         print(f"RESUMED {rec.session.id}", flush=True)
         await asyncio.sleep(1.0)
         print(f"STATUS failure={rec.failure}", flush=True)
+        vehicle.armed = False
+        if await until(lambda: rec.session is None, 10):
+            print(f"STOPPED {rec.last_stop.reason}", flush=True)
     await rec.aclose()
     for c in cams.values():
         c.stop()

@@ -1,7 +1,7 @@
 """The recorder keeps recording through a real EMFILE (issue 13 item 1): a process under a
 lowered RLIMIT_NOFILE loses its descriptors mid-flight, the session is cut short with the
 reason, the recorder reports the problem, and once descriptors are back it records again
-into a new session."""
+into a new session, which ends when the vehicle disarms like the one arming started."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ def test_recording_resumes_after_descriptors_run_out(tmp_path):
         resumed = read_line(proc, "RESUMED ", timeout=60)
         assert resumed != first
         assert read_line(proc, "STATUS ", timeout=60) == "failure=None"
+        assert read_line(proc, "STOPPED ", timeout=60) == "disarmed"
         read_line(proc, "DONE", timeout=60)
     finally:
         if proc.poll() is None:
@@ -27,4 +28,5 @@ def test_recording_resumes_after_descriptors_run_out(tmp_path):
     assert (tmp_path / first / "telemetry.csv").stat().st_size > 0
     again = json.loads((tmp_path / resumed / "session.json").read_text())
     assert again["trigger"] == "retry" and again["status"] == "complete"
+    assert again["stop_reason"] == "disarmed"
     assert (tmp_path / resumed / "telemetry.csv").stat().st_size > 0

@@ -70,6 +70,9 @@ class RecordingStatus:
 
 
 RETRY_MAX_S = 30.0
+# Sessions the recorder started by itself for a flight (arming, or again after a failed
+# write while armed): disarming ends them. One started by hand is stopped by hand.
+FLIGHT_TRIGGERS = ("arm", "retry")
 ARMING_CHECK_S = 0.05  # auto-record looks at the arming state at most this often
 
 
@@ -288,7 +291,7 @@ class Recorder:
             self._tail_due = None
             self._wait_for(self.start("arm"))
         elif not armed and self._was_armed is True:
-            if session is not None and session.trigger == "arm":
+            if session is not None and session.trigger in FLIGHT_TRIGGERS:
                 self._tail_due = t + self.options.post_disarm_tail_s
                 self._tail_deadline_wall = self._tail_due  # the log's time, as the session's
         self._was_armed = armed
@@ -308,7 +311,7 @@ class Recorder:
 
     def _schedule_tail(self) -> None:
         session = self.session
-        if session is None or session.trigger != "arm" or self._tail is not None:
+        if session is None or session.trigger not in FLIGHT_TRIGGERS or self._tail is not None:
             return  # a session started by hand is stopped by hand
         tail_s = self.options.post_disarm_tail_s
         self._tail_deadline_wall = time.time() + tail_s
