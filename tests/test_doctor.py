@@ -93,6 +93,15 @@ def test_doctor_reports_a_missing_serial_device_with_a_fix(tmp_path):
     assert "failed: serial device, MAVLink heartbeat" in done.stdout
 
 
+def test_doctor_refuses_a_malformed_source_with_a_clear_error(tmp_path):
+    """The tool a field team runs on a bad setup says what is wrong with it, as `serve`
+    does, instead of a traceback out of its first MAVLink check."""
+    done = doctor("--source", "ttyAMA0:921600", "--sessions-dir", str(tmp_path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Unknown MAVLink connection 'ttyAMA0:921600'" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
 def test_doctor_fails_a_disk_under_the_configured_minimum(tmp_path):
     free_mb = os.statvfs(tmp_path).f_bavail * os.statvfs(tmp_path).f_frsize / 2**20
     full = station_settings("none", tmp_path, **{"recording.min_free_mb": free_mb + 1024})
