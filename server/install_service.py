@@ -77,7 +77,9 @@ ProtectKernelModules=yes
 ProtectKernelLogs=yes
 ProtectControlGroups=yes
 ProtectHostname=yes
-ProtectClock=yes
+# No ProtectClock: its seccomp filter refuses adjtimex() even to read whether the clock
+# is synchronised (systemd issue 26413), which sessions need on an RTC-less Pi
+# (companion/system_clock.py). The empty CapabilityBoundingSet already denies setting it.
 RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK
 RestrictNamespaces=yes
 RestrictRealtime=yes

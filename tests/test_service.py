@@ -75,6 +75,10 @@ def test_unit_has_what_a_field_station_needs():
     assert not any(
         ln.startswith("PrivateDevices") for ln in unit.splitlines()
     )  # it would hide /dev/serial0 and /dev/video*
+    # ProtectClock's filter makes even a read-only adjtimex() fail with EPERM: the station
+    # could never tell that the Pi's clock is not synchronised (companion/system_clock.py)
+    assert not any(ln.startswith("ProtectClock") for ln in unit.splitlines())
+    assert "CapabilityBoundingSet=" in unit.splitlines()  # setting the clock stays denied
 
 
 def test_unit_passes_systemd_analyze_verify(tmp_path):
