@@ -37,7 +37,7 @@ from companion.recording.ondisk import apply_census, take_census
 from companion.recording.quality import LinkLossTracker, SkewStats
 from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.session_clock import DEFAULT_MAX_DISAGREE_S, choose_session_clock
-from companion.recording.store import create_session_dir
+from companion.recording.store import create_session_dir, discard_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
 from companion.source_clock import SourceClock
 from companion.system_clock import clock_synchronised
@@ -116,13 +116,19 @@ class RecordingSession:
         self._stop = threading.Event()
         self._frame_listeners: dict[str, Callable[[Frame], None]] = {}
         formatter = RowFormatter(self.cameras, self.t0_mono)
-        self.writer = SessionWriter(
-            self.folder,
-            formatter,
-            config.limits,
-            on_flush=self._on_flush,
-            on_failure=self._writer_failed,
-        )
+        try:
+            self.writer = SessionWriter(
+                self.folder,
+                formatter,
+                config.limits,
+                on_flush=self._on_flush,
+                on_failure=self._writer_failed,
+            )
+        except OSError:
+            # Nothing was recorded (EMFILE, a full disk): no empty folder may stay behind
+            # as an "unreadable" session, one more at each of the recorder's retries.
+            discard_session_dir(self.folder, self.cameras)
+            raise
         self._write_meta(layout.STATUS_RECORDING)
         self._sampler = threading.Thread(
             target=self._sample_loop, name="recorder-sampler", daemon=True
