@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import platform
 import shutil
-import socket
 import stat
 import time
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.link_health import LinkSecurity
 from companion.system_clock import clock_synchronised
 from core.mavlink.framing import MavFramer
+from server.listen import listening_socket
 from server.settings import Settings
 
 if TYPE_CHECKING:
@@ -405,11 +405,12 @@ def check_ports(settings: Settings) -> list[Check]:
     for what, port in wanted.items():
         if port == 0:
             continue
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind((settings.server.host, port))
-            except OSError:
-                busy.append(f"{port} ({what})")
+        # Bound as the station binds (its family for the host, SO_REUSEADDR): a port left
+        # in TIME_WAIT by a station just stopped is free to it, a listening one is not.
+        try:
+            listening_socket(settings.server.host, port).close()
+        except OSError:
+            busy.append(f"{port} ({what})")
     if busy:
         return [
             Check(

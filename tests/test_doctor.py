@@ -14,6 +14,7 @@ import tty
 from pathlib import Path
 
 from server.doctor import check_disk, check_heartbeat, check_ports, check_serial, firmware_version
+from server.listen import listening_socket
 from server.settings import Settings
 from tests.helpers import free_port, station_settings
 from tests.mav_vehicle import MavVehicle
@@ -93,6 +94,15 @@ def test_doctor_reports_a_missing_serial_device_with_a_fix(tmp_path):
     assert "failed: serial device, MAVLink heartbeat" in done.stdout
 
 
+def test_doctor_refuses_a_malformed_source_with_a_clear_error(tmp_path):
+    """The tool a field team runs on a bad setup says what is wrong with it, as `serve`
+    does, instead of a traceback out of its first MAVLink check."""
+    done = doctor("--source", "ttyAMA0:921600", "--sessions-dir", str(tmp_path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Unknown MAVLink connection 'ttyAMA0:921600'" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
 def test_doctor_fails_a_disk_under_the_configured_minimum(tmp_path):
     free_mb = os.statvfs(tmp_path).f_bavail * os.statvfs(tmp_path).f_frsize / 2**20
     full = station_settings("none", tmp_path, **{"recording.min_free_mb": free_mb + 1024})
@@ -114,6 +124,31 @@ def test_doctor_fails_a_port_in_use():
         )
         (check,) = check_ports(settings)
     assert check.status == "FAIL" and f"{port} (web)" in check.detail
+
+
+def port_in_time_wait() -> int:
+    """A port whose listener has closed after closing a connection first, as a station
+    stopped with viewers connected leaves it: TIME_WAIT for a minute."""
+    with listening_socket("127.0.0.1", 0) as listener:  # the station's own listener
+        port = listener.getsockname()[1]
+        with socket.create_connection(("127.0.0.1", port)) as client:
+            conn, _ = listener.accept()
+            conn.close()  # the server side closes first: its end waits
+            client.recv(1)
+    return port
+
+
+def test_doctor_passes_a_port_the_station_can_bind():
+    """Right after `systemctl stop fpv-station` (README step 5) the web port is in
+    TIME_WAIT; the station binds it anyway (SO_REUSEADDR), so doctor must not call it in
+    use. Nor is an IPv6 host ("::", dual stack) a port in use."""
+    port = port_in_time_wait()
+    for host in ("127.0.0.1", "::"):
+        settings = station_settings(
+            "none", **{"server.port": port, "server.host": host, "viser.enabled": False}
+        )
+        (check,) = check_ports(settings)
+        assert check.status == "ok", (host, check)
 
 
 def test_firmware_version_as_ardupilot_and_px4_pack_it():
