@@ -70,6 +70,18 @@ def check_serial(settings: Settings, proc: Path = Path("/proc")) -> list[Check]:
                 f"sudo usermod -aG dialout {_user()} (then log in again)",
             )
         ]
+    console = _kernel_console_on(path, proc)
+    if console is not None:
+        return [
+            Check(
+                "serial device",
+                "FAIL",
+                f"{path} is the kernel's console ({console} in {proc / 'cmdline'}): boot "
+                "messages and a login shell share the autopilot's wires",
+                "raspi-config > Interface Options > Serial Port: login shell No, hardware Yes "
+                "(it removes console=serial0 from cmdline.txt), then reboot.",
+            )
+        ]
     holders = _holders(path, proc)
     if holders:
         return [
@@ -82,6 +94,26 @@ def check_serial(settings: Settings, proc: Path = Path("/proc")) -> list[Check]:
             )
         ]
     return [Check("serial device", "ok", f"{path} at {spec.baud} baud, free, read/write")]
+
+
+def _kernel_console_on(device: Path, proc: Path) -> str | None:
+    """The `console=` argument of the running kernel that names `device`, if any. The Pi's
+    serial login shell is a getty on that console, run by root: only root can see it in
+    /proc/*/fd, while /proc/cmdline is readable by anyone. The firmware writes
+    cmdline.txt's `console=serial0` as the UART it stands for (`console=ttyS0`), so both
+    names of the device are looked for."""
+    try:
+        args = (proc / "cmdline").read_text().split()
+    except OSError:
+        return None
+    real = device.resolve()
+    names = {device.name, real.name}
+    if real.is_relative_to("/dev"):
+        names.add(str(real.relative_to("/dev")))  # /dev/pts/3 is console=pts/3
+    for arg in args:
+        if arg.startswith("console=") and arg.removeprefix("console=").split(",")[0] in names:
+            return arg
+    return None
 
 
 def _holders(device: Path, proc: Path) -> list[str]:

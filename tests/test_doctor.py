@@ -81,6 +81,29 @@ def test_doctor_over_a_serial_pty():
         os.close(slave)
 
 
+def test_doctor_fails_a_serial_port_that_is_the_kernel_console(tmp_path):
+    """The Pi's serial login shell is a getty run by root: a user's doctor cannot see it in
+    /proc/*/fd. The kernel's command line says it (the firmware writes cmdline.txt's
+    console=serial0 as the UART, console=ttyS0); here for a pty, console=pts/N."""
+    master, slave = pty.openpty()
+    try:
+        device = os.ttyname(slave)
+        settings = station_settings(f"{device}:921600")
+        proc = tmp_path / "proc"  # a kernel command line of our own, in a real file
+        proc.mkdir()
+        console = f"console={device.removeprefix('/dev/')},115200"
+        (proc / "cmdline").write_text(f"coherent_pool=1M {console} console=tty1 rootwait\n")
+        (check,) = check_serial(settings, proc)
+        assert check.status == "FAIL", check
+        assert console in check.detail and "login shell No" in check.fix
+        (proc / "cmdline").write_text("coherent_pool=1M console=tty1 rootwait\n")
+        (check,) = check_serial(settings, proc)
+        assert check.status == "ok", check
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
 def test_doctor_reports_a_missing_serial_device_with_a_fix(tmp_path):
     done = doctor(
         "--source", "/dev/ttyDOESNOTEXIST:921600", "--heartbeat-s", "1",
