@@ -136,6 +136,36 @@ def test_osd_horizon_heading_values_messages_and_staleness(station, browser):
     expect(page.locator("#conn-status")).to_have_text("live", timeout=5000)
 
 
+def test_a_quiet_group_lends_no_freshness_to_its_old_value(station, browser):
+    """VFR_HUD stops (another GCS on the link set its stream rate to 0) while
+    GLOBAL_POSITION_INT goes on: speed and climb come from the position, fresh; VFR_HUD's
+    last values are not shown as fresh because some other group still talks."""
+    vehicle, base = station
+    page = browser.new_page()
+    page.goto(base + "/")
+    osd = lambda name: page.locator(f"[data-osd={name}]")  # noqa: E731
+    expect(osd("speed")).to_have_text("GS 0.0 m/s", timeout=10000)
+    vehicle.rates_hz["VFR_HUD"] = 0
+    # VFR_HUD has gone quiet (its last one is half a second older than the newest state)
+    # before the vehicle moves: its last values are those of a vehicle at rest.
+    page.wait_for_function(
+        "() => { const m = window.fpv.latest;"
+        " return m.t_server_mono - m.state.vfr_hud.t_mono > 0.5; }",
+        timeout=10000,
+    )
+    vehicle.vx_mps, vehicle.vy_mps, vehicle.vz_mps = 3.0, 4.0, -1.5
+    stale = re.compile(r"\bosd-stale\b")
+    expect(osd("speed")).to_have_text("GS 5.0 m/s", timeout=5000)
+    expect(osd("climb")).to_have_text("VS +1.5 m/s")
+    for name in ("speed", "climb"):
+        expect(osd(name)).not_to_have_class(stale)
+    # The flight state table says the same.
+    expect(page.locator("#v-ground-speed")).to_have_text("5.0")
+    expect(page.locator("#v-climb")).to_have_text("1.5")
+    for cell in ("#v-ground-speed", "#v-climb"):
+        expect(page.locator(cell).locator("xpath=ancestor::tr")).not_to_have_class("stale")
+
+
 def test_osd_elements_switch_off_and_stay_off(station, browser):
     vehicle, base = station
     page = browser.new_page()

@@ -5,8 +5,18 @@ into a new session, which ends when the vehicle disarms like the one arming star
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+import os
 
+import pytest
+
+from companion.latest import Latest
+from companion.recording.session import RecordingSession, SessionConfig
+from companion.recording.writer import WriterLimits
+from companion.vehicle_state import VehicleState
+from companion.video_frame import Frame
 from tests.test_recording_kill import read_line, spawn
 
 
@@ -24,9 +34,53 @@ def test_recording_resumes_after_descriptors_run_out(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    # The cut session is kept with what it wrote before the descriptors ran out.
+    # The cut session is kept with what it wrote before the descriptors ran out; a start
+    # that failed meanwhile left no folder.
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([first, resumed])
     assert (tmp_path / first / "telemetry.csv").stat().st_size > 0
     again = json.loads((tmp_path / resumed / "session.json").read_text())
     assert again["trigger"] == "retry" and again["status"] == "complete"
     assert again["stop_reason"] == "disarmed"
     assert (tmp_path / resumed / "telemetry.csv").stat().st_size > 0
+
+
+@contextlib.contextmanager
+def descriptors_left(n: int):
+    """Every descriptor of this process taken but `n` (opening /dev/null until EMFILE)."""
+    hog: list[int] = []
+    try:
+        with contextlib.suppress(OSError):
+            while True:
+                hog.append(os.open(os.devnull, os.O_RDONLY))
+        for _ in range(min(n, len(hog))):
+            os.close(hog.pop())
+        yield
+    finally:
+        for fd in hog:
+            os.close(fd)
+
+
+def open_under(folder) -> list[str]:
+    """Files under `folder` that this process holds open."""
+    paths = []
+    for fd in os.listdir("/proc/self/fd"):
+        with contextlib.suppress(OSError):  # the listing's own descriptor is gone
+            paths.append(os.readlink(f"/proc/self/fd/{fd}"))
+    return [p for p in paths if p.startswith(str(folder))]
+
+
+@pytest.mark.parametrize("free", [0, 2])
+def test_a_session_that_cannot_open_its_files_leaves_nothing_behind(tmp_path, free):
+    """The recorder retries a start every few seconds while descriptors are short: each
+    failed start once left an empty session folder (listed as an "unreadable" session)
+    and, when some files had opened, those descriptors, which the next retry then lacked.
+    `free` = 2: telemetry.csv and mavlink.tlog open, messages.csv does not."""
+    state: Latest[VehicleState] = Latest()
+    cams: dict[str, Latest[Frame]] = {"front": Latest(), "bottom": Latest()}
+    config = SessionConfig(source="sim", limits=WriterLimits(min_free_bytes=1))
+    with descriptors_left(free), pytest.raises(OSError) as failed:
+        RecordingSession(tmp_path, state, cams, config)
+    assert failed.value.errno == errno.EMFILE, failed.value
+    del failed  # its traceback holds the half-built session; the files must not need it
+    assert open_under(tmp_path) == []
+    assert list(tmp_path.iterdir()) == []

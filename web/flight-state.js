@@ -3,23 +3,24 @@
 // The telemetry comes from telemetry.js (the page's one WS /ws/telemetry?ack=1 feed; other
 // modules listen to its window "fpv:telemetry" events). Freshness is honest: the pill says
 // "live" only while messages actually arrive, and each row greys out and shows its age
-// when its telemetry group is older than STALE_S. The page shows LINK LOST when the
-// station says the autopilot is silent, when the station is unreachable, or when no state
-// arrives at all.
+// when the telemetry it is drawn from is older than its stale age (telemetry.js READINGS).
+// The page shows LINK LOST when the station says the autopilot is silent, when the
+// station is unreachable, or when no state arrives at all.
 import { $, el } from "/lib.js";
-import { feed, groupAge } from "/telemetry.js";
+import { feed, reading } from "/telemetry.js";
 
 const STALE_MS = 3000; // no message for this long while the socket is open: link lost
-// Row (value element id) -> the telemetry groups it is drawn from, and its stale age.
+// Row (value element id) -> the reading it shows (telemetry.js READINGS: its groups and
+// stale age).
 const ROWS = {
-  "v-ground-speed": [["vfr_hud", "global_position", "gps"], 2],
-  "v-climb": [["vfr_hud", "global_position"], 2],
-  "v-rel-alt": [["altitude"], 2],
-  "v-armed": [["heartbeat"], 3],
-  "v-mode": [["heartbeat"], 3],
-  "v-gps": [["gps"], 2],
-  "v-battery": [["battery"], 5],
-  "v-heading": [["global_position", "vfr_hud"], 2],
+  "v-ground-speed": "groundSpeed",
+  "v-climb": "climb",
+  "v-rel-alt": "altitude",
+  "v-armed": "heartbeat",
+  "v-mode": "heartbeat",
+  "v-gps": "gps",
+  "v-battery": "battery",
+  "v-heading": "heading",
 };
 const rowAges = {};
 for (const id of Object.keys(ROWS)) {
@@ -42,51 +43,43 @@ function setConn(text, cls) {
 }
 
 const num = (v, digits = 1) => (v === null || v === undefined ? "--" : Number(v).toFixed(digits));
-const first = (...vals) => vals.find((v) => v !== null && v !== undefined) ?? null;
 
 function draw() {
   const msg = pending;
   pending = null;
   if (!msg) return;
-  const s = msg.state;
-  const gp = s.global_position;
-  const groundSpeed = first(
-    s.vfr_hud.ground_speed_mps,
-    gp.vx_mps !== null ? Math.hypot(gp.vx_mps, gp.vy_mps) : null,
-    s.gps.ground_speed_mps,
-  );
-  const climb = first(s.vfr_hud.climb_mps, gp.vz_mps !== null ? -gp.vz_mps : null);
-  $("v-ground-speed").textContent = num(groundSpeed);
-  $("v-climb").textContent = num(climb);
-  $("v-rel-alt").textContent = num(s.altitude.relative_alt_m);
+  $("v-ground-speed").textContent = num(reading("groundSpeed").value);
+  $("v-climb").textContent = num(reading("climb").value);
+  const alt = msg.state.altitude;
+  $("v-rel-alt").textContent = num(alt.relative_alt_m);
   $("v-rel-alt-ref").textContent = {
     arming: "from arming",
-    arming_retaken: `from arming (re-taken: ${s.altitude.retaken_because})`,
+    arming_retaken: `from arming (re-taken: ${alt.retaken_because})`,
     first_fix: "from first GPS fix (not armed yet)",
-    first_fix_retaken: `from first GPS fix (re-taken: ${s.altitude.retaken_because})`,
+    first_fix_retaken: `from first GPS fix (re-taken: ${alt.retaken_because})`,
     none: "no reference yet",
-  }[s.altitude.reference];
+  }[alt.reference];
+  const hb = reading("heartbeat").value;
   const armed = $("v-armed");
-  armed.textContent = s.heartbeat.t_mono === null ? "--" : s.heartbeat.armed ? "ARMED" : "disarmed";
-  armed.className = s.heartbeat.armed ? "armed" : "disarmed";
-  $("v-mode").textContent = s.heartbeat.t_mono === null ? "--" : s.heartbeat.mode;
+  armed.textContent = hb === null ? "--" : hb.armed ? "ARMED" : "disarmed";
+  armed.className = hb !== null && hb.armed ? "armed" : "disarmed";
+  $("v-mode").textContent = hb === null ? "--" : hb.mode;
   const fixNames = ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"];
-  $("v-gps").textContent = s.gps.t_mono === null
+  const gps = reading("gps").value;
+  $("v-gps").textContent = gps === null
     ? "--"
-    : `${fixNames[s.gps.fix_type] ?? "fix " + s.gps.fix_type}, ${s.gps.satellites ?? "?"} sats`;
-  const b = s.battery;
-  $("v-battery").textContent = b.t_mono === null
+    : `${fixNames[gps.fix_type] ?? "fix " + gps.fix_type}, ${gps.satellites ?? "?"} sats`;
+  const b = reading("battery").value;
+  $("v-battery").textContent = b === null
     ? "--"
     : `${num(b.voltage_v, 2)} V` + (b.remaining_pct !== null ? ` ${num(b.remaining_pct, 0)}%` : "");
-  $("v-heading").textContent = num(first(gp.heading_deg, s.vfr_hud.heading_deg), 0);
+  $("v-heading").textContent = num(reading("heading").value, 0);
   updateBanner();
 }
 
 function updateFreshness() {
-  for (const [id, [groups, limit]] of Object.entries(ROWS)) {
-    const ages = groups.map(groupAge).filter((a) => a !== null);
-    const age = ages.length ? Math.min(...ages) : null;
-    const stale = !feed.flowing() || age === null || age > limit;
+  for (const [id, name] of Object.entries(ROWS)) {
+    const { age, stale } = reading(name);
     const { tr, age: ageEl } = rowAges[id];
     tr.classList.toggle("stale", stale);
     const text = stale && age !== null ? `${age.toFixed(0)} s old` : "";

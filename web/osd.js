@@ -15,7 +15,7 @@
 // localStorage. Cost per frame: window.fpv.osdStats (benchmarks/osd_frame_cost.py; with
 // osdStats.raster set, the canvases are rasterized inside the timing, as the display would).
 import { el, api } from "/lib.js";
-import { feed, groupAge } from "/telemetry.js";
+import { feed, groupAge, reading } from "/telemetry.js";
 
 const HIDDEN_KEY = "fpv.osd.hidden";
 const LOW_BATTERY_PCT = 20;
@@ -33,27 +33,26 @@ const M_PER_DEG_LAT = 111_320;
 const PAGES = [["/", "Pilot view"], ["/goggles.html", "Goggles"], ["/sessions.html", "Sessions"],
   ["/analysis.html", "Analysis"]];
 
-// name -> [telemetry groups whose age greys it, seconds before it is stale]
+// name -> the reading it shows (telemetry.js READINGS: its groups, when it is stale)
 const ELEMENTS = {
-  horizon: [["attitude"], 1.0],
-  heading: [["global_position", "vfr_hud"], 2.0],
-  altitude: [["altitude"], 2.0],
-  climb: [["vfr_hud", "global_position"], 2.0],
-  speed: [["vfr_hud", "global_position", "gps"], 2.0],
-  battery: [["battery"], 5.0],
-  gps: [["gps"], 2.0],
-  mode: [["heartbeat"], 3.0],
-  armed: [["heartbeat"], 3.0],
-  timer: [[], 0],
-  home: [["global_position", "gps"], 2.0],
-  link: [[], 0],
-  age: [[], 0],
-  warning: [[], 0],
-  messages: [[], 0],
+  horizon: "attitude",
+  heading: "heading",
+  altitude: "altitude",
+  climb: "climb",
+  speed: "groundSpeed",
+  battery: "battery",
+  gps: "gps",
+  mode: "heartbeat",
+  armed: "heartbeat",
+  timer: null,
+  home: "position",
+  link: null,
+  age: null,
+  warning: null,
+  messages: null,
 };
 export const OSD_ELEMENTS = Object.keys(ELEMENTS);
 
-const first = (...vals) => vals.find((v) => v !== null && v !== undefined) ?? null;
 const fixed = (v, d = 1) => (v === null || v === undefined ? "--" : Number(v).toFixed(d));
 
 export function mountOsd(view, { menu = true } = {}) {
@@ -130,14 +129,9 @@ export function mountOsd(view, { menu = true } = {}) {
   });
 
   const setText = (node, text) => { if (node.textContent !== text) node.textContent = text; };
-  function setValue(name, text, extraClass = "") {
-    const [groups, limit] = ELEMENTS[name];
-    let age = null;
-    for (const g of groups) {
-      const a = groupAge(g);
-      if (a !== null && (age === null || a < age)) age = a;
-    }
-    const stale = groups.length > 0 && (!feed.flowing() || age === null || age > limit);
+  // `r`: the element's reading (its value is what `text` says), which greys it out.
+  function setValue(name, r, text, extraClass = "") {
+    const { age, stale } = r;
     const node = name === "home" ? homeText : nodes[name];
     const shown = stale && age !== null ? `${text} (${age.toFixed(0)}s)` : text;
     setText(node, shown);
@@ -178,11 +172,10 @@ export function mountOsd(view, { menu = true } = {}) {
       dirty = true;
     }
     if (!s) { setText(nodes.warning, feed.socketOpen ? "NO TELEMETRY" : "STATION UNREACHABLE"); return; }
-    const gp = s.global_position, att = s.attitude, hud = s.vfr_hud;
-
     // Horizon and pitch ladder.
-    const roll = att.roll_rad === null ? null : (att.roll_rad * 180) / Math.PI;
-    const pitch = att.pitch_rad === null ? null : (att.pitch_rad * 180) / Math.PI;
+    const attR = reading("attitude"), att = attR.value;
+    const roll = att === null || att.roll_rad === null ? null : (att.roll_rad * 180) / Math.PI;
+    const pitch = att === null || att.pitch_rad === null ? null : (att.pitch_rad * 180) / Math.PI;
     const aKey = `${fixed(roll, 1)},${fixed(pitch, 1)}`;
     if (!hidden.has("horizon") && (aKey !== attitudeKey || dirty)) {
       attitudeKey = aKey;
@@ -190,43 +183,42 @@ export function mountOsd(view, { menu = true } = {}) {
       horizon.dataset.roll = fixed(roll, 1);
       horizon.dataset.pitch = fixed(pitch, 1);
     }
-    setValue("horizon", `roll ${fixed(roll, 0)}° pitch ${fixed(pitch, 0)}°`);
+    setValue("horizon", attR, `roll ${fixed(roll, 0)}° pitch ${fixed(pitch, 0)}°`);
     // Heading tape.
-    let hdg = first(gp.heading_deg, hud.heading_deg,
-      att.yaw_rad === null ? null : (((att.yaw_rad * 180) / Math.PI) + 360) % 360);
+    const hdgR = reading("heading"), hdg = hdgR.value;
     const hKey = fixed(hdg, 0);
     if (!hidden.has("heading") && (hKey !== headingKey || dirty)) {
       headingKey = hKey;
       drawTape(heading, hdg, dpr);
       heading.dataset.heading = hKey;
     }
-    setValue("heading", hdg === null ? "---" : String(Math.round(hdg) % 360).padStart(3, "0"));
+    setValue("heading", hdgR, hdg === null ? "---" : String(Math.round(hdg) % 360).padStart(3, "0"));
     dirty = false;
 
-    const alt = s.altitude.relative_alt_m;
-    setValue("altitude", `ALT ${fixed(alt)} m`);
-    const climb = first(hud.climb_mps, gp.vz_mps !== null ? -gp.vz_mps : null);
-    setValue("climb", `VS ${climb !== null && climb > 0 ? "+" : ""}${fixed(climb)} m/s`);
-    const speed = first(hud.ground_speed_mps, gp.vx_mps !== null ? Math.hypot(gp.vx_mps, gp.vy_mps) : null,
-      s.gps.ground_speed_mps);
-    setValue("speed", `GS ${fixed(speed)} m/s`);
+    const altR = reading("altitude");
+    setValue("altitude", altR, `ALT ${fixed(altR.value && altR.value.relative_alt_m)} m`);
+    const climbR = reading("climb"), climb = climbR.value;
+    setValue("climb", climbR, `VS ${climb !== null && climb > 0 ? "+" : ""}${fixed(climb)} m/s`);
+    const speedR = reading("groundSpeed");
+    setValue("speed", speedR, `GS ${fixed(speedR.value)} m/s`);
     const b = s.battery;
     const low = b.remaining_pct !== null && b.remaining_pct < LOW_BATTERY_PCT;
-    setValue("battery", `${fixed(b.voltage_v, 1)} V ${fixed(b.remaining_pct, 0)}% ${fixed(mah, 0)} mAh`,
-      low ? "osd-bad" : "");
+    setValue("battery", reading("battery"),
+      `${fixed(b.voltage_v, 1)} V ${fixed(b.remaining_pct, 0)}% ${fixed(mah, 0)} mAh`, low ? "osd-bad" : "");
     const fix = s.gps.t_mono === null ? "NO GPS" : FIX_NAMES[s.gps.fix_type] ?? `FIX ${s.gps.fix_type}`;
-    setValue("gps", `${fix} ${s.gps.satellites ?? "?"} sats`, s.gps.fix_type < 3 ? "osd-bad" : "");
-    setValue("mode", s.heartbeat.t_mono === null ? "--" : s.heartbeat.mode);
-    setValue("armed", s.heartbeat.t_mono === null ? "--" : s.heartbeat.armed ? "ARMED" : "DISARMED",
+    setValue("gps", reading("gps"), `${fix} ${s.gps.satellites ?? "?"} sats`, s.gps.fix_type < 3 ? "osd-bad" : "");
+    const hbR = reading("heartbeat");
+    setValue("mode", hbR, s.heartbeat.t_mono === null ? "--" : s.heartbeat.mode);
+    setValue("armed", hbR, s.heartbeat.t_mono === null ? "--" : s.heartbeat.armed ? "ARMED" : "DISARMED",
       s.heartbeat.armed ? "osd-bad" : "");
     const mm = Math.floor(timerS / 60), ss = Math.floor(timerS % 60);
     setText(nodes.timer, `${String(mm).padStart(2, "0")}:${String(ss).padStart(2, "0")}`);
 
     // Home: distance and an arrow relative to the nose.
-    const pos = gp.lat_deg !== null ? gp : s.gps;
+    const posR = reading("position"), pos = posR.value;
     const home = s.altitude;
     let homeTxt = "H --";
-    if (pos.lat_deg !== null && home.home_lat_deg !== null && home.home_lat_deg !== undefined) {
+    if (pos !== null && home.home_lat_deg !== null && home.home_lat_deg !== undefined) {
       const north = (home.home_lat_deg - pos.lat_deg) * M_PER_DEG_LAT;
       const east = (home.home_lon_deg - pos.lon_deg) * M_PER_DEG_LAT * Math.cos((pos.lat_deg * Math.PI) / 180);
       const bearing = ((Math.atan2(east, north) * 180) / Math.PI + 360) % 360;
@@ -237,7 +229,7 @@ export function mountOsd(view, { menu = true } = {}) {
       if (path.getAttribute("transform") !== rot) path.setAttribute("transform", rot);
       nodes.home.dataset.bearing = rel.toFixed(0);
     }
-    setValue("home", homeTxt);
+    setValue("home", posR, homeTxt);
 
     // Link: loss from /api/status (polled), RSSI from RC_CHANNELS when the receiver has it.
     const rssi = s.rc.rssi !== null && s.rc.rssi !== 255 ? ` RSSI ${Math.round((s.rc.rssi / 254) * 100)}%` : "";

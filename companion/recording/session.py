@@ -37,7 +37,7 @@ from companion.recording.ondisk import apply_census, take_census
 from companion.recording.quality import LinkLossTracker, SkewStats
 from companion.recording.rows import FrameRef, RowFormatter, Sample
 from companion.recording.session_clock import DEFAULT_MAX_DISAGREE_S, choose_session_clock
-from companion.recording.store import create_session_dir
+from companion.recording.store import create_session_dir, discard_session_dir
 from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
 from companion.source_clock import SourceClock
 from companion.system_clock import clock_synchronised
@@ -116,13 +116,19 @@ class RecordingSession:
         self._stop = threading.Event()
         self._frame_listeners: dict[str, Callable[[Frame], None]] = {}
         formatter = RowFormatter(self.cameras, self.t0_mono)
-        self.writer = SessionWriter(
-            self.folder,
-            formatter,
-            config.limits,
-            on_flush=self._on_flush,
-            on_failure=self._writer_failed,
-        )
+        try:
+            self.writer = SessionWriter(
+                self.folder,
+                formatter,
+                config.limits,
+                on_flush=self._on_flush,
+                on_failure=self._writer_failed,
+            )
+        except OSError:
+            # Nothing was recorded (EMFILE, a full disk): no empty folder may stay behind
+            # as an "unreadable" session, one more at each of the recorder's retries.
+            discard_session_dir(self.folder, self.cameras)
+            raise
         self._write_meta(layout.STATUS_RECORDING)
         self._sampler = threading.Thread(
             target=self._sample_loop, name="recorder-sampler", daemon=True
@@ -163,8 +169,12 @@ class RecordingSession:
             # A failed write (a full disk) loses what the files' buffers held, which the
             # writer had counted: the report says what the files hold, and that it was cut.
             meta = self.meta(layout.STATUS_CUT_SHORT)
-            census = take_census(self.folder, list(self.cameras), self.t0_wall)
-            apply_census(meta, census, layout.utc_label())
+            try:
+                census = take_census(self.folder, list(self.cameras), self.t0_wall)
+            except OSError as exc:  # EIO, EMFILE: the writer's counts stand (no `recovery`)
+                log.warning("cannot count the files of session %s: %s", self.id, exc)
+            else:
+                apply_census(meta, census, layout.utc_label())
         self._save(meta)
         return meta
 

@@ -13,15 +13,20 @@ bytes, symlinks that point out are refused with a typed error).
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import shutil
 import stat
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from companion.recording import layout
 from companion.recording.flags import QualityFlag, session_flags
 from companion.recording.meta import SessionMeta, read_meta
+
+log = logging.getLogger(__name__)
 
 
 class SessionStoreError(Exception):
@@ -284,3 +289,22 @@ def create_session_dir(root: Path, start_wall: float, source: str) -> tuple[str,
             continue
         return sid, path
     raise OSError(f"Cannot create a session folder under {root}: too many at one second.")
+
+
+def discard_session_dir(folder: Path, cameras: Iterable[str]) -> None:
+    """Remove a folder from `create_session_dir` that nothing was recorded in (its writer
+    could not open its files), with the empty files it got. Name by name, not rmtree:
+    rmtree opens each directory, and a start that failed for want of descriptors has none.
+    Anything else in it (not ours) keeps the folder."""
+    cameras = list(cameras)
+    names = [layout.TELEMETRY_CSV, layout.MAVLINK_TLOG, layout.MESSAGES_CSV]
+    for name in [*names, *(layout.frames_csv_relpath(c) for c in cameras)]:
+        with contextlib.suppress(FileNotFoundError):
+            (folder / name).unlink()
+    try:
+        for cam in cameras:
+            with contextlib.suppress(FileNotFoundError):
+                (folder / cam).rmdir()
+        folder.rmdir()
+    except OSError as exc:
+        log.warning("cannot remove the unused session folder %s: %s", folder, exc)

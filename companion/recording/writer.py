@@ -25,6 +25,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO, Any
 
 from companion.recording import diskspace, layout
 from companion.recording.rows import RowFormatter, Sample
@@ -87,7 +88,12 @@ class SessionWriter:
         self._frames: dict[str, deque[Frame]] = {c: deque() for c in self.cameras}
         self._closing = False
         self._thread = threading.Thread(target=self._run, name="recorder-writer", daemon=True)
-        self._open_files()
+        self._files: list[IO[Any]] = []
+        try:
+            self._open_files()
+        except BaseException:  # EMFILE, a full disk: no descriptor may outlive the failed start
+            self._close_files()
+            raise
 
     # -- producers (any thread; never block) ---------------------------------------------
 
@@ -165,29 +171,32 @@ class SessionWriter:
 
     def _open_files(self) -> None:
         f = self.folder
-        self._csv_file = open(f / layout.TELEMETRY_CSV, "w", newline="", buffering=1 << 16)
+        self._csv_file = self._kept(
+            open(f / layout.TELEMETRY_CSV, "w", newline="", buffering=1 << 16)
+        )
         self._csv = csv.writer(self._csv_file)
         self._csv.writerow(self.formatter.header)
-        self._tlog = open(f / layout.MAVLINK_TLOG, "wb", buffering=1 << 16)
-        self._messages_file = open(f / layout.MESSAGES_CSV, "w", newline="", buffering=1 << 12)
+        self._tlog = self._kept(open(f / layout.MAVLINK_TLOG, "wb", buffering=1 << 16))
+        self._messages_file = self._kept(
+            open(f / layout.MESSAGES_CSV, "w", newline="", buffering=1 << 12)
+        )
         self._messages_csv = csv.writer(self._messages_file)
         self._messages_csv.writerow(layout.MESSAGE_COLUMNS)
         self._messages_seen: int | None = None  # the state's message count at the last row
-        self._frames_csv_files = {}
         self._frames_csv = {}
         for cam in self.cameras:
             (f / cam).mkdir(exist_ok=True)
-            fc = open(f / layout.frames_csv_relpath(cam), "w", newline="", buffering=1 << 14)
-            self._frames_csv_files[cam] = fc
+            fc = self._kept(
+                open(f / layout.frames_csv_relpath(cam), "w", newline="", buffering=1 << 14)
+            )
             self._frames_csv[cam] = csv.writer(fc)
             self._frames_csv[cam].writerow(layout.FRAME_COLUMNS)
-        self._files = [
-            self._csv_file,
-            self._tlog,
-            self._messages_file,
-            *self._frames_csv_files.values(),
-        ]
         self._flush_files()
+
+    def _kept(self, file: IO[Any]) -> IO[Any]:
+        """`file`, listed for closing as soon as it is open (a failed start closes it too)."""
+        self._files.append(file)
+        return file
 
     def _run(self) -> None:
         interval = self.limits.flush_interval_s
