@@ -232,7 +232,7 @@ def _refused(sec: LinkSecurity) -> tuple[str, str | None]:
             "The vehicle answers from another address than the one the link hears: use "
             "udpin: for it, or set link.udpin_lock = false if several hosts feed one port."
         )
-    if sec.unsigned_refused or sec.bad_signature_refused or sec.replay_refused:
+    if sec.refused:
         parts.append(
             f"signing refused {sec.unsigned_refused} unsigned, {sec.bad_signature_refused} "
             f"wrongly signed, {sec.replay_refused} replayed packets"

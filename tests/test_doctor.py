@@ -41,9 +41,10 @@ def test_doctor_hears_the_vehicle_over_udp(tmp_path):
         and "1.14.3 official (git 7717000001020304)" in done.stdout
     )
     # The vehicle sends ATTITUDE at 20 Hz of its own; doctor shows what it gets after asking.
+    # Half the asked rate tells the two apart on a starved box (the figure is not a speed).
     asked = Settings().link.message_rates_hz["ATTITUDE"]
     got = float(re.search(r"ATTITUDE (\d+)", done.stdout).group(1))
-    assert asked > 30 and got > 30, done.stdout
+    assert asked / 2 > 20 and got > asked / 2, done.stdout
     assert "min of recording" in done.stdout
     assert "all checks passed" in done.stdout
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import io
 import os
 import shutil
 import signal
@@ -19,7 +20,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from server.install_service import UNIT_NAME, ServicePlan
+from server.install_service import UNIT_NAME, ServicePlan, install
 from server.sd_notify import Notifier, notify_loop
 from server.settings import load_settings
 from server.tasks import TaskSupervisor
@@ -109,6 +110,18 @@ def test_install_service_dry_run_prints_unit_and_commands():
     assert f"ExecStart={Path(FPV_STATION).resolve()} serve" in done.stdout
     assert 'sessions_dir = "/var/lib/fpv-station/sessions"' in done.stdout
     assert "systemctl enable --now fpv-station.service" in done.stdout
+
+
+@pytest.mark.parametrize("exec_path", ["/home/pi/venv/bin/fpv-station", "/tmp/v/bin/fpv-station"])
+def test_install_service_refuses_a_station_the_unit_cannot_reach(exec_path):
+    """A station pip-installed in a home directory (or /tmp): ProtectHome= and PrivateTmp=
+    hide it from the service, which would fail to start (status 203/EXEC). Said before
+    anything is written, in the dry run too (only that is run here: the tests run as root)."""
+    out = io.StringIO()
+    assert install(ServicePlan(exec_path=exec_path), dry_run=True, out=out) == 1
+    text = out.getvalue()
+    assert exec_path in text and "/opt/fpv-station" in text
+    assert "[Service]" not in text  # no unit printed as if it would work
 
 
 def test_install_service_refuses_without_root():
