@@ -6,13 +6,11 @@ reason."""
 from __future__ import annotations
 
 import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 
 from server.app import create_app
 from server.settings import load_settings
 from tests.helpers import (
-    CHROMIUM_ARGS,
-    CHROMIUM_PATH,
     arm_and_climb,
     run_uvicorn,
     sticks_on,
@@ -37,14 +35,6 @@ def twin_station(tmp_path):
     with run_uvicorn(app) as url:
         assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=15)
         yield app, url
-
-
-@pytest.fixture()
-def chromium():
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
-        yield browser
-        browser.close()
 
 
 def state(app):
@@ -86,10 +76,10 @@ def stick_centre(page, name: str) -> tuple[float, float, float]:
 
 
 @pytest.mark.timeout(120)
-def test_touch_sticks_on_a_phone_fly_the_twin(twin_station, chromium):
+def test_touch_sticks_on_a_phone_fly_the_twin(twin_station, browser):
     app, url = twin_station
     twin = app.state.station.twin
-    context = chromium.new_context(
+    context = browser.new_context(
         viewport={"width": 844, "height": 390}, has_touch=True, is_mobile=True
     )
     page = context.new_page()
@@ -169,9 +159,9 @@ navigator.getGamepads = () => [{ id: "Test pad (STANDARD GAMEPAD)", connected: t
 """
 
 
-def test_gamepad_panel_shows_live_axes_and_the_sticks_sent(twin_station, chromium):
+def test_gamepad_panel_shows_live_axes_and_the_sticks_sent(twin_station, browser):
     app, url = twin_station
-    page = chromium.new_page()
+    page = browser.new_page()
     page.add_init_script(FAKE_PAD)
     sticks_on(page, url)
     page.click("#ctl-pad summary")
@@ -194,9 +184,9 @@ def test_gamepad_panel_shows_live_axes_and_the_sticks_sent(twin_station, chromiu
 
 
 @pytest.mark.timeout(120)
-def test_a_refused_disarm_is_shown_with_its_reason(twin_station, chromium):
+def test_a_refused_disarm_is_shown_with_its_reason(twin_station, browser):
     app, url = twin_station
-    page = chromium.new_page()
+    page = browser.new_page()
     sticks_on(page, url)
     arm_and_climb(page, app.state.station)
     expect(page.locator("#ctl-toast")).to_be_hidden()
