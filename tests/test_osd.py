@@ -235,6 +235,28 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     expect(right).to_be_hidden()
 
 
+def test_goggles_stereo_eyes_switch_osd_elements_together(station, browser):
+    """An element switched off in the menu goes from both eyes of side-by-side stereo: the
+    right eye's OSD is no second, unswitchable copy."""
+    vehicle, base = station
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.goto(base + "/goggles.html")
+    expect(page.locator("[data-osd=mode]").first).to_have_text("POSCTL", timeout=10000)
+    page.keyboard.press("s")
+    eyes = [
+        page.locator(f"{view} [data-osd=battery]") for view in ("#front-view", "#front-view-right")
+    ]
+    for battery in eyes:
+        expect(battery).to_be_visible(timeout=5000)
+    page.keyboard.press("o")
+    page.locator("#front-view [data-osd-toggle=battery]").uncheck()
+    for battery in eyes:
+        expect(battery).to_be_hidden()
+    page.locator("#front-view [data-osd-toggle=battery]").check()
+    for battery in eyes:
+        expect(battery).to_be_visible()
+
+
 def test_goggles_show_the_task_step_as_an_osd_line(station, browser):
     vehicle, base = station
     page = browser.new_page(viewport={"width": 1280, "height": 720})
