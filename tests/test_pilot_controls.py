@@ -89,6 +89,11 @@ def test_touch_sticks_on_a_phone_fly_the_twin(twin_station, browser):
     page.locator("#ctl-toggle").tap()
     page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
     expect(page.locator("#touch-sticks")).to_be_visible()
+    # The twin's controls wrap the header bar onto a second line: the front view still
+    # fits the screen below it, its OSD menu button and camera readout with it.
+    for part in ("#front-view", "#front-view .osd-menu-button", "#front-view .video-readout"):
+        box = page.locator(part).bounding_box()
+        assert box["y"] >= 0 and box["y"] + box["height"] <= 390, (part, box)
     left, right = Finger(page, 1), Finger(page, 2)
 
     # Arm by the documented gesture: left stick to the bottom-right corner, held.
