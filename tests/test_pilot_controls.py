@@ -188,6 +188,30 @@ def test_gamepad_panel_shows_live_axes_and_the_sticks_sent(twin_station, browser
     expect(bars.locator("[data-bar=sent-pitch] td.num")).to_have_text("0.00", timeout=3000)
 
 
+def test_the_gamepad_flies_on_while_a_panel_in_the_page_has_focus(twin_station, browser):
+    """A click into a frame of the page (the 3D panel's viewer is one) takes the keyboard's
+    focus from the page, not the pilot's: the gamepad still flies."""
+    app, url = twin_station
+    page = browser.new_page()
+    page.add_init_script(FAKE_PAD)
+    sticks_on(page, url)
+    page.evaluate(
+        """() => document.body.append(Object.assign(document.createElement("iframe"),
+             {id: "panel-frame", srcdoc: "<input id=i>"}))"""
+    )
+    page.frame_locator("#panel-frame").locator("#i").click()
+    assert page.evaluate("document.activeElement.id") == "panel-frame"
+    page.evaluate("window.__axes[3] = -0.8")  # right stick forward
+    page.wait_for_function("window.fpv.control.sticks.pitch === 0.8", timeout=3000)
+    assert wait_until(lambda: state(app).rc.pwm_us[1] != 1500, timeout=5)
+    # A hidden tab still lets go (nobody watches the video then).
+    page.evaluate(
+        """() => { Object.defineProperty(document, "visibilityState", {value: "hidden"});
+                   document.dispatchEvent(new Event("visibilitychange")); }"""
+    )
+    page.wait_for_function("window.fpv.control.sticks.pitch === 0", timeout=3000)
+
+
 @pytest.mark.timeout(120)
 def test_a_refused_disarm_is_shown_with_its_reason(twin_station, browser):
     app, url = twin_station
