@@ -157,10 +157,6 @@ class MavlinkLink:
         self._wake()
 
     def health(self) -> LinkHealth:
-        security = self._security()
-        refused = (
-            security.unsigned_refused + security.bad_signature_refused + security.replay_refused
-        )
         return self._meter.report(
             self._framer.counters,
             self.state.get().value.link.link_lost if self.state.get() else True,
@@ -168,8 +164,7 @@ class MavlinkLink:
             self.clock.mono(),
             self._tracker.sysid if self._tracker.compid is not None else self._tracker.pinned_sysid,
             self._tracker.compid,
-            security,
-            refused,
+            self._security(),
         )
 
     def _security(self) -> LinkSecurity:
@@ -374,7 +369,7 @@ class MavlinkLink:
         if verdict in ("signed", "unsigned_allowed"):
             return verdict
         c = self._signing.counts
-        refused = c.unsigned + c.bad_signature + c.replayed
+        refused = c.refused
         if refused in (1, 10, 100, 1000) or refused % 10000 == 0:
             log.warning(
                 "MAVLink signing refused %d packets (%d unsigned, %d bad signature, "

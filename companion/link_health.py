@@ -44,6 +44,11 @@ class LinkSecurity:
     bad_signature_refused: int = 0  # refused: wrong key or altered bytes
     replay_refused: int = 0  # refused: good signature but an old timestamp (a replay)
 
+    @property
+    def refused(self) -> int:
+        """Packets signing refused, all reasons."""
+        return self.unsigned_refused + self.bad_signature_refused + self.replay_refused
+
 
 @dataclass(frozen=True, slots=True)
 class LinkHealth:
@@ -135,10 +140,7 @@ class HealthMeter:
         sysid: int | None,
         compid: int | None,
         security: LinkSecurity,
-        refused: int = 0,
     ) -> LinkHealth:
-        """`refused`: packets the framer passed but signing refused (not counted as
-        received)."""
         streams = self.loss.report(
             (sysid, compid) if sysid is not None and compid is not None else None
         )
@@ -153,7 +155,7 @@ class HealthMeter:
             autopilot_sysid=sysid,
             autopilot_compid=compid,
             rates_hz=self._rates,
-            packets=framer.packets - refused,
+            packets=framer.packets - security.refused,  # the framer passed them, signing not
             lost_packets=autopilot.lost if autopilot else 0,
             loss_ratio=autopilot.loss_ratio if autopilot else 0.0,
             streams=streams,

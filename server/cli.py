@@ -226,7 +226,9 @@ def add_doctor_parser(sub: Any) -> None:
 def run_doctor(args: argparse.Namespace) -> int:
     from server.doctor import format_table, run_checks
 
-    checks = run_checks(settings_from_args(args), heartbeat_s=args.heartbeat_s)
+    settings = settings_from_args(args)
+    check_link_settings(settings)  # a malformed source is an error to say, not a traceback
+    checks = run_checks(settings, heartbeat_s=args.heartbeat_s)
     print(format_table(checks))
     failed = [c.name for c in checks if c.status == "FAIL"]
     print(f"\n{len(failed)} failed: {', '.join(failed)}" if failed else "\nall checks passed")

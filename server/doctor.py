@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import platform
 import shutil
-import socket
 import stat
 import time
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.link_health import LinkSecurity
 from companion.system_clock import clock_synchronised
 from core.mavlink.framing import MavFramer
+from server.listen import listening_socket
 from server.settings import Settings
 
 if TYPE_CHECKING:
@@ -70,6 +70,18 @@ def check_serial(settings: Settings, proc: Path = Path("/proc")) -> list[Check]:
                 f"sudo usermod -aG dialout {_user()} (then log in again)",
             )
         ]
+    console = _kernel_console_on(path, proc)
+    if console is not None:
+        return [
+            Check(
+                "serial device",
+                "FAIL",
+                f"{path} is the kernel's console ({console} in {proc / 'cmdline'}): boot "
+                "messages and a login shell share the autopilot's wires",
+                "raspi-config > Interface Options > Serial Port: login shell No, hardware Yes "
+                "(it removes console=serial0 from cmdline.txt), then reboot.",
+            )
+        ]
     holders = _holders(path, proc)
     if holders:
         return [
@@ -82,6 +94,26 @@ def check_serial(settings: Settings, proc: Path = Path("/proc")) -> list[Check]:
             )
         ]
     return [Check("serial device", "ok", f"{path} at {spec.baud} baud, free, read/write")]
+
+
+def _kernel_console_on(device: Path, proc: Path) -> str | None:
+    """The `console=` argument of the running kernel that names `device`, if any. The Pi's
+    serial login shell is a getty on that console, run by root: only root can see it in
+    /proc/*/fd, while /proc/cmdline is readable by anyone. The firmware writes
+    cmdline.txt's `console=serial0` as the UART it stands for (`console=ttyS0`), so both
+    names of the device are looked for."""
+    try:
+        args = (proc / "cmdline").read_text().split()
+    except OSError:
+        return None
+    real = device.resolve()
+    names = {device.name, real.name}
+    if real.is_relative_to("/dev"):
+        names.add(str(real.relative_to("/dev")))  # /dev/pts/3 is console=pts/3
+    for arg in args:
+        if arg.startswith("console=") and arg.removeprefix("console=").split(",")[0] in names:
+            return arg
+    return None
 
 
 def _holders(device: Path, proc: Path) -> list[str]:
@@ -200,7 +232,7 @@ def _refused(sec: LinkSecurity) -> tuple[str, str | None]:
             "The vehicle answers from another address than the one the link hears: use "
             "udpin: for it, or set link.udpin_lock = false if several hosts feed one port."
         )
-    if sec.unsigned_refused or sec.bad_signature_refused or sec.replay_refused:
+    if sec.refused:
         parts.append(
             f"signing refused {sec.unsigned_refused} unsigned, {sec.bad_signature_refused} "
             f"wrongly signed, {sec.replay_refused} replayed packets"
@@ -405,11 +437,12 @@ def check_ports(settings: Settings) -> list[Check]:
     for what, port in wanted.items():
         if port == 0:
             continue
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind((settings.server.host, port))
-            except OSError:
-                busy.append(f"{port} ({what})")
+        # Bound as the station binds (its family for the host, SO_REUSEADDR): a port left
+        # in TIME_WAIT by a station just stopped is free to it, a listening one is not.
+        try:
+            listening_socket(settings.server.host, port).close()
+        except OSError:
+            busy.append(f"{port} ({what})")
     if busy:
         return [
             Check(

@@ -30,6 +30,9 @@ DEFAULT_EXEC = "/usr/local/bin/fpv-station"
 # dialout: the Pixhawk's UART or USB serial; video: the V4L2 cameras.
 DEVICE_GROUPS = ("dialout", "video")
 WATCHDOG_S = 30
+# What the unit hides from the service (ProtectHome=, PrivateTmp=): a station installed
+# there cannot be started by it; its user could not read a login user's home anyway.
+HIDDEN_FROM_SERVICE = ("/home", "/root", "/run/user", "/tmp", "/var/tmp")
 
 UNIT_TEMPLATE = """\
 # fpv-station on the Raspberry Pi: written by `fpv-station install-service`.
@@ -173,6 +176,16 @@ def installed_exec_path() -> str:
 
 
 def install(plan: ServicePlan, dry_run: bool, out=sys.stdout) -> int:
+    if any(Path(plan.exec_path).is_relative_to(d) for d in HIDDEN_FROM_SERVICE):
+        print(
+            f"fpv-station install-service: {plan.exec_path} is where the service cannot "
+            "reach it (ProtectHome=yes, PrivateTmp=yes): it would fail to start. Install "
+            "the station in /opt (sudo python3 -m venv /opt/fpv-station; sudo "
+            "/opt/fpv-station/bin/pip install ./fpv-station) and run that one's "
+            "install-service.",
+            file=out,
+        )
+        return 1
     unit_path = plan.unit_dir / UNIT_NAME
     cmds = plan.commands(_user_exists(plan.user))
     if dry_run:

@@ -14,6 +14,7 @@ import tty
 from pathlib import Path
 
 from server.doctor import check_disk, check_heartbeat, check_ports, check_serial, firmware_version
+from server.listen import listening_socket
 from server.settings import Settings
 from tests.helpers import free_port, station_settings
 from tests.mav_vehicle import MavVehicle
@@ -40,9 +41,10 @@ def test_doctor_hears_the_vehicle_over_udp(tmp_path):
         and "1.14.3 official (git 7717000001020304)" in done.stdout
     )
     # The vehicle sends ATTITUDE at 20 Hz of its own; doctor shows what it gets after asking.
+    # Half the asked rate tells the two apart on a starved box (the figure is not a speed).
     asked = Settings().link.message_rates_hz["ATTITUDE"]
     got = float(re.search(r"ATTITUDE (\d+)", done.stdout).group(1))
-    assert asked > 30 and got > 30, done.stdout
+    assert asked / 2 > 20 and got > asked / 2, done.stdout
     assert "min of recording" in done.stdout
     assert "all checks passed" in done.stdout
 
@@ -80,6 +82,29 @@ def test_doctor_over_a_serial_pty():
         os.close(slave)
 
 
+def test_doctor_fails_a_serial_port_that_is_the_kernel_console(tmp_path):
+    """The Pi's serial login shell is a getty run by root: a user's doctor cannot see it in
+    /proc/*/fd. The kernel's command line says it (the firmware writes cmdline.txt's
+    console=serial0 as the UART, console=ttyS0); here for a pty, console=pts/N."""
+    master, slave = pty.openpty()
+    try:
+        device = os.ttyname(slave)
+        settings = station_settings(f"{device}:921600")
+        proc = tmp_path / "proc"  # a kernel command line of our own, in a real file
+        proc.mkdir()
+        console = f"console={device.removeprefix('/dev/')},115200"
+        (proc / "cmdline").write_text(f"coherent_pool=1M {console} console=tty1 rootwait\n")
+        (check,) = check_serial(settings, proc)
+        assert check.status == "FAIL", check
+        assert console in check.detail and "login shell No" in check.fix
+        (proc / "cmdline").write_text("coherent_pool=1M console=tty1 rootwait\n")
+        (check,) = check_serial(settings, proc)
+        assert check.status == "ok", check
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
 def test_doctor_reports_a_missing_serial_device_with_a_fix(tmp_path):
     done = doctor(
         "--source", "/dev/ttyDOESNOTEXIST:921600", "--heartbeat-s", "1",
@@ -91,6 +116,15 @@ def test_doctor_reports_a_missing_serial_device_with_a_fix(tmp_path):
     assert "fix: Check the cable" in done.stdout
     assert "FAIL  MAVLink heartbeat" in done.stdout
     assert "failed: serial device, MAVLink heartbeat" in done.stdout
+
+
+def test_doctor_refuses_a_malformed_source_with_a_clear_error(tmp_path):
+    """The tool a field team runs on a bad setup says what is wrong with it, as `serve`
+    does, instead of a traceback out of its first MAVLink check."""
+    done = doctor("--source", "ttyAMA0:921600", "--sessions-dir", str(tmp_path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Unknown MAVLink connection 'ttyAMA0:921600'" in done.stderr
+    assert "Traceback" not in done.stderr
 
 
 def test_doctor_fails_a_disk_under_the_configured_minimum(tmp_path):
@@ -114,6 +148,31 @@ def test_doctor_fails_a_port_in_use():
         )
         (check,) = check_ports(settings)
     assert check.status == "FAIL" and f"{port} (web)" in check.detail
+
+
+def port_in_time_wait() -> int:
+    """A port whose listener has closed after closing a connection first, as a station
+    stopped with viewers connected leaves it: TIME_WAIT for a minute."""
+    with listening_socket("127.0.0.1", 0) as listener:  # the station's own listener
+        port = listener.getsockname()[1]
+        with socket.create_connection(("127.0.0.1", port)) as client:
+            conn, _ = listener.accept()
+            conn.close()  # the server side closes first: its end waits
+            client.recv(1)
+    return port
+
+
+def test_doctor_passes_a_port_the_station_can_bind():
+    """Right after `systemctl stop fpv-station` (README step 5) the web port is in
+    TIME_WAIT; the station binds it anyway (SO_REUSEADDR), so doctor must not call it in
+    use. Nor is an IPv6 host ("::", dual stack) a port in use."""
+    port = port_in_time_wait()
+    for host in ("127.0.0.1", "::"):
+        settings = station_settings(
+            "none", **{"server.port": port, "server.host": host, "viser.enabled": False}
+        )
+        (check,) = check_ports(settings)
+        assert check.status == "ok", (host, check)
 
 
 def test_firmware_version_as_ardupilot_and_px4_pack_it():

@@ -5,9 +5,16 @@ from __future__ import annotations
 
 import csv
 import io
+import shutil
+from pathlib import Path
+
+import pytest
 
 from companion.recording import layout
+from companion.recording.meta import Quality, SessionMeta, read_meta, write_meta
 from companion.recording.ondisk import TELEMETRY_TAIL_BYTES, take_census
+from companion.recording.recovery import mark_interrupted
+from companion.recording.store import SessionStore
 from tests.recording_fakes import make_jpegs
 
 START = 1_700_000_000.0
@@ -119,3 +126,50 @@ def test_a_long_telemetry_file_is_counted_without_reading_it_whole(tmp_path):
         round(START + (n - 1) / 30, 6),
         round(START + n / 30, 6),
     ]
+
+
+def _cut_off_session(root, sid: str, rows: int) -> Path:
+    """A session a kill left in status "recording", whose session.json last said `rows`."""
+    folder = root / sid
+    (folder / "front").mkdir(parents=True)
+    header = ",".join(layout.telemetry_columns(("front",)))
+    lines = [
+        _row(header, t_s=k / 30, wall=START + k / 30, seq=0, t_wall=START) for k in range(rows)
+    ]
+    (folder / layout.TELEMETRY_CSV).write_text(header + "\n" + "".join(lines))
+    (folder / "front" / "frames.csv").write_bytes(frames_csv([]))
+    meta = SessionMeta(
+        id=sid,
+        start_wall=START,
+        start_utc=layout.utc_label(START),
+        cameras=["front"],
+        quality=Quality(telemetry_rows=rows),
+    )
+    write_meta(folder / layout.SESSION_JSON, meta)
+    return folder
+
+
+@pytest.mark.parametrize("unreadable", ["front", layout.TELEMETRY_CSV])
+def test_a_session_whose_files_cannot_be_read_is_still_marked_and_not_zeroed(tmp_path, unreadable):
+    """Recovery runs before the station serves. A session whose files cannot be read (a
+    damaged card's EIO; here a file where the camera folder was, a folder where
+    telemetry.csv was) once raised out of the recorder's open, and the station did not
+    start; or, for telemetry.csv, it was counted as holding no rows. It is marked
+    interrupted with the counts it last wrote, and the next session is recovered too."""
+    bad = _cut_off_session(tmp_path, "20261122T035500Z_sim", rows=40)
+    good = _cut_off_session(tmp_path, "20261122T045500Z_sim", rows=30)
+    target = bad / unreadable
+    shutil.rmtree(target) if target.is_dir() else target.unlink()
+    if unreadable == "front":
+        target.write_text("not a folder")
+    else:
+        target.mkdir()
+
+    marked = mark_interrupted(SessionStore(tmp_path))
+
+    assert marked == [bad.name, good.name]
+    meta = read_meta(bad / layout.SESSION_JSON)
+    assert meta.status == layout.STATUS_INTERRUPTED
+    assert meta.quality.telemetry_rows == 40  # not counted again, not zero
+    assert meta.recovery is None  # says the files were not counted
+    assert read_meta(good / layout.SESSION_JSON).quality.telemetry_rows == 30

@@ -166,3 +166,44 @@ def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
         finally:
             cam.stop()
             vehicle.stop()
+
+
+def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path):
+    """At a failed write's stop the files are counted; when they cannot be read (EIO, or
+    here a file where the camera folder was, which also fails the write), the stop once
+    raised and left session.json saying "recording". It ends cut short, with the reason
+    and the writer's counts, and says it was not recounted (no `recovery`)."""
+    cam = FakeCamera("front", 30.0, make_jpegs(4, 320, 240)).start()
+    vehicle = FakeVehicle().start()
+    options = RecorderOptions(
+        session=SessionConfig(rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=0)),
+        auto_record_on_arm=False,
+    )
+    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames}, options)
+
+    async def run() -> str:
+        await rec.open()
+        sid = (await rec.start("test")).id
+        deadline = time.monotonic() + 30
+        while rec.status().frames_written.get("front", 0) < 3 and time.monotonic() < deadline:  # noqa: ASYNC110
+            await asyncio.sleep(0.05)
+        front = tmp_path / sid / "front"
+        front.rename(front.with_name("front.moved"))
+        front.write_text("not a folder")  # before the loop runs the failed write's stop
+        deadline = time.monotonic() + 30
+        while rec.recording_id is not None and time.monotonic() < deadline:  # noqa: ASYNC110
+            await asyncio.sleep(0.05)
+        await rec.aclose()
+        return sid
+
+    try:
+        sid = asyncio.run(run())
+    finally:
+        cam.stop()
+        vehicle.stop()
+    meta = json.loads((tmp_path / sid / layout.SESSION_JSON).read_text())
+    assert meta["status"] == "cut_short", meta["status"]
+    assert meta["stop_reason"].startswith("write error"), meta["stop_reason"]
+    assert meta["recovery"] is None
+    assert meta["quality"]["telemetry_rows"] > 0
+    assert rec.last_stop is not None and rec.last_stop.reason == meta["stop_reason"]

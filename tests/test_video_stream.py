@@ -156,3 +156,50 @@ def test_viewer_of_a_silent_camera_is_cleaned_up_after_disconnect():
         assert viewer.parts[0].seq == 1
         assert wait_until(lambda: _cameras(base)["bottom"]["clients"] == 0, 4.0)
         assert _cameras(base)["bottom"]["reason"].startswith("no camera configured")
+
+
+def test_viewers_beyond_the_cap_are_refused_until_one_leaves(tmp_path):
+    """server.max_video_clients (server/client_limits.py): a viewer beyond the cap gets a
+    503 in the error shape before its stream starts, and a viewer that leaves gives its
+    place back (a place never released would refuse every viewer after it for good)."""
+    front = write_images(tmp_path / "front", 3, (160, 120))
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "cameras.front.spec": f"folder:{front}",
+            "cameras.bottom.spec": "none",
+            "server.max_video_clients": 2,
+        },
+    )
+    with run_uvicorn(create_app(settings)) as base:
+
+        async def run() -> None:
+            def viewer() -> Viewer:
+                return Viewer("127.0.0.1", _port(base), "/video/front.mjpg")
+
+            held = [viewer(), viewer()]
+            tasks = [asyncio.create_task(v.run(60.0)) for v in held]
+            deadline = time.monotonic() + 20  # a hang guard only
+            while not all(v.parts for v in held) and time.monotonic() < deadline:  # noqa: ASYNC110
+                await asyncio.sleep(0.05)
+            assert all(v.parts for v in held)
+            async with (
+                httpx.AsyncClient(timeout=10) as client,
+                client.stream("GET", f"{base}/video/front.mjpg") as refused,
+            ):
+                assert refused.status_code == 503, refused.status_code  # not a stream
+                await refused.aread()
+            assert refused.json()["error"] == "Unavailable"
+            assert "at most 2 video clients" in refused.json()["error_msg"]
+            tasks[0].cancel()  # one viewer leaves
+            await asyncio.gather(tasks[0], return_exceptions=True)
+            later = viewer()
+            while not later.parts and time.monotonic() < deadline + 20:
+                later.status = 0
+                await later.run(2.0)  # refused (503) until the server saw the leave
+            assert later.status == 200 and later.parts, later.status
+            tasks[1].cancel()
+            await asyncio.gather(tasks[1], return_exceptions=True)
+
+        asyncio.run(run())

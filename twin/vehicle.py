@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import math
 import socket
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -106,7 +106,6 @@ class VehicleStats:
     bad: int = 0
     send_errors: int = 0
     last_input_s: float = -1e9
-    peers: set = field(default_factory=set)
 
 
 class MavlinkVehicle:
@@ -193,7 +192,6 @@ class MavlinkVehicle:
             # (a refused datagram must not turn the telemetry to its sender).
             if self._listening and self.signing is None:
                 self._peer = addr
-            self.stats.peers.add(addr)
             parser = self._parser
             for msg in parser.parse_buffer(data) or []:
                 if msg.get_type() == "BAD_DATA":

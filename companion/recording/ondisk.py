@@ -16,6 +16,8 @@ camera's frames.csv list exactly the complete JPEGs on disk:
   disk its blocks are what lets frames.csv and session.json be finished.
 
 `apply_census` puts the counts into a session's metadata (`quality` and `recovery`).
+A file that is missing counts as empty; one that is there but cannot be read (EIO on a
+damaged card, EMFILE) raises OSError: counting it as empty would report its data lost.
 docs/SESSION_FORMAT.md ("Durability") describes the outcome for readers.
 """
 
@@ -88,7 +90,7 @@ def take_census(folder: Path, cameras: list[str], start_wall: float) -> Census:
     tlog = TlogReader(folder / layout.MAVLINK_TLOG)
     try:
         census.tlog_packets = sum(1 for _ in tlog)
-    except OSError:
+    except FileNotFoundError:
         pass
     census.tlog_cut_record = tlog.truncated > 0
     for cam in cameras:
@@ -99,7 +101,8 @@ def take_census(folder: Path, cameras: list[str], start_wall: float) -> Census:
 def reconcile_frames(
     folder: Path, camera: str, telemetry_lines: list[str], start_wall: float
 ) -> FramesOnDisk:
-    """Make `<camera>/frames.csv` list exactly the complete JPEGs in the camera's folder."""
+    """Make `<camera>/frames.csv` list exactly the complete JPEGs in the camera's folder;
+    OSError when what is there cannot be read."""
     out = FramesOnDisk()
     cam_dir = folder / camera
     csv_path = folder / layout.frames_csv_relpath(camera)
@@ -135,8 +138,7 @@ def reconcile_frames(
         path = cam_dir / name
         try:
             data = path.read_bytes()
-        except OSError as exc:
-            log.warning("cannot read %s: %s", path, exc)
+        except FileNotFoundError:  # removed since the folder was listed
             continue
         if not (data.startswith(SOI) and data.endswith(EOI)):
             try:
@@ -284,7 +286,7 @@ def _scan_telemetry(path: Path) -> _TelemetryScan:
     hour's file is hundreds of MB, more than a Pi should read into memory at once."""
     try:
         f = open(path, "rb")  # noqa: SIM115 (closed below, after the tail is read)
-    except OSError:
+    except FileNotFoundError:
         return _TelemetryScan(0, False, [])
     with f:
         header = f.readline()
@@ -318,7 +320,7 @@ class _Lines:
 def _complete_lines(path: Path) -> _Lines:
     try:
         data = path.read_bytes()
-    except OSError:
+    except FileNotFoundError:
         return _Lines([], False, 0)
     end = data.rfind(b"\n") + 1
     text = data[:end].decode("utf-8", errors="replace")

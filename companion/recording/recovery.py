@@ -29,8 +29,15 @@ def mark_interrupted(store: SessionStore, skip: set[str] | None = None) -> list[
         if meta is None or meta.status != layout.STATUS_RECORDING:
             continue
         folder = store.resolve(sid)
-        census = take_census(folder, meta.cameras, meta.start_wall)
-        apply_census(meta, census, layout.utc_label())
+        try:
+            census = take_census(folder, meta.cameras, meta.start_wall)
+        except OSError as exc:
+            # This runs before the station serves: one unreadable session must not keep
+            # it from starting. Its counts stay those it last wrote (no `recovery`).
+            census = None
+            log.warning("cannot count the files of interrupted session %s: %s", sid, exc)
+        else:
+            apply_census(meta, census, layout.utc_label())
         meta.status = layout.STATUS_INTERRUPTED
         meta.stop_reason = "interrupted: the station stopped while recording (power loss or kill)"
         try:
@@ -38,11 +45,12 @@ def mark_interrupted(store: SessionStore, skip: set[str] | None = None) -> list[
         except OSError as exc:
             log.warning("cannot mark session %s interrupted: %s", sid, exc)
             continue
-        log.warning(
-            "session %s was interrupted; recovered %d rows, %s frames on disk",
-            sid,
-            census.telemetry_rows,
-            {c: f.complete for c, f in census.frames.items()},
-        )
+        if census is not None:
+            log.warning(
+                "session %s was interrupted; recovered %d rows, %s frames on disk",
+                sid,
+                census.telemetry_rows,
+                {c: f.complete for c, f in census.frames.items()},
+            )
         marked.append(sid)
     return marked

@@ -169,8 +169,12 @@ class RecordingSession:
             # A failed write (a full disk) loses what the files' buffers held, which the
             # writer had counted: the report says what the files hold, and that it was cut.
             meta = self.meta(layout.STATUS_CUT_SHORT)
-            census = take_census(self.folder, list(self.cameras), self.t0_wall)
-            apply_census(meta, census, layout.utc_label())
+            try:
+                census = take_census(self.folder, list(self.cameras), self.t0_wall)
+            except OSError as exc:  # EIO, EMFILE: the writer's counts stand (no `recovery`)
+                log.warning("cannot count the files of session %s: %s", self.id, exc)
+            else:
+                apply_census(meta, census, layout.utc_label())
         self._save(meta)
         return meta
 

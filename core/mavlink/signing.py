@@ -111,6 +111,10 @@ class SigningCounts:
     bad_signature: int = 0  # refused: wrong key or altered bytes
     replayed: int = 0  # refused: good signature, timestamp not newer (a replay)
 
+    @property
+    def refused(self) -> int:
+        return self.unsigned + self.bad_signature + self.replayed
+
 
 class SignatureCheck:
     """Checks incoming packets against the key of a pymavlink `MAVLinkSigning` (any
