@@ -365,7 +365,16 @@ def check_disk(settings: Settings, video_bytes_per_s: float, probe_mb: int = 16)
         folder.mkdir(parents=True, exist_ok=True)
         usage = shutil.disk_usage(folder)
     except OSError as exc:
-        return [Check("sessions disk", "FAIL", f"{folder}: {exc}", "Make the folder writable.")]
+        return [
+            Check(
+                "sessions disk",
+                "FAIL",
+                f"{folder}: {exc}",
+                "Run doctor as the user the station runs as (the service's: sudo -u "
+                "fpv-station ...; its folder is closed to others), or make the folder "
+                "writable by that user.",
+            )
+        ]
     min_free = settings.recording.min_free_mb * 1024 * 1024
     usable = usage.free - min_free
     rate = video_bytes_per_s + TELEMETRY_BYTES_PER_S
