@@ -31,10 +31,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from playwright.sync_api import sync_playwright  # noqa: E402
 
 from server.app import create_app  # noqa: E402
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings  # noqa: E402
+from tests.helpers import chromium, run_uvicorn, station_settings  # noqa: E402
 from tests.mav_vehicle import DEFAULT_RATES_HZ, MavVehicle  # noqa: E402
 
 
@@ -61,8 +60,7 @@ def main() -> None:
 
         threading.Thread(target=wobble, daemon=True).start()
         settings = station_settings(vehicle.station_source, Path(tmp) / "sessions")
-        with run_uvicorn(create_app(settings)) as base, sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        with run_uvicorn(create_app(settings)) as base, chromium() as browser:
             for size in args.size:
                 w, h = (int(v) for v in size.split("x"))
                 page = browser.new_page(viewport={"width": w, "height": h})
@@ -88,7 +86,6 @@ def main() -> None:
                         f"p99 {p99:.3f} ms, max {ms[-1]:.3f} ms, mean {statistics.fmean(ms):.3f} ms"
                     )
                 page.close()
-            browser.close()
         stop.set()
     print(
         f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f}"

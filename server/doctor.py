@@ -138,32 +138,38 @@ def _holders(device: Path, proc: Path) -> list[str]:
     return found
 
 
-def check_pi_uart(model_file: Path = Path("/proc/device-tree/model")) -> list[Check]:
+def check_pi_uart(
+    settings: Settings, model_file: Path = Path("/proc/device-tree/model")
+) -> list[Check]:
+    """On a Pi, is the link's port the full PL011 UART (ttyAMA*) and not the mini UART
+    (ttyS*)? Asked of the device the source names (/dev/serial0 is a link the firmware
+    points at one or the other), so that any way of getting there passes (disable-bt,
+    miniuart-bt, a Pi without Bluetooth) and a USB cable to the Pixhawk is no UART."""
+    from companion.transports import parse_connection
+
     try:
         model = model_file.read_bytes().rstrip(b"\0").decode()
     except OSError:
-        return [Check("Pi UART config", "skip", "not a Raspberry Pi")]
+        return [Check("Pi UART", "skip", "not a Raspberry Pi")]
     if "Raspberry Pi" not in model:
-        return [Check("Pi UART config", "skip", f"not a Raspberry Pi ({model})")]
-    config = next(
-        (p for p in (Path("/boot/firmware/config.txt"), Path("/boot/config.txt")) if p.exists()),
-        None,
-    )
-    if config is None:
-        return [Check("Pi UART config", "warn", f"{model}: no config.txt found")]
-    lines = {ln.split("#")[0].strip() for ln in config.read_text().splitlines()}
-    missing = [want for want in ("enable_uart=1", "dtoverlay=disable-bt") if want not in lines]
-    if missing:
+        return [Check("Pi UART", "skip", f"not a Raspberry Pi ({model})")]
+    spec = parse_connection(settings.link.source)
+    if spec.kind != "serial" or not Path(spec.path).exists():  # no port: "serial device"
+        return [Check("Pi UART", "skip", f"{model}: no serial port to judge ({spec.text})")]
+    real = Path(spec.path).resolve()
+    if real.name.startswith("ttyS"):
         return [
             Check(
-                "Pi UART config",
+                "Pi UART",
                 "FAIL",
-                f"{config} lacks {', '.join(missing)}",
-                f"Add {' and '.join(missing)} to {config} and reboot (the mini UART drifts at "
-                "921600 baud).",
+                f"{model}: {spec.path} is {real}, the mini UART",
+                "Add dtoverlay=disable-bt to /boot/firmware/config.txt (the PL011 UART then "
+                "serves GPIO14/15) and reboot: the mini UART drifts at 921600 baud.",
             )
         ]
-    return [Check("Pi UART config", "ok", f"{model}: enable_uart=1, dtoverlay=disable-bt")]
+    if not real.name.startswith("ttyAMA"):
+        return [Check("Pi UART", "skip", f"{model}: {real} is not the Pi's UART (USB?)")]
+    return [Check("Pi UART", "ok", f"{model}: {spec.path} is {real}, the PL011 UART")]
 
 
 def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) -> list[Check]:
@@ -359,7 +365,16 @@ def check_disk(settings: Settings, video_bytes_per_s: float, probe_mb: int = 16)
         folder.mkdir(parents=True, exist_ok=True)
         usage = shutil.disk_usage(folder)
     except OSError as exc:
-        return [Check("sessions disk", "FAIL", f"{folder}: {exc}", "Make the folder writable.")]
+        return [
+            Check(
+                "sessions disk",
+                "FAIL",
+                f"{folder}: {exc}",
+                "Run doctor as the user the station runs as (the service's: sudo -u "
+                "fpv-station ...; its folder is closed to others), or make the folder "
+                "writable by that user.",
+            )
+        ]
     min_free = settings.recording.min_free_mb * 1024 * 1024
     usable = usage.free - min_free
     rate = video_bytes_per_s + TELEMETRY_BYTES_PER_S
@@ -473,7 +488,7 @@ def run_checks(settings: Settings, heartbeat_s: float = 5.0) -> list[Check]:
         video_rate = 2 * 30 * ASSUMED_JPEG_BYTES
     return [
         *check_serial(settings),
-        *check_pi_uart(),
+        *check_pi_uart(settings),
         *check_heartbeat(settings, heartbeat_s),
         *cameras,
         *check_disk(settings, video_rate),

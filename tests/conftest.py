@@ -9,7 +9,7 @@ import tempfile
 import pytest
 from pymavlink import mavutil
 
-from tests.helpers import free_port
+from tests.helpers import chromium, free_port
 from twin.runner import Twin
 from twin.sensors import SensorParams
 from twin.sim import SimConfig
@@ -17,6 +17,13 @@ from twin.sim import SimConfig
 # `fpv-station serve` keeps its first-start control token under XDG_CONFIG_HOME: test
 # stations (and their subprocesses) get a throwaway one, never the user's.
 os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="fpv-test-config-")
+
+
+@pytest.fixture
+def browser():
+    """Headless Debian chromium (tests.helpers.chromium), one per test."""
+    with chromium() as b:
+        yield b
 
 
 @pytest.fixture()

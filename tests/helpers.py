@@ -1,4 +1,4 @@
-"""Shared test helpers: free ports, a real uvicorn server in a thread, Chromium flags."""
+"""Shared test helpers: free ports, a real uvicorn server in a thread, Debian's Chromium."""
 
 from __future__ import annotations
 
@@ -26,6 +26,20 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--disable-sync",
 ]
+
+
+@contextlib.contextmanager
+def chromium():
+    """Debian's chromium, headless, through Playwright (no browser download): yields the
+    Browser. Tests take it as the `browser` fixture (conftest.py)."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        try:
+            yield browser
+        finally:
+            browser.close()
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:

@@ -219,32 +219,28 @@ def test_analysis_page_in_chromium(server):
     shows the API's error text for a task whose window never happens."""
     from urllib.parse import urlencode
 
-    from playwright.sync_api import expect, sync_playwright
+    from playwright.sync_api import expect
 
-    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+    from tests.helpers import chromium
 
     base, _, ref = server
     q = urlencode(
         [("task", "a-to-b"), ("sessions", PHYSICAL), ("sessions", TWIN), ("reference", ref)]
     )
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page()
-            page.goto(f"{base}/analysis.html?{q}")
-            rows = page.locator("#table tbody tr")
-            expect(rows).to_have_count(2, timeout=30_000)
-            expect(rows.nth(0)).to_contain_text("Physical quadcopter")
-            expect(rows.nth(1)).to_contain_text("Digital twin")
-            expect(rows.nth(1)).to_contain_text("0.707")
-            page.wait_for_function(
-                "[...document.querySelectorAll('#figures img')].length === 3 && "
-                "[...document.querySelectorAll('#figures img')].every(i => i.complete && "
-                f"i.naturalWidth === {SIZE_PX[0]})",
-                timeout=60_000,
-            )
-            page.select_option("#task", "hover")
-            page.click("button[type=submit]")
-            expect(page.locator("#error")).to_contain_text("NoTaskWindow", timeout=30_000)
-        finally:
-            browser.close()
+    with chromium() as browser:
+        page = browser.new_page()
+        page.goto(f"{base}/analysis.html?{q}")
+        rows = page.locator("#table tbody tr")
+        expect(rows).to_have_count(2, timeout=30_000)
+        expect(rows.nth(0)).to_contain_text("Physical quadcopter")
+        expect(rows.nth(1)).to_contain_text("Digital twin")
+        expect(rows.nth(1)).to_contain_text("0.707")
+        page.wait_for_function(
+            "[...document.querySelectorAll('#figures img')].length === 3 && "
+            "[...document.querySelectorAll('#figures img')].every(i => i.complete && "
+            f"i.naturalWidth === {SIZE_PX[0]})",
+            timeout=60_000,
+        )
+        page.select_option("#task", "hover")
+        page.click("button[type=submit]")
+        expect(page.locator("#error")).to_contain_text("NoTaskWindow", timeout=30_000)

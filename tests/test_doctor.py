@@ -13,7 +13,14 @@ import threading
 import tty
 from pathlib import Path
 
-from server.doctor import check_disk, check_heartbeat, check_ports, check_serial, firmware_version
+from server.doctor import (
+    check_disk,
+    check_heartbeat,
+    check_pi_uart,
+    check_ports,
+    check_serial,
+    firmware_version,
+)
 from server.listen import listening_socket
 from server.settings import Settings
 from tests.helpers import free_port, station_settings
@@ -103,6 +110,34 @@ def test_doctor_fails_a_serial_port_that_is_the_kernel_console(tmp_path):
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_pi_uart_is_judged_by_the_device_the_source_names(tmp_path):
+    """On a Pi, what matters is whether the link's port is the PL011 UART (ttyAMA*) or the
+    mini UART (ttyS*), however config.txt got it there; a USB cable to the Pixhawk (README
+    step 1) is no UART at all. /dev/serial0 is a link the firmware points at one or the
+    other: here links of our own, in real files."""
+    model = tmp_path / "model"
+    model.write_bytes(b"Raspberry Pi 4 Model B Rev 1.5\0")
+    master, slave = pty.openpty()
+    try:
+        usb = os.ttyname(slave)  # a serial device that is no Pi UART, like /dev/ttyACM0
+        (check,) = check_pi_uart(station_settings(f"{usb}:921600"), model)
+        assert check.status == "skip" and "not the Pi's UART" in check.detail, check
+    finally:
+        os.close(master)
+        os.close(slave)
+    for target, status in (("ttyS0", "FAIL"), ("ttyAMA0", "ok")):
+        uart = tmp_path / target
+        uart.touch()
+        serial0 = tmp_path / f"serial0-{target}"
+        serial0.symlink_to(uart)
+        (check,) = check_pi_uart(station_settings(f"{serial0}:921600"), model)
+        assert check.status == status and target in check.detail, check
+        if status == "FAIL":
+            assert "mini UART" in check.detail and "dtoverlay=disable-bt" in check.fix
+    (check,) = check_pi_uart(station_settings("udpin:0.0.0.0:14550"), model)
+    assert check.status == "skip"
 
 
 def test_doctor_reports_a_missing_serial_device_with_a_fix(tmp_path):

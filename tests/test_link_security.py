@@ -374,15 +374,12 @@ def test_unusable_key_files_say_why(tmp_path, content, mode, error) -> None:
 
 def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
     """While the station refuses datagrams, the OSD over the front video says so."""
-    from playwright.sync_api import expect, sync_playwright
+    from playwright.sync_api import expect
 
-    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+    from tests.helpers import chromium
 
     with MavVehicle("udp") as v, station(v.station_source, tmp_path) as (app, base):
-        with sync_playwright() as p:
-            browser = p.chromium.launch(
-                executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True
-            )
+        with chromium() as browser:
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             page.goto(base + "/")
             warning = page.locator("[data-osd=warning]")
@@ -398,7 +395,6 @@ def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
                     if "MAVLINK REFUSED" in (warning.text_content() or ""):
                         break
             expect(warning).to_contain_text("MAVLINK REFUSED")
-            browser.close()
 
 
 def test_serve_flags_set_the_link_defences(tmp_path) -> None:

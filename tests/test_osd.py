@@ -8,19 +8,11 @@ import re
 import time
 
 import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 
 from server.app import create_app
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings
+from tests.helpers import run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
-
-
-@pytest.fixture
-def browser():
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True)
-        yield b
-        b.close()
 
 
 @pytest.fixture
@@ -241,6 +233,28 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     assert all(abs(wd - w / 2) <= 1 for wd in halves), halves
     page.keyboard.press("s")
     expect(right).to_be_hidden()
+
+
+def test_goggles_stereo_eyes_switch_osd_elements_together(station, browser):
+    """An element switched off in the menu goes from both eyes of side-by-side stereo: the
+    right eye's OSD is no second, unswitchable copy."""
+    vehicle, base = station
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.goto(base + "/goggles.html")
+    expect(page.locator("[data-osd=mode]").first).to_have_text("POSCTL", timeout=10000)
+    page.keyboard.press("s")
+    eyes = [
+        page.locator(f"{view} [data-osd=battery]") for view in ("#front-view", "#front-view-right")
+    ]
+    for battery in eyes:
+        expect(battery).to_be_visible(timeout=5000)
+    page.keyboard.press("o")
+    page.locator("#front-view [data-osd-toggle=battery]").uncheck()
+    for battery in eyes:
+        expect(battery).to_be_hidden()
+    page.locator("#front-view [data-osd-toggle=battery]").check()
+    for battery in eyes:
+        expect(battery).to_be_visible()
 
 
 def test_goggles_show_the_task_step_as_an_osd_line(station, browser):

@@ -5,10 +5,10 @@ open never covers the flight state."""
 from __future__ import annotations
 
 import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 
 from server.app import create_app
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings
+from tests.helpers import chromium, run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
 
 
@@ -26,10 +26,9 @@ def station(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def browser():
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True)
+    """One browser for the module's three screen sizes (conftest's is one per test)."""
+    with chromium() as b:
         yield b
-        b.close()
 
 
 def overlap(a: dict, b: dict) -> bool:

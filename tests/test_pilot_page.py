@@ -1,20 +1,11 @@
 """The pilot page in real headless chromium against a real server and test vehicle."""
 
-import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn
+from tests.helpers import run_uvicorn
 from tests.mav_vehicle import MavVehicle
-
-
-@pytest.fixture
-def browser():
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True)
-        yield b
-        b.close()
 
 
 def test_page_shows_live_values_and_link_lost(browser, tmp_path):

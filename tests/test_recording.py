@@ -288,6 +288,52 @@ def test_disk_too_slow_drops_are_counted(tmp_path, monkeypatch):
     assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])
 
 
+def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog):
+    """A card can stall a write for seconds (cheap SD cards do, in fdatasync). The stop
+    once gave the writer 10 s, then closed the files under it: the writer, resuming, died
+    on a closed file (a traceback), and the rows and frames still queued were neither
+    written nor counted, in a session reported complete. The stop waits (saying so), and
+    everything queued reaches the files. The stall here is a real one: the frame's path
+    is a FIFO, whose open blocks in the kernel until a reader comes."""
+    import os
+    import threading
+
+    from companion.recording.rows import RowFormatter, Sample
+    from companion.recording.writer import SessionWriter
+
+    t0 = time.monotonic()
+    writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), WriterLimits(min_free_bytes=0))
+    stalled = tmp_path / layout.frame_relpath("front", 2)
+    os.mkfifo(stalled)
+    died: list[BaseException] = []
+    hook, threading.excepthook = threading.excepthook, lambda a: died.append(a.exc_value)
+    try:
+        writer.start()
+        jpeg = make_jpegs(1)[0]
+        for seq in (1, 2, 3):
+            assert writer.put_frame("front", Frame("front", seq, jpeg, 320, 240, t0, time.time()))
+        for k in range(10):
+            assert writer.put_row(Sample(t0 + k / 30, time.time(), None, (None,)))
+        # Patience 0.1 s (10 s in a session): the stall outlasts it many times over.
+        closer = threading.Thread(target=writer.close, args=(0.1,))
+        closer.start()
+        closer.join(1.0)
+        with open(stalled, "rb") as fifo:  # the stall ends: the writer's open returns
+            assert fifo.read() == jpeg
+        closer.join(30)
+        assert not closer.is_alive()
+    finally:
+        threading.excepthook = hook
+    assert died == []
+    assert [int(r["seq"]) for r in read_csv(tmp_path / layout.frames_csv_relpath("front"))] == [
+        1,
+        2,
+        3,
+    ]
+    assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == writer.stats.rows_written == 10
+    assert "still writing" in caplog.text
+
+
 def test_writer_waits_for_its_batch_and_wakes_at_half_full(tmp_path):
     """Producers do not wake the writer per item (60 frames and 30 rows a second were as
     many wake-ups): what is queued waits for the batch timer, a queue at half its limit

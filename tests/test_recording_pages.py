@@ -2,11 +2,11 @@
 
 import httpx
 import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn
+from tests.helpers import chromium, run_uvicorn
 
 
 @pytest.fixture
@@ -27,12 +27,10 @@ def base(tmp_path):
 
 @pytest.fixture
 def page():
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+    with chromium() as browser:
         pg = browser.new_page()
         pg.on("dialog", lambda d: d.accept())
         yield pg
-        browser.close()
 
 
 def test_sessions_page_lists_downloads_and_deletes(base, page):

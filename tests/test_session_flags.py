@@ -11,7 +11,7 @@ import time
 
 import httpx
 import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 from websockets.sync.client import connect
 
 from companion.recording import layout
@@ -24,7 +24,7 @@ from companion.recording.meta import (
     SessionMeta,
 )
 from server.app import create_app
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings, wait_until
+from tests.helpers import chromium, run_uvicorn, station_settings, wait_until
 
 START = 1_790_000_000.0  # 2026-09-21
 
@@ -138,8 +138,7 @@ def test_sessions_page_shows_status_crash_and_flags(tmp_path):
         assert listed[clean]["flags"] == []
         assert [f["kind"] for f in listed[crashed]["flags"]] == ["crash"]
         assert listed[recovered]["recovered"] is True
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+        with chromium() as browser:
             page = browser.new_page()
             page.goto(f"{base}/sessions.html")
             row = lambda sid: page.locator(f'#sessions tr[data-id="{sid}"]')  # noqa: E731
@@ -156,7 +155,6 @@ def test_sessions_page_shows_status_crash_and_flags(tmp_path):
             )
             expect(row(cut).locator("td.status")).to_have_text("cut short")
             assert row(cut).locator("td.status").get_attribute("title") == "disk full"
-            browser.close()
 
 
 @pytest.mark.timeout(180)

@@ -12,12 +12,12 @@ import time
 import httpx
 import numpy as np
 import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 from websockets.sync.client import connect
 
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn
+from tests.helpers import chromium, run_uvicorn
 from twin.pilot import Leg, Observation, Pilot, task_plan
 
 
@@ -64,10 +64,9 @@ def test_pilot_flies_task_1_with_procedure_map_and_score(tmp_path):
         environ={},
     )
     app = create_app(settings)
-    with run_uvicorn(app) as base, sync_playwright() as p:
+    with run_uvicorn(app) as base, chromium() as browser:
         station = app.state.station
         twin = station.twin
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         page.goto(f"{base}/")
         page.locator("#task-select option[value='1']").wait_for(state="attached")
@@ -130,4 +129,3 @@ def test_pilot_flies_task_1_with_procedure_map_and_score(tmp_path):
         row = page.locator("#sessions tbody tr").first
         expect(row.locator("td.task")).to_have_text("1. Take off, hover, land")
         expect(row.locator("td.score")).to_contain_text(f"hover {hover:.3f} m")
-        browser.close()

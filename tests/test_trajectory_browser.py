@@ -11,13 +11,12 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from playwright.sync_api import sync_playwright
 
 from companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
 from core.geodesy import enu_to_geodetic
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, wait_until
+from tests.helpers import chromium, run_uvicorn, wait_until
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 
 ORIGIN = (43.0021, -78.7875, 180.0)
@@ -42,9 +41,8 @@ def state_at(t_s: float) -> VehicleState:
     )
 
 
-def open_offline(pw, outside: list[str]):
-    """A headless Chromium page that may only reach the station (the Pi has no internet)."""
-    browser = pw.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+def open_offline(browser, outside: list[str]):
+    """A page that may only reach the station (the Pi has no internet)."""
     page = browser.new_page(viewport={"width": 960, "height": 640})  # software WebGL: keep it small
 
     def only_local(route):
@@ -55,7 +53,7 @@ def open_offline(pw, outside: list[str]):
             route.abort()
 
     page.route("**/*", only_local)
-    return browser, page
+    return page
 
 
 @pytest.fixture
@@ -89,8 +87,8 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
     port = httpx.get(f"{base}/api/viser").json()["port"]
 
     outside: list[str] = []
-    with sync_playwright() as pw:
-        browser, page = open_offline(pw, outside)
+    with chromium() as browser:
+        page = open_offline(browser, outside)
         page.goto(f"{base}/")
         panel = page.locator("#panel-3d")
         assert panel.is_hidden()
@@ -141,7 +139,6 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
 
         assert wait_until(cameras_on_vehicle, 10.0)
 
-        browser.close()
     assert outside == [], f"requests left the station: {outside[:5]}"
 
 
@@ -149,8 +146,8 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
 def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_path):
     base, app = station
     outside: list[str] = []
-    with sync_playwright() as pw:
-        browser, page = open_offline(pw, outside)
+    with chromium() as browser:
+        page = open_offline(browser, outside)
         # Replay: picked from the sessions page, a second session overlaid in the paper's frame.
         page.goto(f"{base}/sessions.html")
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
@@ -223,5 +220,4 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         assert saturated(png3d).sum() > 500, "the 3D replay panel shows no path"
         purple = (r > 110) & (b > 150) & (g < 100)  # only the overlay is this colour
         assert purple.sum() > 50, "the second session is not drawn in the 3D replay panel"
-        browser.close()
     assert outside == [], f"requests left the station: {outside[:5]}"

@@ -184,9 +184,9 @@ def test_replay_scene_turns_the_field_with_the_papers_alignment(replay):
 def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
     """In Chromium: viser's developer controls (Save Canvas, the scene tree) stay hidden
     behind the panel's own GUI, and the viewer's camera looks at the path's centre."""
-    from playwright.sync_api import expect, sync_playwright
+    from playwright.sync_api import expect
 
-    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, wait_until
+    from tests.helpers import chromium, wait_until
 
     replay.load(straight_line("a"), straight_line("b", n=300))
     path = np.concatenate([replay.primary.enu_m, replay.overlay.enu_m])
@@ -196,8 +196,7 @@ def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
     def cameras():
         return [c.camera for c in replay.server.get_clients().values()]
 
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
+    with chromium() as browser:
         page = browser.new_page(viewport={"width": 640, "height": 480})
         page.goto(f"http://127.0.0.1:{replay.port}/")
         page.locator("canvas").first.wait_for(timeout=90_000)
@@ -218,4 +217,3 @@ def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
         assert wait_until(lambda: np.allclose(cameras()[0].look_at, centre, atol=0.5), 30), (
             cameras()[0].look_at
         )
-        browser.close()

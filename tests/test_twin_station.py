@@ -116,15 +116,12 @@ def test_control_is_refused_without_the_twin(tmp_path) -> None:
 
 
 def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
-    from playwright.sync_api import sync_playwright
-
-    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, arm_and_climb, sticks_on
+    from tests.helpers import arm_and_climb, chromium, sticks_on
 
     app = sim_app(**{"recording.sessions_dir": str(tmp_path)})
-    with run_uvicorn(app) as url, sync_playwright() as p:
+    with run_uvicorn(app) as url, chromium() as browser:
         twin = app.state.station.twin
         assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
         page = browser.new_page()
         sticks_on(page, url)
         arm_and_climb(page, app.state.station)
@@ -142,7 +139,6 @@ def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
         page.dispatch_event("input[data-f='roll'][data-k='index']", "change")
         saved = page.evaluate("JSON.parse(localStorage.getItem('fpv.control.gamepad'))")
         assert saved["map"]["roll"]["index"] == 5
-        browser.close()
 
 
 def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
@@ -231,14 +227,11 @@ def test_reset_after_minutes_of_flight_keeps_telemetry_flowing(tmp_path) -> None
 
 
 def test_keyboard_arm_gesture_legend_select_and_release_on_blur(tmp_path) -> None:
-    from playwright.sync_api import sync_playwright
-
-    from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH
+    from tests.helpers import chromium
 
     app = sim_app(**{"recording.sessions_dir": str(tmp_path)})
-    with run_uvicorn(app) as url, sync_playwright() as p:
+    with run_uvicorn(app) as url, chromium() as browser:
         assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
         page = browser.new_page()
         page.goto(url + "/")
         page.wait_for_selector("#control-widget:not([hidden])", timeout=5000)
@@ -271,4 +264,3 @@ def test_keyboard_arm_gesture_legend_select_and_release_on_blur(tmp_path) -> Non
         page.wait_for_function("window.fpv.control.sticks.pitch > 0", timeout=2000)
         page.evaluate("window.dispatchEvent(new Event('blur'))")
         page.wait_for_function("window.fpv.control.sticks.pitch === 0", timeout=2000)
-        browser.close()

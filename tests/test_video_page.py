@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import re
 
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 
 from server.app import create_app
 from server.settings import load_settings
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn
+from tests.helpers import chromium, run_uvicorn
 from tests.video_fixtures import write_images
 
 
@@ -24,36 +24,28 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
             "cameras.bottom.height": 240,
         },
     )
-    with run_uvicorn(create_app(settings)) as base, sync_playwright() as p:
-        browser = p.chromium.launch(
-            executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS, headless=True
+    with run_uvicorn(create_app(settings)) as base, chromium() as browser:
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
+        page.goto(base + "/")
+        for name in ("front", "bottom"):
+            img = page.locator(f"#{name}-view img.video-stream")
+            page.wait_for_function(
+                f"() => document.querySelector('#{name}-view img.video-stream').naturalWidth === 320",
+                timeout=10_000,
+            )
+            assert f"/video/{name}.mjpg" in img.get_attribute("src")
+        readout = re.compile(r"^\d+\.\d fps · \d+ ms$")
+        expect(page.locator("#front-readout")).to_have_text(readout, timeout=5000)
+        expect(page.locator("#bottom-readout")).to_have_text("NO SIGNAL", timeout=5000)
+        expect(page.locator("#bottom-readout")).to_have_attribute(
+            "title", re.compile("does not exist")
         )
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            page.goto(base + "/")
-            for name in ("front", "bottom"):
-                img = page.locator(f"#{name}-view img.video-stream")
-                page.wait_for_function(
-                    f"() => document.querySelector('#{name}-view img.video-stream').naturalWidth === 320",
-                    timeout=10_000,
-                )
-                assert f"/video/{name}.mjpg" in img.get_attribute("src")
-            readout = re.compile(r"^\d+\.\d fps · \d+ ms$")
-            expect(page.locator("#front-readout")).to_have_text(readout, timeout=5000)
-            expect(page.locator("#bottom-readout")).to_have_text("NO SIGNAL", timeout=5000)
-            expect(page.locator("#bottom-readout")).to_have_attribute(
-                "title", re.compile("does not exist")
-            )
-            # Paper's layout: the front view is large on the left, the bottom view on the right.
-            front_box = page.locator("#front-view").bounding_box()
-            bottom_box = page.locator("#bottom-view").bounding_box()
-            assert (
-                front_box["x"] < bottom_box["x"] and front_box["width"] > 1.5 * bottom_box["width"]
-            )
-            figures = page.evaluate("() => window.fpv.cameras.front")
-            assert figures["delivered_fps"] > 10 and 0 <= figures["latency_ms"] < 1000
-            # The page holds exactly one stream per camera on the station.
-            cams = page.evaluate("async () => (await (await fetch('/api/cameras')).json()).cameras")
-            assert {c["name"]: c["clients"] for c in cams} == {"front": 1, "bottom": 1}
-        finally:
-            browser.close()
+        # Paper's layout: the front view is large on the left, the bottom view on the right.
+        front_box = page.locator("#front-view").bounding_box()
+        bottom_box = page.locator("#bottom-view").bounding_box()
+        assert front_box["x"] < bottom_box["x"] and front_box["width"] > 1.5 * bottom_box["width"]
+        figures = page.evaluate("() => window.fpv.cameras.front")
+        assert figures["delivered_fps"] > 10 and 0 <= figures["latency_ms"] < 1000
+        # The page holds exactly one stream per camera on the station.
+        cams = page.evaluate("async () => (await (await fetch('/api/cameras')).json()).cameras")
+        assert {c["name"]: c["clients"] for c in cams} == {"front": 1, "bottom": 1}

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import httpx
 import pytest
-from playwright.sync_api import expect, sync_playwright
+from playwright.sync_api import expect
 
 from companion.vehicle_state import VehicleState
 from server.app import create_app
-from tests.helpers import CHROMIUM_ARGS, CHROMIUM_PATH, run_uvicorn, station_settings
+from tests.helpers import run_uvicorn, station_settings
 from tests.test_trajectory_replay import SESSION_A, sessions_dir  # noqa: F401
 
 TOKEN = "s3cret-token"
@@ -26,14 +26,6 @@ PAGES = {
     "/goggles.html": ".osd-menu-button",
 }
 WEB_DIR = Path(__file__).resolve().parents[1] / "web"
-
-
-@pytest.fixture
-def chromium():
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
-        yield browser
-        browser.close()
 
 
 @pytest.fixture
@@ -62,12 +54,12 @@ def answer_dialogs(page, token: str | None) -> list[str]:
     return prompts
 
 
-def test_http_401_asks_for_the_token_once_retries_and_keeps_it(guarded, chromium):
+def test_http_401_asks_for_the_token_once_retries_and_keeps_it(guarded, browser):
     auth = {"Authorization": f"Bearer {TOKEN}"}
     sid = httpx.post(f"{guarded}/api/recording/start", headers=auth).json()["id"]
     httpx.post(f"{guarded}/api/recording/stop", headers=auth).raise_for_status()
 
-    page = chromium.new_page()
+    page = browser.new_page()
     prompts = answer_dialogs(page, TOKEN)
     deletes: list[str | None] = []
     page.on(
@@ -93,10 +85,10 @@ def test_http_401_asks_for_the_token_once_retries_and_keeps_it(guarded, chromium
     assert len(prompts) == 1
 
 
-def test_the_printed_url_token_is_kept_and_leaves_the_address_bar(guarded, chromium):
+def test_the_printed_url_token_is_kept_and_leaves_the_address_bar(guarded, browser):
     """`fpv-station serve` prints http://HOST:PORT/?token=...: the page keeps the token,
     drops it from the URL, and controls the station without asking."""
-    page = chromium.new_page()
+    page = browser.new_page()
     prompts = answer_dialogs(page, None)
     page.goto(f"{guarded}/?token={TOKEN}#x")
     assert page.evaluate("localStorage.getItem('fpv.token')") == TOKEN
@@ -108,8 +100,8 @@ def test_the_printed_url_token_is_kept_and_leaves_the_address_bar(guarded, chrom
     assert prompts == []
 
 
-def test_http_401_declined_shows_the_servers_error_and_changes_nothing(guarded, chromium):
-    page = chromium.new_page()
+def test_http_401_declined_shows_the_servers_error_and_changes_nothing(guarded, browser):
+    page = browser.new_page()
     alerts: list[str] = []
     page.on("dialog", lambda d: (alerts.append(d.message), d.dismiss()))
     page.goto(f"{guarded}/")
@@ -122,11 +114,11 @@ def test_http_401_declined_shows_the_servers_error_and_changes_nothing(guarded, 
     assert httpx.get(f"{guarded}/api/recording").json()["recording"] is False
 
 
-def test_control_socket_4401_asks_for_the_token_and_reconnects(guarded, chromium):
+def test_control_socket_4401_asks_for_the_token_and_reconnects(guarded, browser):
     """The control socket refuses a missing token (close 4401); the page asks through
     lib.js and opens it again with the token. This station has no twin, so the socket
     then gets past the token and is refused for that reason instead."""
-    page = chromium.new_page()
+    page = browser.new_page()
     prompts = answer_dialogs(page, TOKEN)
     page.goto(f"{guarded}/")
     page.wait_for_function("window.fpv && window.fpv.control")
@@ -151,11 +143,11 @@ new MutationObserver((muts) => {
 @pytest.mark.timeout(180)
 def test_pages_style_only_through_the_stylesheet_and_load_only_own_scripts(
     sessions_dir,  # noqa: F811
-    chromium,
+    browser,
 ):
     settings = station_settings("none", sessions_dir, **{"viser.enabled": True, "viser.port": 0})
     with run_uvicorn(create_app(settings)) as base:
-        page = chromium.new_page()
+        page = browser.new_page()
         page.add_init_script(WATCH_STYLES)
         scripts: list[str] = []
         page.on(
@@ -190,13 +182,13 @@ def test_pages_style_only_through_the_stylesheet_and_load_only_own_scripts(
         assert errors == []
 
 
-def test_live_socket_sends_acks_and_closes_for_good(tmp_path, chromium):
+def test_live_socket_sends_acks_and_closes_for_good(tmp_path, browser):
     """lib.js's liveSocket on `/ws/telemetry?ack=1`: the station sends the next state only
     after the page's ack, so more than one message arriving proves `send` reached it;
     after `close()` nothing more arrives (no reconnect)."""
     app = create_app(station_settings("none", tmp_path / "sessions"))
     with run_uvicorn(app) as base:
-        page = chromium.new_page()
+        page = browser.new_page()
         page.goto(f"{base}/sessions.html")
         page.evaluate(
             """async () => {
@@ -232,12 +224,12 @@ def test_live_socket_sends_acks_and_closes_for_good(tmp_path, chromium):
         assert page.evaluate("window.__got.length") == before
 
 
-def test_every_page_links_to_the_analysis_page(sessions_dir, chromium):  # noqa: F811
+def test_every_page_links_to_the_analysis_page(sessions_dir, browser):  # noqa: F811
     pages = {path.split("?")[0].lstrip("/") or "index.html" for path in PAGES}
     assert pages == {p.name for p in WEB_DIR.glob("*.html")}  # a new page is tested too
     settings = station_settings("none", sessions_dir)
     with run_uvicorn(create_app(settings)) as base:
-        page = chromium.new_page(viewport={"width": 1280, "height": 720})
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
         for path in PAGES:
             page.goto(base + path)
             if path == "/goggles.html":  # no chrome: the links are in the OSD menu (O)

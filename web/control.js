@@ -164,15 +164,15 @@ function fromKeyboard() {
 }
 
 // Sticks let go (hold) while the page is not the pilot's focus: a gamepad keeps reporting
-// its axes to a background tab, and nobody is watching the video then.
+// its axes to a background tab, and nobody is watching the video then. Focus in a frame of
+// the page (the 3D panel's viewer) is still the page's (document.hasFocus()), though the
+// window's blur fires: the keys go to the frame then, the gamepad flies on.
 const CENTRED = { roll: 0, pitch: 0, yaw: 0, throttle: 0.5 };
-let focused = document.hasFocus();
-window.addEventListener("focus", () => { focused = true; });
-window.addEventListener("blur", () => { focused = false; touch.release(); });
+window.addEventListener("blur", () => touch.release());
 document.addEventListener("visibilitychange", () => {
   if (document.visibilityState !== "visible") { keys.clear(); touch.release(); }
 });
-const released = () => !focused || document.visibilityState !== "visible";
+const released = () => !document.hasFocus() || document.visibilityState !== "visible";
 
 function firstGamepad() {
   const pads = navigator.getGamepads ? navigator.getGamepads() : [];

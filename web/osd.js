@@ -77,17 +77,12 @@ export function mountOsd(view, { menu = true } = {}) {
   root.append(lines);
   view.append(root);
 
-  // -- switching elements on and off --------------------------------------------------
-  let hidden = new Set();
-  try { hidden = new Set(JSON.parse(localStorage.getItem(HIDDEN_KEY) || "[]")); } catch (err) { /* reset below */ }
+  // -- switching elements on and off (the page's one choice: `hidden`, below) ----------
   const menuBox = el("div", { class: "osd-menu", hidden: true, "aria-label": "OSD elements" });
+  const boxes = {};
   for (const name of OSD_ELEMENTS) {
-    const box = el("input", { type: "checkbox", "data-osd-toggle": name, checked: !hidden.has(name) });
-    box.addEventListener("change", () => {
-      if (box.checked) hidden.delete(name); else hidden.add(name);
-      localStorage.setItem(HIDDEN_KEY, JSON.stringify([...hidden]));
-      applyHidden();
-    });
+    const box = (boxes[name] = el("input", { type: "checkbox", "data-osd-toggle": name }));
+    box.addEventListener("change", () => setHidden(name, !box.checked));
     menuBox.append(el("label", {}, box, ` ${name}`));
   }
   // The other pages, from the menu: the goggles page has no other chrome to hold them.
@@ -101,9 +96,13 @@ export function mountOsd(view, { menu = true } = {}) {
   if (menu) root.append(menuButton);
   root.append(menuBox);
   function applyHidden() {
-    for (const name of OSD_ELEMENTS) nodes[name].hidden = hidden.has(name);
+    for (const name of OSD_ELEMENTS) {
+      nodes[name].hidden = hidden.has(name);
+      boxes[name].checked = !hidden.has(name);
+    }
     dirty = true;
   }
+  mounted.push(applyHidden);
 
   // -- state kept across messages: flight timer, mAh used ----------------------------
   let armedSince = null, timerS = 0, lastArmed = false;
@@ -233,7 +232,7 @@ export function mountOsd(view, { menu = true } = {}) {
 
     // Link: loss from /api/status (polled), RSSI from RC_CHANNELS when the receiver has it.
     const rssi = s.rc.rssi !== null && s.rc.rssi !== 255 ? ` RSSI ${Math.round((s.rc.rssi / 254) * 100)}%` : "";
-    const loss = linkLoss === null ? "" : `LQ ${fixed(100 * (1 - linkLoss), 0)}%`;
+    const loss = link.loss === null ? "" : `LQ ${fixed(100 * (1 - link.loss), 0)}%`;
     setText(nodes.link, `${loss}${rssi}`.trim() || "LQ --");
 
     // Ages: the newest vehicle telemetry and the front camera's newest frame.
@@ -256,33 +255,13 @@ export function mountOsd(view, { menu = true } = {}) {
     if (serious.some((m) => /crash/i.test(m.text))) warnings.push("CRASH");
     else if (serious.some((m) => m.severity <= 2)) warnings.push("EMERGENCY");
     if (cam && (!cam.signal || (vAge !== null && vAge > VIDEO_STALE_S))) warnings.push("VIDEO STALE");
-    if (refusedAt !== null && performance.now() - refusedAt < REFUSED_SHOWN_S * 1000) warnings.push("MAVLINK REFUSED");
+    if (link.refusedAt !== null && performance.now() - link.refusedAt < REFUSED_SHOWN_S * 1000) {
+      warnings.push("MAVLINK REFUSED");
+    }
     setText(nodes.warning, warnings.join(" · "));
   }
 
-  // The link's packet loss: one cheap GET every 2 s (not part of the vehicle state).
-  // Also whether the station is refusing MAVLink (datagrams from hosts other than the
-  // link's peer, packets failing signing): someone may be injecting; warn while it grows.
-  let linkLoss = null;
-  let refusedTotal = null, refusedAt = null;
-  async function pollLink() {
-    try {
-      const st = await api("/api/status");
-      linkLoss = st.link ? st.link.loss_ratio : null;
-      const sec = st.link && st.link.security;
-      if (sec) {
-        const total = sec.foreign_datagrams + sec.forward_foreign_datagrams + sec.unsigned_refused
-          + sec.bad_signature_refused + sec.replay_refused;
-        if (refusedTotal !== null && total > refusedTotal) refusedAt = performance.now();
-        refusedTotal = total;
-      }
-    } catch (err) {
-      linkLoss = null;
-    }
-  }
-  pollLink();
-  setInterval(pollLink, 2000);
-
+  watchLink();
   applyHidden();
   requestAnimationFrame(frame);
   return {
@@ -294,6 +273,44 @@ export function mountOsd(view, { menu = true } = {}) {
       setText(node, text);
     },
   };
+}
+
+// Which elements are switched off: one choice for every OSD of the page (both eyes of
+// stereo), kept in localStorage. `mounted`: each OSD's applyHidden.
+const hidden = new Set();
+try { for (const name of JSON.parse(localStorage.getItem(HIDDEN_KEY) || "[]")) hidden.add(name); } catch (err) { /* none */ }
+const mounted = [];
+function setHidden(name, off) {
+  if (off) hidden.add(name); else hidden.delete(name);
+  localStorage.setItem(HIDDEN_KEY, JSON.stringify([...hidden]));
+  for (const apply of mounted) apply();
+}
+
+// The link's packet loss: one cheap GET every 2 s for the page, however many OSDs it has
+// (not part of the vehicle state). Also whether the station is refusing MAVLink
+// (datagrams from hosts other than the link's peer, packets failing signing): someone
+// may be injecting; `refusedAt` is when the count last grew.
+const link = { loss: null, refusedTotal: null, refusedAt: null, polling: false };
+async function pollLink() {
+  try {
+    const st = await api("/api/status");
+    link.loss = st.link ? st.link.loss_ratio : null;
+    const sec = st.link && st.link.security;
+    if (sec) {
+      const total = sec.foreign_datagrams + sec.forward_foreign_datagrams + sec.unsigned_refused
+        + sec.bad_signature_refused + sec.replay_refused;
+      if (link.refusedTotal !== null && total > link.refusedTotal) link.refusedAt = performance.now();
+      link.refusedTotal = total;
+    }
+  } catch (err) {
+    link.loss = null;
+  }
+}
+function watchLink() {
+  if (link.polling) return;
+  link.polling = true;
+  pollLink();
+  setInterval(pollLink, 2000);
 }
 
 // Seconds since the vehicle was last heard, as the browser sees it now.

@@ -158,13 +158,23 @@ class SessionWriter:
     def native_id(self) -> int | None:
         return self._thread.native_id
 
-    def close(self, timeout: float = 10.0) -> None:
-        """Write what is buffered, flush, close the files; returns when the thread is done."""
+    def close(self, patience_s: float = 10.0) -> None:
+        """Write what is buffered, flush, close the files; returns when the thread is done.
+
+        However long that takes: a card can stall a write for seconds, and closing the
+        files under the thread would lose what it still holds, uncounted, and kill it on a
+        closed file. A stall longer than `patience_s` is logged (again at each multiple);
+        a disk that never answers is the service manager's to end (a kill, which the
+        next start's recovery counts)."""
         with self._cond:
             self._closing = True
             self._cond.notify_all()  # the writer thread (and a producer waiting for room)
-        if self._thread.is_alive():
-            self._thread.join(timeout)
+        waited = 0.0
+        while self._thread.is_alive():
+            self._thread.join(patience_s)
+            if self._thread.is_alive():
+                waited += patience_s
+                log.warning("%s: the writer is still writing after %.1f s", self.folder, waited)
         self._close_files()
 
     # -- the thread ------------------------------------------------------------------------
