@@ -4,7 +4,7 @@
                                    [--no-profile]
 
 Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subprocess
-(benchmarks/station_process.py):
+(tests/station_process.py):
 - the test vehicle (tests/mav_vehicle.py) over UDP, at the rates the station asks for
   (SET_MESSAGE_INTERVAL: about 140 packets/s);
 - two USB MJPEG cameras at 640x480, 30 fps, through the station's own V4L2 source and its
@@ -46,9 +46,9 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.station_process import StationProcess, serve_station  # noqa: E402
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
+from tests.station_process import StationProcess, serve_station  # noqa: E402
 
 TOKEN = "pi-budget-token"
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")

@@ -31,8 +31,8 @@ from websockets.asyncio.client import connect
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.station_process import serve_station  # noqa: E402
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
+from tests.station_process import serve_station  # noqa: E402
 
 TOKEN = "soak-benchmark-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -35,8 +35,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.station_process import serve_station  # noqa: E402
 from tests.helpers import free_port  # noqa: E402
+from tests.station_process import serve_station  # noqa: E402
 
 RATE_HZ = 250.0
 # Telemetry only: the 3D panel and recorder are measured by their own benchmarks.

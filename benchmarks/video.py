@@ -28,7 +28,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.station_process import serve_station  # noqa: E402
+from tests.station_process import serve_station  # noqa: E402
 
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
 

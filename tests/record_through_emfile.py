@@ -16,10 +16,7 @@ import resource
 import sys
 from pathlib import Path
 
-from companion.recording.recorder import Recorder, RecorderOptions
-from companion.recording.session import SessionConfig
-from companion.recording.writer import WriterLimits
-from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+from tests.recording_fakes import FakeRig, recorder_options
 
 
 async def until(predicate, within_s: float) -> bool:
@@ -34,16 +31,8 @@ async def until(predicate, within_s: float) -> bool:
 async def main(root: Path) -> None:
     _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (256, hard))
-    jpegs = make_jpegs()
-    cams = {n: FakeCamera(n, 30.0, jpegs).start() for n in ("front",)}
-    vehicle = FakeVehicle().start()
-    options = RecorderOptions(
-        session=SessionConfig(rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=1)),
-        auto_record_on_arm=True,
-        post_disarm_tail_s=0.2,
-    )
-    rec = Recorder(root, vehicle.state, {n: c.frames for n, c in cams.items()}, options)
-    vehicle.listeners.append(rec.on_packet)
+    rig = FakeRig(root, recorder_options(auto_record_on_arm=True, post_disarm_tail_s=0.2))
+    rec, vehicle = rig.start().recorder, rig.vehicle
     await rec.open()
     vehicle.armed = True
     assert await until(lambda: rec.session is not None, 30), "no session on arming"
@@ -75,9 +64,7 @@ async def main(root: Path) -> None:
         if await until(lambda: rec.session is None, 10):
             print(f"STOPPED {rec.last_stop.reason}", flush=True)
     await rec.aclose()
-    for c in cams.values():
-        c.stop()
-    vehicle.stop()
+    rig.stop()
     print("DONE", flush=True)
 
 

@@ -10,22 +10,11 @@ import asyncio
 import sys
 from pathlib import Path
 
-from companion.recording.recorder import Recorder, RecorderOptions
-from companion.recording.session import SessionConfig
-from companion.recording.writer import WriterLimits
-from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+from tests.recording_fakes import FakeRig, recorder_options
 
 
 async def main(root: Path) -> None:
-    jpegs = make_jpegs()
-    cams = {n: FakeCamera(n, 30.0, jpegs).start() for n in ("front", "bottom")}
-    vehicle = FakeVehicle().start()
-    options = RecorderOptions(
-        session=SessionConfig(rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=1)),
-        auto_record_on_arm=False,
-    )
-    rec = Recorder(root, vehicle.state, {n: c.frames for n, c in cams.items()}, options)
-    vehicle.listeners.append(rec.on_packet)
+    rec = FakeRig(root, recorder_options(), ("front", "bottom")).start().recorder
     marked = await rec.open()
     print("MARKED " + " ".join(marked), flush=True)
     status = await rec.start("test")

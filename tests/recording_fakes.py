@@ -2,7 +2,8 @@
 
 Cameras publish real JPEGs (OpenCV) into `Latest[Frame]` at a paced rate from their own
 thread, as a capture thread does; the vehicle state is published as fresh snapshots;
-MAVLink packets are real pymavlink-encoded bytes.
+MAVLink packets are real pymavlink-encoded bytes. `FakeRig` wires them to a real Recorder
+as the station does.
 """
 
 from __future__ import annotations
@@ -15,6 +16,9 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.latest import Latest
+from companion.recording.recorder import Recorder, RecorderOptions
+from companion.recording.session import SessionConfig
+from companion.recording.writer import WriterLimits
 from companion.vehicle_state import Heartbeat, PilotAltitude, RcChannels, VehicleState
 from companion.video_frame import Frame
 
@@ -126,3 +130,43 @@ class FakeVehicle:
                 self.packets_sent += 1
                 for cb in self.listeners:
                     cb(time.time(), packet)
+
+
+def recorder_options(
+    min_free_bytes: int = 1, auto_record_on_arm: bool = False, **options
+) -> RecorderOptions:
+    """Sessions at 30 Hz from a "sim" source, with a free-space floor of `min_free_bytes`."""
+    session = SessionConfig(
+        rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=min_free_bytes)
+    )
+    return RecorderOptions(session=session, auto_record_on_arm=auto_record_on_arm, **options)
+
+
+class FakeRig:
+    """Fake cameras (30 fps) and vehicle feeding a real Recorder, its packet listener
+    hooked to the vehicle as the station hooks it to the link."""
+
+    def __init__(
+        self,
+        root,
+        options: RecorderOptions,
+        cameras: tuple[str, ...] = ("front",),
+        jpegs: list[bytes] | None = None,
+    ) -> None:
+        jpegs = jpegs or make_jpegs()
+        self.cameras = {n: FakeCamera(n, 30.0, jpegs) for n in cameras}
+        self.vehicle = FakeVehicle()
+        slots = {n: c.frames for n, c in self.cameras.items()}
+        self.recorder = Recorder(root, self.vehicle.state, slots, options)
+        self.vehicle.listeners.append(self.recorder.on_packet)
+
+    def start(self) -> FakeRig:
+        for cam in self.cameras.values():
+            cam.start()
+        self.vehicle.start()
+        return self
+
+    def stop(self) -> None:
+        for cam in self.cameras.values():
+            cam.stop()
+        self.vehicle.stop()

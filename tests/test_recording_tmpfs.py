@@ -11,11 +11,12 @@ import pytest
 from pymavlink import mavutil
 
 from companion.recording import layout
-from companion.recording.recorder import Recorder, RecorderOptions
-from companion.recording.session import SessionConfig
-from companion.recording.writer import WriterLimits
-from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+from tests.recording_fakes import FakeRig, make_jpegs, recorder_options
 from tests.test_recording_kill import complete_rows, read_line, spawn
+
+
+def big_jpegs() -> list[bytes]:
+    return make_jpegs(4, 320, 240)  # ~1.5 MB/s at 30 fps: a tiny disk fills in seconds
 
 
 @contextlib.contextmanager
@@ -35,16 +36,8 @@ def tmpfs(path, size_kb: int):
 
 
 def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
-    cam = FakeCamera("front", 30.0, make_jpegs(4, 320, 240)).start()  # ~1.5 MB/s
-    vehicle = FakeVehicle().start()
-    options = RecorderOptions(
-        session=SessionConfig(
-            rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=min_free_bytes)
-        ),
-        auto_record_on_arm=False,
-    )
-    rec = Recorder(root, vehicle.state, {"front": cam.frames}, options)
-    vehicle.listeners.append(rec.on_packet)
+    rig = FakeRig(root, recorder_options(min_free_bytes), jpegs=big_jpegs()).start()
+    rec = rig.recorder
 
     async def run():
         await rec.open()
@@ -57,8 +50,7 @@ def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
     try:
         return asyncio.run(run())
     finally:
-        cam.stop()
-        vehicle.stop()
+        rig.stop()
 
 
 @pytest.mark.parametrize(
@@ -120,16 +112,9 @@ def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
     import shutil
 
     with tmpfs(tmp_path / "disk", 8192) as root:
-        cam = FakeCamera("front", 30.0, make_jpegs(4, 320, 240)).start()  # ~1.5 MB/s
-        vehicle = FakeVehicle().start()
-        vehicle.armed = True
-        options = RecorderOptions(
-            session=SessionConfig(
-                rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=0)
-            ),
-            auto_record_on_arm=True,
-        )
-        rec = Recorder(root, vehicle.state, {"front": cam.frames}, options)
+        rig = FakeRig(root, recorder_options(0, auto_record_on_arm=True), jpegs=big_jpegs())
+        rig.vehicle.armed = True
+        rec, cam = rig.start().recorder, rig.cameras["front"]
 
         async def run():
             await rec.open()
@@ -164,8 +149,7 @@ def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
         try:
             asyncio.run(run())
         finally:
-            cam.stop()
-            vehicle.stop()
+            rig.stop()
 
 
 def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path):
@@ -173,13 +157,8 @@ def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path)
     here a file where the camera folder was, which also fails the write), the stop once
     raised and left session.json saying "recording". It ends cut short, with the reason
     and the writer's counts, and says it was not recounted (no `recovery`)."""
-    cam = FakeCamera("front", 30.0, make_jpegs(4, 320, 240)).start()
-    vehicle = FakeVehicle().start()
-    options = RecorderOptions(
-        session=SessionConfig(rate_hz=30.0, source="sim", limits=WriterLimits(min_free_bytes=0)),
-        auto_record_on_arm=False,
-    )
-    rec = Recorder(tmp_path, vehicle.state, {"front": cam.frames}, options)
+    rig = FakeRig(tmp_path, recorder_options(0), jpegs=big_jpegs()).start()
+    rec = rig.recorder
 
     async def run() -> str:
         await rec.open()
@@ -199,8 +178,7 @@ def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path)
     try:
         sid = asyncio.run(run())
     finally:
-        cam.stop()
-        vehicle.stop()
+        rig.stop()
     meta = json.loads((tmp_path / sid / layout.SESSION_JSON).read_text())
     assert meta["status"] == "cut_short", meta["status"]
     assert meta["stop_reason"].startswith("write error"), meta["stop_reason"]

@@ -6,9 +6,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
-import os
 import time
-from pathlib import Path
 
 import httpx
 import numpy as np
@@ -421,49 +419,19 @@ def test_station_draws_a_field_file_and_survives_a_bad_one(tmp_path):
 
 def test_cli_serves_the_panel_on_its_port_and_stops_it(tmp_path):
     import signal
-    import subprocess
-    import sys
 
-    from tests.helpers import free_port, wait_until
+    from tests.helpers import free_port
+    from tests.station_process import serve_station
 
-    port, viser_port = free_port(), free_port()
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "server",
-            "serve",
-            "--source",
-            "none",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(port),
-            "--viser-port",
-            str(viser_port),
-        ],
-        cwd=Path(__file__).resolve().parents[1],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        env={**os.environ, "FPV_RECORDING__SESSIONS_DIR": str(tmp_path)},
-    )
-    try:
-
-        def panel():
-            try:
-                return httpx.get(f"http://127.0.0.1:{port}/api/viser", timeout=1).json()
-            except httpx.HTTPError:
-                return None
-
-        assert wait_until(panel, 30.0)
-        assert panel()["port"] == viser_port
+    viser_port = free_port()
+    args = ["--source", "none", "--viser-port", str(viser_port)]
+    with serve_station(args, env={"FPV_RECORDING__SESSIONS_DIR": str(tmp_path)}) as station:
+        panel = httpx.get(f"{station.base}/api/viser", timeout=30).json()  # the first visit
+        assert panel["port"] == viser_port
         assert httpx.get(f"http://127.0.0.1:{viser_port}/", timeout=5).status_code == 200
-        proc.send_signal(signal.SIGINT)
+        station.popen.send_signal(signal.SIGINT)
         # uvicorn shuts down, then re-raises the SIGINT it caught: -2 is its clean exit
-        assert proc.wait(timeout=20) in (0, -signal.SIGINT)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+        assert station.popen.wait(timeout=20) in (0, -signal.SIGINT)
     with pytest.raises(httpx.ConnectError):
         httpx.get(f"http://127.0.0.1:{viser_port}/", timeout=2)
 

@@ -1,4 +1,5 @@
-"""`fpv-station serve` in a subprocess for a benchmark: spawned, waited for, stopped.
+"""`fpv-station serve` in a subprocess for a test or a benchmark: spawned, waited for,
+stopped.
 
     with serve_station(["--source", "none"], env={...}) as station:
         httpx.get(f"{station.base}/api/cameras"); station.process.cpu_times()
@@ -25,9 +26,9 @@ from pathlib import Path
 import httpx
 import psutil
 
+from tests.helpers import free_port
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from tests.helpers import free_port  # noqa: E402
 
 
 class StationFailed(RuntimeError):
@@ -68,7 +69,7 @@ def serve_station(
     `log_path` (a temporary file by default: uvicorn logs every connection). `root` is the
     checkout whose station runs (another commit's, to compare side by side)."""
     port = free_port()
-    tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-station-"))
+    tmp = Path(tempfile.mkdtemp(prefix="fpv-station-process-"))
     keep_tmp = log_path is not None  # the caller keeps the log: leave it where it is
     log_path = log_path or tmp / "server.log"
     cmd = [sys.executable, *launcher, "serve", "--host", "127.0.0.1", "--port", str(port), *args]
