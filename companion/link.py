@@ -21,7 +21,7 @@ from __future__ import annotations
 import collections
 import logging
 import os
-import select
+import selectors
 import threading
 import time
 from collections.abc import Callable
@@ -245,33 +245,38 @@ class MavlinkLink:
                 transport.close()
 
     def _serve(self, transport: Transport) -> None:
-        fds: list[object] = [transport, self._wake_r, *self._forwarders]
         # A udpin sender waiting to be confirmed by a signed packet; TCP and serial have
         # one peer by construction, so there is no one to confirm.
         confirm = (
             transport if isinstance(transport, UdpTransport) and transport.confirm_senders else None
         )
-        while not self._stop.is_set():
-            ready, _, _ = select.select(fds, [], [], _TICK_S)
-            now = time.monotonic()
-            for r in ready:
-                if r is transport:
-                    data = transport.read()
-                    if data and self._on_bytes(data, now) and confirm is not None:
-                        confirm.adopt_sender()
-                elif r == self._wake_r:
-                    try:
-                        os.read(self._wake_r, 4096)
-                    except BlockingIOError:
-                        pass
-                else:  # a forward peer (QGroundControl) talks back: pass it to the vehicle
-                    data = r.read()  # type: ignore[attr-defined]
-                    if data:
-                        transport.write(data)
-                        self._on_forwarded(r, data, now)  # type: ignore[arg-type]
-            while self._outbox:
-                self._write(transport, self._outbox.popleft())
-            self._housekeeping(transport, now)
+        # epoll, not select(): the station raises its file limit for its clients, and
+        # select() cannot watch a descriptor numbered 1024 or more (ValueError).
+        with selectors.DefaultSelector() as selector:
+            for fileobj in (transport, self._wake_r, *self._forwarders):
+                selector.register(fileobj, selectors.EVENT_READ)
+            while not self._stop.is_set():
+                ready = selector.select(_TICK_S)
+                now = time.monotonic()
+                for key, _ in ready:
+                    r = key.fileobj
+                    if r is transport:
+                        data = transport.read()
+                        if data and self._on_bytes(data, now) and confirm is not None:
+                            confirm.adopt_sender()
+                    elif r == self._wake_r:
+                        try:
+                            os.read(self._wake_r, 4096)
+                        except BlockingIOError:
+                            pass
+                    else:  # a forward peer (QGroundControl) talks back: pass it on
+                        data = r.read()  # type: ignore[union-attr]
+                        if data:
+                            transport.write(data)
+                            self._on_forwarded(r, data, now)  # type: ignore[arg-type]
+                while self._outbox:
+                    self._write(transport, self._outbox.popleft())
+                self._housekeeping(transport, now)
 
     def _run_replay(self) -> None:
         path = Path(self.spec.path)

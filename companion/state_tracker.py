@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import fields, replace
 
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.vehicle_state import (
@@ -33,6 +32,7 @@ from companion.vehicle_state import (
     VehicleUtc,
     VfrHud,
 )
+from core.mavlink.ardupilot_modes import ardupilot_mode_name
 from core.mavlink.framing import packet_version
 from core.mavlink.px4_modes import px4_main_sub, px4_mode_name
 
@@ -88,23 +88,11 @@ def _enum_name(enum: str, value: int, prefix: str) -> str:
 
 def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: int) -> str:
     """The flight mode in the autopilot family's own words (PX4 'POSCTL', ArduCopter
-    'LOITER'): PX4's from the code base's one table (core.mavlink.px4_modes), ArduPilot's
-    from pymavlink's tables per vehicle type."""
+    'LOITER'): PX4's from core.mavlink.px4_modes, the others' from ArduPilot's tables per
+    vehicle type (core.mavlink.ardupilot_modes), as pymavlink's mode_string_v10 names them."""
     if autopilot == mavlink.MAV_AUTOPILOT_PX4:
         return px4_mode_name(*px4_main_sub(custom_mode)) or "UNKNOWN"
-
-    class _Hb:  # mode_string_v10 reads these attributes from a HEARTBEAT
-        def get_type(self) -> str:
-            return "HEARTBEAT"
-
-    hb = _Hb()
-    hb.autopilot, hb.type, hb.base_mode, hb.custom_mode = (
-        autopilot,
-        vehicle_type,
-        base_mode,
-        custom_mode,
-    )
-    return mavutil.mode_string_v10(hb)
+    return ardupilot_mode_name(vehicle_type, base_mode, custom_mode)
 
 
 def _scaled(value: int, scale: float, unknown: int | None = None) -> float | None:

@@ -16,7 +16,10 @@ Transports are blocking-free for the reader (it selects on `fileno()` first) and
 from __future__ import annotations
 
 import ipaddress
+import os
+import select
 import socket
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Protocol
@@ -239,26 +242,47 @@ class TcpTransport:
 
 
 class SerialTransport:
-    def __init__(self, spec: ConnSpec) -> None:
+    """pyserial opens and sets up the port (baud, raw mode); reading and writing go to its
+    non-blocking descriptor directly, because pyserial's own read() and write() wait in
+    select(), which raises ValueError for a descriptor numbered 1024 or more (the station
+    raises its file limit for its clients) and would end the link thread."""
+
+    def __init__(self, spec: ConnSpec, write_timeout_s: float = 1.0) -> None:
         import serial  # pyserial; imported here so that tests without ports never need it
 
         if not Path(spec.path).exists():
             raise FileNotFoundError(f"serial port {spec.path} does not exist")
-        self._port = serial.Serial(spec.path, spec.baud, timeout=0, write_timeout=1.0)
+        self._port = serial.Serial(spec.path, spec.baud, timeout=0)
+        self._fd = self._port.fileno()  # opened O_NONBLOCK by pyserial
+        self._write_timeout_s = write_timeout_s
+        self._writable = select.poll()
+        self._writable.register(self._fd, select.POLLOUT)
 
     def fileno(self) -> int:
-        return self._port.fileno()
+        return self._fd
 
     def read(self) -> bytes:
-        waiting = self._port.in_waiting
-        data = self._port.read(max(waiting, 1))
-        if not data and not waiting:
-            # select said readable but nothing came: the device is gone (unplugged USB)
+        try:
+            data = os.read(self._fd, _UDP_MAX)
+        except BlockingIOError:
+            return b""
+        if not data:
+            # readable but nothing came: the device is gone (unplugged USB)
             raise ConnectionError("serial port returned no data: device gone")
         return data
 
     def write(self, data: bytes) -> None:
-        self._port.write(data)
+        view = memoryview(data)
+        deadline = time.monotonic() + self._write_timeout_s
+        while view:
+            try:
+                view = view[os.write(self._fd, view) :]
+            except BlockingIOError:
+                pass
+            left = deadline - time.monotonic()
+            if view and (left <= 0 or not self._writable.poll(left * 1000)):
+                # the other end stopped reading (flow control held): reconnect
+                raise TimeoutError(f"serial write timed out after {self._write_timeout_s:g} s")
 
     def close(self) -> None:
         self._port.close()

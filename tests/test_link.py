@@ -4,6 +4,7 @@ import contextlib
 import os
 import pty
 import random
+import resource
 import socket
 import time
 import tty
@@ -318,3 +319,56 @@ def test_mavlink1_autopilot_gets_mavlink1_replies():
                     m.get_type() == "HEARTBEAT" and m.get_msgbuf()[0] == 0xFE for m in v.received
                 )
             )
+
+
+@contextlib.contextmanager
+def descriptors_below_1024_taken():
+    """Every descriptor number under 1024 in use, as in a station that raised its file
+    limit to serve many clients (server/client_limits.py): what opens next gets a number
+    select() cannot watch (FD_SETSIZE)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 1200:
+        pytest.skip(f"the hard file limit ({hard}) is too low to go past 1023")
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, 1200), hard))
+    taken = []
+    try:
+        while not taken or taken[-1] < 1024:
+            taken.append(os.open(os.devnull, os.O_RDONLY))
+        yield
+    finally:
+        for fd in taken:
+            os.close(fd)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+
+def test_udp_link_with_descriptors_above_1023():
+    with descriptors_below_1024_taken(), MavVehicle("udp") as v:
+        with running_link(v.station_source) as link:
+            assert wait_until(lambda: state(link).heartbeat.mode == "POSCTL")
+            assert link.health().last_error is None and link.running
+
+
+def test_serial_link_with_descriptors_above_1023():
+    master, slave = pty.openpty()
+    tty.setraw(master)
+    os.set_blocking(master, False)
+    vehicle = MavVehicle("udp")  # its encoder and flight state only
+    vehicle._sock.close()
+    try:
+        with descriptors_below_1024_taken():
+            with running_link(f"{os.ttyname(slave)}:921600") as link:
+                heard = b""
+                deadline = time.monotonic() + 10
+                while time.monotonic() < deadline and not (
+                    b"\xfd" in heard and state(link).heartbeat.mode == "POSCTL"
+                ):
+                    with contextlib.suppress(BlockingIOError):  # a link that reads no more
+                        os.write(master, vehicle.build("HEARTBEAT").pack(vehicle.mav))
+                    time.sleep(0.05)
+                    with contextlib.suppress(BlockingIOError):
+                        heard += os.read(master, 4096)  # the station's heartbeat: it writes
+                assert state(link).heartbeat.mode == "POSCTL"
+                assert b"\xfd" in heard and link.running, link.health().last_error
+    finally:
+        os.close(master)
+        os.close(slave)

@@ -10,14 +10,17 @@ import csv
 import hashlib
 import json
 import os
+import pty
 import socket
 import time
+import tty
 
 import httpx
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from websockets.sync.client import connect
 
+from companion.link import MavlinkLink
 from companion.recording import layout
 from core.mavlink.signing import write_key_file
 from server.app import create_app
@@ -313,6 +316,45 @@ def test_signing_over_a_stream_link_hears_the_signed_vehicle(tmp_path) -> None:
             sec = security(base)
             assert sec["signed"] > 0 and sec["peer"] is None
             assert httpx.get(f"{base}/api/status").json()["link"]["last_error"] is None
+
+
+def test_signing_over_a_serial_port_hears_the_signed_vehicle(tmp_path) -> None:
+    """The Pi's usual link, a UART, here a pty: the signed vehicle is heard, an unsigned
+    packet on the same wire is refused, and what the station writes to it is signed."""
+    master, slave = pty.openpty()
+    tty.setraw(master)
+    os.set_blocking(master, False)
+    vehicle = MavVehicle("udp", signing_key=KEY)  # its signing encoder and state only
+    vehicle._sock.close()
+    stranger = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)  # no key
+    settings = station_settings(
+        f"{os.ttyname(slave)}:921600", **{"link.signing_key_file": str(key_file(tmp_path))}
+    )
+    link = MavlinkLink(settings.link)
+    link.start()
+    parser = mavlink.MAVLink(None)
+    parser.signing.secret_key = KEY  # pymavlink checks what the station signed
+    heard: list = []
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not (
+            link.state.get().value.heartbeat.sysid == 1 and any(m.get_signed() for m in heard)
+        ):
+            os.write(master, vehicle.build("HEARTBEAT").pack(vehicle.mav))
+            os.write(
+                master, stranger.gps_raw_int_encode(1, 3, 0, 0, 0, 80, 120, 0, 0, 9).pack(stranger)
+            )
+            time.sleep(0.05)
+            with contextlib.suppress(BlockingIOError):
+                heard += parser.parse_buffer(os.read(master, 4096)) or []
+        assert link.state.get().value.heartbeat.autopilot == "px4"
+        assert heard and all(m.get_signed() for m in heard)
+        sec = link.health().security
+        assert sec.signed > 0 and sec.unsigned_refused > 0 and link.running
+    finally:
+        link.stop()
+        os.close(master)
+        os.close(slave)
 
 
 def test_signing_off_hears_unsigned_and_signed_packets(tmp_path) -> None:

@@ -20,6 +20,9 @@ LEARN_EXTRA = ("gymnasium", "pyarrow", "av", "minari", "foxglove", "mcap", "tqdm
 # Loaded by their first use: analysis plots (matplotlib), the 3D panels (viser: their
 # first visit, GET /api/viser).
 IDLE_FEATURES = ("matplotlib", "viser")
+# Never needed: pymavlink's mavutil imports its MAVLink 1 `all` dialect too (9 MB), and the
+# station takes only mode tables from it (core.mavlink.px4_modes, ardupilot_modes).
+NEVER_LOADED = ("pymavlink.mavutil", "pymavlink.dialects.v10")
 
 CHILD = """
 import json, sys
@@ -62,5 +65,6 @@ def test_serves_without_the_learn_extra_and_without_idle_features(tmp_path: Path
     assert reply["ok"] and reply["sessions"] == 200
     loaded = {m.split(".")[0] for m in reply["modules"]}
     assert not loaded & set(IDLE_FEATURES), "an idle feature was imported at start"
+    assert not [m for m in reply["modules"] if m.startswith(NEVER_LOADED)]
     # The first visit starts the 3D panels: both viser servers serve their client.
     assert reply["panel"]["enabled"] and reply["viser_pages"] == [200, 200]

@@ -332,3 +332,48 @@ def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog)
     ]
     assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == writer.stats.rows_written == 10
     assert "still writing" in caplog.text
+
+
+def test_writer_waits_for_its_batch_and_wakes_at_half_full(tmp_path):
+    """Producers do not wake the writer per item (60 frames and 30 rows a second were as
+    many wake-ups): what is queued waits for the batch timer, a queue at half its limit
+    wakes the thread at once, and closing writes the rest."""
+    from companion.recording.rows import RowFormatter, Sample
+    from companion.recording.writer import SessionWriter
+    from tests.helpers import wait_until
+
+    jpeg = make_jpegs(1)[0]
+    t0 = time.monotonic()
+    limits = WriterLimits(
+        frame_queue=8, batch_interval_s=600.0, flush_interval_s=600.0, min_free_bytes=0
+    )
+    writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), limits)
+    writer.start()
+
+    def frame(seq: int) -> Frame:
+        return Frame("front", seq, jpeg, 320, 240, t0 + seq / 30, time.time())
+
+    def on_disk() -> list[str]:
+        return sorted(p.name for p in (tmp_path / "front").glob("*.jpg"))
+
+    try:
+        for seq in (1, 2, 3):
+            assert writer.put_frame("front", frame(seq))
+        writer.put_row(Sample(t0 + 0.1, time.time(), None, (None,)))
+        time.sleep(0.3)
+        assert on_disk() == []  # below half of the queue: they wait for the batch
+        assert writer.put_frame("front", frame(4))  # 4 of 8: the writer goes now
+        assert wait_until(lambda: len(on_disk()) == 4, timeout=10), on_disk()
+        writer.put_frame("front", frame(5))
+    finally:
+        writer.close()
+    assert on_disk() == [f"{seq:08d}.jpg" for seq in range(1, 6)]
+    assert all((tmp_path / "front" / n).read_bytes() == jpeg for n in on_disk())
+    assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == 1
+    assert [r["seq"] for r in read_csv(tmp_path / layout.frames_csv_relpath("front"))] == [
+        "1",
+        "2",
+        "3",
+        "4",
+        "5",
+    ]

@@ -1,4 +1,5 @@
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -163,3 +164,34 @@ def test_file_inside_session(tmp_path):
     assert rels == ["front/00000001.jpg", "session.json", "telemetry.csv"]
     store.delete(sid)
     assert not path.exists()
+
+
+def test_the_folder_of_a_session_being_recorded_is_walked_at_most_every_refresh(
+    tmp_path, monkeypatch
+):
+    """The sessions page lists every 5 s. The size of a finished session is kept while its
+    session.json is unchanged; the recorder rewrites a live session's every 2 s, and a
+    walk of a long flight's folder (70,000 JPEGs after 20 min) costs a Pi about a second.
+    So a live session's size (and flags) are taken again at most every LIVE_REFRESH_S."""
+    from companion.recording import store as store_module
+
+    monkeypatch.setattr(store_module, "LIVE_REFRESH_S", 0.5)
+    store = SessionStore(tmp_path)
+    live, live_dir = make_session(tmp_path)
+    done, done_dir = make_session(tmp_path, START + 60)
+    meta = store.meta(done).model_copy(update={"status": layout.STATUS_COMPLETE})
+    write_meta(done_dir / layout.SESSION_JSON, meta)
+
+    def sizes() -> dict[str, int]:
+        return {s.id: s.size_bytes for s in store.list()}
+
+    before = sizes()
+    for folder in (live_dir, done_dir):  # frames written, session.json rewritten
+        (folder / "front" / "00000002.jpg").write_bytes(bytes(1000))
+        stamp = (folder / layout.SESSION_JSON).stat().st_mtime_ns + 10_000_000
+        os.utime(folder / layout.SESSION_JSON, ns=(stamp, stamp))
+    after = sizes()
+    assert after[done] == before[done] + 1000  # a changed session.json: walked again
+    assert after[live] == before[live]  # within the refresh: not walked
+    time.sleep(0.6)
+    assert sizes()[live] == before[live] + 1000  # after it: walked

@@ -106,10 +106,14 @@ def assert_report_is_what_is_on_disk(folder) -> dict:
     return meta
 
 
-def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
+def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path, caplog):
     """A write failure while flying is not the end of the flight's data: the recorder
-    tries again (1 s, doubling) and starts a new session once the cause has passed."""
+    tries again (1 s, doubling) and starts a new session once the cause has passed, and
+    its log says after what."""
+    import logging
     import shutil
+
+    caplog.set_level(logging.INFO, logger="companion.recording.recorder")
 
     with tmpfs(tmp_path / "disk", 8192) as root:
         rig = FakeRig(root, recorder_options(0, auto_record_on_arm=True), jpegs=big_jpegs())
@@ -143,6 +147,7 @@ def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path):
                 status = rec.status()
                 assert status.recording and status.id != first, status
                 assert rec.failure is None
+                assert "recording resumed after: disk full" in caplog.text, caplog.text
             finally:
                 await rec.aclose()
 

@@ -362,10 +362,11 @@ class Recorder:
                 armed = got is not None and bool(got.value.heartbeat.armed)
                 if self.session is not None or not armed or not self.options.auto_record_on_arm:
                     continue
+                failure = self.failure  # a start that works clears it
                 try:
                     await self.start("retry")
                 except RecorderError:
                     continue  # logged and in last_error; the failure stays until it works
-                log.info("recording resumed after: %s", self.failure)
+                log.info("recording resumed after: %s", failure)
         finally:
             self._retrying = False

@@ -18,15 +18,19 @@ import logging
 import os
 import shutil
 import stat
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
+from typing import Generic, TypeVar
 
 from companion.recording import layout
 from companion.recording.flags import QualityFlag, session_flags
 from companion.recording.meta import SessionMeta, read_meta
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 
 class SessionStoreError(Exception):
@@ -77,9 +81,9 @@ class SessionStore:
         self._real_root = Path(os.path.realpath(self.root))
         # Folder sizes by id, valid while session.json keeps its mtime: a finished session
         # does not change, and walking thousands of frames on every list costs a Pi.
-        self._sizes: dict[str, tuple[int, int]] = {}
+        self._sizes: dict[str, _Cached[int]] = {}
         # Quality flags by id, valid while session.json and messages.csv keep their mtimes.
-        self._flags: dict[str, tuple[tuple[int, int], list[QualityFlag]]] = {}
+        self._flags: dict[str, _Cached[list[QualityFlag]]] = {}
 
     # -- untrusted input -> safe paths -----------------------------------------------
 
@@ -141,7 +145,8 @@ class SessionStore:
     def summary(self, session_id: str) -> SessionSummary:
         folder = self.resolve(session_id)
         meta = self.meta_or_none(session_id)
-        size = self._size(session_id, folder)
+        live = meta is not None and meta.status == layout.STATUS_RECORDING
+        size = self._size(session_id, folder, live)
         if meta is None:
             return SessionSummary(
                 id=session_id,
@@ -171,28 +176,18 @@ class SessionStore:
             frames_written={c: cq.frames_written for c, cq in q.cameras.items()},
             frames_dropped={c: cq.frames_dropped for c, cq in q.cameras.items()},
             meta=meta,
-            flags=self._quality_flags(session_id, folder, meta),
+            flags=_cached(
+                self._flags,
+                session_id,
+                tuple(_mtime_ns(folder / n) for n in (layout.SESSION_JSON, layout.MESSAGES_CSV)),
+                live,
+                lambda: session_flags(meta, folder),
+            ),
         )
 
-    def _quality_flags(self, session_id: str, folder: Path, meta: SessionMeta) -> list[QualityFlag]:
-        stamp = tuple(
-            _mtime_ns(folder / name) for name in (layout.SESSION_JSON, layout.MESSAGES_CSV)
-        )
-        cached = self._flags.get(session_id)
-        if cached is not None and cached[0] == stamp:
-            return cached[1]
-        flags = session_flags(meta, folder)
-        self._flags[session_id] = (stamp, flags)
-        return flags
-
-    def _size(self, session_id: str, folder: Path) -> int:
+    def _size(self, session_id: str, folder: Path, live: bool) -> int:
         stamp = _mtime_ns(folder / layout.SESSION_JSON)
-        cached = self._sizes.get(session_id)
-        if cached is not None and cached[0] == stamp and stamp != -1:
-            return cached[1]
-        size = folder_size(folder)
-        self._sizes[session_id] = (stamp, size)
-        return size
+        return _cached(self._sizes, session_id, stamp, live, lambda: folder_size(folder))
 
     def meta(self, session_id: str) -> SessionMeta:
         """session.json of a session; raises SessionFileNotFound if missing or unreadable."""
@@ -253,6 +248,36 @@ def _safe_parts(relpath: str) -> list[str]:
         if len(part.encode()) > MAX_NAME_BYTES:  # the file system's own limit (NAME_MAX)
             raise InvalidPath(f"'{part[:80]}...' is longer than a file name can be.")
     return parts
+
+
+# A session being recorded rewrites its session.json every 2 s (and messages.csv as the
+# vehicle speaks): its size and flags are taken again at most this often, not at every
+# list (the sessions page lists every 5 s; walking a 20-minute flight's 70,000 JPEGs
+# costs a Pi about a second).
+LIVE_REFRESH_S = 30.0
+
+
+@dataclass(frozen=True)
+class _Cached(Generic[T]):
+    stamp: object  # the mtimes it was taken at
+    value: T
+    taken_mono: float
+
+
+def _cached(
+    cache: dict[str, _Cached[T]], key: str, stamp: object, live: bool, take: Callable[[], T]
+) -> T:
+    """`cache[key]`'s value while its files keep `stamp` (a missing file, -1, is no
+    stamp) or, for a live session, for LIVE_REFRESH_S; else `take()` again."""
+    hit = cache.get(key)
+    now = time.monotonic()
+    if hit is not None and (
+        (hit.stamp == stamp and stamp != -1) or (live and now - hit.taken_mono < LIVE_REFRESH_S)
+    ):
+        return hit.value
+    value = take()
+    cache[key] = _Cached(stamp, value, now)
+    return value
 
 
 def _mtime_ns(path: Path) -> int:

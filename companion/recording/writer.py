@@ -6,6 +6,11 @@ item is refused and counted, never silently lost. The thread writes frames befor
 so a row on disk never names a frame that is not on disk yet, flushes (and fdatasyncs)
 the CSVs and the tlog at least every `flush_interval_s`, and stops the session with a
 reason when free space falls under `min_free_bytes` or a write fails.
+
+The thread writes in batches, every `batch_interval_s` (0.1 s): a producer does not wake
+it per item (60 frames, 30 rows and 140 packets a second were as many wake-ups, each a
+futex call and a pass over every queue), only when its queue is half full. The CSVs sit
+in their file buffers until the flush anyway, so a batch loses nothing a kill would not.
 """
 
 from __future__ import annotations
@@ -53,6 +58,7 @@ class WriterLimits:
     frame_queue: int = 90  # per camera: 3 s at 30 fps
     packet_queue: int = 20000
     flush_interval_s: float = 0.5
+    batch_interval_s: float = 0.1  # queued items wait at most this long for the thread
     min_free_bytes: int = 200 * 1024 * 1024
 
 
@@ -97,7 +103,8 @@ class SessionWriter:
                 self.stats.rows_dropped += 1
                 return False
             self._rows.append(sample)
-            self._cond.notify_all()  # the writer thread (and a producer waiting for room)
+            if len(self._rows) == self.limits.row_queue // 2:
+                self._cond.notify_all()  # half full: the writer now, not at its next batch
         return True
 
     def put_frame(self, camera: str, frame: Frame) -> bool:
@@ -107,7 +114,8 @@ class SessionWriter:
                 self.stats.frames_dropped_queue[camera] += 1
                 return False
             q.append(frame)
-            self._cond.notify_all()  # the writer thread (and a producer waiting for room)
+            if len(q) == self.limits.frame_queue // 2:
+                self._cond.notify_all()  # half full: the writer now, not at its next batch
         return True
 
     def put_packet(self, t_wall: float, packet: bytes) -> bool:
@@ -116,8 +124,8 @@ class SessionWriter:
                 self.stats.packets_dropped += 1
                 return False
             self._packets.append((t_wall, packet))
-            # No notify: packets are many and small; the thread takes them at its next
-            # wake-up (a frame, a row, or the flush timer), which bounds their delay.
+            if len(self._packets) == self.limits.packet_queue // 2:
+                self._cond.notify_all()  # half full: the writer now, not at its next batch
         return True
 
     def wait_for_room(self, timeout: float = 5.0) -> None:
@@ -203,13 +211,15 @@ class SessionWriter:
     def _run(self) -> None:
         interval = self.limits.flush_interval_s
         next_flush = time.monotonic() + interval
+        next_batch = time.monotonic() + self.limits.batch_interval_s
         while True:
             with self._cond:
-                while not self._closing and not self._rows and not any(self._frames.values()):
-                    wait_s = next_flush - time.monotonic()
+                while not self._closing and not self._half_full():
+                    wait_s = min(next_batch, next_flush) - time.monotonic()
                     if wait_s <= 0:
                         break
                     self._cond.wait(wait_s)
+                next_batch = time.monotonic() + self.limits.batch_interval_s
                 taken = self._take()
                 closing = self._closing
                 self._cond.notify_all()  # room again for a producer in wait_for_room
@@ -222,6 +232,15 @@ class SessionWriter:
                 with self._cond:
                     if not self._rows and not self._packets and not any(self._frames.values()):
                         return
+
+    def _half_full(self) -> bool:
+        """A queue that should not wait for the next batch (call holding `_cond`)."""
+        lim = self.limits
+        return (
+            len(self._rows) >= lim.row_queue // 2
+            or len(self._packets) >= lim.packet_queue // 2
+            or any(len(q) >= lim.frame_queue // 2 for q in self._frames.values())
+        )
 
     def _take(self) -> tuple[dict[str, deque[Frame]], deque[Sample], deque[tuple[float, bytes]]]:
         """Everything queued, leaving the queues empty (call holding `_cond`)."""
@@ -250,13 +269,13 @@ class SessionWriter:
     ) -> None:
         st = self.stats
         t0 = self.formatter.t0_mono
+        folder = os.fspath(self.folder)
         for cam, q in frames.items():
             writer = self._frames_csv[cam]
             while q:
                 frame = q[0]
                 rel = layout.frame_relpath(cam, frame.seq)
-                with open(self.folder / rel, "wb") as out:
-                    out.write(frame.jpeg)
+                _write_new_file(f"{folder}/{rel}", frame.jpeg)
                 q.popleft()
                 writer.writerow(
                     (
@@ -386,6 +405,19 @@ class SessionWriter:
                 f.close()
             except OSError as exc:  # the last flush of a full disk
                 log.warning("closing %s: %s", getattr(f, "name", f), exc)
+
+
+def _write_new_file(path: str, data: bytes) -> None:
+    """Create `path` holding `data`: three system calls (open, write, close) instead of
+    the six of Python's `open()` (its fstat, isatty ioctl and seek), and no file object,
+    60 times a second."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o666)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view) :]
+    finally:
+        os.close(fd)
 
 
 def _describe_os_error(exc: OSError) -> str:
