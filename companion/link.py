@@ -255,6 +255,7 @@ class MavlinkLink:
         with selectors.DefaultSelector() as selector:
             for fileobj in (transport, self._wake_r, *self._forwarders):
                 selector.register(fileobj, selectors.EVENT_READ)
+            next_housekeeping = 0.0
             while not self._stop.is_set():
                 ready = selector.select(_TICK_S)
                 now = time.monotonic()
@@ -276,7 +277,11 @@ class MavlinkLink:
                             self._on_forwarded(r, data, now)  # type: ignore[arg-type]
                 while self._outbox:
                     self._write(transport, self._outbox.popleft())
-                self._housekeeping(transport, now)
+                # Once a tick, not after every packet (140 a second): what it does is due
+                # at 1 Hz (our heartbeat) or after seconds (link lost, stream requests).
+                if now >= next_housekeeping:
+                    next_housekeeping = now + _TICK_S
+                    self._housekeeping(transport, now)
 
     def _run_replay(self) -> None:
         path = Path(self.spec.path)

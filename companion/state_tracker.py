@@ -152,7 +152,7 @@ class StateTracker:
         link = self.state.link
         if link.link_lost == lost and link.last_heartbeat_mono == last_heartbeat_mono:
             return False
-        self.state = replace(
+        self.state = _replace_state(
             self.state,
             link=LinkStatus(
                 t_mono=t_mono if link.link_lost != lost else link.t_mono,
@@ -245,7 +245,7 @@ class StateTracker:
             alt = self.state.altitude
             if alt.reference_alt_m is not None and old_alt is not None:
                 # Switching from GPS to fused altitude: keep the pilot's value continuous.
-                self.state = replace(
+                self.state = _replace_state(
                     self.state,
                     altitude=replace(alt, reference_alt_m=alt.reference_alt_m + gp.alt_m - old_alt),
                 )
@@ -327,7 +327,7 @@ class StateTracker:
         # A vehicle with no battery monitor sends 0 mV (and 0 A), not the "unknown" value:
         # no flying pack reads 0 V, so 0 means unknown, and its current with it.
         no_monitor = m.voltage_battery == 0
-        self.state = replace(
+        self.state = _replace_state(
             self.state,
             battery=Battery(
                 t_mono=t,
@@ -348,7 +348,7 @@ class StateTracker:
         if not any(cells_mv):  # 0 mV: no monitor (as in SYS_STATUS), not an empty pack
             cells_mv = []
         b = self.state.battery
-        self.state = replace(
+        self.state = _replace_state(
             self.state,
             battery=Battery(
                 t_mono=t,
@@ -408,12 +408,12 @@ class StateTracker:
             lat, lon = self._current_latlon()
         if alt is None:
             # Armed before any altitude: take the reference at the first altitude.
-            self.state = replace(
+            self.state = _replace_state(
                 self.state, altitude=PilotAltitude(t_mono=t, reference=f"pending_{reference}")
             )
             return
         now = self._current_alt_m()
-        self.state = replace(
+        self.state = _replace_state(
             self.state,
             altitude=PilotAltitude(
                 t_mono=t,
@@ -481,7 +481,7 @@ class StateTracker:
         if alt.reference_alt_m is None:
             return
         self._origin_note_t = None  # this note has been acted on
-        self.state = replace(
+        self.state = _replace_state(
             self.state,
             altitude=replace(
                 alt,
@@ -505,7 +505,7 @@ class StateTracker:
         alt = self._current_alt_m()
         if alt is None or pilot.reference_alt_m is None:
             return
-        self.state = replace(
+        self.state = _replace_state(
             self.state,
             altitude=replace(pilot, t_mono=t, relative_alt_m=alt - pilot.reference_alt_m),
         )

@@ -255,6 +255,37 @@ def test_a_viewer_without_telemetry_gets_the_trail_drawn(unwatched_service):
     assert len(pts) == 9
 
 
+def test_a_first_viewer_gets_a_long_trail_without_holding_the_loop(unwatched_service):
+    """Building a chunk's handle costs viser a few milliseconds (more on a Pi): a long
+    flight's trail drawn at once for its first viewer held the station's event loop
+    (video, telemetry, control) for seconds. It is drawn a few chunks at a time, and the
+    loop serves others between them."""
+    service = unwatched_service
+    for i in range(400):  # 20 chunks of 20 segments
+        service.step(make_state(i * 0.1, (i * 0.2, 0.0, 3.0)))
+    total = len(service.trail.chunks)
+
+    async def watch() -> list[int]:
+        task = asyncio.create_task(service.run())  # nothing is published: no telemetry
+        seen: list[int] = []  # chunks drawn, as another task on the loop sees them
+        try:
+            with viser_viewer(service.port):
+                deadline = time.monotonic() + 60
+                while time.monotonic() < deadline and (not seen or seen[-1] < total):
+                    await asyncio.sleep(0)
+                    n = len(service.scene.chunk_handles)
+                    if not seen or seen[-1] != n:
+                        seen.append(n)
+        finally:
+            service.state.close()
+            await asyncio.wait_for(task, 2.0)
+        return seen
+
+    seen = asyncio.run(watch())
+    assert seen[-1] == total
+    assert any(0 < n < total for n in seen), seen  # the loop ran while the trail was drawn
+
+
 def test_origin_moves_to_the_arming_point(service):
     service.step(make_state(0.0, (0.0, 0.0, 0.0)))
     service.step(make_state(0.1, (0.5, 0.0, 1.0)))

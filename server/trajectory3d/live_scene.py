@@ -173,14 +173,12 @@ class LiveScene:
             if handle is not None:
                 handle.remove()
 
-    def redraw_trail(self, trail: Trail) -> None:
-        """Resend every chunk (after a new origin, colour-coding, or a time nobody watched)
-        and remove those the trail no longer holds: a one-off cost."""
+    def forget_dropped(self, trail: Trail) -> None:
+        """Remove the handles of chunks the trail no longer holds (before a redraw: the
+        service resends the others a few at a time, Trajectory3D._redraw_turns)."""
         kept = {chunk.id for chunk in trail.chunks}
         for chunk_id in [i for i in self.chunk_handles if i not in kept]:
             self.chunk_handles.pop(chunk_id).remove()
-        for chunk in trail.chunks:
-            self.sync_chunk(chunk)
 
 
 def _node(name: str) -> str:

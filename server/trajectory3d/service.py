@@ -18,6 +18,7 @@ import asyncio
 import logging
 import math
 import time
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -39,6 +40,10 @@ if TYPE_CHECKING:  # imported by start(): viser costs memory and start-up time
 log = logging.getLogger(__name__)
 
 MIN_FIX_TYPE = 3  # a 2D fix has no usable altitude: drawn as a gap
+# Chunks resent per turn of the event loop when the whole trail is redrawn (a first viewer,
+# a new origin, another colour-coding): viser builds a chunk's handle in a few ms (more on
+# a Pi), and a long flight's trail sent at once held the station's loop for seconds.
+REDRAW_CHUNKS_PER_TURN = 8
 
 
 def _valid_fix(lat_deg: float | None, lon_deg: float | None, alt_m: float | None) -> bool:
@@ -113,7 +118,7 @@ class Trajectory3D:
         self._status_due = 0.0
         self._ground_for: Origin | None = None
         self._ground_up = 0.0
-        self._stale = True  # the scene lags the trail: redraw it for the next viewer
+        self._stale = True  # the scene lags the trail: redraw it whole (for the next viewer)
 
     # -- lifecycle ----------------------------------------------------------------
 
@@ -170,13 +175,13 @@ class Trajectory3D:
             current = await self.state.wait_newer(version, timeout=0.25)
             if current is not None and current.version > version:
                 version = current.version
-                self.step(current.value)
+                self.step(current.value, redraw=False)
                 next_step = time.monotonic() + period_s
             else:
                 self.apply_requests()  # GUI actions while no telemetry flows
-                if self._stale and self.watched():  # a viewer came while none flows
-                    with self.server.atomic():  # type: ignore[union-attr]
-                        self._catch_up()
+            if self._stale and self.watched():  # a viewer came, or the step asked for it
+                for _ in self._redraw_turns(REDRAW_CHUNKS_PER_TURN):
+                    await asyncio.sleep(0)  # the loop serves the others between turns
 
     # -- one update ----------------------------------------------------------------
 
@@ -190,15 +195,17 @@ class Trajectory3D:
             self.scene.drop_chunks(self.trail.clear())
         if req.color_by is not None and req.color_by != self.scene.color_by:
             self.scene.color_by = req.color_by
-            self.scene.redraw_trail(self.trail)
+            self._stale = True  # every chunk's colours
 
     def watched(self) -> bool:
         """Whether anyone has the panel open (a viser client is connected)."""
         return self.server is not None and bool(self.server.get_clients())
 
-    def step(self, state: VehicleState) -> None:
+    def step(self, state: VehicleState, redraw: bool = True) -> None:
         """Bring the trail up to `state`, and while someone watches the scene too: origin,
-        trail, vehicle, footprint, camera."""
+        trail, vehicle, footprint, camera. A whole redraw the update calls for (a first
+        viewer, a new origin, another colour-coding) is done here, or with `redraw` False
+        left to the caller: run() does it a few chunks per turn of the loop."""
         self.steps += 1
         if self.server is None or not self.watched():
             self._stale = True
@@ -207,24 +214,33 @@ class Trajectory3D:
         # One atomic batch per update: viewers apply it as a whole, and viser wakes its
         # sender once per step instead of once per message.
         with self.server.atomic():
-            if self._stale:
-                self._catch_up()
             self._step(state, draw=True)
+            if self._stale and redraw:
+                for _ in self._redraw_turns(max(len(self.trail.chunks), 1)):
+                    pass
 
-    def _catch_up(self) -> None:
-        """Draw what changed while nobody watched: the origin and the whole trail."""
-        assert self.scene is not None
+    def _redraw_turns(self, chunks_per_turn: int) -> Iterator[None]:
+        """Redraw the trail whole: the origin, then the chunks, newest first (the flight
+        now shows at once), `chunks_per_turn` of them per atomic batch; yields after each."""
+        assert self.server is not None and self.scene is not None
         self._stale = False
-        if self.trail.origin is not None:
-            self.scene.set_origin(self.trail.origin)
-        self.scene.redraw_trail(self.trail)
+        chunks = self.trail.chunks[::-1]
+        with self.server.atomic():
+            if self.trail.origin is not None:
+                self.scene.set_origin(self.trail.origin)
+            self.scene.forget_dropped(self.trail)
+        for i in range(0, len(chunks), chunks_per_turn):
+            with self.server.atomic():
+                for chunk in chunks[i : i + chunks_per_turn]:
+                    self.scene.sync_chunk(chunk)
+            yield
 
     def _step(self, state: VehicleState, draw: bool) -> None:
         self.apply_requests()
         origin = origin_from_state(state)
         if origin is not None and self.trail.set_origin(origin) and draw:
             self.scene.set_origin(origin)
-            self.scene.redraw_trail(self.trail)
+            self._stale = True  # every chunk re-projected
         sample = sample_from_state(state)
         if sample is None:
             self.trail.mark_gap()
