@@ -35,8 +35,10 @@ def test_recording_resumes_after_descriptors_run_out(tmp_path):
         if proc.poll() is None:
             proc.kill()
     # The cut session is kept with what it wrote before the descriptors ran out; a start
-    # that failed meanwhile left no folder.
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([first, resumed])
+    # that failed meanwhile left no folder without a session.json (an "unreadable" one).
+    # (A retry may also have started with the few descriptors the cut session freed and
+    # been cut at its first frame: that one is a session, with its report.)
+    assert all((p / "session.json").is_file() for p in tmp_path.iterdir())
     assert (tmp_path / first / "telemetry.csv").stat().st_size > 0
     again = json.loads((tmp_path / resumed / "session.json").read_text())
     assert again["trigger"] == "retry" and again["status"] == "complete"
