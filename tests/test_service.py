@@ -20,11 +20,13 @@ from pathlib import Path
 import httpx
 import pytest
 
+from server.app import create_app
 from server.install_service import UNIT_NAME, ServicePlan, install
 from server.sd_notify import Notifier, notify_loop
 from server.settings import load_settings
 from server.tasks import TaskSupervisor
-from tests.helpers import free_port, wait_until
+from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
+from tests.mav_vehicle import MavVehicle
 
 REPO = Path(__file__).resolve().parents[1]
 FPV_STATION = str(Path(sys.executable).parent / "fpv-station")
@@ -232,3 +234,28 @@ def test_serve_notifies_systemd_ready_then_watchdog_then_stopping(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_dead_link_thread_stops_the_watchdog_and_degrades_health(tmp_path):
+    """The link thread catches what kills it (a bug, say) instead of vanishing; the
+    station must then say so and let systemd restart it, not serve stale telemetry
+    forever. The fault is injected into the running link's packet handler: no real input
+    is known to kill the thread (the two that did are fixed)."""
+    with MavVehicle("udp") as v:
+        app = create_app(station_settings(v.station_source, tmp_path / "sessions"))
+        with run_uvicorn(app) as base:
+            station = app.state.station
+            assert wait_until(lambda: station.state.get() is not None, 10)
+            assert httpx.get(f"{base}/api/health").json()["ok"] is True
+
+            def a_bug(data: bytes, now: float) -> bool:
+                raise RuntimeError("a bug in the packet handler")
+
+            station.link._on_bytes = a_bug
+            assert wait_until(lambda: not station.link.running, 10)
+            health = httpx.get(f"{base}/api/health").json()
+            assert health["status"] == "degraded", health
+            assert health["failed_tasks"] == {
+                "mavlink link thread": "RuntimeError: a bug in the packet handler"
+            }
+            assert station.tasks.healthy is False  # what notify_loop pings by
