@@ -21,7 +21,7 @@ import httpx
 import pytest
 
 from server.app import create_app
-from server.install_service import UNIT_NAME, ServicePlan, install
+from server.install_service import HIDDEN_FROM_SERVICE, UNIT_NAME, ServicePlan, install
 from server.sd_notify import Notifier, notify_loop
 from server.settings import load_settings
 from server.tasks import TaskSupervisor
@@ -101,17 +101,31 @@ def test_unit_passes_systemd_analyze_verify(tmp_path):
 
 
 def test_install_service_dry_run_prints_unit_and_commands():
+    out = io.StringIO()
+    plan = ServicePlan(user="pilot", exec_path="/opt/fpv-station/bin/fpv-station")
+    assert install(plan, dry_run=True, out=out) == 0
+    text = out.getvalue()
+    assert "User=pilot" in text
+    assert "ExecStart=/opt/fpv-station/bin/fpv-station serve" in text
+    assert 'sessions_dir = "/var/lib/fpv-station/sessions"' in text
+    assert "systemctl enable --now fpv-station.service" in text
+
+
+def test_install_service_command_line_dry_run():
+    """The command runs this checkout's station: where the checkout lives (a home
+    directory, CI's /tmp) decides whether the unit could reach it."""
     done = subprocess.run(
         [FPV_STATION, "install-service", "--user", "pilot", "--dry-run"],
         capture_output=True,
         text=True,
         timeout=60,
     )
-    assert done.returncode == 0, done.stderr
-    assert "User=pilot" in done.stdout
-    assert f"ExecStart={Path(FPV_STATION).resolve()} serve" in done.stdout
-    assert 'sessions_dir = "/var/lib/fpv-station/sessions"' in done.stdout
-    assert "systemctl enable --now fpv-station.service" in done.stdout
+    here = Path(FPV_STATION).resolve()
+    if any(here.is_relative_to(d) for d in HIDDEN_FROM_SERVICE):
+        assert done.returncode == 1 and str(here) in done.stdout, done.stdout
+    else:
+        assert done.returncode == 0, done.stderr
+        assert "User=pilot" in done.stdout and f"ExecStart={here} serve" in done.stdout
 
 
 @pytest.mark.parametrize("exec_path", ["/home/pi/venv/bin/fpv-station", "/tmp/v/bin/fpv-station"])
