@@ -100,6 +100,9 @@ class MavlinkLink:
         self._stop = threading.Event()
         self._pipe_closed = False
         self._thread: threading.Thread | None = None
+        # What killed the link thread (None while it lives or ended as it should): the
+        # station's health and systemd watchdog read it, so a dead link is restarted.
+        self.crashed: str | None = None
         self._transport: Transport | None = None
         self._forwarders: list[UdpTransport] = []
         self._forward_framers: dict[UdpTransport, MavFramer] = {}
@@ -205,8 +208,9 @@ class MavlinkLink:
                 self._run_replay()
             else:
                 self._run_live()
-        except Exception:  # a bug must show in the log and the health, not vanish
+        except Exception as exc:  # a bug must show in the log and the health, not vanish
             log.exception("MAVLink link thread died")
+            self.crashed = f"{type(exc).__name__}: {exc}"
             self._meter.last_error = "link thread crashed; see the station's log"
             self._meter.connected = False
 

@@ -104,6 +104,9 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.link = link
             station.state = link.state
 
+        if (link := station.link) is not None:
+            station.tasks.watch("mavlink link thread", lambda: link.crashed)
+
         # -- cameras (after the twin, whose renderer the sim cameras use) ------------
         await _open_cameras(station, stack)
 

@@ -377,3 +377,30 @@ def test_writer_waits_for_its_batch_and_wakes_at_half_full(tmp_path):
         "4",
         "5",
     ]
+
+
+def test_a_failed_frame_write_keeps_the_batch_telemetry(tmp_path):
+    """One batch holds frames, rows and packets; when the camera folder fails the frame's
+    write, the rows and packets queued with it are still written (the telemetry files are
+    fine) and only the frames are counted lost."""
+    from companion.recording.rows import RowFormatter, Sample
+    from companion.recording.writer import SessionWriter
+
+    jpeg = make_jpegs(1)[0]
+    t0 = time.monotonic()
+    limits = WriterLimits(batch_interval_s=600.0, flush_interval_s=600.0, min_free_bytes=0)
+    writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), limits)
+    writer.start()
+    try:
+        (tmp_path / "front").rename(tmp_path / "front.moved")
+        (tmp_path / "front").write_text("not a folder")  # the frame's write fails
+        assert writer.put_frame("front", Frame("front", 1, jpeg, 320, 240, t0, time.time()))
+        for i in range(3):
+            writer.put_row(Sample(t0 + 0.1 * i, time.time(), None, (None,)))
+    finally:
+        writer.close()  # the one batch: frames, rows and packets together
+    assert writer.failure is not None and "Not a directory" in writer.failure
+    assert writer.stats.rows_written == 3 and writer.stats.rows_dropped == 0
+    assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == 3
+    assert writer.stats.frames_written["front"] == 0
+    assert writer.stats.frames_dropped_queue["front"] == 1

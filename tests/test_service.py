@@ -20,11 +20,13 @@ from pathlib import Path
 import httpx
 import pytest
 
-from server.install_service import UNIT_NAME, ServicePlan, install
+from server.app import create_app
+from server.install_service import HIDDEN_FROM_SERVICE, UNIT_NAME, ServicePlan, install
 from server.sd_notify import Notifier, notify_loop
 from server.settings import load_settings
 from server.tasks import TaskSupervisor
-from tests.helpers import free_port, wait_until
+from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
+from tests.mav_vehicle import MavVehicle
 
 REPO = Path(__file__).resolve().parents[1]
 FPV_STATION = str(Path(sys.executable).parent / "fpv-station")
@@ -99,17 +101,31 @@ def test_unit_passes_systemd_analyze_verify(tmp_path):
 
 
 def test_install_service_dry_run_prints_unit_and_commands():
+    out = io.StringIO()
+    plan = ServicePlan(user="pilot", exec_path="/opt/fpv-station/bin/fpv-station")
+    assert install(plan, dry_run=True, out=out) == 0
+    text = out.getvalue()
+    assert "User=pilot" in text
+    assert "ExecStart=/opt/fpv-station/bin/fpv-station serve" in text
+    assert 'sessions_dir = "/var/lib/fpv-station/sessions"' in text
+    assert "systemctl enable --now fpv-station.service" in text
+
+
+def test_install_service_command_line_dry_run():
+    """The command runs this checkout's station: where the checkout lives (a home
+    directory, CI's /tmp) decides whether the unit could reach it."""
     done = subprocess.run(
         [FPV_STATION, "install-service", "--user", "pilot", "--dry-run"],
         capture_output=True,
         text=True,
         timeout=60,
     )
-    assert done.returncode == 0, done.stderr
-    assert "User=pilot" in done.stdout
-    assert f"ExecStart={Path(FPV_STATION).resolve()} serve" in done.stdout
-    assert 'sessions_dir = "/var/lib/fpv-station/sessions"' in done.stdout
-    assert "systemctl enable --now fpv-station.service" in done.stdout
+    here = Path(FPV_STATION).resolve()
+    if any(here.is_relative_to(d) for d in HIDDEN_FROM_SERVICE):
+        assert done.returncode == 1 and str(here) in done.stdout, done.stdout
+    else:
+        assert done.returncode == 0, done.stderr
+        assert "User=pilot" in done.stdout and f"ExecStart={here} serve" in done.stdout
 
 
 @pytest.mark.parametrize("exec_path", ["/home/pi/venv/bin/fpv-station", "/tmp/v/bin/fpv-station"])
@@ -232,3 +248,28 @@ def test_serve_notifies_systemd_ready_then_watchdog_then_stopping(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_dead_link_thread_stops_the_watchdog_and_degrades_health(tmp_path):
+    """The link thread catches what kills it (a bug, say) instead of vanishing; the
+    station must then say so and let systemd restart it, not serve stale telemetry
+    forever. The fault is injected into the running link's packet handler: no real input
+    is known to kill the thread (the two that did are fixed)."""
+    with MavVehicle("udp") as v:
+        app = create_app(station_settings(v.station_source, tmp_path / "sessions"))
+        with run_uvicorn(app) as base:
+            station = app.state.station
+            assert wait_until(lambda: station.state.get() is not None, 10)
+            assert httpx.get(f"{base}/api/health").json()["ok"] is True
+
+            def a_bug(data: bytes, now: float) -> bool:
+                raise RuntimeError("a bug in the packet handler")
+
+            station.link._on_bytes = a_bug
+            assert wait_until(lambda: not station.link.running, 10)
+            health = httpx.get(f"{base}/api/health").json()
+            assert health["status"] == "degraded", health
+            assert health["failed_tasks"] == {
+                "mavlink link thread": "RuntimeError: a bug in the packet handler"
+            }
+            assert station.tasks.healthy is False  # what notify_loop pings by

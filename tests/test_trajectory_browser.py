@@ -44,6 +44,10 @@ def state_at(t_s: float) -> VehicleState:
 def open_offline(browser, outside: list[str]):
     """A page that may only reach the station (the Pi has no internet)."""
     page = browser.new_page(viewport={"width": 960, "height": 640})  # software WebGL: keep it small
+    # The viser iframe renders WebGL in software on the page's renderer: on a starved CI box
+    # a plain evaluate waited more than Playwright's 30 s default for the main thread. A
+    # hang guard, not a speed figure (benchmarks/trajectory3d.py has those).
+    page.set_default_timeout(90_000)
 
     def only_local(route):
         if route.request.url.startswith(("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")):

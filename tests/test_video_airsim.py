@@ -164,7 +164,9 @@ def test_airsim_camera_streams_named_camera(port):
         }
     ]
     assert vehicle == "Drone1" and external is False
-    assert 15 <= stats.delivered_fps <= 31  # paced at 30; a starved CI box delivers fewer
+    # Paced at 30: a free-running fake makes hundreds. A starved CI box delivers fewer,
+    # or catches up a late frame early (32.2 over the recent window at load 10).
+    assert 15 <= stats.delivered_fps <= 36
 
 
 def test_cosys_airsim_two_argument_api_and_png(port):

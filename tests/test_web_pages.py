@@ -130,6 +130,20 @@ def test_control_socket_4401_asks_for_the_token_and_reconnects(guarded, browser)
     assert "digital twin" in page.evaluate("window.fpv.control.lastReply.error_msg")
 
 
+def test_a_declined_token_is_not_asked_for_again_by_a_waiting_command(guarded, browser):
+    """Arm with the sticks off opens the control socket and retries the command while it
+    opens; the station refuses it (4401) and the pilot declines the token prompt: the
+    command is dropped, not retried into a prompt after every refusal."""
+    page = browser.new_page()
+    prompts = answer_dialogs(page, None)
+    page.goto(f"{guarded}/")
+    page.wait_for_function("window.fpv && window.fpv.control")
+    page.evaluate("document.getElementById('ctl-arm').click()")  # hidden without a twin
+    page.wait_for_function("() => !window.fpv.control.enabled")
+    page.wait_for_timeout(4000)  # longer than the command's retries (10 x 300 ms)
+    assert len(prompts) == 1, prompts
+
+
 # Records <style> elements as they are added, from before the page's first script runs.
 WATCH_STYLES = """
 window.__styles = [];

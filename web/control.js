@@ -89,7 +89,9 @@ function start() {
   ws.onclose = (ev) => {
     if (ws !== socket) return; // an old socket, already replaced
     stop();
-    if (ev.code === CLOSE_UNAUTHORIZED && askToken()) start();
+    if (ev.code !== CLOSE_UNAUTHORIZED) return;
+    if (askToken()) start();
+    else { waiting.forEach(clearTimeout); waiting.clear(); }
   };
 }
 
@@ -104,11 +106,16 @@ function stop() {
   $("ctl-toggle").classList.remove("on");
 }
 
-// A command before the sticks are on opens the socket and waits for it (3 s at most).
+// A command before the sticks are on opens the socket and waits for it (3 s at most);
+// a declined token drops the commands waiting (their retries would ask again).
+const waiting = new Set(); // retry timers of commands waiting for the socket
 function command(msg, tries = 10) {
   if (socket && socket.readyState === 1) return socket.send(JSON.stringify(msg));
   if (!socket) start();
-  if (tries > 0) setTimeout(() => command(msg, tries - 1), 300);
+  if (tries > 0) {
+    const retry = setTimeout(() => { waiting.delete(retry); command(msg, tries - 1); }, 300);
+    waiting.add(retry);
+  }
 }
 
 // The vehicle's answer to arm, disarm, mode, land: a refusal says so, and why.

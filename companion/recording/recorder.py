@@ -113,6 +113,7 @@ class Recorder:
         # until a new session starts; the station's health reports it (degraded).
         self.failure: str | None = None
         self._retrying = False
+        self._retry_delay = 1.0  # the retry's first wait (_failed, _retry)
         self._was_armed: bool | None = None  # source-clock arm watching (its thread)
         self._tail_due: float | None = None  # end of the tail, source clock
 
@@ -345,6 +346,17 @@ class Recorder:
 
     def _failed(self, reason: str, session_id: str) -> None:
         self.failure = reason
+        s = self.session
+        again = (
+            s is not None
+            and s.id == session_id
+            and s.trigger == "retry"
+            and s.clock.mono() - s.t0_mono < RETRY_MAX_S
+        )
+        # A session the retry started that failed again soon: the cause has not passed,
+        # and the wait goes on growing (not a new session folder every second of a flight).
+        if not again:
+            self._retry_delay = 1.0  # a new failure: its cause may pass soon
         self._spawn_stop(reason, session_id)
         if not self._retrying and self._spawn is not None:
             self._retrying = True
@@ -352,8 +364,9 @@ class Recorder:
 
     async def _retry(self) -> None:
         """While the vehicle flies and no session runs, start one again: after 1 s, then
-        doubling to 30 s. A stopped vehicle needs no recording; the failure stays shown."""
-        delay = 1.0
+        doubling to 30 s, also across sessions that fail again within 30 s of their start.
+        A stopped vehicle needs no recording; the failure stays shown."""
+        delay = self._retry_delay
         try:
             while not self._closed and self.failure is not None:
                 await asyncio.sleep(delay)
@@ -367,6 +380,7 @@ class Recorder:
                     await self.start("retry")
                 except RecorderError:
                     continue  # logged and in last_error; the failure stays until it works
+                self._retry_delay = delay  # where the next wait starts if this one fails soon
                 log.info("recording resumed after: %s", failure)
         finally:
             self._retrying = False

@@ -270,6 +270,23 @@ class SessionWriter:
         st = self.stats
         t0 = self.formatter.t0_mono
         folder = os.fspath(self.folder)
+        # The tlog and the rows first: a camera folder that fails a frame's write must not
+        # take the batch's telemetry with it (it is counted lost from where it failed).
+        if packets:
+            data = b"".join(encode_record(t_wall, packet) for t_wall, packet in packets)
+            self._tlog.write(data)
+            st.packets_written += len(packets)
+            st.bytes_written += len(data)
+            packets.clear()
+        while rows:
+            sample = rows[0]
+            self._csv.writerow(self.formatter.row(sample))
+            if sample.state is not None:
+                self._write_messages(sample)
+            rows.popleft()
+            st.rows_written += 1
+            st.last_row_mono = sample.t_mono
+            st.last_row_wall = sample.t_wall
         for cam, q in frames.items():
             writer = self._frames_csv[cam]
             while q:
@@ -294,21 +311,6 @@ class SessionWriter:
                 st.first_frame_mono.setdefault(cam, frame.t_mono)
                 st.last_seq[cam] = frame.seq
                 st.last_frame_mono[cam] = frame.t_mono
-        if packets:
-            data = b"".join(encode_record(t_wall, packet) for t_wall, packet in packets)
-            self._tlog.write(data)
-            st.packets_written += len(packets)
-            st.bytes_written += len(data)
-            packets.clear()
-        while rows:
-            sample = rows[0]
-            self._csv.writerow(self.formatter.row(sample))
-            if sample.state is not None:
-                self._write_messages(sample)
-            rows.popleft()
-            st.rows_written += 1
-            st.last_row_mono = sample.t_mono
-            st.last_row_wall = sample.t_wall
 
     def _write_messages(self, sample: Sample) -> None:
         """The vehicle's messages that arrived since the previous row (messages.csv).

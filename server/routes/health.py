@@ -41,7 +41,8 @@ class Health(BaseModel):
 @router.get("/api/health", response_model=Health, summary="Is the station up and well")
 async def get_health(request: Request) -> Health:
     station = request.app.state.station
-    reasons = [f"background task {n} died: {why}" for n, why in station.tasks.failures.items()]
+    failed = station.tasks.failures
+    reasons = [f"background task {n} died: {why}" for n, why in failed.items()]
     recorder = station.recorder
     if recorder is not None and recorder.failure is not None:
         reasons.append(f"recording failed: {recorder.failure}")
@@ -52,7 +53,7 @@ async def get_health(request: Request) -> Health:
         status="degraded" if reasons else "ok",
         reasons=reasons,
         version=__version__,
-        failed_tasks=station.tasks.failures,
+        failed_tasks=failed,
         asyncio_tasks=len(asyncio.all_tasks()),
         clock=_clock_report(station),
     )
