@@ -108,7 +108,8 @@ class MavVehicle:
         self.gps_utc_offset_s: float | None = 0.0
         self.voltage_v, self.current_a, self.remaining_pct = 12.3, 4.5, 87
         # Charge drawn (mAh), as an autopilot counts it: the send loop integrates current_a
-        # over the vehicle's clock from its start; None: no current sensor (sends -1).
+        # over the vehicle's clock while armed (so a test sets it while disarmed without a
+        # race); None: no current sensor (sends -1).
         self.consumed_mah: float | None = 0.0
         self.rc_pwm = [1500] * 8 + [0] * 10
         self.servo_pwm = [1100] * 4 + [0] * 12
@@ -349,7 +350,7 @@ class MavVehicle:
         last = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
-            if self.consumed_mah is not None:  # mAh = A * s / 3.6
+            if self.armed and self.consumed_mah is not None:  # mAh = A * s / 3.6
                 self.consumed_mah += self.current_a * (now - last) / 3.6
             last = now
             for name, rate in list(self.rates_hz.items()):
