@@ -166,7 +166,12 @@ class StateTracker:
 
     def _heartbeat(self, m: mavlink.MAVLink_message, t: float) -> None:
         armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-        was_armed = self.state.heartbeat.armed
+        old = self.state.heartbeat
+        was_armed = old.armed
+        # The flight timer (vehicle_state.Heartbeat): from this beat at arming, stopped at
+        # the disarming beat and held until the next arming.
+        since = t if armed and not was_armed else old.armed_since_mono
+        armed_for = t - since if since is not None and (armed or was_armed) else old.armed_for_s
         hb = Heartbeat(
             t_mono=t,
             sysid=m.get_srcSystem(),
@@ -180,6 +185,8 @@ class StateTracker:
             custom_mode=m.custom_mode,
             system_status=_enum_name("MAV_STATE", m.system_status, "MAV_STATE_").upper(),
             mavlink_version=packet_version(m),
+            armed_since_mono=since,
+            armed_for_s=armed_for,
         )
         self.state = _replace_state(self.state, heartbeat=hb)
         if armed and not was_armed:
@@ -338,6 +345,7 @@ class StateTracker:
                 remaining_pct=float(m.battery_remaining)
                 if m.battery_remaining != -1
                 else b.remaining_pct,
+                consumed_mah=b.consumed_mah,  # only BATTERY_STATUS says it
             ),
         )
 
@@ -357,6 +365,7 @@ class StateTracker:
                 remaining_pct=float(m.battery_remaining)
                 if m.battery_remaining != -1
                 else b.remaining_pct,
+                consumed_mah=None if m.current_consumed == -1 else float(m.current_consumed),
             ),
         )
 

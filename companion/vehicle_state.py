@@ -29,6 +29,16 @@ class Heartbeat:
     custom_mode: int = 0
     system_status: str = "UNKNOWN"
     mavlink_version: int | None = None  # 1 or 2, from the wire format of its packets
+    # The flight timer, as Betaflight's "last armed" timer: `armed_since_mono` is the time
+    # (the source's clock, as t_mono) of the first HEARTBEAT that said armed, reset at each
+    # arming; `armed_for_s` is how long it has been armed as of this HEARTBEAT (a reader
+    # adds the group's age while armed) and holds the flight's length after disarming
+    # (the disarming HEARTBEAT's time). Both are known a heartbeat late (1 Hz on PX4);
+    # a station started mid-flight counts from when it first heard the vehicle armed.
+    # Kept in the state, not in a page, so that every page (one opened mid-flight too)
+    # and the recording show the same timer.
+    armed_since_mono: float | None = None
+    armed_for_s: float | None = None  # None: never armed since the station heard it
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,12 +120,20 @@ class ServoOutputs:
 
 @dataclass(frozen=True, slots=True)
 class Battery:
-    """SYS_STATUS and BATTERY_STATUS merged."""
+    """SYS_STATUS and BATTERY_STATUS merged.
+
+    `consumed_mah` is the autopilot's own BATTERY_STATUS `current_consumed` (charge drawn
+    since it booted or its battery was reset), None while it says -1 (unknown) or sends
+    none. The station does not integrate current itself: PX4, ArduPilot and INAV send it
+    whenever they have a current sensor (without one there is no current to integrate),
+    and a station's integral would start when the station first heard the vehicle, a
+    second figure that disagrees with the autopilot's own failsafe."""
 
     t_mono: float | None = None
     voltage_v: float | None = None
     current_a: float | None = None
     remaining_pct: float | None = None
+    consumed_mah: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -107,6 +107,10 @@ class MavVehicle:
         # Its GPS UTC minus this host's clock; None: no UTC yet (SYSTEM_TIME says 0).
         self.gps_utc_offset_s: float | None = 0.0
         self.voltage_v, self.current_a, self.remaining_pct = 12.3, 4.5, 87
+        # Charge drawn (mAh), as an autopilot counts it: the send loop integrates current_a
+        # over the vehicle's clock while armed (so a test sets it while disarmed without a
+        # race); None: no current sensor (sends -1).
+        self.consumed_mah: float | None = 0.0
         self.rc_pwm = [1500] * 8 + [0] * 10
         self.servo_pwm = [1100] * 4 + [0] * 12
         self.silent = False  # True: sends nothing (a vehicle gone out of range)
@@ -303,7 +307,15 @@ class MavVehicle:
         if name == "BATTERY_STATUS":
             cells = [int(self.voltage_v * 1000 / 3)] * 3 + [65535] * 7
             return m.battery_status_encode(
-                0, 0, 0, 2500, cells, int(self.current_a * 100), -1, -1, self.remaining_pct
+                0,
+                0,
+                0,
+                2500,
+                cells,
+                int(self.current_a * 100),
+                -1 if self.consumed_mah is None else int(self.consumed_mah),
+                -1,
+                self.remaining_pct,
             )
         if name == "RC_CHANNELS":
             return m.rc_channels_encode(t, 8, *self.rc_pwm, 200)
@@ -335,8 +347,12 @@ class MavVehicle:
 
     def _send_loop(self) -> None:
         due: dict[str, float] = {}
+        last = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
+            if self.armed and self.consumed_mah is not None:  # mAh = A * s / 3.6
+                self.consumed_mah += self.current_a * (now - last) / 3.6
+            last = now
             for name, rate in list(self.rates_hz.items()):
                 if rate <= 0:
                     continue

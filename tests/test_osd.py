@@ -158,6 +158,47 @@ def test_a_quiet_group_lends_no_freshness_to_its_old_value(station, browser):
         expect(page.locator(cell).locator("xpath=ancestor::tr")).not_to_have_class("stale")
 
 
+def test_a_page_opened_mid_flight_shows_the_running_timer_and_the_vehicles_mah(station, browser):
+    """The flight timer and mAh used come from the station's state, not from what a page
+    saw: goggles reloaded (or a second laptop joining) mid-flight show the flight's timer
+    and the autopilot's own mAh count from their first frame."""
+    vehicle, base = station
+    first = browser.new_page()
+    first.goto(base + "/")
+    osd1 = lambda name: first.locator(f"[data-osd={name}]")  # noqa: E731
+    expect(osd1("armed")).to_have_text("DISARMED", timeout=10000)
+    expect(osd1("timer")).to_have_text("00:00")
+    vehicle.consumed_mah = 1500.0  # the pack gave some on an earlier flight (4.5 A now)
+    vehicle.arm()
+    # Some seconds into the flight, as the page open since before arming counts them.
+    expect(osd1("timer")).to_have_text(re.compile(r"00:(0[3-9]|[1-5]\d)"), timeout=15000)
+    flown_s = int(osd1("timer").text_content().split(":")[1])
+
+    second = browser.new_page()
+    second.goto(base + "/")
+    # Its first frame that shows the vehicle armed (timer and battery read with it).
+    timer, battery = second.wait_for_function(
+        """() => { const q = (n) => document.querySelector(`[data-osd=${n}]`);
+        return q("armed") && q("armed").textContent === "ARMED"
+          && [q("timer").textContent, q("battery").textContent]; }""",
+        timeout=10000,
+    ).json_value()
+    mm, ss = (int(x) for x in timer.split(":"))
+    # At least the time the first page had counted (less a second of rounding and delivery).
+    assert 60 * mm + ss >= flown_s - 1, (timer, flown_s)
+    shown_mah = int(re.fullmatch(r"12\.3 V 87% (\d+) mAh", battery).group(1))
+    assert 1500 <= shown_mah <= vehicle.consumed_mah + 1, (battery, vehicle.consumed_mah)
+    # Both pages show the same: the timer runs on in each (it holds after disarming).
+    vehicle.disarm()
+    expect(osd1("armed")).to_have_text("DISARMED", timeout=5000)
+    expect(second.locator("[data-osd=armed]")).to_have_text("DISARMED", timeout=5000)
+    held = osd1("timer").text_content()
+    assert held != "00:00"
+    expect(second.locator("[data-osd=timer]")).to_have_text(held)
+    time.sleep(1.5)  # held, not running: the same text a while later
+    expect(osd1("timer")).to_have_text(held)
+
+
 def test_osd_elements_switch_off_and_stay_off(station, browser):
     vehicle, base = station
     page = browser.new_page()

@@ -223,3 +223,41 @@ def test_unknown_sentinels_become_none():
     assert g.eph_m is None and g.ground_speed_mps is None and g.course_deg is None
     assert g.satellites is None
     assert isinstance(mavlink.MAVLink_gps_raw_int_message, type)
+
+
+def test_consumed_mah_from_battery_status_and_unknown():
+    tracker, v, feed = make()
+    feed("HEARTBEAT", "BATTERY_STATUS")
+    assert tracker.state.battery.consumed_mah == 0  # the vehicle's count since its start
+    v.consumed_mah = 1234.9  # sent as an integer mAh, as the field is
+    feed("BATTERY_STATUS", "SYS_STATUS")  # SYS_STATUS carries none: it keeps the figure
+    assert tracker.state.battery.consumed_mah == 1234
+    v.consumed_mah = None  # -1: the autopilot does not know (no current sensor)
+    feed("BATTERY_STATUS")
+    assert tracker.state.battery.consumed_mah is None
+    assert tracker.state.battery.current_a == pytest.approx(4.5)
+
+
+def test_armed_since_and_flight_timer_across_arm_disarm_rearm():
+    tracker, v, feed = make()
+    feed("HEARTBEAT")
+    hb = tracker.state.heartbeat
+    assert hb.armed_since_mono is None and hb.armed_for_s is None  # never armed
+    v.armed = True
+    feed("HEARTBEAT")
+    armed_at = feed.t
+    hb = tracker.state.heartbeat
+    assert hb.armed_since_mono == armed_at and hb.armed_for_s == 0
+    feed("ATTITUDE", "ATTITUDE", "HEARTBEAT")  # 0.3 s on the source's clock
+    hb = tracker.state.heartbeat
+    assert hb.armed_since_mono == armed_at and hb.armed_for_s == pytest.approx(0.3)
+    v.armed = False
+    feed("HEARTBEAT")  # disarmed: the timer stops at this beat and holds
+    feed("ATTITUDE", "HEARTBEAT")
+    hb = tracker.state.heartbeat
+    assert not hb.armed and hb.armed_for_s == pytest.approx(0.4)
+    assert hb.armed_since_mono == armed_at
+    v.armed = True
+    feed("HEARTBEAT")  # re-armed: a new flight, from zero
+    hb = tracker.state.heartbeat
+    assert hb.armed_since_mono == feed.t and hb.armed_for_s == 0

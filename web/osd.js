@@ -104,28 +104,9 @@ export function mountOsd(view, { menu = true } = {}) {
   }
   mounted.push(applyHidden);
 
-  // -- state kept across messages: flight timer, mAh used ----------------------------
-  let armedSince = null, timerS = 0, lastArmed = false;
-  let mah = 0, lastBatteryT = null;
   let attitudeKey = "", headingKey = "", dirty = true;
   let resized = true, sizeDpr = 0;
   new ResizeObserver(() => { resized = true; }).observe(view);
-  window.addEventListener("fpv:telemetry", (e) => {
-    const msg = e.detail, s = msg.state;
-    const armed = s.heartbeat.t_mono !== null && s.heartbeat.armed;
-    if (armed && !lastArmed) { armedSince = msg.t_server_mono; mah = 0; }
-    if (armed) timerS = msg.t_server_mono - armedSince;
-    lastArmed = armed;
-    // mAh used: the pack's current integrated over the station's clock since arming
-    // (the state carries current, not BATTERY_STATUS's consumed charge).
-    const b = s.battery;
-    if (b.t_mono !== null && b.t_mono !== lastBatteryT) {
-      if (lastBatteryT !== null && b.current_a !== null) {
-        mah += (b.current_a * Math.min(b.t_mono - lastBatteryT, 5)) / 3.6;
-      }
-      lastBatteryT = b.t_mono;
-    }
-  });
 
   const setText = (node, text) => { if (node.textContent !== text) node.textContent = text; };
   // `r`: the element's reading (its value is what `text` says), which greys it out.
@@ -203,13 +184,18 @@ export function mountOsd(view, { menu = true } = {}) {
     const b = s.battery;
     const low = b.remaining_pct !== null && b.remaining_pct < LOW_BATTERY_PCT;
     setValue("battery", reading("battery"),
-      `${fixed(b.voltage_v, 1)} V ${fixed(b.remaining_pct, 0)}% ${fixed(mah, 0)} mAh`, low ? "osd-bad" : "");
+      `${fixed(b.voltage_v, 1)} V ${fixed(b.remaining_pct, 0)}% ${fixed(b.consumed_mah, 0)} mAh`, low ? "osd-bad" : "");
     const fix = s.gps.t_mono === null ? "NO GPS" : FIX_NAMES[s.gps.fix_type] ?? `FIX ${s.gps.fix_type}`;
     setValue("gps", reading("gps"), `${fix} ${s.gps.satellites ?? "?"} sats`, s.gps.fix_type < 3 ? "osd-bad" : "");
     const hbR = reading("heartbeat");
     setValue("mode", hbR, s.heartbeat.t_mono === null ? "--" : s.heartbeat.mode);
     setValue("armed", hbR, s.heartbeat.t_mono === null ? "--" : s.heartbeat.armed ? "ARMED" : "DISARMED",
       s.heartbeat.armed ? "osd-bad" : "");
+    // The flight timer from the state (every page shows the same, one opened mid-flight
+    // too): seconds armed as of the last HEARTBEAT, running on by the group's age while
+    // armed, held after disarming (companion/vehicle_state.py Heartbeat).
+    const armedFor = s.heartbeat.armed_for_s ?? 0;
+    const timerS = s.heartbeat.armed ? armedFor + (groupAge("heartbeat") ?? 0) : armedFor;
     const mm = Math.floor(timerS / 60), ss = Math.floor(timerS % 60);
     setText(nodes.timer, `${String(mm).padStart(2, "0")}:${String(ss).padStart(2, "0")}`);
 
