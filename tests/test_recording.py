@@ -404,3 +404,44 @@ def test_a_failed_frame_write_keeps_the_batch_telemetry(tmp_path):
     assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == 3
     assert writer.stats.frames_written["front"] == 0
     assert writer.stats.frames_dropped_queue["front"] == 1
+
+
+def test_rows_reach_the_disk_only_after_the_frames_they_name(tmp_path):
+    """A batch writes its frames before its rows: a full CSV buffer reaches the OS in the
+    middle of a batch, and a kill then must not leave rows on disk naming frames that
+    are not. The frame's path here is a FIFO, whose open blocks in the kernel until a
+    reader comes: while it blocks, no row of its batch may have been written."""
+    import os
+
+    from companion.recording.rows import RowFormatter, Sample
+    from companion.recording.writer import SessionWriter
+
+    jpeg = make_jpegs(1)[0]
+    t0 = time.monotonic()
+    limits = WriterLimits(
+        frame_queue=2, batch_interval_s=600.0, flush_interval_s=600.0, min_free_bytes=0
+    )
+    writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), limits)
+    csv_path = tmp_path / layout.TELEMETRY_CSV
+    header_bytes = csv_path.stat().st_size  # the header, flushed when the files open
+    fifo = tmp_path / layout.frame_relpath("front", 1)
+    os.mkfifo(fifo)
+    reader = None
+    writer.start()
+    try:
+        for k in range(600):  # more than the CSV's 64 kB buffer holds
+            assert writer.put_row(Sample(t0 + k / 30, time.time(), None, (None,)))
+        # One of 2: half the frame queue, so the writer takes the batch now.
+        assert writer.put_frame("front", Frame("front", 1, jpeg, 320, 240, t0, time.time()))
+        time.sleep(1.0)  # the writer is in the FIFO's open by now (unless starved)
+        assert writer.stats.rows_written == 0
+        assert csv_path.stat().st_size == header_bytes
+        reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # the open returns: go on
+    finally:
+        if reader is None:
+            reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+        writer.close()
+        os.close(reader)
+    assert writer.failure is None
+    assert writer.stats.rows_written == 600 and writer.stats.frames_written["front"] == 1
+    assert len(read_csv(csv_path)) == 600

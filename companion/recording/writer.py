@@ -267,11 +267,18 @@ class SessionWriter:
         rows: deque[Sample],
         packets: deque[tuple[float, bytes]],
     ) -> None:
+        # The frames first: the rows name them, and a full CSV buffer reaches the OS in the
+        # middle of a batch, so rows written first could be on disk (and left there by a
+        # kill) naming frames that are not. The telemetry is written even when a frame's
+        # write fails: a broken camera folder must not take the batch's rows and packets
+        # with it (the frames are counted lost from where it failed).
+        try:
+            self._write_frames(frames)
+        finally:
+            self._write_telemetry(rows, packets)
+
+    def _write_telemetry(self, rows: deque[Sample], packets: deque[tuple[float, bytes]]) -> None:
         st = self.stats
-        t0 = self.formatter.t0_mono
-        folder = os.fspath(self.folder)
-        # The tlog and the rows first: a camera folder that fails a frame's write must not
-        # take the batch's telemetry with it (it is counted lost from where it failed).
         if packets:
             data = b"".join(encode_record(t_wall, packet) for t_wall, packet in packets)
             self._tlog.write(data)
@@ -287,6 +294,11 @@ class SessionWriter:
             st.rows_written += 1
             st.last_row_mono = sample.t_mono
             st.last_row_wall = sample.t_wall
+
+    def _write_frames(self, frames: dict[str, deque[Frame]]) -> None:
+        st = self.stats
+        t0 = self.formatter.t0_mono
+        folder = os.fspath(self.folder)
         for cam, q in frames.items():
             writer = self._frames_csv[cam]
             while q:
