@@ -30,6 +30,7 @@ const PITCH_FOV_DEG = 60; // the ladder's scale: the view's height spans this ma
 const FIX_NAMES = ["NO GPS", "NO FIX", "2D", "3D", "DGPS", "RTK FLT", "RTK FIX"];
 const SEVERITY = ["EMERG", "ALERT", "CRIT", "ERR", "WARN", "NOTE", "INFO", "DEBUG"];
 const M_PER_DEG_LAT = 111_320;
+const HOME_DOT_M = 1.0; // nearer home than this: a dot, not an arrow pointing at noise
 const PAGES = [["/", "Pilot view"], ["/goggles.html", "Goggles"], ["/sessions.html", "Sessions"],
   ["/analysis.html", "Analysis"]];
 
@@ -70,7 +71,15 @@ export function mountOsd(view, { menu = true } = {}) {
   }
   // The arrow to home: an SVG whose rotation is an attribute (scripts set no styles).
   const homeArrow = el("span", { class: "osd-home-arrow" });
-  homeArrow.innerHTML = '<svg viewBox="-10 -10 20 20" width="1.1em" height="1.1em"><path d="M0 -9 L6 7 L0 3 L-6 7 Z" fill="currentColor" stroke="#000" stroke-width="1.5"/></svg>';
+  // Within HOME_DOT_M of home the bearing is GPS noise: a dot instead of the arrow.
+  homeArrow.innerHTML = '<svg viewBox="-10 -10 20 20" width="1.1em" height="1.1em"><path d="M0 -9 L6 7 L0 3 L-6 7 Z" fill="currentColor" stroke="#000" stroke-width="1.5" visibility="hidden"/><circle r="3.5" fill="currentColor" stroke="#000" stroke-width="1.5" visibility="hidden"/></svg>';
+  const [arrowPath, homeDot] = homeArrow.firstChild.children;
+  const showHomeMark = (mark) => { // "arrow", "dot" or null (no position or no home)
+    for (const [node, name] of [[arrowPath, "arrow"], [homeDot, "dot"]]) {
+      const v = mark === name ? "visible" : "hidden";
+      if (node.getAttribute("visibility") !== v) node.setAttribute("visibility", v);
+    }
+  };
   const homeText = el("span", {}, "");
   nodes.home.append(homeArrow, homeText);
   const lines = el("div", { class: "osd-lines" }); // extra lines a page adds (the task step)
@@ -202,18 +211,26 @@ export function mountOsd(view, { menu = true } = {}) {
     // Home: distance and an arrow relative to the nose.
     const posR = reading("position"), pos = posR.value;
     const home = s.altitude;
-    let homeTxt = "H --";
+    let homeTxt = "H --", mark = null;
     if (pos !== null && home.home_lat_deg !== null && home.home_lat_deg !== undefined) {
       const north = (home.home_lat_deg - pos.lat_deg) * M_PER_DEG_LAT;
       const east = (home.home_lon_deg - pos.lon_deg) * M_PER_DEG_LAT * Math.cos((pos.lat_deg * Math.PI) / 180);
-      const bearing = ((Math.atan2(east, north) * 180) / Math.PI + 360) % 360;
-      const rel = (((bearing - (hdg ?? 0)) % 360) + 360) % 360;
-      homeTxt = `H ${fixed(Math.hypot(north, east), 0)} m`;
-      const rot = `rotate(${rel.toFixed(0)})`;
-      const path = homeArrow.firstChild.firstChild;
-      if (path.getAttribute("transform") !== rot) path.setAttribute("transform", rot);
-      nodes.home.dataset.bearing = rel.toFixed(0);
+      const dist = Math.hypot(north, east);
+      homeTxt = `H ${fixed(dist, 0)} m`;
+      if (dist < HOME_DOT_M) {
+        mark = "dot";
+        delete nodes.home.dataset.bearing;
+      } else {
+        mark = "arrow";
+        const bearing = ((Math.atan2(east, north) * 180) / Math.PI + 360) % 360;
+        const rel = (((bearing - (hdg ?? 0)) % 360) + 360) % 360;
+        const rot = `rotate(${rel.toFixed(0)})`;
+        if (arrowPath.getAttribute("transform") !== rot) arrowPath.setAttribute("transform", rot);
+        nodes.home.dataset.bearing = rel.toFixed(0);
+      }
     }
+    showHomeMark(mark);
+    nodes.home.dataset.mark = mark ?? "none";
     setValue("home", posR, homeTxt);
 
     // Link: loss from /api/status (polled), RSSI from RC_CHANNELS when the receiver has it.
