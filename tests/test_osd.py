@@ -286,6 +286,14 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     assert all(abs(wd - w / 2) <= 1 for wd in halves), halves
     page.keyboard.press("s")
     expect(right).to_be_hidden()
+    # The hidden eye's OSD draws nothing (it drew every frame); on again, it draws again.
+    frames = lambda: page.evaluate("fpv.osdRight.stats.frames")  # noqa: E731
+    drawn = frames()
+    page.wait_for_timeout(1000)
+    assert frames() == drawn
+    page.keyboard.press("s")
+    expect(right).to_be_visible()
+    page.wait_for_function("(n) => fpv.osdRight.stats.frames > n", arg=drawn, timeout=5000)
 
 
 def test_goggles_stereo_eyes_switch_osd_elements_together(station, browser):

@@ -2,7 +2,8 @@
 //
 //   <section id="front-view" data-osd-view> ... <script type="module" src="/osd.js">
 // mounts the OSD on that element when loaded; window.fpv.osd is then
-// {toggleMenu(), setLine(name, text)} (a page's own OSD lines, e.g. the goggles' task step).
+// {stats, toggleMenu(), setRunning(on), setLine(name, text)} (a page's own OSD lines, e.g.
+// the goggles' task step).
 //
 // Drawn in the browser, once per animation frame (the display's rate, so at least the
 // video's), from the page's one telemetry feed (telemetry.js: WS /ws/telemetry?ack=1, so
@@ -58,7 +59,10 @@ const fixed = (v, d = 1) => (v === null || v === undefined ? "--" : Number(v).to
 
 export function mountOsd(view, { menu = true } = {}) {
   const fpv = (window.fpv = window.fpv || {});
-  const stats = (fpv.osdStats = { frames: 0, totalMs: 0, maxMs: 0, recent: [] });
+  // The page's OSD (the first mounted) is fpv.osdStats; a second one (the goggles' right
+  // eye) has its own, on its handle.
+  const stats = { frames: 0, totalMs: 0, maxMs: 0, recent: [] };
+  if (!fpv.osdStats) fpv.osdStats = stats;
   const root = el("div", { class: "osd", "aria-label": "on-screen display" });
   const horizon = el("canvas", { class: "osd-horizon", "data-osd": "horizon" });
   const heading = el("canvas", { class: "osd-heading", "data-osd": "heading" });
@@ -129,7 +133,10 @@ export function mountOsd(view, { menu = true } = {}) {
   }
 
   // -- one frame -----------------------------------------------------------------------
+  // A paused OSD (the right eye with stereo off) asks for no frames at all.
+  let running = true;
   function frame() {
+    if (!running) return;
     requestAnimationFrame(frame);
     const t0 = performance.now();
     draw();
@@ -268,7 +275,13 @@ export function mountOsd(view, { menu = true } = {}) {
   applyHidden();
   requestAnimationFrame(frame);
   return {
+    stats,
     toggleMenu() { menuBox.hidden = !menuBox.hidden; },
+    // Stop drawing (a hidden view) or start again.
+    setRunning(on) {
+      if (on && !running) { dirty = true; requestAnimationFrame(frame); }
+      running = on;
+    },
     // A page's own OSD line (e.g. the task step on the goggles), data-osd=<name>.
     setLine(name, text) {
       let node = lines.querySelector(`[data-osd="${name}"]`);
