@@ -313,8 +313,8 @@ async function pollLink() {
     link.loss = st.link ? st.link.loss_ratio : null;
     const sec = st.link && st.link.security;
     if (sec) {
-      const total = sec.foreign_datagrams + sec.forward_foreign_datagrams + sec.unsigned_refused
-        + sec.bad_signature_refused + sec.replay_refused;
+      // signing's one figure (LinkSecurity.refused), and datagrams from other hosts
+      const total = sec.refused + sec.foreign_datagrams + sec.forward_foreign_datagrams;
       if (link.refusedTotal !== null && total > link.refusedTotal) link.refusedAt = performance.now();
       link.refusedTotal = total;
     }
