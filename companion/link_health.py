@@ -10,6 +10,8 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass, field
 
+from pydantic import computed_field
+
 from companion.stream_loss import StreamLoss, StreamLossCounter
 from core.mavlink.framing import FramerCounters
 
@@ -44,9 +46,11 @@ class LinkSecurity:
     bad_signature_refused: int = 0  # refused: wrong key or altered bytes
     replay_refused: int = 0  # refused: good signature but an old timestamp (a replay)
 
+    @computed_field
     @property
     def refused(self) -> int:
-        """Packets signing refused, all reasons."""
+        """Packets signing refused, all reasons (in the JSON of /api/status too: the
+        pilot's OSD reads this one figure rather than adding the reasons up itself)."""
         return self.unsigned_refused + self.bad_signature_refused + self.replay_refused
 
 

@@ -11,10 +11,10 @@ refused with 503 in the error shape, before it costs anything.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import resource
 from collections.abc import Iterator
-from dataclasses import dataclass
 
 from server.errors import Unavailable
 
@@ -23,6 +23,9 @@ log = logging.getLogger(__name__)
 # What a running station holds besides its clients: logs, the link, the cameras, viser's
 # own sockets, the event loop, the recorder's files. Measured idle at ~60 on the twin.
 BASELINE_FDS = 96
+# Control sockets (/ws/control: the pilot page, goggles, a laptop or two) have places of
+# their own: a crowd of anonymous telemetry sockets must not lock the pilot out.
+CONTROL_CLIENTS = 8
 
 
 def raise_nofile_limit() -> int:
@@ -38,11 +41,11 @@ def raise_nofile_limit() -> int:
     return soft
 
 
-@dataclass
+@dataclasses.dataclass
 class ClientCap:
     """One kind of streaming client and how many may be connected at once."""
 
-    kind: str  # "websocket" or "video"
+    kind: str  # "websocket", "video" or "control"
     limit: int
     active: int = 0
     refused: int = 0
@@ -67,15 +70,18 @@ class ClientCap:
             self.active -= 1
 
 
-@dataclass
+@dataclasses.dataclass
 class ClientLimits:
-    websocket: ClientCap
+    websocket: ClientCap  # /ws/telemetry
     video: ClientCap
+    control: ClientCap = dataclasses.field(
+        default_factory=lambda: ClientCap("control", CONTROL_CLIENTS)
+    )
 
     @classmethod
     def fitted(cls, max_ws: int, max_video: int, reserve: int, nofile: int) -> ClientLimits:
         """The configured caps, lowered to fit `nofile` descriptors with `reserve` spare."""
-        room = max(nofile - BASELINE_FDS - reserve, 2)
+        room = max(nofile - BASELINE_FDS - reserve - CONTROL_CLIENTS, 2)
         ws, video = max_ws, max_video
         if ws + video > room:
             video = max(1, min(video, room // 5))

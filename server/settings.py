@@ -46,7 +46,8 @@ class ServerSettings(Section):
     # Concurrent streaming clients (server/client_limits.py): beyond these a WebSocket
     # upgrade or an MJPEG stream is refused with 503. Each holds a file descriptor; the
     # caps are lowered further at start so that `fd_reserve` descriptors always remain for
-    # the recorder and the link, whatever the process's RLIMIT_NOFILE.
+    # the recorder and the link, whatever the process's RLIMIT_NOFILE. The control socket
+    # has 8 places of its own (server.client_limits.CONTROL_CLIENTS).
     max_ws_clients: int = Field(200, ge=1, le=100_000)
     max_video_clients: int = Field(40, ge=1, le=10_000)
     fd_reserve: int = Field(128, ge=32, le=100_000)

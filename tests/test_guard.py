@@ -194,6 +194,15 @@ def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
             statuses.append(s.recv(64).split(b" ")[1])
             sockets.append(s)
         assert statuses.count(b"101") >= 1 and statuses.count(b"503") >= 100, set(statuses)
+        # The pilot is not locked out: the control socket has places of its own.
+        s = socket.create_connection(("127.0.0.1", port), timeout=5)
+        sockets.append(s)
+        s.sendall(
+            f"GET /ws/control HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+            "Sec-WebSocket-Version: 13\r\n\r\n".encode()
+        )
+        assert s.recv(64).split(b" ")[1] == b"101"
         # The recorder still has its descriptors while the flood holds its sockets.
         r = httpx.post(f"{base}/api/recording/start", timeout=10)
         assert r.status_code == 200, r.text

@@ -272,6 +272,9 @@ def test_signing_refuses_unsigned_wrong_key_and_replayed_packets(tmp_path) -> No
             sync(v, app, 1.0)
             sec = security(base)
             assert sec["replay_refused"] == 1 and sec["bad_signature_refused"] >= 4
+            # One figure for all of signing's refusals, which the pilot's OSD reads.
+            reasons = ("unsigned_refused", "bad_signature_refused", "replay_refused")
+            assert sec["refused"] == sum(sec[r] for r in reasons)
             # A SiK radio behind the same address cannot sign: its RADIO_STATUS (MAVLink 1)
             # passes, as MAVProxy and ArduPilot let it; anything else it sent would not.
             with MavVehicle(

@@ -102,6 +102,18 @@ def test_osd_horizon_heading_values_messages_and_staleness(station, browser):
     expect(osd("battery")).to_contain_text("12.3 V 87%")
     expect(osd("timer")).to_have_text(re.compile(r"00:0[1-9]"), timeout=5000)
     expect(osd("home")).to_have_text("H 0 m")
+    # At home the bearing is noise: a dot, no arrow. 20 m north, the arrow points home
+    # (south, 180 deg) relative to the nose (093): 87 deg to the right.
+    arrow, dot = osd("home").locator("path"), osd("home").locator("circle")
+    expect(osd("home")).to_have_attribute("data-mark", "dot")
+    expect(arrow).to_have_attribute("visibility", "hidden")
+    expect(dot).to_have_attribute("visibility", "visible")
+    vehicle.lat_deg += 20 / 111_320
+    expect(osd("home")).to_have_text("H 20 m", timeout=5000)
+    expect(osd("home")).to_have_attribute("data-mark", "arrow")
+    expect(osd("home")).to_have_attribute("data-bearing", "87")
+    expect(arrow).to_have_attribute("visibility", "visible")
+    expect(dot).to_have_attribute("visibility", "hidden")
     expect(osd("age")).to_have_text(re.compile(r"TLM 0\.\ds"))
     # (The test station's cameras have no signal: the OSD says so, and nothing else.)
     expect(osd("warning")).to_have_text("VIDEO STALE")
@@ -274,6 +286,14 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     assert all(abs(wd - w / 2) <= 1 for wd in halves), halves
     page.keyboard.press("s")
     expect(right).to_be_hidden()
+    # The hidden eye's OSD draws nothing (it drew every frame); on again, it draws again.
+    frames = lambda: page.evaluate("fpv.osdRight.stats.frames")  # noqa: E731
+    drawn = frames()
+    page.wait_for_timeout(1000)
+    assert frames() == drawn
+    page.keyboard.press("s")
+    expect(right).to_be_visible()
+    page.wait_for_function("(n) => fpv.osdRight.stats.frames > n", arg=drawn, timeout=5000)
 
 
 def test_goggles_stereo_eyes_switch_osd_elements_together(station, browser):

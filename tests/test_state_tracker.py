@@ -9,6 +9,9 @@ from companion.state_tracker import StateTracker
 from companion.vehicle_state import MESSAGES_KEPT
 from core.mavlink.framing import MavFramer
 from tests.mav_vehicle import MavVehicle
+from twin.sensors import SensorParams
+from twin.sim import Sim, SimConfig
+from twin.telemetry import Telemetry
 
 
 class Feed:
@@ -261,3 +264,31 @@ def test_armed_since_and_flight_timer_across_arm_disarm_rearm():
     feed("HEARTBEAT")  # re-armed: a new flight, from zero
     hb = tracker.state.heartbeat
     assert hb.armed_since_mono == feed.t and hb.armed_for_s == 0
+
+
+def test_the_twins_mah_used_reaches_the_state():
+    """The twin sends BATTERY_STATUS current_consumed as PX4 does (the charge drawn from
+    its pack): its bytes, through the framer, give the state the same figure."""
+
+    class Wire:
+        data = b""
+
+        def write(self, buf: bytes) -> None:
+            self.data += buf
+
+    sim = Sim(config=SimConfig(sensors=SensorParams(enabled=False)))
+    sim.run_for(2.5)
+    assert sim.arm() == (True, "")
+    sim.set_sticks(0, 0, 0, 0.8)  # climbing: the motors draw tens of amps
+    sim.run_for(3.0)
+    wire = Wire()
+    telemetry = Telemetry(mavlink.MAVLink(wire, srcSystem=1, srcComponent=1))
+    telemetry.send("HEARTBEAT", sim, 5500)
+    telemetry.send("BATTERY_STATUS", sim, 5500)
+    tracker = StateTracker()
+    for decoded in MavFramer().feed(wire.data):
+        tracker.update(decoded, 10.0)
+    af = sim.config.airframe
+    drawn_mah = (af.capacity_ah * 3600 - sim.state.charge_c[0]) / 3.6
+    assert drawn_mah > 1  # it has flown on its battery
+    assert tracker.state.battery.consumed_mah == int(drawn_mah)

@@ -51,7 +51,7 @@ window.addEventListener("fpv:task-step", (e) => {
 
 // Side-by-side stereo for phone headsets: the same front picture and OSD for each eye.
 // The right eye is a second viewer of the same MJPEG stream (the station encodes once per
-// camera, not per viewer), stopped when stereo is switched off.
+// camera, not per viewer), stopped, with its OSD, when stereo is switched off.
 let right = null;
 function toggleStereo() {
   const on = !document.body.classList.contains("stereo");
@@ -60,8 +60,9 @@ function toggleStereo() {
     right = el("section", { id: "front-view-right", class: "view", "aria-label": "front view, right eye" });
     right.append(el("img", { class: "video-stream", alt: "front camera, right eye" }));
     $("goggles").append(right);
-    mountOsd(right, { menu: false });
+    fpv.osdRight = mountOsd(right, { menu: false });
   }
+  fpv.osdRight.setRunning(on); // a hidden eye draws nothing
   right.hidden = !on;
   right.querySelector("img").src = on ? `/video/front.mjpg?t=${Date.now()}` : "";
 }

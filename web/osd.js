@@ -2,7 +2,8 @@
 //
 //   <section id="front-view" data-osd-view> ... <script type="module" src="/osd.js">
 // mounts the OSD on that element when loaded; window.fpv.osd is then
-// {toggleMenu(), setLine(name, text)} (a page's own OSD lines, e.g. the goggles' task step).
+// {stats, toggleMenu(), setRunning(on), setLine(name, text)} (a page's own OSD lines, e.g.
+// the goggles' task step).
 //
 // Drawn in the browser, once per animation frame (the display's rate, so at least the
 // video's), from the page's one telemetry feed (telemetry.js: WS /ws/telemetry?ack=1, so
@@ -30,6 +31,7 @@ const PITCH_FOV_DEG = 60; // the ladder's scale: the view's height spans this ma
 const FIX_NAMES = ["NO GPS", "NO FIX", "2D", "3D", "DGPS", "RTK FLT", "RTK FIX"];
 const SEVERITY = ["EMERG", "ALERT", "CRIT", "ERR", "WARN", "NOTE", "INFO", "DEBUG"];
 const M_PER_DEG_LAT = 111_320;
+const HOME_DOT_M = 1.0; // nearer home than this: a dot, not an arrow pointing at noise
 const PAGES = [["/", "Pilot view"], ["/goggles.html", "Goggles"], ["/sessions.html", "Sessions"],
   ["/analysis.html", "Analysis"]];
 
@@ -57,7 +59,10 @@ const fixed = (v, d = 1) => (v === null || v === undefined ? "--" : Number(v).to
 
 export function mountOsd(view, { menu = true } = {}) {
   const fpv = (window.fpv = window.fpv || {});
-  const stats = (fpv.osdStats = { frames: 0, totalMs: 0, maxMs: 0, recent: [] });
+  // The page's OSD (the first mounted) is fpv.osdStats; a second one (the goggles' right
+  // eye) has its own, on its handle.
+  const stats = { frames: 0, totalMs: 0, maxMs: 0, recent: [] };
+  if (!fpv.osdStats) fpv.osdStats = stats;
   const root = el("div", { class: "osd", "aria-label": "on-screen display" });
   const horizon = el("canvas", { class: "osd-horizon", "data-osd": "horizon" });
   const heading = el("canvas", { class: "osd-heading", "data-osd": "heading" });
@@ -70,7 +75,15 @@ export function mountOsd(view, { menu = true } = {}) {
   }
   // The arrow to home: an SVG whose rotation is an attribute (scripts set no styles).
   const homeArrow = el("span", { class: "osd-home-arrow" });
-  homeArrow.innerHTML = '<svg viewBox="-10 -10 20 20" width="1.1em" height="1.1em"><path d="M0 -9 L6 7 L0 3 L-6 7 Z" fill="currentColor" stroke="#000" stroke-width="1.5"/></svg>';
+  // Within HOME_DOT_M of home the bearing is GPS noise: a dot instead of the arrow.
+  homeArrow.innerHTML = '<svg viewBox="-10 -10 20 20" width="1.1em" height="1.1em"><path d="M0 -9 L6 7 L0 3 L-6 7 Z" fill="currentColor" stroke="#000" stroke-width="1.5" visibility="hidden"/><circle r="3.5" fill="currentColor" stroke="#000" stroke-width="1.5" visibility="hidden"/></svg>';
+  const [arrowPath, homeDot] = homeArrow.firstChild.children;
+  const showHomeMark = (mark) => { // "arrow", "dot" or null (no position or no home)
+    for (const [node, name] of [[arrowPath, "arrow"], [homeDot, "dot"]]) {
+      const v = mark === name ? "visible" : "hidden";
+      if (node.getAttribute("visibility") !== v) node.setAttribute("visibility", v);
+    }
+  };
   const homeText = el("span", {}, "");
   nodes.home.append(homeArrow, homeText);
   const lines = el("div", { class: "osd-lines" }); // extra lines a page adds (the task step)
@@ -120,7 +133,10 @@ export function mountOsd(view, { menu = true } = {}) {
   }
 
   // -- one frame -----------------------------------------------------------------------
+  // A paused OSD (the right eye with stereo off) asks for no frames at all.
+  let running = true;
   function frame() {
+    if (!running) return;
     requestAnimationFrame(frame);
     const t0 = performance.now();
     draw();
@@ -202,18 +218,26 @@ export function mountOsd(view, { menu = true } = {}) {
     // Home: distance and an arrow relative to the nose.
     const posR = reading("position"), pos = posR.value;
     const home = s.altitude;
-    let homeTxt = "H --";
+    let homeTxt = "H --", mark = null;
     if (pos !== null && home.home_lat_deg !== null && home.home_lat_deg !== undefined) {
       const north = (home.home_lat_deg - pos.lat_deg) * M_PER_DEG_LAT;
       const east = (home.home_lon_deg - pos.lon_deg) * M_PER_DEG_LAT * Math.cos((pos.lat_deg * Math.PI) / 180);
-      const bearing = ((Math.atan2(east, north) * 180) / Math.PI + 360) % 360;
-      const rel = (((bearing - (hdg ?? 0)) % 360) + 360) % 360;
-      homeTxt = `H ${fixed(Math.hypot(north, east), 0)} m`;
-      const rot = `rotate(${rel.toFixed(0)})`;
-      const path = homeArrow.firstChild.firstChild;
-      if (path.getAttribute("transform") !== rot) path.setAttribute("transform", rot);
-      nodes.home.dataset.bearing = rel.toFixed(0);
+      const dist = Math.hypot(north, east);
+      homeTxt = `H ${fixed(dist, 0)} m`;
+      if (dist < HOME_DOT_M) {
+        mark = "dot";
+        delete nodes.home.dataset.bearing;
+      } else {
+        mark = "arrow";
+        const bearing = ((Math.atan2(east, north) * 180) / Math.PI + 360) % 360;
+        const rel = (((bearing - (hdg ?? 0)) % 360) + 360) % 360;
+        const rot = `rotate(${rel.toFixed(0)})`;
+        if (arrowPath.getAttribute("transform") !== rot) arrowPath.setAttribute("transform", rot);
+        nodes.home.dataset.bearing = rel.toFixed(0);
+      }
     }
+    showHomeMark(mark);
+    nodes.home.dataset.mark = mark ?? "none";
     setValue("home", posR, homeTxt);
 
     // Link: loss from /api/status (polled), RSSI from RC_CHANNELS when the receiver has it.
@@ -251,7 +275,13 @@ export function mountOsd(view, { menu = true } = {}) {
   applyHidden();
   requestAnimationFrame(frame);
   return {
+    stats,
     toggleMenu() { menuBox.hidden = !menuBox.hidden; },
+    // Stop drawing (a hidden view) or start again.
+    setRunning(on) {
+      if (on && !running) { dirty = true; requestAnimationFrame(frame); }
+      running = on;
+    },
     // A page's own OSD line (e.g. the task step on the goggles), data-osd=<name>.
     setLine(name, text) {
       let node = lines.querySelector(`[data-osd="${name}"]`);
@@ -283,8 +313,8 @@ async function pollLink() {
     link.loss = st.link ? st.link.loss_ratio : null;
     const sec = st.link && st.link.security;
     if (sec) {
-      const total = sec.foreign_datagrams + sec.forward_foreign_datagrams + sec.unsigned_refused
-        + sec.bad_signature_refused + sec.replay_refused;
+      // signing's one figure (LinkSecurity.refused), and datagrams from other hosts
+      const total = sec.refused + sec.foreign_datagrams + sec.forward_foreign_datagrams;
       if (link.refusedTotal !== null && total > link.refusedTotal) link.refusedAt = performance.now();
       link.refusedTotal = total;
     }

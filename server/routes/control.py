@@ -166,7 +166,7 @@ async def vehicle_answer(station: Station, command: int, since_mono: float) -> d
 async def ws_control(ws: WebSocket) -> None:
     station: Station = ws.app.state.station
     try:
-        with station.client_limits.websocket.slot():
+        with station.client_limits.control.slot():
             await _serve_control(ws, station)
     except Unavailable as exc:
         await ws.send_denial_response(error_response(503, "Unavailable", exc.message))
