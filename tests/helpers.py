@@ -32,8 +32,11 @@ CHROMIUM_ARGS = [
 def chromium():
     """Debian's chromium, headless, through Playwright (no browser download): yields the
     Browser. Tests take it as the `browser` fixture (conftest.py)."""
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
+    # Hang guards, not speed figures: a starved 2-core CI box has taken more than the 5 s
+    # default for a page's first telemetry. Explicit waits in the tests are 15 or 30 s.
+    expect.set_options(timeout=15_000)
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM_PATH, args=CHROMIUM_ARGS)
         try:
@@ -187,9 +190,9 @@ class RawWsClient:
 def sticks_on(page, base: str) -> None:
     """Open the pilot page of a station on the twin and turn the browser's sticks on."""
     page.goto(base + "/")
-    page.wait_for_selector("#control-widget:not([hidden])", timeout=10000)
+    page.wait_for_selector("#control-widget:not([hidden])", timeout=30_000)
     page.click("#ctl-toggle")
-    page.wait_for_function("window.fpv.control.enabled === true", timeout=5000)
+    page.wait_for_function("window.fpv.control.enabled === true", timeout=15_000)
 
 
 def arm_and_climb(page, station, height_m: float = 1.5, timeout: float = 15.0) -> None:

@@ -428,7 +428,7 @@ def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             page.goto(base + "/")
             warning = page.locator("[data-osd=warning]")
-            expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=10000)
+            expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=30_000)
             time.sleep(2.5)  # a poll of /api/status with nothing refused
             expect(warning).not_to_contain_text("MAVLINK REFUSED")
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:

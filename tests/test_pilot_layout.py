@@ -59,7 +59,7 @@ def test_3d_panel_open_leaves_the_flight_state_in_view(station, browser, size):
     # panel's place is. Its requests to the viser server are turned away.
     page.route("**/*", lambda r: r.continue_() if r.request.frame == page.main_frame else r.abort())
     page.goto(base + "/")
-    expect(page.locator("#v-mode")).to_have_text("POSCTL", timeout=10000)
+    expect(page.locator("#v-mode")).to_have_text("POSCTL", timeout=30_000)
     page.locator("#p3d-toggle").click()
     panel = page.locator("#panel-3d")
     expect(panel).to_be_visible()

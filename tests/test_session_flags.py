@@ -142,7 +142,7 @@ def test_sessions_page_shows_status_crash_and_flags(tmp_path):
             page = browser.new_page()
             page.goto(f"{base}/sessions.html")
             row = lambda sid: page.locator(f'#sessions tr[data-id="{sid}"]')  # noqa: E731
-            expect(row(clean).locator("td.status")).to_have_text("complete", timeout=10_000)
+            expect(row(clean).locator("td.status")).to_have_text("complete", timeout=30_000)
             expect(row(clean).locator("td.quality-ok")).to_contain_text("ok")  # 1 frame: fine
             expect(row(crashed)).to_have_class("crashed")
             expect(row(crashed).locator("td.status")).to_have_text("complete CRASHED")

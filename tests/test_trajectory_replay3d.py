@@ -204,7 +204,7 @@ def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
         expect(frame_button).to_be_visible(timeout=90_000)
         expect(page.get_by_text("a with b, 120 s")).to_be_visible()
         for dev in ("Save Canvas", "Scene tree", "Dev Settings", "Reset View"):
-            expect(page.get_by_text(dev).first).to_be_hidden(timeout=5000)  # (folds away)
+            expect(page.get_by_text(dev).first).to_be_hidden(timeout=15_000)  # (folds away)
         # The client's camera, as the browser reports it back: on the path's centre.
         assert wait_until(
             lambda: cameras() and np.allclose(cameras()[0].look_at, centre, atol=0.5), 30

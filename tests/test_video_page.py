@@ -31,12 +31,12 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
             img = page.locator(f"#{name}-view img.video-stream")
             page.wait_for_function(
                 f"() => document.querySelector('#{name}-view img.video-stream').naturalWidth === 320",
-                timeout=10_000,
+                timeout=30_000,
             )
             assert f"/video/{name}.mjpg" in img.get_attribute("src")
         readout = re.compile(r"^\d+\.\d fps · \d+ ms$")
-        expect(page.locator("#front-readout")).to_have_text(readout, timeout=5000)
-        expect(page.locator("#bottom-readout")).to_have_text("NO SIGNAL", timeout=5000)
+        expect(page.locator("#front-readout")).to_have_text(readout, timeout=15_000)
+        expect(page.locator("#bottom-readout")).to_have_text("NO SIGNAL", timeout=15_000)
         expect(page.locator("#bottom-readout")).to_have_attribute(
             "title", re.compile("does not exist")
         )
