@@ -106,6 +106,7 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
         if (link := station.link) is not None:
             station.tasks.watch("mavlink link thread", lambda: link.crashed)
+            station.telemetry_json.clock = link.clock  # a replay's ages are in its time
 
         # -- cameras (after the twin, whose renderer the sim cameras use) ------------
         await _open_cameras(station, stack)

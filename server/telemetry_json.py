@@ -1,7 +1,8 @@
 """The vehicle state as JSON, encoded once per state version and shared by every client.
 
 The body is cached by version; each WebSocket message is a short per-send prefix
-(`t_server`, `t_server_mono`: the server's clock at the moment of sending) spliced onto
+(`t_server`, `t_server_mono`: the source's clock at the moment of sending: the station's
+for a live vehicle, the log's for a replay, as the state's times are) spliced onto
 that shared body, so twenty browsers cost one `json.dumps`, not twenty. Within a body each
 group's JSON is cached too: a state shares the groups that did not change with the one
 before (companion.vehicle_state), so a new version encodes only the group or two that
@@ -19,11 +20,11 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from dataclasses import fields, is_dataclass
 from typing import Any
 
 from companion.latest import Versioned
+from companion.source_clock import SourceClock
 from companion.vehicle_state import VehicleState
 
 _GROUPS = tuple(f.name for f in fields(VehicleState))
@@ -51,9 +52,13 @@ def state_to_dict(state: VehicleState) -> dict[str, Any]:
 
 
 class SharedStateJson:
-    """Caches the JSON body of the newest version. Used from the event loop only."""
+    """Caches the JSON body of the newest version. Used from the event loop only.
 
-    def __init__(self) -> None:
+    `clock` is the source's (companion.source_clock): a group's age in a browser is
+    `t_server_mono - t_mono`, and a replay stamps its groups with the log's time."""
+
+    def __init__(self, clock: SourceClock | None = None) -> None:
+        self.clock = clock or SourceClock()
         self._current: Versioned[VehicleState] | None = None
         self._body = ""
         self.encodes = 0  # how many times a body was built (for tests and benchmarks)
@@ -80,4 +85,5 @@ class SharedStateJson:
 
     def message(self, current: Versioned[VehicleState]) -> str:
         body = self.body(current)
-        return f'{{"t_server":{time.time():.6f},"t_server_mono":{time.monotonic():.6f},{body[1:]}'
+        clock = self.clock
+        return f'{{"t_server":{clock.wall():.6f},"t_server_mono":{clock.mono():.6f},{body[1:]}'

@@ -86,3 +86,27 @@ def test_sessions_from_a_replay_are_the_same_at_any_speed(sorties_tlog, tmp_path
         base = runs["1"][k]["result"]["trial_time_s"]
         for speed in ("20", "max"):
             assert runs[speed][k]["result"]["trial_time_s"] == pytest.approx(base, rel=0.01)
+
+
+def test_a_replays_telemetry_ages_are_in_the_logs_time(sorties_tlog, tmp_path):
+    """The pages' ages are `t_server_mono - t_mono` of a group; a replay stamps its groups
+    with the log's time, so the message's server time is the log's too. On the station's
+    clock every age came out hugely negative (shown as 0: never stale, every message
+    kept on the OSD)."""
+    import json
+
+    from websockets.sync.client import connect
+
+    log_t0 = next(iter(TlogReader(sorties_tlog)))[0]
+    settings = station_settings(f"replay:{sorties_tlog}?speed=4", tmp_path)
+    with run_uvicorn(create_app(settings)) as base:
+        with connect(base.replace("http", "ws") + "/ws/telemetry", open_timeout=10) as ws:
+            for _ in range(20):
+                msg = json.loads(ws.recv(timeout=10))
+                now = msg["t_server_mono"]
+                assert log_t0 <= now <= log_t0 + END_S + 1
+                if msg["state"]["heartbeat"]["t_mono"] is None:
+                    continue  # before the log's first heartbeat
+                age = now - msg["state"]["heartbeat"]["t_mono"]
+                assert 0 <= age < 5.0, age  # heartbeats come every log second
+                assert abs(msg["t_server"] - now) < 1.0  # the log's wall time
