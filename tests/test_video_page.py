@@ -7,17 +7,15 @@ import re
 from playwright.sync_api import expect
 
 from server.app import create_app
-from server.settings import load_settings
-from tests.helpers import chromium, run_uvicorn
+from tests.helpers import chromium, run_uvicorn, station_settings
 from tests.video_fixtures import write_images
 
 
 def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
     front = write_images(tmp_path / "front", 4, (320, 240))
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
+    settings = station_settings(
+        "none",
+        **{
             "cameras.front.spec": f"folder:{front}?width=320&height=240",
             "cameras.bottom.spec": "v4l2:/dev/video-unplugged",  # shows NO SIGNAL
             "cameras.bottom.width": 320,

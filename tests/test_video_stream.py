@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from server.app import create_app
-from server.settings import load_settings
-from tests.helpers import run_uvicorn, wait_until
+from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mjpeg_client import Viewer
 from tests.video_fixtures import write_images
 
@@ -23,10 +22,9 @@ def server(tmp_path_factory):
     root = tmp_path_factory.mktemp("video")
     front = write_images(root / "front", 6, (320, 240))  # PNG: every frame is encoded here
     bottom = write_images(root / "bottom", 6, (320, 240))
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
+    settings = station_settings(
+        "none",
+        **{
             "cameras.front.spec": f"folder:{front}",
             "cameras.bottom.spec": f"folder:{bottom}",
             "cameras.front.width": 320,
@@ -148,7 +146,7 @@ def test_snapshot_stats_and_errors(server):
 def test_viewer_of_a_silent_camera_is_cleaned_up_after_disconnect():
     """A `none` camera publishes one NO SIGNAL frame and then nothing: no write reveals
     the disconnect, so the stream must notice it by itself."""
-    app = create_app(load_settings(environ={}, overrides={"link.source": "none"}))
+    app = create_app(station_settings("none"))
     with run_uvicorn(app) as base:
         viewer = Viewer("127.0.0.1", _port(base), "/video/bottom.mjpg")
         asyncio.run(viewer.run(1.0))
@@ -163,10 +161,9 @@ def test_viewers_beyond_the_cap_are_refused_until_one_leaves(tmp_path):
     503 in the error shape before its stream starts, and a viewer that leaves gives its
     place back (a place never released would refuse every viewer after it for good)."""
     front = write_images(tmp_path / "front", 3, (160, 120))
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
+    settings = station_settings(
+        "none",
+        **{
             "cameras.front.spec": f"folder:{front}",
             "cameras.bottom.spec": "none",
             "server.max_video_clients": 2,
