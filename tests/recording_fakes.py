@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.latest import Latest
+from companion.recording import frame_pack
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
@@ -32,6 +34,21 @@ def make_jpegs(n: int = 8, width: int = 320, height: int = 240) -> list[bytes]:
         ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
         assert ok
         out.append(buf.tobytes())
+    return out
+
+
+def recorded_frames(folder: Path, camera: str) -> dict[str, bytes]:
+    """Every frame frames.csv lists whose bytes are on disk, by name (`front/00000042.jpg`),
+    read the way the station reads them (either session format)."""
+    index = frame_pack.read_index(folder, camera)
+    if index is None:
+        return {}
+    out = {}
+    for k in range(len(index)):
+        try:
+            out[index.name(k)] = frame_pack.frame_bytes(folder, index, k)
+        except frame_pack.FrameNotOnDisk:
+            pass
     return out
 
 
