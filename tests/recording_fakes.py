@@ -17,7 +17,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.latest import Latest
-from companion.recording import frame_pack
+from companion.recording import frame_pack, layout
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
@@ -50,6 +50,30 @@ def recorded_frames(folder: Path, camera: str) -> dict[str, bytes]:
         except frame_pack.FrameNotOnDisk:
             pass
     return out
+
+
+def as_format_1(folder: Path) -> None:
+    """Turn a recorded session into format 1, as the recorder wrote it before the frame
+    pack: a file per frame (`front/00000042.jpg`), frames.csv without `offset`, no
+    frames.mjpeg, session.json `format_version` 1."""
+    import csv
+    import json
+
+    for cam_dir in sorted(p for p in folder.iterdir() if (p / layout.FRAMES_CSV).is_file()):
+        frames = recorded_frames(folder, cam_dir.name)
+        with open(cam_dir / layout.FRAMES_CSV, newline="") as f:
+            rows = list(csv.DictReader(f))
+        for rel, data in frames.items():
+            (folder / rel).write_bytes(data)
+        with open(cam_dir / layout.FRAMES_CSV, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(layout.FRAME_COLUMNS_V1)
+            w.writerows([r[c] for c in layout.FRAME_COLUMNS_V1] for r in rows)
+        (cam_dir / layout.FRAMES_PACK).unlink()
+    meta_path = folder / layout.SESSION_JSON
+    meta = json.loads(meta_path.read_text())
+    meta["format_version"] = layout.FORMAT_FILE_PER_FRAME
+    meta_path.write_text(json.dumps(meta, indent=2))
 
 
 class FakeCamera:
