@@ -160,7 +160,7 @@ def test_lerobot_videos_decode_to_the_declared_frames(lerobot, session):
         t_rec = np.array([float(r["t_s"]) for r in recorded])
         on_disk = recorded_frames(session, cam)
 
-        def image(r: dict) -> np.ndarray:
+        def image(r: dict, on_disk: dict[str, bytes] = on_disk) -> np.ndarray:
             return cv2.imdecode(np.frombuffer(on_disk[r["file"]], np.uint8), cv2.IMREAD_COLOR)
 
         for k in (5, len(frames) // 2, len(frames) - 3):
