@@ -20,6 +20,7 @@ import os
 import select
 import socket
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Protocol
@@ -94,6 +95,11 @@ def parse_connection(text: str) -> ConnSpec:
 class Transport(Protocol):
     def fileno(self) -> int: ...
     def read(self) -> bytes: ...
+    def read_queued(self) -> Iterator[bytes]:
+        """What is queued now, as reads (a stream's one read already takes all of it;
+        UDP's are one datagram each): one wake-up of the reader for a burst."""
+        ...
+
     def write(self, data: bytes) -> None: ...
     def close(self) -> None: ...
 
@@ -160,11 +166,31 @@ class UdpTransport:
         return self._sock.fileno()
 
     def read(self) -> bytes:
+        """One datagram's bytes; b"" when none is queued or it came from a foreign sender."""
+        data = self._receive()
+        return data or b""
+
+    def read_queued(self, limit: int = 64) -> Iterator[bytes]:
+        """Each datagram queued now (at most `limit`), one at a time: an autopilot sends
+        its streams in bursts (ATTITUDE, GLOBAL_POSITION_INT and LOCAL_POSITION_NED on
+        the same tick), and a burst read at one wake-up is one epoll wait and one state
+        publish instead of one each per datagram. The caller handles each datagram
+        before the next is read, so `adopt_sender` still names that datagram's sender."""
+        for _ in range(limit):
+            data = self._receive()
+            if data is None:
+                return
+            if data:
+                yield data
+
+    def _receive(self) -> bytes | None:
+        """The next datagram's bytes, b"" for one refused (a foreign sender), None when
+        nothing is queued."""
         try:
             data, addr = self._sock.recvfrom(_UDP_MAX)
         except (BlockingIOError, ConnectionRefusedError):
             # udpout: an ICMP "port unreachable" for our last send; the peer may come back
-            return b""
+            return None
         addr = addr[:2]
         if not self._accepts(addr):
             self.foreign.datagrams += 1
@@ -234,6 +260,9 @@ class TcpTransport:
             raise ConnectionError("TCP peer closed the connection")
         return data
 
+    def read_queued(self) -> Iterator[bytes]:
+        yield self.read()
+
     def write(self, data: bytes) -> None:
         self._sock.sendall(data)
 
@@ -270,6 +299,9 @@ class SerialTransport:
             # readable but nothing came: the device is gone (unplugged USB)
             raise ConnectionError("serial port returned no data: device gone")
         return data
+
+    def read_queued(self) -> Iterator[bytes]:
+        yield self.read()
 
     def write(self, data: bytes) -> None:
         view = memoryview(data)
