@@ -29,6 +29,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.forward_resolver import ForwardResolver
 from companion.latest import Latest
 from companion.link_health import HealthMeter, LinkHealth, LinkSecurity, RateChange
 from companion.link_settings import LinkSettings
@@ -37,10 +38,12 @@ from companion.state_tracker import StateTracker
 from companion.stream_request import StreamRequester
 from companion.transports import (
     ConnectionStringError,
+    ConnSpec,
     ForeignSenders,
     Transport,
     UdpTransport,
     format_addr,
+    is_ip_address,
     open_transport,
     parse_connection,
 )
@@ -107,6 +110,7 @@ class MavlinkLink:
         self._transport: Transport | None = None
         self._forwarders: list[UdpTransport] = []
         self._forward_framers: dict[UdpTransport, MavFramer] = {}
+        self._resolver = ForwardResolver([], self.settings.forward_resolve_s)
         self._reassert_at: float | None = None
         self._last_hb_mono: float | None = None
         self._next_gcs_hb = 0.0
@@ -119,15 +123,23 @@ class MavlinkLink:
         if self._thread is not None:
             raise RuntimeError("MavlinkLink already started")
         self._forwarders = []
+        named: list[tuple[ConnSpec, UdpTransport]] = []
         for spec in self._forward_specs:
             try:
-                self._forwarders.append(
-                    UdpTransport(spec, self.settings.udpin_lock, self._forward_foreign)
+                # A name is looked up by the resolver's thread, not here (the event loop).
+                fwd = UdpTransport(
+                    spec, self.settings.udpin_lock, self._forward_foreign, resolve_name=False
                 )
-            except OSError as exc:  # a name that does not resolve: the vehicle still flies
+            except OSError as exc:  # the port is taken: the vehicle still flies
                 self._meter.last_error = f"--forward {spec.text}: {exc}; not forwarding there"
                 log.error("%s", self._meter.last_error)
+                continue
+            self._forwarders.append(fwd)
+            if spec.kind == "udpout" and not is_ip_address(spec.host):
+                named.append((spec, fwd))
         self._forward_framers = {fwd: MavFramer() for fwd in self._forwarders}
+        self._resolver = ForwardResolver(named, self.settings.forward_resolve_s)
+        self._resolver.start()
         self._thread = threading.Thread(
             target=self._run, name=f"mavlink {self.spec.text}", daemon=True
         )
@@ -135,6 +147,7 @@ class MavlinkLink:
 
     def stop(self, timeout: float = 3.0) -> None:
         self._stop.set()
+        self._resolver.stop()
         self._wake()
         if self._thread is not None:
             self._thread.join(timeout)
@@ -169,6 +182,7 @@ class MavlinkLink:
             self._tracker.sysid if self._tracker.compid is not None else self._tracker.pinned_sysid,
             self._tracker.compid,
             self._security(),
+            self._resolver.targets(),
         )
 
     def _security(self) -> LinkSecurity:

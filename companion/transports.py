@@ -134,7 +134,11 @@ class UdpTransport:
     """
 
     def __init__(
-        self, spec: ConnSpec, lock: bool = True, foreign: ForeignSenders | None = None
+        self,
+        spec: ConnSpec,
+        lock: bool = True,
+        foreign: ForeignSenders | None = None,
+        resolve_name: bool = True,
     ) -> None:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.setblocking(False)
@@ -147,11 +151,13 @@ class UdpTransport:
                 self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 self._sock.bind((spec.host, spec.port))
                 self._peer: tuple[str, int] | None = None
-            else:
+            elif resolve_name or is_ip_address(spec.host):
                 self._peer = resolve_udp_peer(spec.host, spec.port)
                 if ipaddress.ip_address(self._peer[0]).is_loopback:
                     # A peer on this host: nothing off the host needs to reach our port.
                     self._sock.bind(("127.0.0.1", 0))
+            else:  # a name the owner resolves off this thread (companion.forward_resolver)
+                self._peer = None
         except BaseException:
             self._sock.close()
             raise
@@ -201,6 +207,12 @@ class UdpTransport:
             self.adopt_sender()
         return data
 
+    def set_peer(self, peer: tuple[str, int]) -> None:
+        """udpout: the address its peer's name resolves to now (a laptop that joined the
+        network late, or came back with another DHCP address)."""
+        if self._fixed_peer:
+            self._peer = peer
+
     def adopt_sender(self) -> None:
         """udpin: the last datagram's sender becomes the peer (answered; the lock's host)."""
         if not self._fixed_peer and self._sender is not None:
@@ -229,6 +241,15 @@ class UdpTransport:
 
     def close(self) -> None:
         self._sock.close()
+
+
+def is_ip_address(host: str) -> bool:
+    """`host` is an address, not a name: resolving it needs no lookup."""
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
 
 
 def resolve_udp_peer(host: str, port: int) -> tuple[str, int]:
