@@ -333,15 +333,16 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
     auth = {"Authorization": f"Bearer {TOKEN}"}
     if not args.no_visit:  # the pilot page asks for the 3D panel at once: it starts then
         httpx.get(f"{station.base}/api/viser", timeout=30).raise_for_status()
-    httpx.post(
-        f"{station.base}/api/recording/start", headers=auth, json={}, timeout=10
-    ).raise_for_status()
+    if not args.no_record:
+        httpx.post(
+            f"{station.base}/api/recording/start", headers=auth, json={}, timeout=10
+        ).raise_for_status()
     # The clients connect and warm up; the window starts after `warmup` s.
     result: dict = {}
 
     async def drive() -> None:
         task = asyncio.create_task(
-            clients(station.port, args.seconds, args.warmup, 2, args.viewers)
+            clients(station.port, args.seconds, args.warmup, args.telemetry_clients, args.viewers)
         )
         await asyncio.sleep(args.warmup)
         result["start"] = await asyncio.to_thread(window_start, station, args)
@@ -379,7 +380,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
     )
     cams = httpx.get(f"{station.base}/api/cameras", timeout=10).json()["cameras"]
     rec = httpx.post(f"{station.base}/api/recording/stop", headers=auth, json={}, timeout=30)
-    if not rec.json().get("last_stop"):
+    if not args.no_record and not rec.json().get("last_stop"):
         print(f"# recording stop: {rec.text[:300]}", file=sys.stderr)
     packets = status1["link"]["packets"] - status0["link"]["packets"]
     msgs, fps = result["rates"]
@@ -475,6 +476,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2, help="runs per configuration")
     ap.add_argument("--3d", dest="three_d", choices=("both", "on", "off"), default="both")
     ap.add_argument("--viewers", type=int, default=2, help="MJPEG viewers per camera")
+    # The configuration is the default; fewer clients or no recording measure
+    # what each part costs (the difference), not the budget.
+    ap.add_argument("--telemetry-clients", type=int, default=2, help="telemetry WebSockets")
+    ap.add_argument("--no-record", action="store_true", help="no recording")
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
     ap.add_argument(
         "--no-visit",
@@ -495,7 +500,8 @@ def main() -> None:
     make_frames(tmp / "bottom", ".jpg")
     print(
         f"# fpv-station Pi budget: UDP test vehicle, 2 USB MJPEG cameras 640x480 @ 30 fps "
-        f"(passthrough), recording, 2 telemetry clients, {args.viewers} viewers per camera; "
+        f"(passthrough), {'no recording' if args.no_record else 'recording'}, "
+        f"{args.telemetry_clients} telemetry clients, {args.viewers} viewers per camera; "
         f"{args.seconds:g} s windows after {args.warmup:g} s; machine {platform.machine()}, "
         f"{os.cpu_count()} cores, Python {platform.python_version()}; "
         f"py-spy {'yes' if py_spy() and not args.no_profile else 'no'}"

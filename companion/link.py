@@ -29,6 +29,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.forward_resolver import ForwardResolver
 from companion.latest import Latest
 from companion.link_health import HealthMeter, LinkHealth, LinkSecurity, RateChange
 from companion.link_settings import LinkSettings
@@ -37,10 +38,12 @@ from companion.state_tracker import StateTracker
 from companion.stream_request import StreamRequester
 from companion.transports import (
     ConnectionStringError,
+    ConnSpec,
     ForeignSenders,
     Transport,
     UdpTransport,
     format_addr,
+    is_ip_address,
     open_transport,
     parse_connection,
 )
@@ -88,6 +91,7 @@ class MavlinkLink:
         self.clock = SourceClock(own=self.spec.kind == "replay")
         self._tracker = StateTracker(settings.sysid, gcs_sysid=settings.gcs_sysid)
         self._framer = MavFramer()
+        self._state_changed = False  # the tracker's state is newer than the one published
         self._meter = HealthMeter(self.spec.text)
         self._streams = StreamRequester(self.mav, settings.message_rates_hz)
         self._listeners: list[PacketListener] = []
@@ -106,6 +110,7 @@ class MavlinkLink:
         self._transport: Transport | None = None
         self._forwarders: list[UdpTransport] = []
         self._forward_framers: dict[UdpTransport, MavFramer] = {}
+        self._resolver = ForwardResolver([], self.settings.forward_resolve_s)
         self._reassert_at: float | None = None
         self._last_hb_mono: float | None = None
         self._next_gcs_hb = 0.0
@@ -118,15 +123,23 @@ class MavlinkLink:
         if self._thread is not None:
             raise RuntimeError("MavlinkLink already started")
         self._forwarders = []
+        named: list[tuple[ConnSpec, UdpTransport]] = []
         for spec in self._forward_specs:
             try:
-                self._forwarders.append(
-                    UdpTransport(spec, self.settings.udpin_lock, self._forward_foreign)
+                # A name is looked up by the resolver's thread, not here (the event loop).
+                fwd = UdpTransport(
+                    spec, self.settings.udpin_lock, self._forward_foreign, resolve_name=False
                 )
-            except OSError as exc:  # a name that does not resolve: the vehicle still flies
+            except OSError as exc:  # the port is taken: the vehicle still flies
                 self._meter.last_error = f"--forward {spec.text}: {exc}; not forwarding there"
                 log.error("%s", self._meter.last_error)
+                continue
+            self._forwarders.append(fwd)
+            if spec.kind == "udpout" and not is_ip_address(spec.host):
+                named.append((spec, fwd))
         self._forward_framers = {fwd: MavFramer() for fwd in self._forwarders}
+        self._resolver = ForwardResolver(named, self.settings.forward_resolve_s)
+        self._resolver.start()
         self._thread = threading.Thread(
             target=self._run, name=f"mavlink {self.spec.text}", daemon=True
         )
@@ -134,6 +147,7 @@ class MavlinkLink:
 
     def stop(self, timeout: float = 3.0) -> None:
         self._stop.set()
+        self._resolver.stop()
         self._wake()
         if self._thread is not None:
             self._thread.join(timeout)
@@ -168,6 +182,7 @@ class MavlinkLink:
             self._tracker.sysid if self._tracker.compid is not None else self._tracker.pinned_sysid,
             self._tracker.compid,
             self._security(),
+            self._resolver.targets(),
         )
 
     def _security(self) -> LinkSecurity:
@@ -266,9 +281,9 @@ class MavlinkLink:
                 for key, _ in ready:
                     r = key.fileobj
                     if r is transport:
-                        data = transport.read()
-                        if data and self._on_bytes(data, now) and confirm is not None:
-                            confirm.adopt_sender()
+                        for data in transport.read_queued():
+                            if data and self._on_bytes(data, now) and confirm is not None:
+                                confirm.adopt_sender()
                     elif r == self._wake_r:
                         try:
                             os.read(self._wake_r, 4096)
@@ -279,6 +294,7 @@ class MavlinkLink:
                         if data:
                             transport.write(data)
                             self._on_forwarded(r, data, now)  # type: ignore[arg-type]
+                self._publish_state()
                 while self._outbox:
                     self._write(transport, self._outbox.popleft())
                 # Once a tick, not after every packet (140 a second): what it does is due
@@ -315,6 +331,7 @@ class MavlinkLink:
                     self._housekeeping(None, clock.mono())
             clock.advance(t_rec)  # listeners see the time before the record applies
             self._on_bytes(packet, clock.mono())
+            self._publish_state()
             self._housekeeping(None, clock.mono())
         self._meter.truncated_records = reader.truncated
         self._meter.replay_done = True
@@ -322,7 +339,8 @@ class MavlinkLink:
         # Nothing more will come from this vehicle: say so, and end what follows it.
         now = clock.mono()
         if self._tracker.set_link_lost(True, now, self._last_hb_mono):
-            self.state.publish(self._tracker.state)
+            self._state_changed = True
+            self._publish_state()
         clock.end()
         log.info("replay of %s done (%d truncated records)", path, reader.truncated)
         self._idle_forever()
@@ -340,7 +358,8 @@ class MavlinkLink:
     # -- per packet and periodic work -------------------------------------------------
 
     def _on_bytes(self, data: bytes, now: float) -> int:
-        """Handle what arrived; returns how many packets carried a good signature."""
+        """Handle what arrived; returns how many packets carried a good signature. The
+        new state is published by `_publish_state`, once for all that one wake-up read."""
         self._meter.on_bytes(len(data))
         msgs = self._framer.feed(data)
         if not msgs:
@@ -373,9 +392,13 @@ class MavlinkLink:
             if mtype == "COMMAND_ACK" and self._transport is not None:
                 for req in self._streams.on_ack(msg, now):
                     self._write(self._transport, req)
-        if changed:
-            self.state.publish(tracker.state)
+        self._state_changed |= changed
         return signed
+
+    def _publish_state(self) -> None:
+        if self._state_changed:
+            self._state_changed = False
+            self.state.publish(self._tracker.state)
 
     def _check_signature(self, packet: bytes) -> Verdict:
         assert self._signing is not None
@@ -491,7 +514,8 @@ class MavlinkLink:
         lost = self._last_hb_mono is None or now - self._last_hb_mono > self.settings.link_lost_s
         if lost and not self._tracker.state.link.link_lost:
             self._tracker.set_link_lost(True, now, self._last_hb_mono)
-            self.state.publish(self._tracker.state)
+            self._state_changed = True
+            self._publish_state()
             log.warning("link lost: no autopilot heartbeat for %.1f s", self.settings.link_lost_s)
         self._meter.tick(now)
 

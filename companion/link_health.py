@@ -31,6 +31,15 @@ class RateChange:
 
 
 @dataclass(frozen=True, slots=True)
+class ForwardTarget:
+    """A forward target's state, for the link's health."""
+
+    target: str  # as given: "udpout:qgc-laptop.local:14550"
+    address: str | None  # where its copies go now ("192.168.4.23:14550"); None: nowhere yet
+    error: str | None = None  # the last lookup's failure, while it fails
+
+
+@dataclass(frozen=True, slots=True)
 class LinkSecurity:
     """Who may feed the link and what was refused (docs/SECURITY.md)."""
 
@@ -83,6 +92,7 @@ class LinkHealth:
     rates_reasserted: int = 0  # times we asked for our rates again after such a change
     gcs_identity_clash: bool = False  # another ground station uses our sysid/compid
     security: LinkSecurity = field(default_factory=LinkSecurity)
+    forwards: tuple[ForwardTarget, ...] = ()  # the --forward targets looked up by name
 
 
 class HealthMeter:
@@ -144,6 +154,7 @@ class HealthMeter:
         sysid: int | None,
         compid: int | None,
         security: LinkSecurity,
+        forwards: tuple[ForwardTarget, ...] = (),
     ) -> LinkHealth:
         streams = self.loss.report(
             (sysid, compid) if sysid is not None and compid is not None else None
@@ -179,4 +190,5 @@ class HealthMeter:
             rates_reasserted=self.rates_reasserted,
             gcs_identity_clash=self.gcs_identity_clash,
             security=security,
+            forwards=forwards,
         )

@@ -17,6 +17,9 @@ class LinkSettings(Section):
     source: str = "sim"
     sysid: int | None = Field(None, ge=1, le=255)  # pin the autopilot; None = auto-detect
     forward: list[str] = Field(default_factory=list)  # raw MAVLink copies (udpout:HOST:PORT)
+    # How often a forward target given by name is looked up again (a laptop that joins
+    # the field Wi-Fi after the station started, or gets another DHCP address).
+    forward_resolve_s: float = Field(10.0, gt=0)
     link_lost_s: float = Field(2.0, gt=0)
     heartbeat_hz: float = Field(1.0, gt=0)
     reconnect_s: float = Field(1.0, gt=0)

@@ -20,6 +20,7 @@ import os
 import select
 import socket
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Protocol
@@ -94,6 +95,11 @@ def parse_connection(text: str) -> ConnSpec:
 class Transport(Protocol):
     def fileno(self) -> int: ...
     def read(self) -> bytes: ...
+    def read_queued(self) -> Iterator[bytes]:
+        """What is queued now, as reads (a stream's one read already takes all of it;
+        UDP's are one datagram each): one wake-up of the reader for a burst."""
+        ...
+
     def write(self, data: bytes) -> None: ...
     def close(self) -> None: ...
 
@@ -128,7 +134,11 @@ class UdpTransport:
     """
 
     def __init__(
-        self, spec: ConnSpec, lock: bool = True, foreign: ForeignSenders | None = None
+        self,
+        spec: ConnSpec,
+        lock: bool = True,
+        foreign: ForeignSenders | None = None,
+        resolve_name: bool = True,
     ) -> None:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.setblocking(False)
@@ -141,11 +151,13 @@ class UdpTransport:
                 self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 self._sock.bind((spec.host, spec.port))
                 self._peer: tuple[str, int] | None = None
-            else:
+            elif resolve_name or is_ip_address(spec.host):
                 self._peer = resolve_udp_peer(spec.host, spec.port)
                 if ipaddress.ip_address(self._peer[0]).is_loopback:
                     # A peer on this host: nothing off the host needs to reach our port.
                     self._sock.bind(("127.0.0.1", 0))
+            else:  # a name the owner resolves off this thread (companion.forward_resolver)
+                self._peer = None
         except BaseException:
             self._sock.close()
             raise
@@ -160,11 +172,31 @@ class UdpTransport:
         return self._sock.fileno()
 
     def read(self) -> bytes:
+        """One datagram's bytes; b"" when none is queued or it came from a foreign sender."""
+        data = self._receive()
+        return data or b""
+
+    def read_queued(self, limit: int = 64) -> Iterator[bytes]:
+        """Each datagram queued now (at most `limit`), one at a time: an autopilot sends
+        its streams in bursts (ATTITUDE, GLOBAL_POSITION_INT and LOCAL_POSITION_NED on
+        the same tick), and a burst read at one wake-up is one epoll wait and one state
+        publish instead of one each per datagram. The caller handles each datagram
+        before the next is read, so `adopt_sender` still names that datagram's sender."""
+        for _ in range(limit):
+            data = self._receive()
+            if data is None:
+                return
+            if data:
+                yield data
+
+    def _receive(self) -> bytes | None:
+        """The next datagram's bytes, b"" for one refused (a foreign sender), None when
+        nothing is queued."""
         try:
             data, addr = self._sock.recvfrom(_UDP_MAX)
         except (BlockingIOError, ConnectionRefusedError):
             # udpout: an ICMP "port unreachable" for our last send; the peer may come back
-            return b""
+            return None
         addr = addr[:2]
         if not self._accepts(addr):
             self.foreign.datagrams += 1
@@ -174,6 +206,12 @@ class UdpTransport:
         if not self.confirm_senders:
             self.adopt_sender()
         return data
+
+    def set_peer(self, peer: tuple[str, int]) -> None:
+        """udpout: the address its peer's name resolves to now (a laptop that joined the
+        network late, or came back with another DHCP address)."""
+        if self._fixed_peer:
+            self._peer = peer
 
     def adopt_sender(self) -> None:
         """udpin: the last datagram's sender becomes the peer (answered; the lock's host)."""
@@ -205,6 +243,15 @@ class UdpTransport:
         self._sock.close()
 
 
+def is_ip_address(host: str) -> bool:
+    """`host` is an address, not a name: resolving it needs no lookup."""
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
 def resolve_udp_peer(host: str, port: int) -> tuple[str, int]:
     """The IPv4 address datagrams from `host:port` come from. Resolved once: a name
     looked up per packet blocks the link thread. 0.0.0.0 means this host (Linux sends
@@ -233,6 +280,9 @@ class TcpTransport:
         if not data:
             raise ConnectionError("TCP peer closed the connection")
         return data
+
+    def read_queued(self) -> Iterator[bytes]:
+        yield self.read()
 
     def write(self, data: bytes) -> None:
         self._sock.sendall(data)
@@ -270,6 +320,9 @@ class SerialTransport:
             # readable but nothing came: the device is gone (unplugged USB)
             raise ConnectionError("serial port returned no data: device gone")
         return data
+
+    def read_queued(self) -> Iterator[bytes]:
+        yield self.read()
 
     def write(self, data: bytes) -> None:
         view = memoryview(data)

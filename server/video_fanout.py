@@ -30,6 +30,7 @@ def frame_time_header(frame: Frame) -> str:
 
 
 OPENING = f"--{BOUNDARY}\r\n".encode("ascii")
+_CLOSING = b"\r\n" + OPENING
 
 
 def multipart_part(frame: Frame) -> bytes:
@@ -41,7 +42,7 @@ def multipart_part(frame: Frame) -> bytes:
         f"X-Frame-Seq: {frame.seq}\r\nX-Frame-Time: {frame_time_header(frame)}\r\n"
         f"X-Frame-Signal: {int(frame.signal)}\r\n\r\n"
     ).encode("ascii")
-    return head + frame.jpeg + b"\r\n" + OPENING
+    return b"".join((head, frame.jpeg, _CLOSING))  # one copy of the JPEG, not three
 
 
 class FrameFanout:
@@ -106,7 +107,10 @@ class FrameFanout:
                     self._ensure_pump()
                     event = self._event
                     try:
-                        await asyncio.wait_for(event.wait(), _DISCONNECT_CHECK_S)
+                        # asyncio.timeout, not wait_for: wait_for wraps each wait in a
+                        # task of its own, and this runs per viewer for every frame.
+                        async with asyncio.timeout(_DISCONNECT_CHECK_S):
+                            await event.wait()
                     except TimeoutError:
                         if await is_disconnected():
                             return

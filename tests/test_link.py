@@ -12,8 +12,11 @@ import tty
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.forward_resolver import ForwardResolver
 from companion.link import MavlinkLink
+from companion.link_health import ForwardTarget
 from companion.link_settings import LinkSettings
+from companion.transports import UdpTransport, format_addr, parse_connection
 from core.mavlink.tlog_records import write_record
 from tests.helpers import free_port
 from tests.helpers import wait_until as _wait_until
@@ -254,6 +257,79 @@ def test_forwarding_and_send_reach_both_ends():
         mc = next(m for m in v.received if m.get_type() == "MANUAL_CONTROL")
         assert (mc.x, mc.y, mc.z) == (100, -200, 500)
     qgc.close()
+
+
+def test_forward_by_name_is_looked_up_off_the_link_and_a_name_that_fails_costs_nothing():
+    """A forward target given by name is resolved by the resolver's thread (a lookup can
+    block for seconds; the link starts on the event loop), and a name that does not
+    resolve (the laptop not on the Wi-Fi yet) leaves the vehicle link as it was and says
+    so in the health."""
+    qgc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    qgc.bind(("127.0.0.1", 0))
+    qgc.settimeout(5)
+    port = qgc.getsockname()[1]
+    forward = [f"udpout:localhost:{port}", "udpout:qgc-laptop.invalid:14550"]
+    with MavVehicle("udp") as v, running_link(v.station_source, forward=forward) as link:
+        data, _ = qgc.recvfrom(65535)  # the vehicle's packets, sent to the name's address
+        assert mavlink.MAVLink(None).parse_buffer(data)[0].get_srcSystem() == 1
+        assert wait_until(lambda: state(link) and state(link).heartbeat.autopilot == "px4")
+        assert wait_until(lambda: link.health().forwards[1].error is not None, timeout=15)
+        by_name, missing = link.health().forwards
+        assert by_name == ForwardTarget(f"udpout:localhost:{port}", f"127.0.0.1:{port}")
+        assert missing.address is None and "qgc-laptop.invalid" in missing.error
+        assert link.running
+    qgc.close()
+
+
+def test_forward_resolver_follows_the_names_address_and_keeps_it_when_a_lookup_fails():
+    """The laptop joins late, then gets another DHCP address; the DNS server goes away.
+    The lookup is what cannot happen here (no DNS to change): it is replaced, at that
+    boundary; the sockets and datagrams are real."""
+    laptop_a, laptop_b = (socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(2))
+    for s in (laptop_a, laptop_b):
+        s.bind(("127.0.0.1", 0))
+        s.settimeout(0.2)
+    answers: list = [socket.gaierror(-2, "Name or service not known")]
+
+    def lookup(host: str, port: int) -> tuple[str, int]:
+        assert (host, port) == ("qgc.local", 14550)
+        answer = answers[0]
+        if isinstance(answer, OSError):
+            raise answer
+        return answer
+
+    spec = parse_connection("udpout:qgc.local:14550")
+    fwd = UdpTransport(spec, resolve_name=False)
+    resolver = ForwardResolver([(spec, fwd)], interval_s=60, resolve=lookup)
+
+    def arrives(sock) -> bool:
+        fwd.write(b"copy")
+        try:
+            return sock.recv(100) == b"copy"
+        except TimeoutError:
+            return False
+
+    try:
+        resolver.resolve_all()  # not on the network yet: nothing is sent anywhere
+        (target,) = resolver.targets()
+        assert target.address is None and "Name or service not known" in target.error
+        assert not arrives(laptop_a)
+        answers[0] = laptop_a.getsockname()
+        resolver.resolve_all()
+        assert resolver.targets()[0].error is None
+        assert arrives(laptop_a)
+        answers[0] = laptop_b.getsockname()  # another DHCP lease
+        resolver.resolve_all()
+        assert arrives(laptop_b) and not arrives(laptop_a)
+        answers[0] = socket.gaierror(-3, "Temporary failure in name resolution")
+        resolver.resolve_all()  # the DNS server went away: keep sending where it works
+        assert resolver.targets()[0].address == format_addr(laptop_b.getsockname())
+        assert "Temporary failure" in resolver.targets()[0].error
+        assert arrives(laptop_b)
+    finally:
+        fwd.close()
+        laptop_a.close()
+        laptop_b.close()
 
 
 def test_listener_errors_never_stop_the_link():

@@ -11,6 +11,7 @@ import hashlib
 import json
 import os
 import pty
+import select
 import socket
 import time
 import tty
@@ -460,3 +461,30 @@ def test_serve_flags_set_the_link_defences(tmp_path) -> None:
     assert link.udpin_lock is False and link.signing_key() == KEY
     default = settings_from_args(build_parser().parse_args(["serve"])).link
     assert default.udpin_lock is True and default.signing_key() is None
+
+
+def test_udpin_reads_a_burst_at_one_wake_up_and_still_refuses_a_foreign_datagram() -> None:
+    """The link reads every datagram queued at a wake-up (an autopilot's streams come in
+    bursts), one at a time, so the lock still refuses another host's datagram inside the
+    burst; with nothing queued the read returns at once."""
+    from companion.transports import UdpTransport, parse_connection
+
+    port = free_port(socket.SOCK_DGRAM)
+    transport = UdpTransport(parse_connection(f"udpin:127.0.0.1:{port}"))
+    packets = [forged_position(REAL_LAT + k * 1e-4) for k in range(3)]
+    with (
+        contextlib.closing(transport),
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as vehicle,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other,
+    ):
+        vehicle.bind(("127.0.0.1", 0))
+        other.bind(("127.0.0.2", 0))
+        vehicle.sendto(packets[0], ("127.0.0.1", port))
+        other.sendto(forged_position(FORGED_LAT), ("127.0.0.1", port))
+        for p in packets[1:]:
+            vehicle.sendto(p, ("127.0.0.1", port))
+        assert select.select([transport], [], [], 5)[0]
+        assert list(transport.read_queued()) == packets
+        assert transport.foreign.datagrams == 1
+        assert transport.peer == vehicle.getsockname()
+        assert list(transport.read_queued()) == []
