@@ -282,7 +282,8 @@ class MavlinkLink:
                     r = key.fileobj
                     if r is transport:
                         for data in transport.read_queued():
-                            if data and self._on_bytes(data, now) and confirm is not None:
+                            probation = confirm is not None and confirm.probation
+                            if data and self._on_bytes(data, now, probation) and confirm:
                                 confirm.adopt_sender()
                     elif r == self._wake_r:
                         try:
@@ -357,9 +358,12 @@ class MavlinkLink:
 
     # -- per packet and periodic work -------------------------------------------------
 
-    def _on_bytes(self, data: bytes, now: float) -> int:
-        """Handle what arrived; returns how many packets carried a good signature. The
-        new state is published by `_publish_state`, once for all that one wake-up read."""
+    def _on_bytes(self, data: bytes, now: float, probation: bool = False) -> int:
+        """Handle what arrived; returns how many packets confirm its sender as the peer:
+        those with a good signature, and from a host on `probation` (not the udpin
+        lock's; signing on) only the followed autopilot's, whose unsigned radio packets
+        are refused there too. The new state is published by `_publish_state`, once for
+        all that one wake-up read."""
         self._meter.on_bytes(len(data))
         msgs = self._framer.feed(data)
         if not msgs:
@@ -371,10 +375,11 @@ class MavlinkLink:
         for msg in msgs:
             packet = bytes(msg.get_msgbuf())
             if self._signing is not None:
-                verdict = self._check_signature(packet)
+                verdict = self._check_signature(packet, allow_unsigned=not probation)
                 if verdict not in ("signed", "unsigned_allowed"):
                     continue  # not the vehicle's: kept out of the state, recording, forwards
-                signed += verdict == "signed"
+                # Another key holder elsewhere (a signed MAVProxy) must not take the lock.
+                signed += verdict == "signed" and (not probation or tracker.follows(msg))
             mtype = msg.get_type()
             self._meter.on_packet(mtype, msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq())
             if mtype == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS:
@@ -400,9 +405,9 @@ class MavlinkLink:
             self._state_changed = False
             self.state.publish(self._tracker.state)
 
-    def _check_signature(self, packet: bytes) -> Verdict:
+    def _check_signature(self, packet: bytes, allow_unsigned: bool = True) -> Verdict:
         assert self._signing is not None
-        verdict = self._signing.check(packet)
+        verdict = self._signing.check(packet, allow_unsigned)
         if verdict in ("signed", "unsigned_allowed"):
             return verdict
         c = self._signing.counts

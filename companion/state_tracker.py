@@ -129,6 +129,12 @@ class StateTracker:
             return False
         return self.compid is None or msg.get_srcComponent() == self.compid
 
+    def follows(self, msg: mavlink.MAVLink_message) -> bool:
+        """`msg` comes from the autopilot followed (any sender before one is)."""
+        if self.compid is None:
+            return self.sysid is None or msg.get_srcSystem() == self.sysid
+        return msg.get_srcSystem() == self.sysid and msg.get_srcComponent() == self.compid
+
     def update(self, msg: mavlink.MAVLink_message, t_mono: float) -> bool:
         mtype = msg.get_type()
         if mtype == "HEARTBEAT":

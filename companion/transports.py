@@ -130,7 +130,9 @@ class UdpTransport:
     answered, and the host the lock holds) only when its datagram held a packet signed
     with the key (`adopt_sender`), so that an unsigned datagram sent first cannot take
     the lock, nor one sent later take our answers. Until then the last sender is
-    answered.
+    answered. Once locked, another host's datagrams are not dropped but marked
+    `probation`: the link lets the lock follow only the followed autopilot's signed
+    packets there (the vehicle at a new address), and nothing unsigned from there.
     """
 
     def __init__(
@@ -145,6 +147,7 @@ class UdpTransport:
         self._lock = lock
         self.foreign = foreign if foreign is not None else ForeignSenders()
         self.confirm_senders = False
+        self.probation = False  # the last datagram came from another host than the peer's
         self._sender: tuple[str, int] | None = None  # of the last datagram read
         try:
             if spec.kind == "udpin":
@@ -198,7 +201,13 @@ class UdpTransport:
             # udpout: an ICMP "port unreachable" for our last send; the peer may come back
             return None
         addr = addr[:2]
-        if not self._accepts(addr):
+        if self._accepts(addr):
+            self.probation = False
+        elif self.confirm_senders and not self._fixed_peer:
+            # Signing on: another host may be the vehicle at a new address (a DHCP lease,
+            # a bridge that rebooted). Its datagram is parsed and signing judges it.
+            self.probation = True
+        else:
             self.foreign.datagrams += 1
             self.foreign.last = addr
             return b""

@@ -67,6 +67,32 @@ def error_response(status_code: int, name: str, message: str) -> JSONResponse:
     )
 
 
+async def deny_websocket(ws: WebSocket, status_code: int, name: str, message: str) -> None:
+    """Refuse a WebSocket upgrade with an HTTP answer in the error shape (503 at a cap,
+    400 for a bad query), not a bare 403: browsers and scripts see why."""
+    # uvicorn's websockets-sansio protocol (0.54) then logs "ASGI callable returned
+    # without completing handshake." at ERROR for every denial, a bug it has open
+    # (Kludex/uvicorn#3138); DenialLogFilter drops that one record per denial sent here.
+    DenialLogFilter.pending += 1
+    await ws.send_denial_response(error_response(status_code, name, message))
+
+
+class DenialLogFilter(logging.Filter):
+    """On `uvicorn.error`: drops uvicorn's false "without completing handshake" error
+    after each denial `deny_websocket` sent; the same message with no denial pending (a
+    handler that really returned without accepting) is still logged."""
+
+    MESSAGE = "ASGI callable returned without completing handshake."
+    pending = 0  # denials sent whose false error is still to come (event loop only)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno == logging.ERROR and DenialLogFilter.pending > 0:
+            if record.getMessage() == self.MESSAGE:
+                DenialLogFilter.pending -= 1
+                return False
+        return True
+
+
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def _api_error(_: Request, exc: ApiError) -> JSONResponse:
@@ -85,12 +111,10 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(WebSocketRequestValidationError)
     async def _ws_validation(ws: WebSocket, exc: WebSocketRequestValidationError) -> None:
-        # A refused upgrade answered in the error shape (an HTTP 400 with a JSON body),
-        # not a bare 403: browsers and scripts see why.
         problems = "; ".join(
             f"{'.'.join(str(p) for p in err['loc'])}: {err['msg']}" for err in exc.errors()
         )
-        await ws.send_denial_response(error_response(400, "BadRequest", problems))
+        await deny_websocket(ws, 400, "BadRequest", problems)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:

@@ -18,6 +18,8 @@ import time
 
 import uvicorn
 
+from server.errors import DenialLogFilter
+
 log = logging.getLogger(__name__)
 
 NOTSENT_LOWAT_BYTES = 64 * 1024  # about one 640x480 JPEG
@@ -102,4 +104,9 @@ def uvicorn_server(app, log_level: str = "info") -> uvicorn.Server:
         timeout_graceful_shutdown=2,
         lifespan="on",
     )
+    # After the Config: it configures uvicorn's loggers. Once per logger, however many
+    # servers a process runs (the tests run many).
+    errors = logging.getLogger("uvicorn.error")
+    if not any(isinstance(f, DenialLogFilter) for f in errors.filters):
+        errors.addFilter(DenialLogFilter())
     return StationServer(config)

@@ -104,9 +104,9 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.link = link
             station.state = link.state
 
-        if (link := station.link) is not None:
-            station.tasks.watch("mavlink link thread", lambda: link.crashed)
-            station.telemetry_json.clock = link.clock  # a replay's ages are in its time
+        if (vehicle_link := station.link) is not None:
+            station.tasks.watch("mavlink link thread", lambda: vehicle_link.crashed)
+            station.telemetry_json.clock = vehicle_link.clock  # a replay's ages: its time
 
         # -- cameras (after the twin, whose renderer the sim cameras use) ------------
         await _open_cameras(station, stack)

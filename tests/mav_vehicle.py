@@ -72,6 +72,7 @@ class MavVehicle:
         answer_sender: bool = False,
         signing_key: bytes | None = None,
         signing_clock_s: float = 0.0,
+        host: str = "127.0.0.1",
     ) -> None:
         self.transport = transport
         self.sysid, self.compid = sysid, compid
@@ -124,7 +125,7 @@ class MavVehicle:
         if transport == "udp":
             self.station_port = station_port or free_port(socket.SOCK_DGRAM)
             self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self._sock.bind(("127.0.0.1", port or 0))
+            self._sock.bind((host, port or 0))  # 127.0.0.2, ...: another host
             self._sock.settimeout(0.05)
             self.port = self._sock.getsockname()[1]
             self.station_source = (

@@ -81,7 +81,7 @@ def box_is_the_picture(p: dict) -> None:
     assert abs(p["boxW"] / p["boxH"] - ratio) <= 0.02 * ratio, p
 
 
-@pytest.mark.parametrize("size", [(1280, 800), (1920, 1080)])
+@pytest.mark.parametrize("size", [(1280, 720), (1280, 800), (1920, 1080)])
 def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station, browser, size):
     """With a task selected (its procedure and steps fill the side column) the bottom
     camera keeps the column's width at its own aspect ratio, on the screen."""
@@ -105,6 +105,15 @@ def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station,
     bottom = pics["bottom-view"]
     box_is_the_picture(bottom)
     assert bottom["shownW"] >= 0.25 * w and bottom["ph"] >= 0.2 * h, bottom
+    if tasks:
+        # The task panel gave up height (it scrolls): the step the pilot is on is in view.
+        inside = page.evaluate(
+            """() => { const li = document.querySelector('#task-steps li.current');
+            const r = li.getBoundingClientRect();
+            const p = document.querySelector('#task-panel').getBoundingClientRect();
+            return r.top >= p.top && r.bottom <= p.bottom && r.bottom <= innerHeight; }"""
+        )
+        assert inside
     page.close()
 
 

@@ -4,7 +4,9 @@ against a real uvicorn server (server/guard.py)."""
 from __future__ import annotations
 
 import json
+import logging
 import socket
+import time
 
 import httpx
 import pytest
@@ -12,6 +14,7 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from server.app import create_app
+from server.errors import DenialLogFilter
 from server.guard import RedactTokens
 from server.settings import load_settings
 from tests.helpers import run_uvicorn, station_settings
@@ -227,3 +230,30 @@ def _up(base: str) -> bool:
         return httpx.get(f"{base}/api/health", timeout=2).status_code == 200
     except httpx.HTTPError:
         return False
+
+
+def test_a_websocket_beyond_its_cap_is_refused_with_a_reason_and_no_false_error(tmp_path):
+    """503 in the error shape; uvicorn's false "without completing handshake" ERROR after
+    a denial (Kludex/uvicorn#3138) is not logged, one for each refusal at a crowded cap,
+    while that message with no denial behind it still is."""
+    records: list[logging.LogRecord] = []
+    handler = logging.Handler(logging.ERROR)
+    handler.emit = records.append  # type: ignore[method-assign]
+    uvicorn_errors = logging.getLogger("uvicorn.error")
+    app = create_app(station_settings("none", tmp_path, **{"server.max_ws_clients": 1}))
+    with run_uvicorn(app) as base:
+        uvicorn_errors.addHandler(handler)
+        try:
+            url = base.replace("http", "ws") + "/ws/telemetry"
+            with connect(url, open_timeout=5):
+                for _ in range(3):
+                    with pytest.raises(InvalidStatus) as exc:
+                        connect(url, open_timeout=5)
+                    assert exc.value.response.status_code == 503
+                    assert json.loads(exc.value.response.body)["error"] == "Unavailable"
+            time.sleep(0.3)  # uvicorn logs after the handler returned
+            assert [r.getMessage() for r in records] == []
+            uvicorn_errors.error(DenialLogFilter.MESSAGE)  # a handler that really forgot
+            assert [r.getMessage() for r in records] == [DenialLogFilter.MESSAGE]
+        finally:
+            uvicorn_errors.removeHandler(handler)

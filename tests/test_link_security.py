@@ -488,3 +488,54 @@ def test_udpin_reads_a_burst_at_one_wake_up_and_still_refuses_a_foreign_datagram
         assert transport.foreign.datagrams == 1
         assert transport.peer == vehicle.getsockname()
         assert list(transport.read_queued()) == []
+
+
+def test_signing_lets_the_udpin_lock_follow_the_vehicle_to_a_new_address(tmp_path) -> None:
+    """A vehicle behind a Wi-Fi bridge that rebooted comes back from another address (a
+    new DHCP lease). Without signing the lock cannot tell it from an attacker and holds;
+    with signing its signed packets move the lock there. Another host's unsigned
+    datagrams (a radio's RADIO_STATUS too) are refused, and another holder of the key (a
+    signed ground station elsewhere, system 7) is heard but does not take the lock."""
+    port = free_port(socket.SOCK_DGRAM)
+    overrides = {"link.signing_key_file": str(key_file(tmp_path))}
+    with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
+        with MavVehicle("udp", station_port=port, rates_hz=QUIET, signing_key=KEY) as v:
+            position_fixed(v, app)
+            assert security(base)["peer"] == f"127.0.0.1:{v.port}"
+        with MavVehicle(
+            "udp", station_port=port, rates_hz=QUIET, signing_key=KEY, host="127.0.0.2"
+        ) as moved:
+            sync(moved, app, 0.25)  # heard from the new address
+            assert wait_until(lambda: security(base)["peer"] == f"127.0.0.2:{moved.port}")
+            before = len(moved.received)
+            assert wait_until(lambda: len(moved.received) > before, timeout=5)  # answered
+            assert all(moved.signed(m) for m in list(moved.received))
+            refused = security(base)["unsigned_refused"]
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+                attacker.bind(("127.0.0.3", 0))
+                radio = mavlink.MAVLink(None, srcSystem=51, srcComponent=68)
+                attacker.sendto(
+                    forged_position(FORGED_LAT)
+                    + radio.radio_status_encode(200, 190, 80, 10, 20, 0, 0).pack(radio),
+                    ("127.0.0.1", port),
+                )
+                assert wait_until(lambda: security(base)["unsigned_refused"] == refused + 3)
+            with MavVehicle(
+                "udp",
+                station_port=port,
+                rates_hz=QUIET,
+                signing_key=KEY,
+                host="127.0.0.4",
+                sysid=7,
+            ) as other_key_holder:
+                other_key_holder.send_now("HEARTBEAT")
+                assert wait_until(
+                    lambda: any(
+                        s["sysid"] == 7
+                        for s in httpx.get(f"{base}/api/status").json()["link"]["streams"]
+                    )
+                )
+            sync(moved, app, 0.5)
+            assert_position_real(app)
+            assert security(base)["peer"] == f"127.0.0.2:{moved.port}"
+            assert security(base)["unsigned_allowed"] == 0

@@ -9,7 +9,9 @@
 import { $, el } from "/lib.js";
 import { feed, reading } from "/telemetry.js";
 
-const STALE_MS = 3000; // no message for this long while the socket is open: link lost
+// No message for this long while the socket is open: link lost. Source seconds (a replay's
+// log time, telemetry.js), or wall seconds before the first message.
+const STALE_S = 3;
 // Row (value element id) -> the reading it shows (telemetry.js READINGS: its groups and
 // stale age).
 const ROWS = {
@@ -93,12 +95,13 @@ function updateFreshness() {
 function updateBanner() {
   updateFreshness();
   const msg = feed.latest;
-  const quietMs = performance.now() - (feed.receivedAt || openedAt);
+  const quietS = msg ? feed.sourceSince() : (performance.now() - openedAt) / 1000;
   let detail = null;
   if (!feed.socketOpen) detail = "no connection to the station";
-  else if (!msg) detail = quietMs > STALE_MS ? "no vehicle state" : null;
+  else if (!msg) detail = quietS > STALE_S ? "no vehicle state" : null;
+  else if (feed.ended) detail = "the replay has ended";
   else if (msg.state.link.link_lost) detail = "no heartbeat from the autopilot";
-  else if (quietMs > STALE_MS) detail = "telemetry stopped";
+  else if (quietS > STALE_S) detail = "telemetry stopped";
   const banner = $("link-banner");
   banner.hidden = detail === null;
   $("link-banner-detail").textContent = detail ?? "";

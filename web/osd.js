@@ -15,7 +15,7 @@
 // off in a menu ("OSD" button, or the O key on the goggles); the choice is kept in
 // localStorage. Cost per frame: window.fpv.osdStats (benchmarks/osd_frame_cost.py; with
 // osdStats.raster set, the canvases are rasterized inside the timing, as the display would).
-import { el, api } from "/lib.js";
+import { el } from "/lib.js";
 import { feed, groupAge, reading } from "/telemetry.js";
 
 const HIDDEN_KEY = "fpv.osd.hidden";
@@ -240,27 +240,28 @@ export function mountOsd(view, { menu = true } = {}) {
     nodes.home.dataset.mark = mark ?? "none";
     setValue("home", posR, homeTxt);
 
-    // Link: loss from /api/status (polled), RSSI from RC_CHANNELS when the receiver has it.
+    // Link: loss from /api/status (telemetry.js polls it), RSSI from RC_CHANNELS when the receiver has it.
     const rssi = s.rc.rssi !== null && s.rc.rssi !== 255 ? ` RSSI ${Math.round((s.rc.rssi / 254) * 100)}%` : "";
     const loss = link.loss === null ? "" : `LQ ${fixed(100 * (1 - link.loss), 0)}%`;
     setText(nodes.link, `${loss}${rssi}`.trim() || "LQ --");
 
     // Ages: the newest vehicle telemetry and the front camera's newest frame.
-    const tAge = ageOfNewest(s);
+    const tAge = ageOfNewest();
     const cam = (fpv.cameras || {}).front;
     const vAge = cam && cam.last_frame_age_s !== null && cam.last_frame_age_s !== undefined
       ? cam.last_frame_age_s + (performance.now() - (fpv.camerasAt || performance.now())) / 1000 : null;
     setText(nodes.age, `TLM ${tAge === null ? "--" : tAge.toFixed(1) + "s"} VID ${vAge === null ? "--" : vAge.toFixed(1) + "s"}`);
 
-    // Messages line and centre warnings.
-    const recent = s.messages.recent.filter((m) => msg.t_server_mono - m.t_mono < MESSAGE_SHOWN_S);
+    // Messages line and centre warnings (how long each shows: in the source's time).
+    const now = msg.t_server_mono + feed.sourceSince();
+    const recent = s.messages.recent.filter((m) => now - m.t_mono < MESSAGE_SHOWN_S);
     setText(nodes.messages, recent.slice(-MESSAGE_LINES)
       .map((m) => `${SEVERITY[m.severity] ?? "MSG"} ${m.text}`).join("\n"));
     const warnings = [];
     if (!feed.flowing() || s.link.link_lost) warnings.push("LINK LOST");
     if (low) warnings.push("LOW BATTERY");
     if (s.gps.t_mono !== null && (s.gps.fix_type < 3 || (groupAge("gps") ?? 0) > 3)) warnings.push("GPS LOST");
-    const serious = s.messages.recent.filter((m) => m.kind === "statustext" && msg.t_server_mono - m.t_mono < WARNING_SHOWN_S);
+    const serious = s.messages.recent.filter((m) => m.kind === "statustext" && now - m.t_mono < WARNING_SHOWN_S);
     if (serious.some((m) => /fail-?safe/i.test(m.text)) || /failsafe/i.test(s.heartbeat.mode)) warnings.push("FAILSAFE");
     if (serious.some((m) => /crash/i.test(m.text))) warnings.push("CRASH");
     else if (serious.some((m) => m.severity <= 2)) warnings.push("EMERGENCY");
@@ -271,7 +272,6 @@ export function mountOsd(view, { menu = true } = {}) {
     setText(nodes.warning, warnings.join(" · "));
   }
 
-  watchLink();
   applyHidden();
   requestAnimationFrame(frame);
   return {
@@ -302,43 +302,31 @@ function setHidden(name, off) {
   for (const apply of mounted) apply();
 }
 
-// The link's packet loss: one cheap GET every 2 s for the page, however many OSDs it has
-// (not part of the vehicle state). Also whether the station is refusing MAVLink
-// (datagrams from hosts other than the link's peer, packets failing signing): someone
-// may be injecting; `refusedAt` is when the count last grew.
-const link = { loss: null, refusedTotal: null, refusedAt: null, polling: false };
-async function pollLink() {
-  try {
-    const st = await api("/api/status");
-    link.loss = st.link ? st.link.loss_ratio : null;
-    const sec = st.link && st.link.security;
-    if (sec) {
-      // signing's one figure (LinkSecurity.refused), and datagrams from other hosts
-      const total = sec.refused + sec.foreign_datagrams + sec.forward_foreign_datagrams;
-      if (link.refusedTotal !== null && total > link.refusedTotal) link.refusedAt = performance.now();
-      link.refusedTotal = total;
-    }
-  } catch (err) {
-    link.loss = null;
+// The link's packet loss, from the page's one GET /api/status (telemetry.js, every 2 s;
+// not part of the vehicle state). Also whether the station is refusing MAVLink (datagrams
+// from hosts other than the link's peer, packets failing signing): someone may be
+// injecting; `refusedAt` is when the count last grew.
+const link = { loss: null, refusedTotal: null, refusedAt: null };
+window.addEventListener("fpv:status", (e) => {
+  const st = e.detail;
+  link.loss = st && st.link ? st.link.loss_ratio : null;
+  const sec = st && st.link && st.link.security;
+  if (sec) {
+    // signing's one figure (LinkSecurity.refused), and datagrams from other hosts
+    const total = sec.refused + sec.foreign_datagrams + sec.forward_foreign_datagrams;
+    if (link.refusedTotal !== null && total > link.refusedTotal) link.refusedAt = performance.now();
+    link.refusedTotal = total;
   }
-}
-function watchLink() {
-  if (link.polling) return;
-  link.polling = true;
-  pollLink();
-  setInterval(pollLink, 2000);
-}
+});
 
-// Seconds since the vehicle was last heard, as the browser sees it now.
-function ageOfNewest(s) {
-  const msg = feed.latest;
+// Seconds since the vehicle was last heard (source seconds, as the browser sees it now).
+function ageOfNewest() {
   let newest = null;
   for (const g of ["heartbeat", "gps", "global_position", "vfr_hud", "attitude", "battery"]) {
-    const t = s[g].t_mono;
-    if (t !== null && (newest === null || t > newest)) newest = t;
+    const age = groupAge(g);
+    if (age !== null && (newest === null || age < newest)) newest = age;
   }
-  if (newest === null) return null;
-  return Math.max(0, msg.t_server_mono - newest) + (performance.now() - feed.receivedAt) / 1000;
+  return newest;
 }
 
 // Text on the canvases is drawn once per label into a small canvas, outlined, and then

@@ -3,6 +3,7 @@
 // a second); start/stop by POST (the control token, when the station has one, is asked
 // for by lib.js).
 import { $, el, api } from "/lib.js";
+import { feed } from "/telemetry.js";
 
 const POLL_MS = 1000;
 let status = null; // newest GET /api/recording reply
@@ -28,7 +29,8 @@ function render() {
     return;
   }
   if (status.recording) {
-    const elapsed = status.elapsed_s + (performance.now() - statusAt) / 1000;
+    // elapsed_s is in the source's time (a replay's log time): it runs on at its rate.
+    const elapsed = status.elapsed_s + feed.sourceSeconds(performance.now() - statusAt);
     button.className = "recording";
     label.textContent = `STOP ${fmtElapsed(elapsed)}`;
     const dropped = Object.values(status.frames_dropped).reduce((a, b) => a + b, 0);

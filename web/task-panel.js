@@ -168,17 +168,27 @@ function render() {
   const current = names.findIndex((_, i) => !done.has(i));
   // The current step for other modules (the goggles' OSD line): null without a task.
   const step = task && current >= 0 ? names[current] : null;
-  if (step !== currentStep) {
-    currentStep = step;
-    window.dispatchEvent(new CustomEvent("fpv:task-step", { detail: step }));
-  }
   steps.replaceChildren(
     ...names.map((name, i) =>
       el("li", { class: done.has(i) ? "done" : i === current ? "current" : null, "data-step": String(i) }, name),
     ),
   );
+  if (step !== currentStep) {
+    currentStep = step;
+    window.dispatchEvent(new CustomEvent("fpv:task-step", { detail: step }));
+    showInPanel(steps.querySelector("li.current"));
+  }
   drawMap();
   renderScore();
+}
+
+// A short side column leaves the panel less than its height (it scrolls, style.css: the
+// bottom camera keeps its size): the step the pilot is on is scrolled into the panel's
+// view when it changes. Only the panel scrolls, never the page.
+function showInPanel(li) {
+  if (!li || panel.scrollHeight <= panel.clientHeight) return;
+  const r = li.getBoundingClientRect(), p = panel.getBoundingClientRect();
+  if (r.top < p.top || r.bottom > p.bottom) panel.scrollTop += r.top - p.top - (p.height - r.height) / 2;
 }
 
 function drawMap() {

@@ -2,50 +2,128 @@
 //
 //   import { feed, groupAge } from "/telemetry.js";
 //   window.addEventListener("fpv:telemetry", (e) => use(e.detail));  // every message
+//   window.addEventListener("fpv:status", (e) => use(e.detail));     // GET /api/status
 //   feed.latest         newest message {t_server, t_server_mono, version, state: {...}}
 //   feed.receivedAt     performance.now() when it arrived (0 before the first)
 //   feed.socketOpen     the WebSocket to the station is open
-//   feed.flowing()      a message arrived within FLOW_MS (a socket open is not enough)
-//   groupAge(name)      seconds since the vehicle's newest `state[name]`, as the browser
-//                       sees it now (station-clock age at sending + time since arrival);
-//                       null when the group was never heard
+//   feed.status         newest GET /api/status reply (polled every STATUS_MS), or null
+//   feed.rate           the source's seconds per wall second, as the messages show it
+//   feed.ended          the source has ended (a replay past its last record)
+//   feed.sourceSince()  source seconds since the newest message, as the browser sees it now
+//   feed.sourceSeconds(ms)  `ms` of wall time in the source's seconds
+//   feed.flowing()      a message came within FLOW_S of the source's time (an open
+//                       socket is not enough), and the source has not ended
+//   groupAge(name)      source seconds since the vehicle's newest `state[name]`, as the
+//                       browser sees it now (its age at sending + sourceSince()); null
+//                       when the group was never heard
 //   reading(name)       {value, age, stale} of one of READINGS (what the pilot page's table
 //                       and the OSD show): the value and its age come from one group
 //
 // One socket per page (ES modules load once): WS /ws/telemetry?ack=1, acknowledged after
 // each message is handled, so a slow browser gets the newest state, never a backlog.
-import { liveSocket } from "/lib.js";
+//
+// The source's clock. Messages carry the source's time (server/telemetry_json.py): the
+// station's for a live vehicle, the log's for a replay, which runs at its ?speed= (x0.25,
+// x4, as fast as it goes) and stops at the log's end. What the pages show between
+// messages (ages, staleness, the flight timer, LINK LOST) runs on that clock, so that a
+// replay shows what the pilot saw at that moment of the log at any speed: a value fresh in
+// the log is fresh on a x0.25 replay, one stale in the log is stale at x4. Between
+// messages the source's time is extrapolated at the rate the messages show (source
+// seconds over wall seconds, over the last seconds of messages): 1 for a live vehicle, as
+// before, and for a replay its speed (the log's clock runs on through a silence in the
+// log at that speed, companion/link.py). Once the station says the replay has ended
+// (GET /api/status, link.replay_done) the log's time stands still and so does every age:
+// the page holds the log's last moment (until the next status poll tells it, ages run on
+// at the replay's rate).
+import { api, liveSocket } from "/lib.js";
 
-export const FLOW_MS = 2000; // no message for this long: telemetry is not flowing
+export const FLOW_S = 2; // no message for this long (source seconds): telemetry is not flowing
+const STATUS_MS = 2000; // GET /api/status this often (link health, whether a replay ended)
+// The rate is measured over messages at least RATE_MIN_MS apart, and at most RATE_SAMPLES
+// of them back (about RATE_MIN_MS * RATE_SAMPLES of wall time).
+const RATE_MIN_MS = 500;
+const RATE_SAMPLES = 4;
+// A measured rate this close to 1 is the station's clock seen through network jitter.
+const RATE_SNAP = 0.1;
+// Faster than this (a replay at ?speed=max) ages are extrapolated at this rate: a few
+// milliseconds of wall time are seconds of the log there, and the states of those seconds
+// exist but have not been sent yet (one message in flight), so they are not ages.
+const RATE_MAX = 8;
 const fpv = (window.fpv = window.fpv || {});
+
+const samples = []; // [performance.now(), t_server_mono] of past messages, oldest first
 
 export const feed = {
   latest: null,
   receivedAt: 0,
   socketOpen: false,
+  status: null,
+  rate: 1,
+  ended: false,
+  sourceSeconds(ms) {
+    return this.ended ? 0 : (Math.min(this.rate, RATE_MAX) * ms) / 1000;
+  },
+  sourceSince() {
+    return this.latest === null ? 0 : this.sourceSeconds(performance.now() - this.receivedAt);
+  },
   flowing() {
-    return this.socketOpen && this.latest !== null && performance.now() - this.receivedAt < FLOW_MS;
+    return this.socketOpen && this.latest !== null && !this.ended && this.sourceSince() < FLOW_S;
   },
 };
 fpv.latest = null;
+fpv.feed = feed;
+
+// The source seconds per wall second over the last messages; a source whose time went
+// back (the station restarted on another log) starts a new measure.
+function measureRate(now, t) {
+  const last = samples[samples.length - 1];
+  if (last && t < last[1]) samples.length = 0;
+  const first = samples[0];
+  if (first && now - first[0] >= RATE_MIN_MS) {
+    const rate = (t - first[1]) / ((now - first[0]) / 1000);
+    feed.rate = Math.abs(rate - 1) <= RATE_SNAP ? 1 : rate;
+  }
+  if (!samples.length || now - samples[samples.length - 1][0] >= RATE_MIN_MS) {
+    samples.push([now, t]);
+    if (samples.length > RATE_SAMPLES) samples.shift();
+  }
+}
 
 const socket = liveSocket("/ws/telemetry?ack=1", {
-  open() { feed.socketOpen = true; },
+  open() {
+    feed.socketOpen = true;
+    samples.length = 0; // a new connection: perhaps a restarted station on another source
+  },
   message(msg) {
+    const now = performance.now();
+    measureRate(now, msg.t_server_mono);
     feed.latest = fpv.latest = msg;
-    feed.receivedAt = performance.now();
+    feed.receivedAt = now;
     window.dispatchEvent(new CustomEvent("fpv:telemetry", { detail: msg }));
     socket.send({ ack: msg.version });
   },
   close() { feed.socketOpen = false; },
 });
 
+async function pollStatus() {
+  try {
+    feed.status = await api("/api/status");
+  } catch (err) {
+    feed.status = null;
+  }
+  const link = feed.status && feed.status.link;
+  feed.ended = Boolean(link && link.replay_done);
+  window.dispatchEvent(new CustomEvent("fpv:status", { detail: feed.status }));
+}
+pollStatus();
+setInterval(pollStatus, STATUS_MS);
+
 export function groupAge(name) {
   const msg = feed.latest;
   if (!msg) return null;
   const g = msg.state[name];
   if (!g || g.t_mono === null || g.t_mono === undefined) return null;
-  return Math.max(0, msg.t_server_mono - g.t_mono) + (performance.now() - feed.receivedAt) / 1000;
+  return Math.max(0, msg.t_server_mono - g.t_mono) + feed.sourceSince();
 }
 
 // What the pages show, each from the first of its groups that has it, and stale after

@@ -130,16 +130,19 @@ class SignatureCheck:
         self._streams: dict[tuple[int, int, int], int] = {}
         self.counts = SigningCounts()
 
-    def check(self, packet: bytes | bytearray) -> Verdict:
-        """The verdict on one whole packet (checksum already verified by the framer)."""
-        verdict = self._verdict(packet)
+    def check(self, packet: bytes | bytearray, allow_unsigned: bool = True) -> Verdict:
+        """The verdict on one whole packet (checksum already verified by the framer).
+        `allow_unsigned=False`: a radio's unsigned packet is refused too (it came from
+        somewhere no radio of ours is)."""
+        verdict = self._verdict(packet, allow_unsigned)
         counts = self.counts
         setattr(counts, verdict, getattr(counts, verdict) + 1)
         return verdict
 
-    def _verdict(self, packet: bytes | bytearray) -> Verdict:
+    def _verdict(self, packet: bytes | bytearray, allow_unsigned: bool) -> Verdict:
         if packet[0] == MAGIC_V1 or not packet[2] & _IFLAG_SIGNED:
-            return "unsigned_allowed" if message_id(packet) in UNSIGNED_ALLOWED else "unsigned"
+            allowed = allow_unsigned and message_id(packet) in UNSIGNED_ALLOWED
+            return "unsigned_allowed" if allowed else "unsigned"
         body, sig = packet[:-6], packet[-6:]
         expected = hashlib.sha256(self._key + bytes(body)).digest()[:6]
         if not hmac.compare_digest(expected, bytes(sig)):

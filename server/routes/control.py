@@ -38,7 +38,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from core.mavlink.px4_modes import PX4_MODES
 from server.auth import require_control_token
-from server.errors import ApiError, BadRequest, Unavailable, error_response
+from server.errors import ApiError, BadRequest, Unavailable, deny_websocket
 from server.pilot import DEADMAN_S, Pilot
 
 if TYPE_CHECKING:
@@ -169,7 +169,7 @@ async def ws_control(ws: WebSocket) -> None:
         with station.client_limits.control.slot():
             await _serve_control(ws, station)
     except Unavailable as exc:
-        await ws.send_denial_response(error_response(503, "Unavailable", exc.message))
+        await deny_websocket(ws, 503, "Unavailable", exc.message)
 
 
 async def _serve_control(ws: WebSocket, station: Station) -> None:

@@ -22,7 +22,7 @@ import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
-from server.errors import Unavailable, error_response
+from server.errors import Unavailable, deny_websocket
 from server.station import Station
 
 router = APIRouter(tags=["telemetry"])
@@ -86,7 +86,7 @@ async def ws_telemetry(
         with station.client_limits.websocket.slot():
             await _serve_telemetry(ws, station, max_rate, ack)
     except Unavailable as exc:
-        await ws.send_denial_response(error_response(503, "Unavailable", exc.message))
+        await deny_websocket(ws, 503, "Unavailable", exc.message)
 
 
 async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack: bool) -> None:
