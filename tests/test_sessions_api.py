@@ -250,6 +250,7 @@ def test_frames_are_served_byte_for_byte_out_of_the_pack(camera_server):
         for row in (listed[0], listed[len(listed) // 2], listed[-1]):
             r = httpx.get(f"{base}/api/sessions/{sid}/files/{row['file']}")
             assert r.status_code == 200 and r.headers["content-type"] == "image/jpeg"
+            assert "max-age" in r.headers["cache-control"]  # a listed frame never changes
             start = int(row["offset"])
             assert r.content == pack[start : start + int(row["bytes"])]
             assert r.content.startswith(b"\xff\xd8") and r.content.endswith(b"\xff\xd9")

@@ -25,6 +25,8 @@ from server.zipstream import stream_zip
 
 router = APIRouter(tags=["sessions"])
 
+FRAME_MAX_AGE_S = 3600  # how long a browser may keep a frame served out of a pack
+
 
 class QualityFlagModel(BaseModel):
     kind: str  # crash, failsafe, telemetry_gap, link_loss, dropped_frames, telemetry_rows
@@ -135,11 +137,13 @@ async def session_file(
     found = await asyncio.to_thread(recorder.store.file_or_frame, session_id, path)
     if isinstance(found, bytes):  # a frame out of its camera's frames.mjpeg (format 2)
         name = path.rsplit("/", 1)[-1]
-        return Response(
-            found,
-            media_type="image/jpeg",
-            headers={"Content-Disposition": f'inline; filename="{name}"'},
-        )
+        headers = {
+            "Content-Disposition": f'inline; filename="{name}"',
+            # A listed frame's bytes never change (the pack only grows; a recovery only
+            # cuts what no row lists): a replay scrubbed back needs not fetch it again.
+            "Cache-Control": f"private, max-age={FRAME_MAX_AGE_S}",
+        }
+        return Response(found, media_type="image/jpeg", headers=headers)
     return FileResponse(found, filename=found.name, content_disposition_type="inline")
 
 
