@@ -17,8 +17,10 @@ batch being written can have pack bytes without rows (recovery cuts them off).
 
 The thread writes in batches, every `batch_interval_s` (0.1 s): a producer does not wake
 it per item (60 frames, 30 rows and 140 packets a second were as many wake-ups, each a
-futex call and a pass over every queue), only when its queue is half full. The CSVs sit
-in their file buffers until the flush anyway, so a batch loses nothing a kill would not.
+futex call and a pass over every queue), only when its queue is half full. The telemetry
+CSVs sit in their file buffers until the flush anyway, so a batch loses nothing a kill
+would not. At each flush the packs and frames.csv files are fdatasync'ed before
+telemetry.csv and the tlog, so a power cut keeps them in the same order.
 """
 
 from __future__ import annotations
