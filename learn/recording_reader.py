@@ -12,8 +12,6 @@ so an export's memory does not grow with the number of sessions.
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import tempfile
 import zipfile
 from collections.abc import Iterator
@@ -27,7 +25,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from analysis.csvcols import CsvColumns, to_float
 from analysis.track import parse_meta
-from companion.recording import layout
+from companion.recording import frame_pack, layout
 from companion.state_tracker import StateTracker
 from core.mavlink.tlog_records import TlogReader
 
@@ -69,17 +67,25 @@ class RecordingError(ValueError):
 
 @dataclass(frozen=True)
 class CameraFrames:
-    """The frames written for one camera, in capture order (its frames.csv)."""
+    """The frames written for one camera whose bytes are on disk, in capture order (its
+    frames.csv; the bytes in its frames.mjpeg, or a file each in a format 1 session)."""
 
     name: str
-    seq: NDArray[np.int64]
-    t_s: Array  # capture time, session clock
-    files: list[str]  # relative to the recording's folder
+    index: frame_pack.FrameIndex
     width: int
     height: int
 
+    @property
+    def seq(self) -> NDArray[np.int64]:
+        return self.index.seq
+
+    @property
+    def t_s(self) -> Array:
+        """Capture times, session clock."""
+        return self.index.t_s
+
     def __len__(self) -> int:
-        return int(self.seq.size)
+        return len(self.index)
 
 
 @dataclass
@@ -99,7 +105,7 @@ class Recording:
 
     def frame_bytes(self, camera: str, k: int) -> bytes:
         """The recorded JPEG bytes of frame `k` (an index into `cameras[camera]`)."""
-        return (self.folder / self.cameras[camera].files[k]).read_bytes()
+        return frame_pack.frame_bytes(self.folder, self.cameras[camera].index, k)
 
 
 def recording_meta(path: str | Path) -> dict:
@@ -230,21 +236,14 @@ def _float_column(table: CsvColumns, k: int | None, source: str, name: str) -> A
 
 
 def _read_frames_csv(folder: Path, camera: str) -> CameraFrames | None:
-    path = folder / layout.frames_csv_relpath(camera)
-    if not path.is_file():
+    """The camera's frames whose bytes are on disk (None: no frames.csv, or none)."""
+    index = frame_pack.read_index(folder, camera)
+    if index is None:
         return None
-    rows = list(csv.DictReader(io.StringIO(path.read_text(errors="replace"))))
-    rows = [r for r in rows if r.get("file") and (folder / r["file"]).is_file()]
-    if not rows:
+    index = index.where(frame_pack.on_disk(folder, index) & np.isfinite(index.t_s))
+    if not len(index):
         return None
-    return CameraFrames(
-        name=camera,
-        seq=np.array([int(r["seq"]) for r in rows], dtype=np.int64),
-        t_s=np.array([float(r["t_s"]) for r in rows]),
-        files=[r["file"] for r in rows],
-        width=int(rows[0]["width"]),
-        height=int(rows[0]["height"]),
-    )
+    return CameraFrames(camera, index, int(index.width[0]), int(index.height[0]))
 
 
 # ---------------------------------------------------------------- bare tlog

@@ -3,8 +3,8 @@
 `zipfile` writes into a small file-like object whose chunks a thread hands to the event
 loop through a bounded asyncio queue (at most `max_chunks` x `chunk_size` bytes in
 flight); the response's async generator awaits them. Reading files and deflating happen
-in that thread, never on the event loop. JPEGs are stored as they are (already
-compressed); text and logs are deflated at level 1 (cheap on a Pi, ~5x on CSV).
+in that thread, never on the event loop. JPEGs (and a session's frames.mjpeg, JPEGs back
+to back) are stored as they are (already compressed); text and logs are deflated at level 1 (cheap on a Pi, ~5x on CSV).
 If the client goes away, the thread notices at its next chunk and stops.
 """
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
-STORED_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".zip", ".gz"})
+STORED_SUFFIXES = frozenset({".jpg", ".jpeg", ".mjpeg", ".png", ".zip", ".gz"})
 
 
 class _Cancelled(Exception):

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.latest import Latest
+from companion.recording import frame_pack, layout
 from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
@@ -33,6 +35,45 @@ def make_jpegs(n: int = 8, width: int = 320, height: int = 240) -> list[bytes]:
         assert ok
         out.append(buf.tobytes())
     return out
+
+
+def recorded_frames(folder: Path, camera: str) -> dict[str, bytes]:
+    """Every frame frames.csv lists whose bytes are on disk, by name (`front/00000042.jpg`),
+    read the way the station reads them (either session format)."""
+    index = frame_pack.read_index(folder, camera)
+    if index is None:
+        return {}
+    out = {}
+    for k in range(len(index)):
+        try:
+            out[index.name(k)] = frame_pack.frame_bytes(folder, index, k)
+        except frame_pack.FrameNotOnDisk:
+            pass
+    return out
+
+
+def as_format_1(folder: Path) -> None:
+    """Turn a recorded session into format 1, as the recorder wrote it before the frame
+    pack: a file per frame (`front/00000042.jpg`), frames.csv without `offset`, no
+    frames.mjpeg, session.json `format_version` 1."""
+    import csv
+    import json
+
+    for cam_dir in sorted(p for p in folder.iterdir() if (p / layout.FRAMES_CSV).is_file()):
+        frames = recorded_frames(folder, cam_dir.name)
+        with open(cam_dir / layout.FRAMES_CSV, newline="") as f:
+            rows = list(csv.DictReader(f))
+        for rel, data in frames.items():
+            (folder / rel).write_bytes(data)
+        with open(cam_dir / layout.FRAMES_CSV, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(layout.FRAME_COLUMNS_V1)
+            w.writerows([r[c] for c in layout.FRAME_COLUMNS_V1] for r in rows)
+        (cam_dir / layout.FRAMES_PACK).unlink()
+    meta_path = folder / layout.SESSION_JSON
+    meta = json.loads(meta_path.read_text())
+    meta["format_version"] = layout.FORMAT_FILE_PER_FRAME
+    meta_path.write_text(json.dumps(meta, indent=2))
 
 
 class FakeCamera:

@@ -22,6 +22,7 @@ from learn.episodes import ChannelMap
 from learn.export import ExportOptions, export_recordings, recorded_task_id
 from server.cli import main as cli_main
 from tests import synthetic as syn
+from tests.recording_fakes import as_format_1, recorded_frames
 from tests.test_flights import _sorties
 
 FPS = 10
@@ -157,12 +158,15 @@ def test_lerobot_videos_decode_to_the_declared_frames(lerobot, session):
         with open(session / cam / "frames.csv", newline="") as f:
             recorded = list(csv.DictReader(f))
         t_rec = np.array([float(r["t_s"]) for r in recorded])
+        on_disk = recorded_frames(session, cam)
+
+        def image(r: dict, on_disk: dict[str, bytes] = on_disk) -> np.ndarray:
+            return cv2.imdecode(np.frombuffer(on_disk[r["file"]], np.uint8), cv2.IMREAD_COLOR)
+
         for k in (5, len(frames) // 2, len(frames) - 3):
             j = int(np.searchsorted(t_rec, data["session_time_s"][k] + 1e-9, side="right") - 1)
-            jpeg = cv2.imread(str(session / recorded[j]["file"]))
-            far = cv2.imread(
-                str(session / recorded[(j + len(recorded) // 2) % len(recorded)]["file"])
-            )
+            jpeg = image(recorded[j])
+            far = image(recorded[(j + len(recorded) // 2) % len(recorded)])
             err = np.abs(frames[k].astype(int) - jpeg.astype(int)).mean()
             assert err < 6.0, (cam, k, err)
             if cam == "front":  # the bottom view of grass can look alike at any time
@@ -217,7 +221,7 @@ def test_mcap_holds_every_frame_row_and_packet_with_foxglove_schemas(session, ro
         assert counts[f"/{cam}/image/compressed"] == len(frames)
         assert schemas[f"/{cam}/image/compressed"] == "foxglove.CompressedImage"
         if cam == "front":
-            first_file = (session / frames[0]["file"]).read_bytes()
+            first_file = recorded_frames(session, cam)[frames[0]["file"]]
     assert counts["/telemetry"] == counts["/gps"] == counts["/pose"] == counts["/tf"] == n_rows
     assert schemas["/gps"] == "foxglove.LocationFix"
     assert schemas["/pose"] == "foxglove.PoseInFrame"
@@ -366,6 +370,38 @@ def test_lerobot_reads_back_the_way_lerobot_reads_it(lerobot, tmp_path):
             if t > query[-1]:
                 break
     assert found == query
+
+
+def _mcap_images(path: Path) -> dict[str, list[bytes]]:
+    from mcap.reader import make_reader
+
+    out: dict[str, list[bytes]] = {}
+    with open(path, "rb") as f:
+        for _schema, channel, message in make_reader(f).iter_messages():
+            if channel.topic.endswith("/image/compressed"):
+                out.setdefault(channel.topic, []).append(message.data)
+    return out
+
+
+def test_a_format_1_session_exports_the_same_frames(session, tmp_path):
+    """A session recorded before the frame pack (a JPEG file per frame) still exports:
+    the same images, byte for byte, as the packed session it was made from."""
+    import shutil
+
+    old = tmp_path / "v1" / session.name
+    shutil.copytree(session, old)
+    as_format_1(old)
+    assert not list(old.glob("*/frames.mjpeg")) and len(list(old.glob("front/*.jpg"))) > 10
+    export_recordings([session], "mcap", tmp_path / "v2out", ExportOptions(task_id=1))
+    export_recordings([old], "mcap", tmp_path / "v1out", ExportOptions(task_id=1))
+    (v2,), (v1,) = (
+        sorted((tmp_path / "v2out").glob("*.mcap")),
+        sorted((tmp_path / "v1out").glob("*.mcap")),
+    )
+    images = _mcap_images(v2)
+    assert set(images) == {"/front/image/compressed", "/bottom/image/compressed"}
+    assert all(len(v) > 10 for v in images.values())
+    assert _mcap_images(v1) == images
 
 
 def test_a_session_zip_exports_like_its_folder(session, tmp_path):

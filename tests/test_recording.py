@@ -15,7 +15,7 @@ from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.video_frame import Frame
-from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs
+from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs, recorded_frames
 
 FPS = 30.0
 
@@ -77,12 +77,19 @@ def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
     assert rows[-1]["heartbeat.armed"] == "0"
     assert float(rows[-1]["heartbeat.t_mono"]) <= float(rows[-1]["t_s"])  # session clock
 
+    assert meta["format_version"] == layout.FORMAT_VERSION == 2
     for cam in layout.CAMERAS:
         referenced = {r[f"{cam}.file"] for r in rows if r[f"{cam}.file"]}
         assert len(referenced) > 60
+        on_disk = recorded_frames(folder, cam)
         for rel in referenced:
             seq = int(Path(rel).stem)
-            assert (folder / rel).read_bytes() == cams[cam].published[seq]
+            assert on_disk[rel] == cams[cam].published[seq]
+        # One pack a camera, no file per frame: the frames back to back, as streamed.
+        assert sorted(p.name for p in (folder / cam).iterdir()) == [
+            layout.FRAMES_CSV,
+            layout.FRAMES_PACK,
+        ]
         # Each row names the newest frame published before the row's instant (the
         # freshest it could have), never a frame from its future.
         done = sorted((t - t0["mono"], seq) for seq, t in cams[cam].published_mono.items())
@@ -94,7 +101,12 @@ def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
             assert float(r[f"{cam}.skew_s"]) >= 0
         frames = read_csv(folder / layout.frames_csv_relpath(cam))
         seqs = [int(row["seq"]) for row in frames]
-        assert all((folder / row["file"]).exists() for row in frames)
+        assert [row["file"] for row in frames] == [layout.frame_relpath(cam, s) for s in seqs]
+        pack = (folder / layout.frames_pack_relpath(cam)).read_bytes()
+        assert pack == b"".join(cams[cam].published[s] for s in seqs)
+        assert [int(row["offset"]) for row in frames] == np.cumsum(
+            [0] + [int(row["bytes"]) for row in frames[:-1]]
+        ).tolist()
         q = meta["quality"]["cameras"][cam]
         # Every frame is written or counted: the Latest slot can skip frames only when
         # both the consumer and the sampler were starved of CPU for a frame period.
@@ -159,7 +171,8 @@ def test_a_burst_loses_no_frame_and_a_sequence_gap_is_counted(tmp_path):
     assert q["frames_dropped"] == q["frames_missed"] == len(skipped)
     assert q["frames_captured"] == published
     rows = read_csv(folder / layout.TELEMETRY_CSV)
-    assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])
+    on_disk = recorded_frames(folder, "front")
+    assert all(r["front.file"] in on_disk for r in rows if r["front.file"])
 
 
 def test_auto_record_on_arm_with_post_disarm_tail(tmp_path):
@@ -241,7 +254,8 @@ def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):
     assert meta["status"] == "cut_short" and meta["stop_reason"] == st.last_stop.reason
     rows = read_csv(folder / layout.TELEMETRY_CSV)
     assert len(rows) == meta["quality"]["telemetry_rows"] > 20
-    assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])
+    on_disk = recorded_frames(folder, "front")
+    assert all(r["front.file"] in on_disk for r in rows if r["front.file"])
 
 
 def test_disk_too_slow_drops_are_counted(tmp_path, monkeypatch):
@@ -285,7 +299,44 @@ def test_disk_too_slow_drops_are_counted(tmp_path, monkeypatch):
     assert q["telemetry_rows_dropped"] > 5
     rows = read_csv(folder / layout.TELEMETRY_CSV)
     assert len(rows) == q["telemetry_rows"]
-    assert all((folder / r["front.file"]).exists() for r in rows if r["front.file"])
+    on_disk = recorded_frames(folder, "front")
+    assert all(r["front.file"] in on_disk for r in rows if r["front.file"])
+
+
+def stalled_pack(folder: Path, camera: str = "front") -> int:
+    """Make `camera`'s frames.mjpeg a FIFO that nobody reads yet, before the writer opens
+    it: a real stall in the kernel, as a slow card gives. The writer's writev blocks once
+    the pipe (64 kB) is full. Returns the reading end (non-blocking, so the open returns;
+    closing it makes the next write fail with EPIPE)."""
+    import os
+
+    (folder / camera).mkdir()
+    fifo = folder / layout.frames_pack_relpath(camera)
+    os.mkfifo(fifo)
+    return os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+
+
+def drain(fd: int, until) -> bytes:
+    """Read the FIFO `fd` until `until()` is true and nothing is left."""
+    import os
+
+    out = bytearray()
+    while True:
+        try:
+            chunk = os.read(fd, 1 << 16)
+        except BlockingIOError:
+            if until():
+                return bytes(out)
+            time.sleep(0.01)
+            continue
+        if not chunk and until():
+            return bytes(out)
+        out += chunk
+
+
+def big_jpeg(n: int = 100_000) -> bytes:
+    """More than a pipe holds: the writer's writev of it stalls on an unread FIFO."""
+    return b"\xff\xd8" + bytes(range(256)) * (n // 256) + b"\xff\xd9"
 
 
 def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog):
@@ -293,8 +344,8 @@ def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog)
     once gave the writer 10 s, then closed the files under it: the writer, resuming, died
     on a closed file (a traceback), and the rows and frames still queued were neither
     written nor counted, in a session reported complete. The stop waits (saying so), and
-    everything queued reaches the files. The stall here is a real one: the frame's path
-    is a FIFO, whose open blocks in the kernel until a reader comes."""
+    everything queued reaches the files. The stall here is a real one: the camera's
+    frame pack is a FIFO, whose write blocks in the kernel until a reader comes."""
     import os
     import threading
 
@@ -302,14 +353,13 @@ def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog)
     from companion.recording.writer import SessionWriter
 
     t0 = time.monotonic()
+    reader = stalled_pack(tmp_path)
     writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), WriterLimits(min_free_bytes=0))
-    stalled = tmp_path / layout.frame_relpath("front", 2)
-    os.mkfifo(stalled)
     died: list[BaseException] = []
     hook, threading.excepthook = threading.excepthook, lambda a: died.append(a.exc_value)
+    jpeg = big_jpeg()
     try:
         writer.start()
-        jpeg = make_jpegs(1)[0]
         for seq in (1, 2, 3):
             assert writer.put_frame("front", Frame("front", seq, jpeg, 320, 240, t0, time.time()))
         for k in range(10):
@@ -318,12 +368,14 @@ def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog)
         closer = threading.Thread(target=writer.close, args=(0.1,))
         closer.start()
         closer.join(1.0)
-        with open(stalled, "rb") as fifo:  # the stall ends: the writer's open returns
-            assert fifo.read() == jpeg
+        assert closer.is_alive()
+        # The stall ends: the writer's writev goes on.
+        assert drain(reader, lambda: not closer.is_alive()) == jpeg * 3
         closer.join(30)
         assert not closer.is_alive()
     finally:
         threading.excepthook = hook
+        os.close(reader)
     assert died == []
     assert [int(r["seq"]) for r in read_csv(tmp_path / layout.frames_csv_relpath("front"))] == [
         1,
@@ -337,7 +389,8 @@ def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog)
 def test_writer_waits_for_its_batch_and_wakes_at_half_full(tmp_path):
     """Producers do not wake the writer per item (60 frames and 30 rows a second were as
     many wake-ups): what is queued waits for the batch timer, a queue at half its limit
-    wakes the thread at once, and closing writes the rest."""
+    wakes the thread at once, and closing writes the rest. A batch's frames.csv rows go
+    straight to the OS with its frames (no flush in this test but the close's)."""
     from companion.recording.rows import RowFormatter, Sample
     from companion.recording.writer import SessionWriter
     from tests.helpers import wait_until
@@ -349,26 +402,28 @@ def test_writer_waits_for_its_batch_and_wakes_at_half_full(tmp_path):
     )
     writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), limits)
     writer.start()
+    pack = tmp_path / layout.frames_pack_relpath("front")
 
     def frame(seq: int) -> Frame:
         return Frame("front", seq, jpeg, 320, 240, t0 + seq / 30, time.time())
 
-    def on_disk() -> list[str]:
-        return sorted(p.name for p in (tmp_path / "front").glob("*.jpg"))
+    def listed() -> list[str]:
+        return list(recorded_frames(tmp_path, "front"))
 
     try:
         for seq in (1, 2, 3):
             assert writer.put_frame("front", frame(seq))
         writer.put_row(Sample(t0 + 0.1, time.time(), None, (None,)))
         time.sleep(0.3)
-        assert on_disk() == []  # below half of the queue: they wait for the batch
+        assert listed() == [] and pack.stat().st_size == 0  # below half: they wait
         assert writer.put_frame("front", frame(4))  # 4 of 8: the writer goes now
-        assert wait_until(lambda: len(on_disk()) == 4, timeout=10), on_disk()
+        assert wait_until(lambda: len(listed()) == 4, timeout=10), listed()
+        assert pack.stat().st_size == 4 * len(jpeg)
         writer.put_frame("front", frame(5))
     finally:
         writer.close()
-    assert on_disk() == [f"{seq:08d}.jpg" for seq in range(1, 6)]
-    assert all((tmp_path / "front" / n).read_bytes() == jpeg for n in on_disk())
+    assert listed() == [layout.frame_relpath("front", seq) for seq in range(1, 6)]
+    assert pack.read_bytes() == jpeg * 5
     assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == 1
     assert [r["seq"] for r in read_csv(tmp_path / layout.frames_csv_relpath("front"))] == [
         "1",
@@ -380,37 +435,9 @@ def test_writer_waits_for_its_batch_and_wakes_at_half_full(tmp_path):
 
 
 def test_a_failed_frame_write_keeps_the_batch_telemetry(tmp_path):
-    """One batch holds frames, rows and packets; when the camera folder fails the frame's
-    write, the rows and packets queued with it are still written (the telemetry files are
-    fine) and only the frames are counted lost."""
-    from companion.recording.rows import RowFormatter, Sample
-    from companion.recording.writer import SessionWriter
-
-    jpeg = make_jpegs(1)[0]
-    t0 = time.monotonic()
-    limits = WriterLimits(batch_interval_s=600.0, flush_interval_s=600.0, min_free_bytes=0)
-    writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), limits)
-    writer.start()
-    try:
-        (tmp_path / "front").rename(tmp_path / "front.moved")
-        (tmp_path / "front").write_text("not a folder")  # the frame's write fails
-        assert writer.put_frame("front", Frame("front", 1, jpeg, 320, 240, t0, time.time()))
-        for i in range(3):
-            writer.put_row(Sample(t0 + 0.1 * i, time.time(), None, (None,)))
-    finally:
-        writer.close()  # the one batch: frames, rows and packets together
-    assert writer.failure is not None and "Not a directory" in writer.failure
-    assert writer.stats.rows_written == 3 and writer.stats.rows_dropped == 0
-    assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == 3
-    assert writer.stats.frames_written["front"] == 0
-    assert writer.stats.frames_dropped_queue["front"] == 1
-
-
-def test_rows_reach_the_disk_only_after_the_frames_they_name(tmp_path):
-    """A batch writes its frames before its rows: a full CSV buffer reaches the OS in the
-    middle of a batch, and a kill then must not leave rows on disk naming frames that
-    are not. The frame's path here is a FIFO, whose open blocks in the kernel until a
-    reader comes: while it blocks, no row of its batch may have been written."""
+    """One batch holds frames, rows and packets; when the camera's pack fails the frame's
+    write (here EPIPE: its FIFO lost its reader), the rows and packets queued with it are
+    still written (the telemetry files are fine) and only the frames are counted lost."""
     import os
 
     from companion.recording.rows import RowFormatter, Sample
@@ -418,30 +445,64 @@ def test_rows_reach_the_disk_only_after_the_frames_they_name(tmp_path):
 
     jpeg = make_jpegs(1)[0]
     t0 = time.monotonic()
+    limits = WriterLimits(batch_interval_s=600.0, flush_interval_s=600.0, min_free_bytes=0)
+    reader = stalled_pack(tmp_path)
+    writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), limits)
+    os.close(reader)  # the frame's write fails
+    writer.start()
+    try:
+        assert writer.put_frame("front", Frame("front", 1, jpeg, 320, 240, t0, time.time()))
+        for i in range(3):
+            writer.put_row(Sample(t0 + 0.1 * i, time.time(), None, (None,)))
+    finally:
+        writer.close()  # the one batch: frames, rows and packets together
+    assert writer.failure is not None and "Broken pipe" in writer.failure
+    assert writer.stats.rows_written == 3 and writer.stats.rows_dropped == 0
+    assert len(read_csv(tmp_path / layout.TELEMETRY_CSV)) == 3
+    assert writer.stats.frames_written["front"] == 0
+    assert writer.stats.frames_dropped_queue["front"] == 1
+    assert read_csv(tmp_path / layout.frames_csv_relpath("front")) == []
+
+
+def test_rows_reach_the_disk_only_after_the_frames_they_name(tmp_path):
+    """A batch writes its frames (the pack, then their frames.csv rows) before its
+    telemetry rows: a full CSV buffer reaches the OS in the middle of a batch, and a kill
+    then must not leave rows on disk naming frames that are not, nor frames.csv rows
+    naming bytes the pack does not hold. The pack here is a FIFO nobody reads: while the
+    frame's write blocks in the kernel, no row of its batch may have been written."""
+    import os
+
+    from companion.recording.rows import RowFormatter, Sample
+    from companion.recording.writer import SessionWriter
+
+    jpeg = big_jpeg()
+    t0 = time.monotonic()
     limits = WriterLimits(
         frame_queue=2, batch_interval_s=600.0, flush_interval_s=600.0, min_free_bytes=0
     )
+    reader = stalled_pack(tmp_path)
     writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), limits)
     csv_path = tmp_path / layout.TELEMETRY_CSV
+    frames_csv = tmp_path / layout.frames_csv_relpath("front")
     header_bytes = csv_path.stat().st_size  # the header, flushed when the files open
-    fifo = tmp_path / layout.frame_relpath("front", 1)
-    os.mkfifo(fifo)
-    reader = None
+    frames_header = frames_csv.stat().st_size
     writer.start()
     try:
         for k in range(600):  # more than the CSV's 64 kB buffer holds
             assert writer.put_row(Sample(t0 + k / 30, time.time(), None, (None,)))
         # One of 2: half the frame queue, so the writer takes the batch now.
         assert writer.put_frame("front", Frame("front", 1, jpeg, 320, 240, t0, time.time()))
-        time.sleep(1.0)  # the writer is in the FIFO's open by now (unless starved)
+        time.sleep(1.0)  # the writer is in the pack's writev by now (unless starved)
         assert writer.stats.rows_written == 0
         assert csv_path.stat().st_size == header_bytes
-        reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # the open returns: go on
+        assert frames_csv.stat().st_size == frames_header
     finally:
-        if reader is None:
-            reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
-        writer.close()
+        closer = __import__("threading").Thread(target=writer.close)
+        closer.start()
+        assert drain(reader, lambda: not closer.is_alive()) == jpeg  # the write goes on
+        closer.join(30)
         os.close(reader)
     assert writer.failure is None
     assert writer.stats.rows_written == 600 and writer.stats.frames_written["front"] == 1
     assert len(read_csv(csv_path)) == 600
+    assert read_csv(frames_csv)[0]["offset"] == "0"

@@ -16,6 +16,7 @@ from pymavlink import mavutil
 
 from companion.recording import layout
 from tests.helpers import free_port, wait_until
+from tests.recording_fakes import recorded_frames
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -95,8 +96,12 @@ def test_kill_9_keeps_last_second_and_next_start_marks_interrupted(tmp_path):
     assert killed_wall - last_wall < 1.0, killed_wall - last_wall  # readable to its last second
     assert len(rows) >= 70  # ~3 s at 30 Hz, minus at most the last second
     for cam in layout.CAMERAS:
-        refs = [r[f"{cam}.file"] for r in rows if r[f"{cam}.file"]]
-        assert refs and all((folder / rel).stat().st_size > 0 for rel in refs)
+        # Every frame a row on disk names is listed in frames.csv, its bytes in the pack:
+        # the writer writes a batch's frames, then their rows, then the telemetry rows.
+        refs = {r[f"{cam}.file"] for r in rows if r[f"{cam}.file"]}
+        frames = recorded_frames(folder, cam)
+        assert refs and refs <= frames.keys(), refs - frames.keys()
+        assert all(j[:2] == b"\xff\xd8" and j[-2:] == b"\xff\xd9" for j in frames.values())
     mlog = mavutil.mavlink_connection(str(folder / layout.MAVLINK_TLOG))
     times = []
     while (m := mlog.recv_match()) is not None:
@@ -143,21 +148,17 @@ def test_kill_9_of_the_server_and_restart(tmp_path):
         terminate(proc)
 
 
-def frames_on_disk(folder: Path, cam: str) -> dict[str, bytes]:
-    """Every JPEG file of a camera, by relative path."""
-    return {f"{cam}/{p.name}": p.read_bytes() for p in sorted((folder / cam).glob("*.jpg"))}
-
-
-def test_kill_9_of_the_station_on_the_twin_lists_every_complete_frame(tmp_path):
-    """Issue 13 item 8: `serve --source sim` recording the twin's two cameras is killed
-    while frames it wrote are not yet in frames.csv (its buffer goes with the process);
-    the next start lists exactly the complete JPEGs, deletes a cut one, and session.json
-    counts what is on disk."""
+def test_kill_9_of_the_station_on_the_twin_cuts_the_pack_after_its_last_listed_frame(tmp_path):
+    """Issue 13 item 8, session format 2: `serve --source sim` recording the twin's two
+    cameras is killed. What a kill can leave: pack bytes after the last listed frame (the
+    batch in its writev; here also made certain: a whole frame without a row and a cut
+    one) and a cut last frames.csv row. The next start cuts the pack after its last
+    listed frame, saying how many bytes, drops the cut row, and session.json counts what
+    is on disk; every listed frame is a whole JPEG at its offset."""
     port = free_port()
     env = {
         "FPV_RECORDING__SESSIONS_DIR": str(tmp_path / "sessions"),
         "FPV_RECORDING__MIN_FREE_MB": "0",
-        "FPV_RECORDING__FLUSH_INTERVAL_S": "1.0",
         "XDG_CONFIG_HOME": str(tmp_path / "config"),
     }
     args = serve_args("sim", port)
@@ -167,39 +168,35 @@ def test_kill_9_of_the_station_on_the_twin_lists_every_complete_frame(tmp_path):
         path = folder / layout.frames_csv_relpath(cam)
         return complete_rows(path) if path.exists() else []
 
-    def unlisted(folder: Path) -> int:
-        """JPEGs on disk that frames.csv does not list yet; 0 until every camera has one."""
-        counts = [
-            (len(list((folder / cam).glob("*.jpg"))), len(listed(folder, cam)))
-            for cam in layout.CAMERAS
-        ]
-        return sum(n - k for n, k in counts) if all(n for n, _ in counts) else 0
-
     proc = spawn(args, env)
     try:
         assert wait_until(lambda: station_up(base), timeout=60), "server did not start"
         sid = httpx.post(f"{base}/api/recording/start", timeout=10).json()["id"]
         folder = tmp_path / "sessions" / sid
-        # Kill between two flushes, once the writer has frames on disk it has not listed.
-        assert wait_until(lambda: unlisted(folder) >= 6, timeout=60, interval=0.01)
+        assert wait_until(
+            lambda: all(len(listed(folder, c)) >= 10 for c in layout.CAMERAS), timeout=60
+        )
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    on_disk = {c: frames_on_disk(folder, c) for c in layout.CAMERAS}
-    # The kill may have cut the JPEG being written (no end marker).
-    jpegs = {c: {k: v for k, v in f.items() if v.endswith(b"\xff\xd9")} for c, f in on_disk.items()}
-    cut = sorted(k for f in on_disk.values() for k, v in f.items() if not v.endswith(b"\xff\xd9"))
-    missing = {c: len(jpegs[c]) - len(listed(folder, c)) for c in layout.CAMERAS}
-    assert sum(missing.values()) > 0, missing  # the case to recover
-    # And always one here: a cut copy of the newest front frame, as the next frame.
-    last = max(jpegs["front"])
-    cut_rel = layout.frame_relpath("front", int(Path(last).stem) + 1)
-    if cut_rel not in cut:
-        (folder / cut_rel).write_bytes(jpegs["front"][last][: len(jpegs["front"][last]) // 2])
-        cut = sorted([*cut, cut_rel])
+    frames = {c: listed(folder, c) for c in layout.CAMERAS}
+    ends = {c: int(f[-1]["offset"]) + int(f[-1]["bytes"]) for c, f in frames.items()}
+    packs = {c: (folder / layout.frames_pack_relpath(c)).read_bytes() for c in layout.CAMERAS}
+    # The front pack also gets a whole frame nobody listed and half a frame after it.
+    front = packs["front"]
+    newest = front[int(frames["front"][-1]["offset"]) : ends["front"]]
+    with open(folder / layout.frames_pack_relpath("front"), "ab") as f:
+        f.write(newest + newest[: len(newest) // 2])
+    packs["front"] += newest + newest[: len(newest) // 2]
+    frames_csv = folder / layout.frames_csv_relpath("front")
+    if frames_csv.read_bytes().endswith(b"\n"):
+        with open(frames_csv, "ab") as f:
+            f.write(b"99999999,front/9999")  # a row cut mid-write
+    tails = {c: len(packs[c]) - ends[c] for c in layout.CAMERAS}
+    assert tails["front"] > len(newest)
     rows = complete_rows(folder / layout.TELEMETRY_CSV)
     packets = 0
     mlog = mavutil.mavlink_connection(str(folder / layout.MAVLINK_TLOG))
@@ -211,27 +208,36 @@ def test_kill_9_of_the_station_on_the_twin_lists_every_complete_frame(tmp_path):
         assert wait_until(lambda: station_up(base), timeout=60), "server did not restart"
         listed_api = {s["id"]: s for s in httpx.get(f"{base}/api/sessions", timeout=10).json()}
         assert listed_api[sid]["status"] == "interrupted"
+        # The route serves a listed frame out of the pack, byte for byte.
+        r0 = frames["front"][0]
+        got = httpx.get(f"{base}/api/sessions/{sid}/files/{r0['file']}", timeout=10)
+        assert got.status_code == 200 and got.headers["content-type"] == "image/jpeg"
+        assert (
+            got.content == packs["front"][int(r0["offset"]) : int(r0["offset"]) + int(r0["bytes"])]
+        )
     finally:
         terminate(proc)
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
-    assert meta["status"] == "interrupted"
-    assert not any((folder / rel).exists() for rel in cut)
-    assert sorted(meta["recovery"]["partial_frames_removed"]) == cut
-    assert meta["recovery"]["frames_added"] == missing
+    assert meta["status"] == "interrupted" and meta["format_version"] == 2
+    assert meta["recovery"]["pack_tail_removed"] == tails
+    assert meta["recovery"]["frames_added"] == dict.fromkeys(layout.CAMERAS, 0)
+    assert meta["recovery"]["frame_rows_removed"] == dict.fromkeys(layout.CAMERAS, 0)
     assert meta["quality"]["telemetry_rows"] == len(rows)
     assert meta["quality"]["tlog_packets"] == packets
     t0 = meta["start_wall"]
     for cam in layout.CAMERAS:
-        frames = listed(folder, cam)
-        assert [r["file"] for r in frames] == sorted(jpegs[cam])  # exactly the complete ones
-        for r in frames:
-            data = jpegs[cam][r["file"]]
-            assert int(r["bytes"]) == len(data) and data.endswith(b"\xff\xd9")
+        pack = (folder / layout.frames_pack_relpath(cam)).read_bytes()
+        assert pack == packs[cam][: ends[cam]]
+        assert (folder / layout.frames_csv_relpath(cam)).read_bytes().endswith(b"\n")
+        assert listed(folder, cam) == frames[cam]
+        for r in frames[cam]:
+            data = pack[int(r["offset"]) : int(r["offset"]) + int(r["bytes"])]
+            assert data.startswith(b"\xff\xd8") and data.endswith(b"\xff\xd9")
             image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
             assert (int(r["width"]), int(r["height"])) == (image.shape[1], image.shape[0])
-        times = [float(r["t_s"]) for r in frames]
+        times = [float(r["t_s"]) for r in frames[cam]]
         assert times == sorted(times) and t0 + times[-1] < time.time()
         cq = meta["quality"]["cameras"][cam]
-        assert cq["frames_written"] == len(frames)
-        assert cq["last_seq"] == int(frames[-1]["seq"])
+        assert cq["frames_written"] == len(frames[cam])
+        assert cq["last_seq"] == int(frames[cam][-1]["seq"])
         assert cq["frames_captured"] == cq["frames_written"] + cq["frames_dropped"]

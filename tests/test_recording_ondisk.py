@@ -1,5 +1,7 @@
-"""Counting a cut-off session's files and reconciling frames.csv with the JPEGs on disk
-(companion.recording.ondisk), on real files: what a power loss can leave, beyond kill -9."""
+"""Counting a cut-off session's files and reconciling frames.csv with the frames on disk
+(companion.recording.ondisk), on real files: what a power loss can leave, beyond kill -9.
+Session format 2 (a frame pack per camera) first; then format 1 (a JPEG file per frame,
+frames.csv without `offset`), which sessions recorded before the pack still are."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from companion.recording import layout
-from companion.recording.meta import Quality, SessionMeta, read_meta, write_meta
+from companion.recording.meta import CameraQuality, Quality, SessionMeta, read_meta, write_meta
 from companion.recording.ondisk import TELEMETRY_TAIL_BYTES, take_census
 from companion.recording.recovery import mark_interrupted
 from companion.recording.store import SessionStore
@@ -20,12 +22,82 @@ from tests.recording_fakes import make_jpegs
 START = 1_700_000_000.0
 
 
-def frames_csv(rows: list[tuple]) -> bytes:
+def frames_csv(rows: list[tuple], columns: tuple[str, ...] = layout.FRAME_COLUMNS_V1) -> bytes:
+    """A frames.csv as the recorder writes it (format 1's columns unless told)."""
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(layout.FRAME_COLUMNS)
+    w.writerow(columns)
     w.writerows(rows)
     return buf.getvalue().encode()
+
+
+def packed(cam: Path, jpegs: list[bytes], seqs: list[int]) -> list[tuple]:
+    """`cam`/frames.mjpeg holding `jpegs` back to back; their format 2 frames.csv rows."""
+    rows, offset = [], 0
+    for seq, jpeg in zip(seqs, jpegs, strict=True):
+        rel = layout.frame_relpath(cam.name, seq)
+        rows.append((seq, rel, 0.1 * seq, START + 0.1 * seq, 160, 120, len(jpeg), offset))
+        offset += len(jpeg)
+    cam.mkdir(exist_ok=True)
+    (cam / layout.FRAMES_PACK).write_bytes(b"".join(jpegs))
+    return rows
+
+
+def test_a_pack_is_cut_after_its_last_whole_listed_frame(tmp_path):
+    """Format 2 after a power loss or kill: a row past the pack's end (its frame cut
+    mid-write), a row whose bytes are not a whole JPEG, a cut last row, and bytes no row
+    names after the last frame. The rows of whole frames stay, in order; the others go;
+    the pack ends with the last kept frame, and the bytes cut off are counted."""
+    jpegs = make_jpegs(5, 160, 120)
+    cam = tmp_path / "front"
+    rows = packed(cam, jpegs, [1, 2, 3, 4, 5])
+    pack = cam / layout.FRAMES_PACK
+    end_of_4 = rows[3][7] + rows[3][6]
+    # Frame 5 was being written: half of it reached the disk, and its row did.
+    pack.write_bytes(pack.read_bytes()[: end_of_4 + len(jpegs[4]) // 2])
+    bad = list(rows[2])
+    bad[6] += 1  # frame 3's row names one byte too many: it does not end with EOI
+    listed = [rows[0], rows[1], tuple(bad), rows[3], rows[4]]
+    (cam / layout.FRAMES_CSV).write_bytes(frames_csv(listed, layout.FRAME_COLUMNS) + b"6,front/0")
+
+    front = take_census(tmp_path, ["front"], START).frames["front"]
+
+    assert front.rows_removed == 2 and front.added == 0 and front.partial_removed == []
+    assert front.pack_tail_removed == len(jpegs[4]) // 2
+    assert pack.read_bytes() == b"".join(jpegs[:4])
+    text = (cam / layout.FRAMES_CSV).read_text()
+    on_disk = list(csv.DictReader(io.StringIO(text)))
+    assert tuple(on_disk[0]) == layout.FRAME_COLUMNS and text.endswith("\n")
+    assert [int(r["seq"]) for r in on_disk] == [1, 2, 4]
+    assert [r[c] for r in on_disk for c in ("offset", "bytes")] == [
+        str(v) for row in (rows[0], rows[1], rows[3]) for v in (row[7], row[6])
+    ]
+    assert [f[0] for f in front.rows] == ["1", "2", "4"] and front.achieved_fps is not None
+    # A second look finds nothing to do.
+    again = take_census(tmp_path, ["front"], START).frames["front"]
+    assert (again.rows_removed, again.pack_tail_removed) == (0, 0)
+    assert (cam / layout.FRAMES_CSV).read_text() == text
+
+
+def test_an_interrupted_packed_session_says_what_was_cut(tmp_path):
+    """The next start's recovery of a format 2 session: frames.csv listed every frame but
+    the last batch, whose bytes a kill left in the pack; they are cut off and counted in
+    session.json `recovery.pack_tail_removed`, and the quality counts are the rows'."""
+    jpegs = make_jpegs(4, 160, 120)
+    folder = _cut_off_session(tmp_path, "20261122T035500Z_sim", rows=30)
+    cam = folder / "front"
+    rows = packed(cam, jpegs, [7, 8, 9, 10])
+    (cam / layout.FRAMES_CSV).write_bytes(frames_csv(rows[:2], layout.FRAME_COLUMNS))
+
+    assert mark_interrupted(SessionStore(tmp_path)) == [folder.name]
+
+    meta = read_meta(folder / layout.SESSION_JSON)
+    assert meta.status == layout.STATUS_INTERRUPTED
+    assert meta.recovery.pack_tail_removed == {"front": len(jpegs[2]) + len(jpegs[3])}
+    assert meta.recovery.frame_rows_removed == {"front": 0}
+    q = meta.quality.cameras["front"]
+    assert (q.frames_written, q.first_seq, q.last_seq) == (2, 7, 8)
+    assert (cam / layout.FRAMES_PACK).read_bytes() == jpegs[0] + jpegs[1]
 
 
 def test_frames_csv_lists_exactly_the_complete_jpegs(tmp_path):
@@ -129,7 +201,8 @@ def test_a_long_telemetry_file_is_counted_without_reading_it_whole(tmp_path):
 
 
 def _cut_off_session(root, sid: str, rows: int) -> Path:
-    """A session a kill left in status "recording", whose session.json last said `rows`."""
+    """A session a kill left in status "recording", whose session.json last said `rows`
+    (format 1, no frame yet: a format 2 test adds its pack)."""
     folder = root / sid
     (folder / "front").mkdir(parents=True)
     header = ",".join(layout.telemetry_columns(("front",)))
@@ -143,7 +216,7 @@ def _cut_off_session(root, sid: str, rows: int) -> Path:
         start_wall=START,
         start_utc=layout.utc_label(START),
         cameras=["front"],
-        quality=Quality(telemetry_rows=rows),
+        quality=Quality(telemetry_rows=rows, cameras={"front": CameraQuality()}),
     )
     write_meta(folder / layout.SESSION_JSON, meta)
     return folder

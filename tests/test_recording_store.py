@@ -195,3 +195,50 @@ def test_the_folder_of_a_session_being_recorded_is_walked_at_most_every_refresh(
     assert after[live] == before[live]  # within the refresh: not walked
     time.sleep(0.6)
     assert sizes()[live] == before[live] + 1000  # after it: walked
+
+
+def test_a_frame_index_reads_what_is_appended_and_rereads_a_rewritten_file(tmp_path):
+    """The index of a growing frames.csv (a session being recorded) is extended from where
+    it stopped: a row still being written is read once whole; a damaged row is skipped;
+    a file replaced by recovery (a new inode) is read again from its start."""
+    import os
+
+    from companion.recording import frame_pack
+
+    cam = tmp_path / "front"
+    cam.mkdir()
+    path = cam / layout.FRAMES_CSV
+    header = ",".join(layout.FRAME_COLUMNS) + "\n"
+
+    def row(seq: int) -> str:
+        return f"{seq},{layout.frame_relpath('front', seq)},{seq / 30},{1.7e9 + seq / 30},320,240,{1000 + seq},{seq * 2000}\n"
+
+    path.write_text(header + row(1) + row(2) + row(3)[:9])
+    first = frame_pack.read_index(tmp_path, "front")
+    assert first.packed and first.seq.tolist() == [1, 2] and first.find(3) is None
+    assert frame_pack.read_index(tmp_path, "front", first) is first  # nothing new
+    with open(path, "a") as f:
+        f.write(row(3)[9:] + "x,front/oops.jpg,1,2,3,4,5,6\n" + row(4))
+    grown = frame_pack.read_index(tmp_path, "front", first)
+    assert grown.seq.tolist() == [1, 2, 3, 4] and first.seq.tolist() == [1, 2]
+    k = grown.find(4)
+    assert (grown.offset[k], grown.size[k], grown.width[k]) == (8000, 1004, 320)
+    assert grown.name(k) == "front/00000004.jpg"
+    tmp = cam / "frames.csv.tmp"
+    tmp.write_text(header + row(1) + row(4))
+    os.replace(tmp, path)
+    again = frame_pack.read_index(tmp_path, "front", grown)
+    assert again.seq.tolist() == [1, 4]
+    # Format 1: no offset column, a file per frame.
+    path.write_text(
+        ",".join(layout.FRAME_COLUMNS_V1)
+        + "\n"
+        + "".join(row(s)[: row(s).rfind(",")] + "\n" for s in (5, 6))
+    )
+    v1 = frame_pack.read_index(tmp_path, "front")
+    assert not v1.packed and v1.seq.tolist() == [5, 6] and v1.offset.tolist() == [0, 0]
+    (cam / "00000006.jpg").write_bytes(b"\xff\xd8six\xff\xd9")
+    assert frame_pack.on_disk(tmp_path, v1).tolist() == [False, True]
+    assert frame_pack.frame_bytes(tmp_path, v1, 1) == b"\xff\xd8six\xff\xd9"
+    with pytest.raises(frame_pack.FrameNotOnDisk):
+        frame_pack.frame_bytes(tmp_path, v1, 0)

@@ -71,7 +71,7 @@ def test_full_tmpfs_stops_cleanly_with_reason(tmp_path, min_free_kb, expect):
 def test_a_write_past_the_file_size_limit_cuts_the_session_short(tmp_path):
     """No root needed: a process under RLIMIT_FSIZE gets EFBIG from the write that would
     cross it, cut where the limit falls, as ENOSPC cuts writes on a full disk."""
-    proc = spawn(["-m", "tests.record_under_file_limit", str(tmp_path), str(160 * 1024)])
+    proc = spawn(["-m", "tests.record_under_file_limit", str(tmp_path), str(2 << 20)])
     try:
         sid = read_line(proc, "STOPPED ", timeout=60)
     finally:
@@ -96,12 +96,17 @@ def assert_report_is_what_is_on_disk(folder) -> dict:
     while mlog.recv_msg() is not None:
         packets += 1
     assert q["tlog_packets"] == packets
-    jpegs = sorted(folder.glob("front/*.jpg"))
-    assert all(p.read_bytes().endswith(b"\xff\xd9") for p in jpegs)  # no cut frame
-    listed = [r["file"] for r in complete_rows(folder / layout.frames_csv_relpath("front"))]
-    assert listed == [f"front/{p.name}" for p in jpegs]
+    # frames.csv lists whole JPEGs back to back from the pack's start, and the pack ends
+    # with the last of them: the frame (or batch) the failed write cut is gone.
+    listed = complete_rows(folder / layout.frames_csv_relpath("front"))
+    pack = (folder / layout.frames_pack_relpath("front")).read_bytes()
+    ends = [int(r["offset"]) + int(r["bytes"]) for r in listed]
+    assert [int(r["offset"]) for r in listed] == [0, *ends[:-1]] and len(pack) == ends[-1]
+    frames = [pack[int(r["offset"]) : end] for r, end in zip(listed, ends, strict=True)]
+    assert all(j.startswith(b"\xff\xd8") and j.endswith(b"\xff\xd9") for j in frames)
+    assert not list(folder.glob("front/*.jpg"))
     front = q["cameras"]["front"]
-    assert front["frames_written"] == len(jpegs) > 5
+    assert front["frames_written"] == len(listed) > 5
     assert front["frames_captured"] == front["frames_written"] + front["frames_dropped"]
     return meta
 
@@ -157,12 +162,22 @@ def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path, capl
             rig.stop()
 
 
-def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path):
+def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path, monkeypatch):
     """At a failed write's stop the files are counted; when they cannot be read (EIO, or
-    here a file where the camera folder was, which also fails the write), the stop once
-    raised and left session.json saying "recording". It ends cut short, with the reason
-    and the writer's counts, and says it was not recounted (no `recovery`)."""
-    rig = FakeRig(tmp_path, recorder_options(0), jpegs=big_jpegs()).start()
+    here a file where the camera folder was), the stop once raised and left session.json
+    saying "recording". It ends cut short, with the reason and the writer's counts, and
+    says it was not recounted (no `recovery`). The stop: the disk is full (its free
+    space, as the OS reports it)."""
+    import shutil
+
+    real = shutil.disk_usage
+    full = {"now": False}
+    monkeypatch.setattr(
+        shutil,
+        "disk_usage",
+        lambda p: real(p)._replace(free=0) if full["now"] else real(p),
+    )
+    rig = FakeRig(tmp_path, recorder_options(1), jpegs=big_jpegs()).start()
     rec = rig.recorder
 
     async def run() -> str:
@@ -174,6 +189,7 @@ def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path)
         front = tmp_path / sid / "front"
         front.rename(front.with_name("front.moved"))
         front.write_text("not a folder")  # before the loop runs the failed write's stop
+        full["now"] = True
         deadline = time.monotonic() + 30
         while rec.recording_id is not None and time.monotonic() < deadline:  # noqa: ASYNC110
             await asyncio.sleep(0.05)
@@ -186,7 +202,7 @@ def test_a_cut_session_whose_files_cannot_be_counted_is_still_finished(tmp_path)
         rig.stop()
     meta = json.loads((tmp_path / sid / layout.SESSION_JSON).read_text())
     assert meta["status"] == "cut_short", meta["status"]
-    assert meta["stop_reason"].startswith("write error"), meta["stop_reason"]
+    assert meta["stop_reason"].startswith("disk full"), meta["stop_reason"]
     assert meta["recovery"] is None
     assert meta["quality"]["telemetry_rows"] > 0
     assert rec.last_stop is not None and rec.last_stop.reason == meta["stop_reason"]

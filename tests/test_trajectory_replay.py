@@ -24,17 +24,24 @@ SESSION_B = "20261122T041000Z_serial"
 
 
 def write_frames(folder, camera: str, n: int, fps: float = 5.0) -> None:
-    """A camera folder as the recorder writes it: JPEGs named by seq, and frames.csv."""
+    """A camera folder as the recorder writes it (session format 2): the JPEGs back to
+    back in frames.mjpeg, and frames.csv with each one's name, offset and size."""
     (folder / camera).mkdir(parents=True, exist_ok=True)
-    with open(folder / layout.frames_csv_relpath(camera), "w", newline="") as f:
+    offset = 0
+    with (
+        open(folder / layout.frames_csv_relpath(camera), "w", newline="") as f,
+        open(folder / layout.frames_pack_relpath(camera), "wb") as pack,
+    ):
         w = csv.writer(f)
         w.writerow(layout.FRAME_COLUMNS)
         for seq in range(n):
             img = np.full((48, 64, 3), (seq * 7) % 255, np.uint8)
             ok, jpeg = cv2.imencode(".jpg", img)
+            pack.write(jpeg.tobytes())
             rel = layout.frame_relpath(camera, seq)
-            (folder / rel).write_bytes(jpeg.tobytes())
-            w.writerow((seq, rel, round(seq / fps, 6), 1.7e9 + seq / fps, 64, 48, len(jpeg)))
+            row = (seq, rel, round(seq / fps, 6), 1.7e9 + seq / fps, 64, 48, len(jpeg), offset)
+            w.writerow(row)
+            offset += len(jpeg)
 
 
 def drop_fix(folder, t0_s: float, t1_s: float) -> None:
@@ -133,6 +140,9 @@ def test_trajectory_endpoint_matches_the_flown_path(base):
     assert front == layout.frame_relpath("front", int(math.floor(t[i] * 5.0 + 1e-9)))
     img = httpx.get(f"{base}/api/sessions/{SESSION_A}/files/{front}")
     assert img.status_code == 200 and img.content[:2] == b"\xff\xd8"
+    decoded = cv2.imdecode(np.frombuffer(img.content, np.uint8), cv2.IMREAD_GRAYSCALE)
+    seq = int(front.rsplit("/", 1)[1].split(".")[0])
+    assert decoded.shape == (48, 64) and abs(int(decoded.mean()) - (seq * 7) % 255) <= 1
     # aligned as in the paper: start-to-end on +x, whatever the compass heading flown
     al = httpx.get(f"{base}/api/sessions/{SESSION_A}/trajectory?align=end").json()
     assert abs(al["y_m"][-1]) < 0.05 and al["x_m"][-1] > 35

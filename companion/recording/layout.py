@@ -8,9 +8,14 @@ layout for people. Bump `FORMAT_VERSION` when a reader would misread the old lay
         session.json                      metadata and quality report (SESSION_JSON)
         telemetry.csv                     fixed-rate rows (TELEMETRY_CSV, telemetry_columns())
         mavlink.tlog                      every MAVLink packet received (MAVLINK_TLOG)
-        front/00000042.jpg                every frame's JPEG bytes as streamed (frame_relpath)
-        front/frames.csv                  one row per frame written (FRAME_COLUMNS)
+        front/frames.mjpeg                every frame's JPEG bytes as streamed, back to back
+                                          (frames_pack_relpath; companion.recording.frame_pack)
+        front/frames.csv                  one row per frame written (FRAME_COLUMNS): its name
+                                          front/00000042.jpg (frame_relpath), offset and bytes
         bottom/...                        the same for the bottom camera
+
+Format 1 (sessions recorded before the frame pack) kept each frame in a file of its own,
+front/00000042.jpg, and frames.csv had no `offset` column; every reader still reads it.
 """
 
 from __future__ import annotations
@@ -23,12 +28,14 @@ from datetime import UTC, datetime
 
 from companion.vehicle_state import LOG_GROUPS, VehicleState
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: frames in one frames.mjpeg per camera; 1: a file per frame
+FORMAT_FILE_PER_FRAME = 1  # the last version with a file per frame
 
 SESSION_JSON = "session.json"
 TELEMETRY_CSV = "telemetry.csv"
 MAVLINK_TLOG = "mavlink.tlog"  # records as core.mavlink.tlog_records writes them
 FRAMES_CSV = "frames.csv"  # inside each camera folder
+FRAMES_PACK = "frames.mjpeg"  # inside each camera folder: the frames' JPEGs back to back
 MESSAGES_CSV = "messages.csv"  # what the vehicle said: STATUSTEXT and COMMAND_ACK
 MESSAGE_COLUMNS: tuple[str, ...] = (
     "t_s",
@@ -48,8 +55,10 @@ SESSION_ID_RE = re.compile(r"^[0-9]{8}T[0-9]{6}Z_[a-z0-9]+(-[a-z0-9]+)*$")
 SESSION_ID_MAX_LEN = 64
 SOURCE_TAG_MAX_LEN = 16
 
-# Frame files: zero-padded sequence number so that a plain sort is capture order.
+# Frame names: zero-padded sequence number so that a plain sort is capture order. A
+# frame's name is what the CSVs and the file route call it; in format 1 it was a file.
 FRAME_PATH_TEMPLATE = "{camera}/{seq:08d}.jpg"  # relative to the session folder
+FRAME_NAME_RE = re.compile(r"^([0-9]{8,})\.jpg$")  # the file name part, group 1 = seq
 
 # Session states recorded in session.json "status".
 STATUS_RECORDING = "recording"  # being written now (or cut off, until the next start)
@@ -61,8 +70,10 @@ STATUS_CUT_SHORT = "cut_short"  # stopped by a failed write (disk full, EMFILE, 
 TIME_COLUMNS: tuple[str, ...] = ("t_s", "wall_time")
 # Per camera, after the state columns: newest frame at the row's instant.
 CAMERA_COLUMN_FIELDS: tuple[str, ...] = ("seq", "file", "t_wall", "skew_s")
-# front/frames.csv and bottom/frames.csv.
-FRAME_COLUMNS: tuple[str, ...] = ("seq", "file", "t_s", "t_wall", "width", "height", "bytes")
+# front/frames.csv and bottom/frames.csv: `offset` is the frame's first byte in the
+# camera's FRAMES_PACK, `bytes` its length. Format 1 had no `offset` (FRAME_COLUMNS_V1).
+FRAME_COLUMNS_V1: tuple[str, ...] = ("seq", "file", "t_s", "t_wall", "width", "height", "bytes")
+FRAME_COLUMNS: tuple[str, ...] = (*FRAME_COLUMNS_V1, "offset")
 
 
 def frame_relpath(camera: str, seq: int) -> str:
@@ -72,6 +83,10 @@ def frame_relpath(camera: str, seq: int) -> str:
 
 def frames_csv_relpath(camera: str) -> str:
     return f"{camera}/{FRAMES_CSV}"
+
+
+def frames_pack_relpath(camera: str) -> str:
+    return f"{camera}/{FRAMES_PACK}"
 
 
 def source_tag(source: str) -> str:

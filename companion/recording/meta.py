@@ -86,6 +86,9 @@ class Recovery(_Model):
     partial_frames_removed: list[str] = Field(default_factory=list)  # cut JPEGs deleted
     # Complete JPEGs that frames.csv still does not list (it could not be rewritten).
     frames_unlisted: dict[str, int] = Field(default_factory=dict)
+    # Format 2: bytes cut off the end of <camera>/frames.mjpeg, after its last listed
+    # frame (the batch being written when the writer was cut off: no row names them).
+    pack_tail_removed: dict[str, int] = Field(default_factory=dict)
 
 
 class SessionTask(_Model):

@@ -3,8 +3,21 @@ was cut off: killed (kill -9, power loss) or stopped by a failed write (a full d
 
 The writer's own counters say what it handed to the OS; after a kill or a failed flush
 some of that never reached the disk (the buffered tail of each CSV, the tlog's last
-record, the JPEG being written). `take_census` counts what is there and makes each
-camera's frames.csv list exactly the complete JPEGs on disk:
+record, the frames being written). `take_census` counts what is there and makes each
+camera's frames.csv list exactly the complete frames on disk.
+
+Format 2 (a frame pack, `<camera>/frames.mjpeg`; `companion.recording.frame_pack`): the
+writer appends a batch of JPEGs to the pack, then their frames.csv rows, so a kill can
+leave pack bytes without rows (the batch being written) and a partial last row, never
+a row without its bytes unless the disk lost them (a power cut):
+
+- a row is kept when its bytes [offset, offset + bytes) lie inside the pack, after the
+  previous kept frame, start with SOI and end with EOI; any other row is removed;
+- the pack is truncated after the last kept frame: what follows (the cut batch: nothing
+  names those frames, not even a telemetry row, which the writer writes after them) is
+  counted in bytes (`pack_tail_removed`).
+
+Format 1 (a file per frame, `<camera>/00000042.jpg`):
 
 - a complete JPEG (SOI ... EOI) that frames.csv does not list (its row was still in the
   buffer) gets its row back: size from the file, pixels from its SOF header, capture
@@ -27,7 +40,6 @@ import csv
 import io
 import logging
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,8 +49,6 @@ from companion.recording.meta import Recovery, SessionMeta
 from core.mavlink.tlog_records import TlogReader
 
 log = logging.getLogger(__name__)
-
-_FRAME_NAME = re.compile(r"^([0-9]{8,})\.jpg$")
 
 
 @dataclass
@@ -50,6 +60,7 @@ class FramesOnDisk:
     rows_removed: int = 0  # rows naming a missing file or one of another size
     partial_removed: list[str] = field(default_factory=list)  # cut JPEGs deleted
     unlisted: int = 0  # complete JPEGs frames.csv still does not list (it could not be written)
+    pack_tail_removed: int = 0  # bytes cut off the end of frames.mjpeg (format 2)
 
     @property
     def complete(self) -> int:
@@ -101,8 +112,72 @@ def take_census(folder: Path, cameras: list[str], start_wall: float) -> Census:
 def reconcile_frames(
     folder: Path, camera: str, telemetry_lines: list[str], start_wall: float
 ) -> FramesOnDisk:
-    """Make `<camera>/frames.csv` list exactly the complete JPEGs in the camera's folder;
-    OSError when what is there cannot be read."""
+    """Make `<camera>/frames.csv` list exactly the complete frames on disk: in its frame
+    pack (format 2), else its JPEG files (format 1); OSError when what is there cannot be
+    read."""
+    if os.path.lexists(folder / layout.frames_pack_relpath(camera)):
+        return _reconcile_pack(folder, camera)
+    return _reconcile_files(folder, camera, telemetry_lines, start_wall)
+
+
+def _reconcile_pack(folder: Path, camera: str) -> FramesOnDisk:
+    """Format 2: keep the rows whose bytes are a whole JPEG in the pack, in order; cut the
+    pack after the last of them."""
+    out = FramesOnDisk()
+    csv_path = folder / layout.frames_csv_relpath(camera)
+    old = _complete_lines(csv_path)
+    header = next(csv.reader(old.lines[:1]), None) or list(layout.FRAME_COLUMNS)
+    try:
+        i_seq, i_size, i_off = (header.index(n) for n in ("seq", "bytes", "offset"))
+    except ValueError:  # a damaged header: the writer's columns
+        i_seq, i_size, i_off = (layout.FRAME_COLUMNS.index(n) for n in ("seq", "bytes", "offset"))
+    kept: list[tuple[str, ...]] = []
+    listed: set[int] = set()
+    end = 0  # the end of the last kept frame
+    with open(folder / layout.frames_pack_relpath(camera), "r+b") as pack:
+        fd = pack.fileno()
+        pack_size = os.fstat(fd).st_size
+        for row in csv.reader(old.lines[1:]):
+            try:
+                seq, size, offset = int(row[i_seq]), int(row[i_size]), int(row[i_off])
+            except (IndexError, ValueError):
+                out.rows_removed += 1
+                continue
+            if (
+                seq in listed
+                or size < len(SOI) + len(EOI)
+                or offset < end
+                or offset + size > pack_size
+                or os.pread(fd, len(SOI), offset) != SOI
+                or os.pread(fd, len(EOI), offset + size - len(EOI)) != EOI
+            ):
+                out.rows_removed += 1
+                continue
+            kept.append(tuple(row))
+            listed.add(seq)
+            end = offset + size
+        out.rows = kept
+        out.pack_tail_removed = pack_size - end
+        if out.pack_tail_removed:
+            # First: on a full disk the freed blocks are what lets frames.csv be rewritten.
+            pack.truncate(end)
+            os.fsync(fd)
+    try:
+        if out.rows_removed or not old.lines:
+            _replace_rows(csv_path, kept, layout.FRAME_COLUMNS)
+        elif old.cut:
+            _append_rows(csv_path, old.size, [])
+    except OSError as exc:
+        log.warning(
+            "cannot rewrite %s: %s; it still lists %d removed rows", csv_path, exc, out.rows_removed
+        )
+    return out
+
+
+def _reconcile_files(
+    folder: Path, camera: str, telemetry_lines: list[str], start_wall: float
+) -> FramesOnDisk:
+    """Format 1: make frames.csv list exactly the complete JPEG files in the folder."""
     out = FramesOnDisk()
     cam_dir = folder / camera
     csv_path = folder / layout.frames_csv_relpath(camera)
@@ -110,7 +185,7 @@ def reconcile_frames(
     try:
         with os.scandir(cam_dir) as it:
             for entry in it:
-                m = _FRAME_NAME.match(entry.name)
+                m = layout.FRAME_NAME_RE.match(entry.name)
                 if m and entry.is_file(follow_symlinks=False):
                     sizes[int(m.group(1))] = (entry.name, entry.stat(follow_symlinks=False).st_size)
     except FileNotFoundError:
@@ -165,7 +240,7 @@ def reconcile_frames(
         if appending and old.lines:
             _append_rows(csv_path, old.size, out.rows[len(kept) :])
         else:
-            _replace_rows(csv_path, out.rows)
+            _replace_rows(csv_path, out.rows, layout.FRAME_COLUMNS_V1)
     except OSError as exc:
         out.unlisted = len(added)
         log.warning("cannot rewrite %s: %s; %d frames stay unlisted", csv_path, exc, len(added))
@@ -210,14 +285,15 @@ def apply_census(meta: SessionMeta, census: Census, recovered_utc: str) -> None:
         frame_rows_removed={c: f.rows_removed for c, f in census.frames.items()},
         partial_frames_removed=[p for f in census.frames.values() for p in f.partial_removed],
         frames_unlisted={c: f.unlisted for c, f in census.frames.items()},
+        pack_tail_removed={c: f.pack_tail_removed for c, f in census.frames.items()},
     )
 
 
-def _csv_bytes(rows: list[tuple[str, ...]], header: bool) -> bytes:
+def _csv_bytes(rows: list[tuple[str, ...]], header: tuple[str, ...] = ()) -> bytes:
     buf = io.StringIO()
     w = csv.writer(buf)  # the writer's dialect, as the recorder wrote the file
     if header:
-        w.writerow(layout.FRAME_COLUMNS)
+        w.writerow(header)
     w.writerows(rows)
     return buf.getvalue().encode()
 
@@ -228,16 +304,16 @@ def _append_rows(path: Path, keep: int, rows: list[tuple[str, ...]]) -> None:
     with open(path, "r+b") as f:
         f.truncate(keep)
         f.seek(keep)
-        f.write(_csv_bytes(rows, header=False))
+        f.write(_csv_bytes(rows))
         f.flush()
         os.fsync(f.fileno())
 
 
-def _replace_rows(path: Path, rows: list[tuple[str, ...]]) -> None:
-    """Write the header and `rows` to a temp file and rename it over `path`."""
+def _replace_rows(path: Path, rows: list[tuple[str, ...]], header: tuple[str, ...]) -> None:
+    """Write `header` and `rows` to a temp file and rename it over `path`."""
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        f.write(_csv_bytes(rows, header=True))
+        f.write(_csv_bytes(rows, header))
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)

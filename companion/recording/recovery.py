@@ -1,7 +1,7 @@
 """At start: sessions still marked "recording" were cut off (power loss, kill -9).
 
 Their files are readable up to the last flush; this counts what is on disk and makes the
-frames.csv files list exactly the complete JPEGs (`companion.recording.ondisk`), sets
+frames.csv files list exactly the complete frames (`companion.recording.ondisk`), sets
 their session.json counts and end to that, and marks them "interrupted" so that nobody
 mistakes them for a session in progress.
 """

@@ -1,8 +1,11 @@
 """The sessions directory: list sessions, and turn untrusted ids and paths into safe paths.
 
-Every id and relative path that comes from a request goes through `resolve` or `file`;
-they never return a path outside the sessions directory (traversal, absolute paths, NUL
-bytes, symlinks that point out are refused with a typed error).
+Every id and relative path that comes from a request goes through `resolve`, `file` or
+`file_or_frame`; they never return a path outside the sessions directory (traversal,
+absolute paths, NUL bytes, symlinks that point out are refused with a typed error), nor
+bytes from one. A frame's name (`front/00000042.jpg`) is a file in a format 1 session
+and a slice of the camera's frame pack in format 2 (`companion.recording.frame_pack`):
+`file_or_frame` serves both.
 
     SessionStoreError          (base)
     ├── InvalidSessionId       not a session id by its syntax         -> 400
@@ -18,13 +21,15 @@ import logging
 import os
 import shutil
 import stat
+import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Generic, TypeVar
 
-from companion.recording import layout
+from companion.recording import frame_pack, layout
 from companion.recording.flags import QualityFlag, session_flags
 from companion.recording.meta import SessionMeta, read_meta
 
@@ -84,6 +89,10 @@ class SessionStore:
         self._sizes: dict[str, _Cached[int]] = {}
         # Quality flags by id, valid while session.json and messages.csv keep their mtimes.
         self._flags: dict[str, _Cached[list[QualityFlag]]] = {}
+        # Frame indexes by (id, camera), the most recently used FRAME_INDEXES_KEPT: a replay
+        # asks for a frame of each camera many times a second. Request threads share it.
+        self._indexes: OrderedDict[tuple[str, str], frame_pack.FrameIndex] = OrderedDict()
+        self._indexes_lock = threading.Lock()
 
     # -- untrusted input -> safe paths -----------------------------------------------
 
@@ -124,6 +133,71 @@ class SessionStore:
         if not stat.S_ISREG(st.st_mode):
             raise SessionFileNotFound(f"'{relpath}' in session '{session_id}' is not a file.")
         return real
+
+    def file_or_frame(self, session_id: str, relpath: str) -> Path | bytes:
+        """`file(session_id, relpath)`, or when no such file exists and `relpath` names a
+        frame kept in its camera's frame pack (format 2: `front/00000042.jpg`), that
+        frame's JPEG bytes. Raises as `file` does."""
+        try:
+            return self.file(session_id, relpath)
+        except SessionFileNotFound:
+            data = self._packed_frame(session_id, relpath)
+            if data is None:
+                raise
+            return data
+
+    def _packed_frame(self, session_id: str, relpath: str) -> bytes | None:
+        """The bytes of frame `relpath` from its camera's pack; None when it is none."""
+        parts = _safe_parts(relpath)
+        m = layout.FRAME_NAME_RE.fullmatch(parts[-1]) if len(parts) == 2 else None
+        if m is None:
+            return None
+        camera, seq = parts[0], int(m.group(1))
+        try:
+            pack = self.file(session_id, layout.frames_pack_relpath(camera))
+        except SessionFileNotFound:  # format 1, or no such camera
+            return None
+        index = self.frame_index(session_id, camera)
+        k = index.find(seq) if index is not None and index.packed else None
+        if k is None:
+            return None
+        try:
+            return frame_pack.read_packed(pack, int(index.offset[k]), int(index.size[k]))
+        except frame_pack.FrameNotOnDisk:  # cut off by a recovery since it was listed
+            return None
+
+    def frame_index(self, session_id: str, camera: str) -> frame_pack.FrameIndex | None:
+        """The index of a camera's frames.csv (None: there is none), kept for the next
+        request and extended as the file grows (a session being recorded)."""
+        try:
+            path = self.file(session_id, layout.frames_csv_relpath(camera))
+        except SessionFileNotFound:
+            return None
+        key = (session_id, camera)
+        with self._indexes_lock:
+            index = frame_pack.read_index_file(path, camera, self._indexes.get(key))
+            if index is None:
+                self._indexes.pop(key, None)
+                return None
+            self._indexes[key] = index
+            self._indexes.move_to_end(key)
+            while len(self._indexes) > FRAME_INDEXES_KEPT:
+                self._indexes.popitem(last=False)
+        return index
+
+    def frame_counts(self, session_id: str, files: Iterable[str]) -> dict[str, int]:
+        """Frames on disk per camera, given the session's `files` (relative paths, as
+        `files` returns them): format 1 counts its JPEG files, format 2 the rows of
+        frames.csv (the pack's frames)."""
+        counts: dict[str, int] = {}
+        for rel in files:
+            camera, _, name = rel.partition("/")
+            if name == layout.FRAMES_PACK:
+                index = self.frame_index(session_id, camera)
+                counts[camera] = counts.get(camera, 0) + (len(index) if index is not None else 0)
+            elif is_frame_file(rel):
+                counts[camera] = counts.get(camera, 0) + 1
+        return counts
 
     # -- listing -------------------------------------------------------------------------
 
@@ -209,6 +283,9 @@ class SessionStore:
         shutil.rmtree(folder)
         self._sizes.pop(session_id, None)
         self._flags.pop(session_id, None)
+        with self._indexes_lock:
+            for key in [k for k in self._indexes if k[0] == session_id]:
+                del self._indexes[key]
 
     def files(self, session_id: str) -> list[tuple[str, Path]]:
         """(relative posix path, absolute path) of every regular file, sorted; no symlinks."""
@@ -222,6 +299,15 @@ class SessionStore:
                     out.append((p.relative_to(folder).as_posix(), p))
         return sorted(out)
 
+
+def is_frame_file(relpath: str) -> bool:
+    """Whether a session's file is one frame of format 1 (`front/00000042.jpg`)."""
+    camera, _, name = relpath.partition("/")
+    return bool(camera) and layout.FRAME_NAME_RE.fullmatch(name) is not None
+
+
+# Indexes kept by the store: a 20-minute flight's is about 1 MB a camera (36,000 frames).
+FRAME_INDEXES_KEPT = 4
 
 # The session's own files are short (front/00000042.jpg); longer requests are refused
 # before the file system sees them, which would fail with ENAMETOOLONG.
@@ -323,7 +409,9 @@ def discard_session_dir(folder: Path, cameras: Iterable[str]) -> None:
     Anything else in it (not ours) keeps the folder."""
     cameras = list(cameras)
     names = [layout.TELEMETRY_CSV, layout.MAVLINK_TLOG, layout.MESSAGES_CSV]
-    for name in [*names, *(layout.frames_csv_relpath(c) for c in cameras)]:
+    names += [layout.frames_csv_relpath(c) for c in cameras]
+    names += [layout.frames_pack_relpath(c) for c in cameras]
+    for name in names:
         with contextlib.suppress(FileNotFoundError):
             (folder / name).unlink()
     try:

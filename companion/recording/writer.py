@@ -7,10 +7,20 @@ so a row on disk never names a frame that is not on disk yet, flushes (and fdata
 the CSVs and the tlog at least every `flush_interval_s`, and stops the session with a
 reason when free space falls under `min_free_bytes` or a write fails.
 
+Frames go to one append-only file per camera, `<camera>/frames.mjpeg` (the frame pack,
+`companion.recording.frame_pack`): per batch one `writev` of its JPEGs, then its
+frames.csv rows (with each frame's `offset` in the pack) straight to the OS, then the
+telemetry rows that name those frames. A file per frame cost a file creation each, 60 a
+second: most of this thread's CPU (kernel time), and journal writes on a Pi's SD card.
+So after a kill every telemetry row on disk names a frame frames.csv lists, and only the
+batch being written can have pack bytes without rows (recovery cuts them off).
+
 The thread writes in batches, every `batch_interval_s` (0.1 s): a producer does not wake
 it per item (60 frames, 30 rows and 140 packets a second were as many wake-ups, each a
-futex call and a pass over every queue), only when its queue is half full. The CSVs sit
-in their file buffers until the flush anyway, so a batch loses nothing a kill would not.
+futex call and a pass over every queue), only when its queue is half full. The telemetry
+CSVs sit in their file buffers until the flush anyway, so a batch loses nothing a kill
+would not. At each flush the packs and frames.csv files are fdatasync'ed before
+telemetry.csv and the tlog, so a power cut keeps them in the same order.
 """
 
 from __future__ import annotations
@@ -194,13 +204,22 @@ class SessionWriter:
         self._messages_csv.writerow(layout.MESSAGE_COLUMNS)
         self._messages_seen: int | None = None  # the state's message count at the last row
         self._frames_csv = {}
+        self._frames_csv_file = {}
+        self._pack: dict[str, IO[bytes]] = {}
+        self._pack_end: dict[str, int] = {}  # bytes in each pack: the next frame's offset
         for cam in self.cameras:
             (f / cam).mkdir(exist_ok=True)
             fc = self._kept(
                 open(f / layout.frames_csv_relpath(cam), "w", newline="", buffering=1 << 14)
             )
+            self._frames_csv_file[cam] = fc
             self._frames_csv[cam] = csv.writer(fc)
             self._frames_csv[cam].writerow(layout.FRAME_COLUMNS)
+            # Unbuffered and O_APPEND: each batch is one writev straight to the file.
+            self._pack[cam] = self._kept(
+                open(f / layout.frames_pack_relpath(cam), "ab", buffering=0)
+            )
+            self._pack_end[cam] = 0
         self._flush_files()
 
     def _kept(self, file: IO[Any]) -> IO[Any]:
@@ -267,11 +286,12 @@ class SessionWriter:
         rows: deque[Sample],
         packets: deque[tuple[float, bytes]],
     ) -> None:
-        # The frames first: the rows name them, and a full CSV buffer reaches the OS in the
-        # middle of a batch, so rows written first could be on disk (and left there by a
-        # kill) naming frames that are not. The telemetry is written even when a frame's
-        # write fails: a broken camera folder must not take the batch's rows and packets
-        # with it (the frames are counted lost from where it failed).
+        # The frames first (pack, then frames.csv rows, both out to the OS): the rows name
+        # them, and a full CSV buffer reaches the OS in the middle of a batch, so rows
+        # written first could be on disk (and left there by a kill) naming frames that are
+        # not. The telemetry is written even when a frame's write fails: a broken camera
+        # folder must not take the batch's rows and packets with it (the frames are
+        # counted lost from where it failed).
         try:
             self._write_frames(frames)
         finally:
@@ -296,33 +316,43 @@ class SessionWriter:
             st.last_row_wall = sample.t_wall
 
     def _write_frames(self, frames: dict[str, deque[Frame]]) -> None:
+        """Per camera: the batch's JPEGs to its pack in one writev, then their rows to
+        frames.csv, flushed to the OS before the telemetry rows that name them. A frame
+        counts as written once its row is out; a failure leaves the rest of the queue to
+        be counted lost (and the pack's unlisted tail to the census)."""
         st = self.stats
         t0 = self.formatter.t0_mono
-        folder = os.fspath(self.folder)
         for cam, q in frames.items():
-            writer = self._frames_csv[cam]
-            while q:
-                frame = q[0]
-                rel = layout.frame_relpath(cam, frame.seq)
-                _write_new_file(f"{folder}/{rel}", frame.jpeg)
-                q.popleft()
-                writer.writerow(
+            if not q:
+                continue
+            offset = self._pack_end[cam]
+            _write_all(self._pack[cam].fileno(), [frame.jpeg for frame in q])
+            rows = []
+            for frame in q:
+                size = len(frame.jpeg)
+                rows.append(
                     (
                         frame.seq,
-                        rel,
+                        layout.frame_relpath(cam, frame.seq),
                         round(frame.t_mono - t0, 6),
                         round(frame.t_wall, 6),
                         frame.width,
                         frame.height,
-                        len(frame.jpeg),
+                        size,
+                        offset,
                     )
                 )
-                st.frames_written[cam] += 1
-                st.bytes_written += len(frame.jpeg)
-                st.first_seq.setdefault(cam, frame.seq)
-                st.first_frame_mono.setdefault(cam, frame.t_mono)
-                st.last_seq[cam] = frame.seq
-                st.last_frame_mono[cam] = frame.t_mono
+                offset += size
+            self._pack_end[cam] = offset
+            self._frames_csv[cam].writerows(rows)
+            self._frames_csv_file[cam].flush()
+            st.frames_written[cam] += len(q)
+            st.bytes_written += sum(row[6] for row in rows)
+            st.first_seq.setdefault(cam, q[0].seq)
+            st.first_frame_mono.setdefault(cam, q[0].t_mono)
+            st.last_seq[cam] = q[-1].seq
+            st.last_frame_mono[cam] = q[-1].t_mono
+            q.clear()
 
     def _write_messages(self, sample: Sample) -> None:
         """The vehicle's messages that arrived since the previous row (messages.csv).
@@ -397,10 +427,13 @@ class SessionWriter:
         for f in self._files:
             if not f.closed:
                 f.flush()
-        # fdatasync the append-only logs so a power cut keeps them to the last flush.
-        for f in (self._csv_file, self._tlog):
+        # fdatasync the append-only files so a power cut keeps them to the last flush: the
+        # packs and their frames.csv first, so that the telemetry rows synced after them
+        # name frames that are on disk.
+        synced = [*self._pack.values(), *self._frames_csv_file.values()]
+        for f in (*synced, self._csv_file, self._tlog):
             if not f.closed:
-                os.fdatasync(f.fileno())
+                _sync(f.fileno())
 
     def _fail(self, reason: str) -> None:
         if self.failure is not None:
@@ -421,17 +454,29 @@ class SessionWriter:
                 log.warning("closing %s: %s", getattr(f, "name", f), exc)
 
 
-def _write_new_file(path: str, data: bytes) -> None:
-    """Create `path` holding `data`: three system calls (open, write, close) instead of
-    the six of Python's `open()` (its fstat, isatty ioctl and seek), and no file object,
-    60 times a second."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o666)
+def _sync(fd: int) -> None:
+    """fdatasync `fd`; a file that cannot be synced (EINVAL: a pipe, a special file) has
+    nothing on a disk to keep."""
     try:
-        view = memoryview(data)
-        while view:
-            view = view[os.write(fd, view) :]
-    finally:
-        os.close(fd)
+        os.fdatasync(fd)
+    except OSError as exc:
+        if exc.errno != errno.EINVAL:
+            raise
+
+
+def _write_all(fd: int, chunks: list[bytes]) -> None:
+    """Append `chunks` to `fd` in one writev (one system call a batch, not one a frame);
+    a short write (a signal, a nearly full disk) goes on with what is left."""
+    for i in range(0, len(chunks), _IOV_MAX):
+        part = chunks[i : i + _IOV_MAX]
+        done = os.writev(fd, part)
+        if done < sum(len(c) for c in part):
+            view = memoryview(b"".join(part))[done:]
+            while view:
+                view = view[os.write(fd, view) :]
+
+
+_IOV_MAX = 1024  # Linux's limit of buffers per writev (a batch is at most frame_queue)
 
 
 def _describe_os_error(exc: OSError) -> str:

@@ -11,21 +11,21 @@ import dataclasses
 from typing import Any
 
 from fastapi import APIRouter, Depends
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import FileResponse, Response, StreamingResponse
 from pydantic import BaseModel
 
 from companion.recording import layout
 from companion.recording.meta import SessionMeta, SessionTask, TrialScore
 from companion.recording.recorder import Recorder
-from companion.recording.store import (
-    SessionSummary,
-)
+from companion.recording.store import SessionSummary, is_frame_file
 from server.auth import require_control_token
 from server.errors import Conflict
 from server.routes.recording import get_recorder
 from server.zipstream import stream_zip
 
 router = APIRouter(tags=["sessions"])
+
+FRAME_MAX_AGE_S = 3600  # how long a browser may keep a frame served out of a pack
 
 
 class QualityFlagModel(BaseModel):
@@ -58,8 +58,8 @@ class SessionSummaryModel(BaseModel):
 class SessionDetailModel(BaseModel):
     summary: SessionSummaryModel
     meta: SessionMeta | None
-    files: list[str]  # every file but the frames (see the frames.csv of each camera)
-    frame_files: dict[str, int]  # camera -> JPEG files on disk
+    files: list[str]  # every file but format 1's frame files (see each camera's frames.csv)
+    frame_files: dict[str, int]  # camera -> frames on disk (in its frames.mjpeg, or files)
 
 
 def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummaryModel:
@@ -98,18 +98,12 @@ async def get_session(
 ) -> SessionDetailModel:
     def load() -> SessionDetailModel:
         summary = recorder.store.summary(session_id)
-        files, frames = [], {}
-        for rel, _ in recorder.store.files(session_id):
-            top, _, rest = rel.partition("/")
-            if rest and rel.endswith(".jpg"):
-                frames[top] = frames.get(top, 0) + 1
-            else:
-                files.append(rel)
+        every = [rel for rel, _ in recorder.store.files(session_id)]
         return SessionDetailModel(
             summary=_summary_model(summary, recorder.recording_id),
             meta=summary.meta,
-            files=files,
-            frame_files=frames,
+            files=[rel for rel in every if not is_frame_file(rel)],
+            frame_files=recorder.store.frame_counts(session_id, every),
         )
 
     return await asyncio.to_thread(load)
@@ -134,14 +128,23 @@ async def download_session(
 
 @router.get(
     "/api/sessions/{session_id}/files/{path:path}",
-    summary="One file of a session",
+    summary="One file of a session, or one frame by its name (front/00000042.jpg)",
     response_class=FileResponse,
 )
 async def session_file(
     session_id: str, path: str, recorder: Recorder = Depends(get_recorder)
-) -> FileResponse:
-    real = await asyncio.to_thread(recorder.store.file, session_id, path)
-    return FileResponse(real, filename=real.name, content_disposition_type="inline")
+) -> Response:
+    found = await asyncio.to_thread(recorder.store.file_or_frame, session_id, path)
+    if isinstance(found, bytes):  # a frame out of its camera's frames.mjpeg (format 2)
+        name = path.rsplit("/", 1)[-1]
+        headers = {
+            "Content-Disposition": f'inline; filename="{name}"',
+            # A listed frame's bytes never change (the pack only grows; a recovery only
+            # cuts what no row lists): a replay scrubbed back needs not fetch it again.
+            "Cache-Control": f"private, max-age={FRAME_MAX_AGE_S}",
+        }
+        return Response(found, media_type="image/jpeg", headers=headers)
+    return FileResponse(found, filename=found.name, content_disposition_type="inline")
 
 
 @router.delete(
