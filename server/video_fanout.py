@@ -20,8 +20,9 @@ from companion.video_frame import Frame
 from core.spawn import Spawn
 
 BOUNDARY = "fpvframe"
-_IDLE_WAIT_S = 5.0  # how often an idle pump looks whether anyone still watches
-_DISCONNECT_CHECK_S = 2.0  # how often a viewer of a silent camera checks its connection
+# While a camera sends nothing (a `none` camera, a stuck source), the pump wakes its
+# viewers this often to check their connections, and looks whether anyone still watches.
+_SILENCE_CHECK_S = 2.0
 
 
 def frame_time_header(frame: Frame) -> str:
@@ -76,11 +77,14 @@ class FrameFanout:
     async def _pump(self) -> None:
         try:
             while not self.frames.closed and not self.closed and self.viewers > 0:
-                item = await self.frames.wait_newer(self.version, timeout=_IDLE_WAIT_S)
+                item = await self.frames.wait_newer(self.version, timeout=_SILENCE_CHECK_S)
                 if item is not None and item.version > self.version:
                     self.part, self.version = multipart_part(item.value), item.version
-                    event, self._event = self._event, asyncio.Event()
-                    event.set()
+                # A new part, or a silence: either way the viewers wake (after a silence,
+                # to see whether their clients are still there). One timer here instead
+                # of one per viewer per frame.
+                event, self._event = self._event, asyncio.Event()
+                event.set()
         finally:
             self._event.set()  # release the viewers (camera closed, nobody left, cancelled)
 
@@ -92,7 +96,8 @@ class FrameFanout:
         """The parts one viewer receives, newest first, until the camera closes.
 
         A disconnect shows as an error on the next write; while a camera sends nothing
-        (a `none` camera, a stuck source) the viewer asks `is_disconnected` now and then.
+        (a `none` camera, a stuck source) the pump wakes the viewer every
+        `_SILENCE_CHECK_S` to ask `is_disconnected`.
         """
         self.viewers += 1
         try:
@@ -105,14 +110,8 @@ class FrameFanout:
                         yield self.part
                         continue
                     self._ensure_pump()
-                    event = self._event
-                    try:
-                        # asyncio.timeout, not wait_for: wait_for wraps each wait in a
-                        # task of its own, and this runs per viewer for every frame.
-                        async with asyncio.timeout(_DISCONNECT_CHECK_S):
-                            await event.wait()
-                    except TimeoutError:
-                        if await is_disconnected():
-                            return
+                    await self._event.wait()
+                    if self.version <= sent and await is_disconnected():
+                        return  # woken by a silence, and the client has gone
         finally:
             self.viewers -= 1

