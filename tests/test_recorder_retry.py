@@ -38,7 +38,7 @@ def test_recording_goes_on_while_descriptors_run_out(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == [first]
     meta = json.loads((tmp_path / first / "session.json").read_text())
     assert meta["status"] == "complete" and meta["stop_reason"] == "disarmed"
-    assert meta["quality"]["cameras"]["front"]["frames_dropped"] == 0
+    assert meta["quality"]["cameras"]["front"]["frames_written"] >= int(starved["frames"])
 
 
 @contextlib.contextmanager
