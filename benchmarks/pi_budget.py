@@ -265,22 +265,29 @@ def prepare_checkout(root: Path) -> None:
 # -- the clients ---------------------------------------------------------------------------
 
 
-async def clients(port: int, seconds: float, warmup: float, telemetry: int, viewers: int):
-    """Telemetry WebSocket clients and MJPEG viewers for warmup + seconds; their rates."""
+async def clients(
+    port: int, seconds: float, warmup: float, telemetry: int, viewers: int, ack: bool = False
+):
+    """Telemetry WebSocket clients and MJPEG viewers for warmup + seconds; their rates.
+    `ack`: the telemetry clients ask for one message in flight and acknowledge each, as the
+    pages do (web/telemetry.js: /ws/telemetry?ack=1, {"ack": version} per message)."""
     from websockets.asyncio.client import connect
 
     loop = asyncio.get_running_loop()
     counts = [0] * telemetry
     stop = asyncio.Event()
+    url = f"ws://127.0.0.1:{port}/ws/telemetry" + ("?ack=1" if ack else "")
 
     async def telemetry_client(i: int) -> None:
-        async with connect(f"ws://127.0.0.1:{port}/ws/telemetry", max_size=1 << 20) as ws:
+        async with connect(url, max_size=1 << 20) as ws:
             while not stop.is_set():
                 try:
-                    await asyncio.wait_for(ws.recv(), 1.0)
+                    message = await asyncio.wait_for(ws.recv(), 1.0)
                 except TimeoutError:
                     continue
                 counts[i] += 1
+                if ack:
+                    await ws.send(json.dumps({"ack": json.loads(message)["version"]}))
 
     tasks = [asyncio.create_task(telemetry_client(i)) for i in range(telemetry)]
     mjpeg, transports = [], []
@@ -342,7 +349,14 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
 
     async def drive() -> None:
         task = asyncio.create_task(
-            clients(station.port, args.seconds, args.warmup, args.telemetry_clients, args.viewers)
+            clients(
+                station.port,
+                args.seconds,
+                args.warmup,
+                args.telemetry_clients,
+                args.viewers,
+                args.telemetry_ack,
+            )
         )
         await asyncio.sleep(args.warmup)
         result["start"] = await asyncio.to_thread(window_start, station, args)
@@ -480,6 +494,11 @@ def main() -> None:
     # what each part costs (the difference), not the budget.
     ap.add_argument("--telemetry-clients", type=int, default=2, help="telemetry WebSockets")
     ap.add_argument("--no-record", action="store_true", help="no recording")
+    ap.add_argument(
+        "--telemetry-ack",
+        action="store_true",
+        help="telemetry clients as the pages run them: ?ack=1, acknowledging each message",
+    )
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
     ap.add_argument(
         "--no-visit",
@@ -501,7 +520,8 @@ def main() -> None:
     print(
         f"# fpv-station Pi budget: UDP test vehicle, 2 USB MJPEG cameras 640x480 @ 30 fps "
         f"(passthrough), {'no recording' if args.no_record else 'recording'}, "
-        f"{args.telemetry_clients} telemetry clients, {args.viewers} viewers per camera; "
+        f"{args.telemetry_clients} telemetry clients{' (ack, as the pages)' if args.telemetry_ack else ''}, "
+        f"{args.viewers} viewers per camera; "
         f"{args.seconds:g} s windows after {args.warmup:g} s; machine {platform.machine()}, "
         f"{os.cpu_count()} cores, Python {platform.python_version()}; "
         f"py-spy {'yes' if py_spy() and not args.no_profile else 'no'}"

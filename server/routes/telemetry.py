@@ -31,12 +31,16 @@ _IDLE_CHECK_S = 1.0  # how often an idle handler looks whether its client went a
 
 
 class _ClientAcks:
-    """Reads what the client sends until it disconnects; keeps the newest `{"ack": n}`."""
+    """Reads what the client sends until it disconnects; keeps the newest `{"ack": n}`.
+
+    The handler waits on a plain future that an ack (or the leave) resolves, with a timer:
+    not asyncio.wait_for on an Event, which wraps each wait in a task of its own, and a
+    page acknowledges every message (50 a second)."""
 
     def __init__(self) -> None:
         self.acked = 0
-        self.changed = asyncio.Event()
         self.gone = False
+        self._waiter: asyncio.Future[None] | None = None
 
     async def read_until_disconnect(self, ws: WebSocket) -> None:
         try:
@@ -48,7 +52,7 @@ class _ClientAcks:
                     self._note(msg.get("text"))
         finally:
             self.gone = True
-            self.changed.set()  # a handler waiting for an ack ends now
+            self._wake()  # a handler waiting for an ack ends now
 
     def _note(self, text: str | None) -> None:
         if not text or len(text) > 100:  # an ack is tiny; anything else is ignored
@@ -59,18 +63,31 @@ class _ClientAcks:
             return
         if isinstance(ack, int) and not isinstance(ack, bool) and ack > self.acked:
             self.acked = ack
-            self.changed.set()
+            self._wake()
+
+    def _wake(self) -> None:
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
 
     async def wait_for(self, version: int, within_s: float) -> bool:
-        """True once `version` is acknowledged; False after `within_s` without it or
-        when the client has gone."""
-        while self.acked < version and not self.gone:
-            self.changed.clear()
+        """True once `version` is acknowledged; False when the client has gone, or when
+        `within_s` passed (or an older ack came) without it: the caller asks again."""
+        if self.acked < version and not self.gone:
+            loop = asyncio.get_running_loop()
+            waiter = self._waiter = loop.create_future()
+            timer = loop.call_later(within_s, _resolve, waiter)
             try:
-                await asyncio.wait_for(self.changed.wait(), within_s)
-            except TimeoutError:
-                return False
-        return not self.gone
+                await waiter
+            finally:
+                timer.cancel()
+                self._waiter = None
+        return self.acked >= version and not self.gone
+
+
+def _resolve(waiter: asyncio.Future[None]) -> None:
+    if not waiter.done():
+        waiter.set_result(None)
 
 
 @router.websocket("/ws/telemetry")
@@ -101,13 +118,14 @@ async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack
     next_send = 0.0
     try:
         while not watcher.done():
-            if ack and not await acks.wait_for(version, _IDLE_CHECK_S):
-                continue  # the last message is still in flight: look again for a leave
-            # The pause first, then the wait: a state that came during the pause is sent
-            # at once, and the states the pause skipped never wake this handler.
+            # The pause first, then the waits: a state that came during the pause is sent
+            # at once, the states the pause skipped never wake this handler, and neither
+            # does an ack that came during it (a page acks within a few ms of 20).
             delay = next_send - time.monotonic()
             if delay > 0:
                 await asyncio.sleep(delay)
+            if ack and not await acks.wait_for(version, _IDLE_CHECK_S):
+                continue  # the last message is still in flight: look again for a leave
             current = await slot.wait_newer(version, timeout=_IDLE_CHECK_S)
             if slot.closed:
                 break
