@@ -10,7 +10,9 @@ Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subp
 - two USB MJPEG cameras at 640x480, 30 fps, through the station's own V4L2 source and its
   passthrough (the grabber is simulated at OpenCV's VideoCapture: usb_mjpeg_camera.py);
 - recording on (telemetry, tlog and both videos);
-- two telemetry WebSocket clients and two MJPEG viewers per camera, in this process;
+- two telemetry WebSocket clients that acknowledge each message as the pages do
+  (`?ack=1`; `--no-telemetry-ack`: clients that only read, as in rounds 1 and 2), and
+  two MJPEG viewers per camera, in this process;
 - the 3D panel on, off, or both runs side by side. "On": the pilot page's GET /api/viser
   starts its viser servers once the station is ready (`--no-visit`: not), nobody looks.
 
@@ -496,8 +498,10 @@ def main() -> None:
     ap.add_argument("--no-record", action="store_true", help="no recording")
     ap.add_argument(
         "--telemetry-ack",
-        action="store_true",
-        help="telemetry clients as the pages run them: ?ack=1, acknowledging each message",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="telemetry clients as the pages run them: ?ack=1, acknowledging each message "
+        "(--no-telemetry-ack: the clients of rounds 1 and 2, which only read)",
     )
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
     ap.add_argument(
