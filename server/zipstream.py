@@ -75,10 +75,7 @@ async def stream_zip(
             out = _ChunkWriter(put, chunk_size)
             with zipfile.ZipFile(out, "w", allowZip64=True) as zf:
                 for arcname, path in files:
-                    if path.suffix.lower() in STORED_SUFFIXES:
-                        zf.write(path, arcname, compress_type=zipfile.ZIP_STORED)
-                    else:
-                        zf.write(path, arcname, compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
+                    _add_file(zf, arcname, path)
             out.drain()
             put(None)
         except _Cancelled:
@@ -103,3 +100,27 @@ async def stream_zip(
             yield item
     finally:
         cancelled.set()
+
+
+_COPY_BYTES = 1 << 20
+
+
+def _add_file(zf: zipfile.ZipFile, arcname: str, path: Path) -> None:
+    """`path` into `zf` as it was when its entry began: exactly the bytes it had then.
+
+    A session still recording grows while it is zipped (its packs by about 1 MB a
+    second). `ZipFile.write` copies to the end of the file but chose the entry's format
+    from its size at the start, so a pack that grew past 2 GB during the download failed
+    the archive ("File size too large"); the appended bytes belong to the next download
+    anyway (frames.csv, zipped before the pack, names none of them)."""
+    info = zipfile.ZipInfo.from_file(path, arcname)
+    if path.suffix.lower() in STORED_SUFFIXES:
+        info.compress_type = zipfile.ZIP_STORED
+    else:
+        info.compress_type = zipfile.ZIP_DEFLATED
+        info._compresslevel = 1  # what ZipFile.write(compresslevel=1) sets (3.13: an alias)
+    with open(path, "rb") as src, zf.open(info, "w") as dest:
+        left = info.file_size
+        while left > 0 and (chunk := src.read(min(left, _COPY_BYTES))):
+            dest.write(chunk)
+            left -= len(chunk)
