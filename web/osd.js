@@ -133,11 +133,12 @@ export function mountOsd(view, { menu = true } = {}) {
   }
 
   // -- one frame -----------------------------------------------------------------------
-  // A paused OSD (the right eye with stereo off) asks for no frames at all.
-  let running = true;
+  // A paused OSD (the right eye with stereo off) asks for no frames at all: `raf` is the
+  // frame asked for (0 while paused), so pausing cancels it and a second start is no
+  // second loop.
+  let raf = 0;
   function frame() {
-    if (!running) return;
-    requestAnimationFrame(frame);
+    raf = requestAnimationFrame(frame);
     const t0 = performance.now();
     draw();
     if (stats.raster) { // benchmark only: the canvases' pixels made now, inside the timing
@@ -273,14 +274,16 @@ export function mountOsd(view, { menu = true } = {}) {
   }
 
   applyHidden();
-  requestAnimationFrame(frame);
+  raf = requestAnimationFrame(frame);
   return {
     stats,
     toggleMenu() { menuBox.hidden = !menuBox.hidden; },
     // Stop drawing (a hidden view) or start again.
     setRunning(on) {
-      if (on && !running) { dirty = true; requestAnimationFrame(frame); }
-      running = on;
+      if (on === (raf !== 0)) return;
+      cancelAnimationFrame(raf);
+      raf = on ? requestAnimationFrame(frame) : 0;
+      dirty = true;
     },
     // A page's own OSD line (e.g. the task step on the goggles), data-osd=<name>.
     setLine(name, text) {
