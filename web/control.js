@@ -19,7 +19,8 @@
 // rate). A command the vehicle refuses (COMMAND_ACK not accepted) shows as a toast with
 // the vehicle's reason.
 // Test hook: window.fpv.control = {enabled, sticks, input, lastReply}.
-import { $, el, svgEl, api, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
+import { $, el, svgEl, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
+import { feed } from "/telemetry.js";
 import { mountTouchSticks, touchDevice } from "/touch-sticks.js";
 
 const RATE_MS = 20;
@@ -63,7 +64,11 @@ $("ctl-reset").onclick = () => command({ type: "reset" });
 $("ctl-mode").onchange = (e) => command({ type: "mode", mode: e.target.value });
 renderPadPanel();
 
-api("/api/status").then((s) => { box.hidden = s.source !== "sim"; }).catch(() => {});
+// The sticks fly the digital twin: shown when the station's source is the sim, from the
+// page's one GET /api/status poll (telemetry.js), not a second fetch of the same route.
+const showForSim = (st) => { if (st) box.hidden = st.source !== "sim"; };
+showForSim(feed.status);
+window.addEventListener("fpv:status", (e) => showForSim(e.detail));
 
 // ---- connection ----
 function start() {
