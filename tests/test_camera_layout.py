@@ -89,12 +89,11 @@ def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station,
     w, h = size
     page = browser.new_page(viewport={"width": w, "height": h})
     tasks = page.request.get(base + "/api/task").json()["tasks"]
-    if tasks:
-        reply = page.request.post(base + "/api/task", data={"task_id": tasks[-1]["id"]})
-        assert reply.ok, reply.text()
+    assert tasks, "the station's scene has no task to show"
+    reply = page.request.post(base + "/api/task", data={"task_id": tasks[-1]["id"]})
+    assert reply.ok, reply.text()
     page.goto(base + "/")
-    if tasks:
-        expect(page.locator("#task-steps li").first).to_be_attached(timeout=15_000)
+    expect(page.locator("#task-steps li").first).to_be_attached(timeout=15_000)
     pics = pictures(page)
     assert set(pics) == {"front-view", "bottom-view"}, pics
     for name in ("front", "bottom"):
@@ -105,15 +104,14 @@ def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station,
     bottom = pics["bottom-view"]
     box_is_the_picture(bottom)
     assert bottom["shownW"] >= 0.25 * w and bottom["ph"] >= 0.2 * h, bottom
-    if tasks:
-        # The task panel gave up height (it scrolls): the step the pilot is on is in view.
-        inside = page.evaluate(
-            """() => { const li = document.querySelector('#task-steps li.current');
-            const r = li.getBoundingClientRect();
-            const p = document.querySelector('#task-panel').getBoundingClientRect();
-            return r.top >= p.top && r.bottom <= p.bottom && r.bottom <= innerHeight; }"""
-        )
-        assert inside
+    # The task panel gave up height (it scrolls): the step the pilot is on is in view.
+    inside = page.evaluate(
+        """() => { const li = document.querySelector('#task-steps li.current');
+        const r = li.getBoundingClientRect();
+        const p = document.querySelector('#task-panel').getBoundingClientRect();
+        return r.top >= p.top && r.bottom <= p.bottom && r.bottom <= innerHeight; }"""
+    )
+    assert inside
     page.close()
 
 
