@@ -78,11 +78,17 @@ export function mountOsd(view, { menu = true } = {}) {
   // Within HOME_DOT_M of home the bearing is GPS noise: a dot instead of the arrow.
   homeArrow.innerHTML = '<svg viewBox="-10 -10 20 20" width="1.1em" height="1.1em"><path d="M0 -9 L6 7 L0 3 L-6 7 Z" fill="currentColor" stroke="#000" stroke-width="1.5" visibility="hidden"/><circle r="3.5" fill="currentColor" stroke="#000" stroke-width="1.5" visibility="hidden"/></svg>';
   const [arrowPath, homeDot] = homeArrow.firstChild.children;
-  const showHomeMark = (mark) => { // "arrow", "dot" or null (no position or no home)
-    for (const [node, name] of [[arrowPath, "arrow"], [homeDot, "dot"]]) {
-      const v = mark === name ? "visible" : "hidden";
-      if (node.getAttribute("visibility") !== v) node.setAttribute("visibility", v);
-    }
+  // The mark shown, "arrow", "dot" or "none" (no position or no home), is data-mark; the
+  // elements change only when it does (this runs every frame). Only the arrow has a
+  // rotation and data-bearing (the two change together, in draw()).
+  const showHomeMark = (mark) => {
+    if (nodes.home.dataset.mark === mark) return;
+    nodes.home.dataset.mark = mark;
+    arrowPath.setAttribute("visibility", mark === "arrow" ? "visible" : "hidden");
+    homeDot.setAttribute("visibility", mark === "dot" ? "visible" : "hidden");
+    if (mark === "arrow") return;
+    arrowPath.removeAttribute("transform");
+    delete nodes.home.dataset.bearing;
   };
   const homeText = el("span", {}, "");
   nodes.home.append(homeArrow, homeText);
@@ -219,26 +225,25 @@ export function mountOsd(view, { menu = true } = {}) {
     // Home: distance and an arrow relative to the nose.
     const posR = reading("position"), pos = posR.value;
     const home = s.altitude;
-    let homeTxt = "H --", mark = null;
+    let homeTxt = "H --", mark = "none";
     if (pos !== null && home.home_lat_deg !== null && home.home_lat_deg !== undefined) {
       const north = (home.home_lat_deg - pos.lat_deg) * M_PER_DEG_LAT;
       const east = (home.home_lon_deg - pos.lon_deg) * M_PER_DEG_LAT * Math.cos((pos.lat_deg * Math.PI) / 180);
       const dist = Math.hypot(north, east);
       homeTxt = `H ${fixed(dist, 0)} m`;
-      if (dist < HOME_DOT_M) {
-        mark = "dot";
-        delete nodes.home.dataset.bearing;
-      } else {
+      if (dist < HOME_DOT_M) mark = "dot";
+      else {
         mark = "arrow";
         const bearing = ((Math.atan2(east, north) * 180) / Math.PI + 360) % 360;
         const rel = (((bearing - (hdg ?? 0)) % 360) + 360) % 360;
         const rot = `rotate(${rel.toFixed(0)})`;
-        if (arrowPath.getAttribute("transform") !== rot) arrowPath.setAttribute("transform", rot);
-        nodes.home.dataset.bearing = rel.toFixed(0);
+        if (arrowPath.getAttribute("transform") !== rot) {
+          arrowPath.setAttribute("transform", rot);
+          nodes.home.dataset.bearing = rel.toFixed(0);
+        }
       }
     }
     showHomeMark(mark);
-    nodes.home.dataset.mark = mark ?? "none";
     setValue("home", posR, homeTxt);
 
     // Link: loss from /api/status (telemetry.js polls it), RSSI from RC_CHANNELS when the receiver has it.
