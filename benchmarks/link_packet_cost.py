@@ -74,26 +74,12 @@ def main() -> None:
         udp_thread_cost(args.udp_seconds)
 
 
-# What the station asks the autopilot for (companion/link_settings.py), about 140 a second.
-STATION_RATES_HZ = {
-    "HEARTBEAT": 1.0,
-    "ATTITUDE": 50.0,
-    "GLOBAL_POSITION_INT": 25.0,
-    "LOCAL_POSITION_NED": 25.0,
-    "VFR_HUD": 10.0,
-    "GPS_RAW_INT": 5.0,
-    "RC_CHANNELS": 10.0,
-    "SERVO_OUTPUT_RAW": 10.0,
-    "SYS_STATUS": 2.0,
-    "BATTERY_STATUS": 1.0,
-    "SYSTEM_TIME": 1.0,
-}
-
-
 def udp_thread_cost(seconds: float) -> None:
     """A real link thread on udpin, the test vehicle sending at the station's rates (in
     this process: its sending thread shares the GIL too), measured from /proc."""
-    with MavVehicle("udp", rates_hz=STATION_RATES_HZ) as vehicle:
+    # What the station asks the autopilot for (about 140 a second), and its heartbeat.
+    rates = {"HEARTBEAT": 1.0, **LinkSettings().message_rates_hz}
+    with MavVehicle("udp", rates_hz=rates) as vehicle:
         link = MavlinkLink(LinkSettings(source=vehicle.station_source, request_streams=False))
         link.add_packet_listener(lambda t, p: None)
         link.start()

@@ -99,14 +99,9 @@ class Latest(Generic[T]):
             loop = asyncio.get_running_loop()
             fut: asyncio.Future[None] = loop.create_future()
             self._waiters.append((loop, fut))
-        # A timer that resolves the future, not asyncio.wait_for: that wraps each wait in
-        # a second future and callbacks, and this runs for every client at every publish.
-        timer = loop.call_later(timeout, _wake, [fut]) if timeout is not None else None
         try:
-            await fut
+            await wait_resolved(fut, timeout)
         finally:
-            if timer is not None:
-                timer.cancel()
             # On timeout or cancellation the waiter must leave the list, or a consumer
             # that polls with a timeout while nothing is published would grow it.
             with self._lock:
@@ -115,6 +110,21 @@ class Latest(Generic[T]):
                 except ValueError:
                     pass
         return self._current
+
+
+async def wait_resolved(fut: asyncio.Future[None], timeout: float | None) -> None:  # noqa: ASYNC109
+    """Wait until `fut` is resolved, or `timeout` seconds, whichever comes first; the
+    caller looks at its own state afterwards. A timer that resolves the future, not
+    asyncio.wait_for: that wraps each wait in a task of its own (Python 3.11), and the
+    waits here run per client per message."""
+    timer = None
+    if timeout is not None:
+        timer = asyncio.get_running_loop().call_later(timeout, _wake, [fut])
+    try:
+        await fut
+    finally:
+        if timer is not None:
+            timer.cancel()
 
 
 def _wake_waiters(waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]]) -> None:

@@ -339,9 +339,8 @@ class MavlinkLink:
         self._meter.connected = False
         # Nothing more will come from this vehicle: say so, and end what follows it.
         now = clock.mono()
-        if self._tracker.set_link_lost(True, now, self._last_hb_mono):
-            self._state_changed = True
-            self._publish_state()
+        self._state_changed |= self._tracker.set_link_lost(True, now, self._last_hb_mono)
+        self._publish_state()
         clock.end()
         log.info("replay of %s done (%d truncated records)", path, reader.truncated)
         self._idle_forever()
@@ -518,8 +517,7 @@ class MavlinkLink:
             )
         lost = self._last_hb_mono is None or now - self._last_hb_mono > self.settings.link_lost_s
         if lost and not self._tracker.state.link.link_lost:
-            self._tracker.set_link_lost(True, now, self._last_hb_mono)
-            self._state_changed = True
+            self._state_changed |= self._tracker.set_link_lost(True, now, self._last_hb_mono)
             self._publish_state()
             log.warning("link lost: no autopilot heartbeat for %.1f s", self.settings.link_lost_s)
         self._meter.tick(now)

@@ -15,7 +15,10 @@ are logged with their traceback and answered with a short 500, never the traceba
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import weakref
+from typing import Any
 
 from fastapi import FastAPI, Request, WebSocket
 from fastapi.exceptions import RequestValidationError, WebSocketRequestValidationError
@@ -72,24 +75,35 @@ async def deny_websocket(ws: WebSocket, status_code: int, name: str, message: st
     400 for a bad query), not a bare 403: browsers and scripts see why."""
     # uvicorn's websockets-sansio protocol (0.54) then logs "ASGI callable returned
     # without completing handshake." at ERROR for every denial, a bug it has open
-    # (Kludex/uvicorn#3138); DenialLogFilter drops that one record per denial sent here.
-    DenialLogFilter.pending += 1
+    # (Kludex/uvicorn#3138). It logs from the task that ran this handler: DenialLogFilter
+    # drops that record for the tasks marked here, and a uvicorn without the bug leaves
+    # nothing behind (the mark goes with the task).
+    task = asyncio.current_task()
+    if task is not None:
+        _DENYING_TASKS.add(task)
     await ws.send_denial_response(error_response(status_code, name, message))
+
+
+_DENYING_TASKS: weakref.WeakSet[asyncio.Task[Any]] = weakref.WeakSet()
 
 
 class DenialLogFilter(logging.Filter):
     """On `uvicorn.error`: drops uvicorn's false "without completing handshake" error
-    after each denial `deny_websocket` sent; the same message with no denial pending (a
-    handler that really returned without accepting) is still logged."""
+    logged by a task that sent a denial through `deny_websocket`; the same message from
+    any other task (a handler that really returned without accepting) is still logged."""
 
     MESSAGE = "ASGI callable returned without completing handshake."
-    pending = 0  # denials sent whose false error is still to come (event loop only)
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if record.levelno == logging.ERROR and DenialLogFilter.pending > 0:
-            if record.getMessage() == self.MESSAGE:
-                DenialLogFilter.pending -= 1
-                return False
+        if record.levelno != logging.ERROR or record.getMessage() != self.MESSAGE:
+            return True
+        try:
+            task = asyncio.current_task()
+        except RuntimeError:  # logged outside an event loop
+            return True
+        if task is not None and task in _DENYING_TASKS:
+            _DENYING_TASKS.discard(task)
+            return False
         return True
 
 

@@ -126,7 +126,7 @@ def _empty(camera: str, header: tuple[str, ...], csv_id: tuple[int, int], end: i
 
 
 _ARRAYS = ("seq", "t_s", "width", "height", "offset", "size")
-_NUMERIC = ("seq", "t_s", "width", "height", "offset", "bytes")
+_NUMERIC = ("seq", "t_s", "width", "height", "offset", "bytes")  # _ARRAYS' frames.csv columns
 
 
 def _extend(index: FrameIndex, data: bytes, st: os.stat_result) -> FrameIndex:
@@ -134,24 +134,17 @@ def _extend(index: FrameIndex, data: bytes, st: os.stat_result) -> FrameIndex:
     whose state is now `st`."""
     whole = data[: data.rfind(b"\n") + 1]
     new = _parse_rows(whole, index.header, index.packed)
-
-    def grown(old: NDArray, name: str) -> NDArray:
-        return np.concatenate([old, new[name].astype(old.dtype)]) if new["seq"].size else old
-
-    return FrameIndex(
-        camera=index.camera,
-        packed=index.packed,
-        seq=grown(index.seq, "seq"),
-        t_s=grown(index.t_s, "t_s"),
-        width=grown(index.width, "width"),
-        height=grown(index.height, "height"),
-        offset=grown(index.offset, "offset"),
-        size=grown(index.size, "bytes"),
-        csv_id=index.csv_id,
+    grown = {
+        name: np.concatenate([getattr(index, name), new[column].astype(getattr(index, name).dtype)])
+        for name, column in zip(_ARRAYS, _NUMERIC, strict=True)
+        if new["seq"].size
+    }
+    return dataclasses.replace(
+        index,
+        **grown,
         csv_size=st.st_size,
         csv_mtime_ns=st.st_mtime_ns,
         csv_end=index.csv_end + len(whole),
-        header=index.header,
     )
 
 

@@ -325,7 +325,7 @@ class SessionWriter:
         for cam, q in frames.items():
             if not q:
                 continue
-            offset = self._pack_end[cam]
+            start = offset = self._pack_end[cam]
             _write_all(self._pack[cam].fileno(), [frame.jpeg for frame in q])
             rows = []
             for frame in q:
@@ -347,7 +347,7 @@ class SessionWriter:
             self._frames_csv[cam].writerows(rows)
             self._frames_csv_file[cam].flush()
             st.frames_written[cam] += len(q)
-            st.bytes_written += sum(row[6] for row in rows)
+            st.bytes_written += offset - start
             st.first_seq.setdefault(cam, q[0].seq)
             st.first_frame_mono.setdefault(cam, q[0].t_mono)
             st.last_seq[cam] = q[-1].seq

@@ -22,6 +22,7 @@ import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
+from companion.latest import wait_resolved
 from server.errors import Unavailable, deny_websocket
 from server.station import Station
 
@@ -33,9 +34,8 @@ _IDLE_CHECK_S = 1.0  # how often an idle handler looks whether its client went a
 class _ClientAcks:
     """Reads what the client sends until it disconnects; keeps the newest `{"ack": n}`.
 
-    The handler waits on a plain future that an ack (or the leave) resolves, with a timer:
-    not asyncio.wait_for on an Event, which wraps each wait in a task of its own, and a
-    page acknowledges every message (50 a second)."""
+    The handler waits on a plain future that an ack (or the leave) resolves
+    (`companion.latest.wait_resolved`): a page acknowledges every message, 50 a second."""
 
     def __init__(self) -> None:
         self.acked = 0
@@ -74,20 +74,12 @@ class _ClientAcks:
         """True once `version` is acknowledged; False when the client has gone, or when
         `within_s` passed (or an older ack came) without it: the caller asks again."""
         if self.acked < version and not self.gone:
-            loop = asyncio.get_running_loop()
-            waiter = self._waiter = loop.create_future()
-            timer = loop.call_later(within_s, _resolve, waiter)
+            self._waiter = asyncio.get_running_loop().create_future()
             try:
-                await waiter
+                await wait_resolved(self._waiter, within_s)
             finally:
-                timer.cancel()
                 self._waiter = None
         return self.acked >= version and not self.gone
-
-
-def _resolve(waiter: asyncio.Future[None]) -> None:
-    if not waiter.done():
-        waiter.set_result(None)
 
 
 @router.websocket("/ws/telemetry")
