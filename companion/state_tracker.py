@@ -10,6 +10,8 @@ never changes under a reader.
 
 from __future__ import annotations
 
+from operator import attrgetter
+
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.vehicle_state import (
@@ -88,6 +90,10 @@ _Battery = quick_constructor(Battery)
 _LocalPosition = quick_constructor(LocalPosition)
 _PilotAltitude = quick_constructor(PilotAltitude)
 _StateDraft = unfrozen_twin(VehicleState)
+# The channels as one tuple, read in C. SERVO_OUTPUT_RAW's servo9-16 are MAVLink 2
+# extensions: the dialect's message has them (0) also when a MAVLink 1 packet lacks them.
+_RC_PWM = attrgetter(*(f"chan{i}_raw" for i in range(1, 19)))
+_SERVO_PWM = attrgetter(*(f"servo{i}_raw" for i in range(1, 17)))
 
 
 def _enum_name(enum: str, value: int, prefix: str) -> str:
@@ -337,7 +343,7 @@ class StateTracker:
         self._draft.attitude = att
 
     def _rc_channels(self, m: mavlink.MAVLink_message, t: float) -> None:
-        pwm = tuple(getattr(m, f"chan{i}_raw") for i in range(1, 19))
+        pwm = _RC_PWM(m)
         rc = _RcChannels(
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
@@ -348,7 +354,7 @@ class StateTracker:
         self._draft.rc = rc
 
     def _servo_output(self, m: mavlink.MAVLink_message, t: float) -> None:
-        pwm = tuple(getattr(m, f"servo{i}_raw", 0) for i in range(1, 17))
+        pwm = _SERVO_PWM(m)
         servo = _ServoOutputs(t_mono=t, time_usec=m.time_usec, port=m.port, pwm_us=pwm)
         self._draft.servo = servo
 
