@@ -3,13 +3,14 @@
 A link carries several systems (the autopilot, a telemetry radio, other ground
 stations, cameras). The tracker follows one autopilot: the sysid pinned in the
 settings, or the first system whose HEARTBEAT names a real autopilot. Messages from
-anyone else are ignored. Every update builds new frozen groups, so a published state
+anyone else are ignored. Every update builds new frozen groups, and `state` is a new
+frozen `VehicleState` after a change (sharing the unchanged groups), so a published state
 never changes under a reader.
 """
 
 from __future__ import annotations
 
-from dataclasses import fields, replace
+from operator import attrgetter
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -31,6 +32,10 @@ from companion.vehicle_state import (
     VehicleState,
     VehicleUtc,
     VfrHud,
+    freeze_draft,
+    quick_constructor,
+    quick_replace,
+    unfrozen_twin,
 )
 from core.mavlink.ardupilot_modes import ardupilot_mode_name
 from core.mavlink.framing import packet_version
@@ -70,13 +75,25 @@ def _plausible_utc(usec: int) -> bool:
     return UTC_PLAUSIBLE_AFTER_S <= usec * 1e-6 < 4_102_444_800.0  # before 2100
 
 
-_STATE_FIELDS = tuple(f.name for f in fields(VehicleState))
-
-
-def _replace_state(state: VehicleState, **groups: object) -> VehicleState:
-    """`dataclasses.replace` for the hot path: it runs for every packet, and the generic
-    version (field introspection per call) was the largest cost of the link thread."""
-    return VehicleState(*[groups[n] if n in groups else getattr(state, n) for n in _STATE_FIELDS])
+# The groups are built with quick constructors (companion.vehicle_state: the same frozen
+# objects at a third of the cost), and the tracker keeps its groups in a mutable draft of
+# the state that `state` freezes when read after a change: one VehicleState per reader's
+# look (the link's: one per wake-up), not one per group changed.
+_Heartbeat = quick_constructor(Heartbeat)
+_GpsRaw = quick_constructor(GpsRaw)
+_GlobalPosition = quick_constructor(GlobalPosition)
+_VfrHud = quick_constructor(VfrHud)
+_Attitude = quick_constructor(Attitude)
+_RcChannels = quick_constructor(RcChannels)
+_ServoOutputs = quick_constructor(ServoOutputs)
+_Battery = quick_constructor(Battery)
+_LocalPosition = quick_constructor(LocalPosition)
+_PilotAltitude = quick_constructor(PilotAltitude)
+_StateDraft = unfrozen_twin(VehicleState)
+# The channels as one tuple, read in C. SERVO_OUTPUT_RAW's servo9-16 are MAVLink 2
+# extensions: the dialect's message has them (0) also when a MAVLink 1 packet lacks them.
+_RC_PWM = attrgetter(*(f"chan{i}_raw" for i in range(1, 19)))
+_SERVO_PWM = attrgetter(*(f"servo{i}_raw" for i in range(1, 17)))
 
 
 def _enum_name(enum: str, value: int, prefix: str) -> str:
@@ -109,7 +126,9 @@ class StateTracker:
         self.gcs_sysid = gcs_sysid  # acks to other ground stations are theirs, not ours
         self.sysid: int | None = sysid
         self.compid: int | None = None
-        self.state = VehicleState()
+        self._draft = _StateDraft()  # the groups as they are now: handlers store into it
+        self._state = VehicleState()  # the draft frozen, as `state` last returned it
+        self._changed = False  # the draft changed since
         self._gp_seen = False  # GLOBAL_POSITION_INT ever received (preferred altitude)
         # Where the vehicle stood at its last disarmed HEARTBEAT: (t_mono, alt, lat, lon).
         # Arming is only seen in the next HEARTBEAT (1 Hz on PX4), by which time a quick
@@ -119,6 +138,15 @@ class StateTracker:
         # fused - GPS altitude when they began to disagree (a frame not anchored to GPS)
         self._frame_offset_m: float | None = None
         self._sliding: bool | None = None  # after agreeing again, still sliding into place
+
+    @property
+    def state(self) -> VehicleState:
+        """The current state, frozen: a new object after each change, the same one until
+        the next (built here, once for all the updates since the last look)."""
+        if self._changed:
+            self._changed = False
+            self._state = freeze_draft(self._draft, VehicleState)
+        return self._state
 
     def is_autopilot_heartbeat(self, msg: mavlink.MAVLink_message) -> bool:
         if msg.get_type() != "HEARTBEAT" or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
@@ -143,6 +171,7 @@ class StateTracker:
             self.sysid = msg.get_srcSystem()
             self.compid = msg.get_srcComponent()
             self._heartbeat(msg, t_mono)
+            self._changed = True
             return True
         if self.compid is None or msg.get_srcSystem() != self.sysid:
             return False  # not (yet) the autopilot we follow
@@ -152,33 +181,32 @@ class StateTracker:
         if handler is None:
             return False
         handler(self, msg, t_mono)
+        self._changed = True
         return True
 
     def set_link_lost(self, lost: bool, t_mono: float, last_heartbeat_mono: float | None) -> bool:
-        link = self.state.link
+        link = self._draft.link
         if link.link_lost == lost and link.last_heartbeat_mono == last_heartbeat_mono:
             return False
-        self.state = _replace_state(
-            self.state,
-            link=LinkStatus(
-                t_mono=t_mono if link.link_lost != lost else link.t_mono,
-                link_lost=lost,
-                last_heartbeat_mono=last_heartbeat_mono,
-            ),
+        self._draft.link = LinkStatus(
+            t_mono=t_mono if link.link_lost != lost else link.t_mono,
+            link_lost=lost,
+            last_heartbeat_mono=last_heartbeat_mono,
         )
+        self._changed = True
         return True
 
     # -- one method per message family ---------------------------------------------
 
     def _heartbeat(self, m: mavlink.MAVLink_message, t: float) -> None:
         armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-        old = self.state.heartbeat
+        old = self._draft.heartbeat
         was_armed = old.armed
         # The flight timer (vehicle_state.Heartbeat): from this beat at arming, stopped at
         # the disarming beat and held until the next arming.
         since = t if armed and not was_armed else old.armed_since_mono
         armed_for = t - since if since is not None and (armed or was_armed) else old.armed_for_s
-        hb = Heartbeat(
+        hb = _Heartbeat(
             t_mono=t,
             sysid=m.get_srcSystem(),
             compid=m.get_srcComponent(),
@@ -194,7 +222,7 @@ class StateTracker:
             armed_since_mono=since,
             armed_for_s=armed_for,
         )
-        self.state = _replace_state(self.state, heartbeat=hb)
+        self._draft.heartbeat = hb
         if armed and not was_armed:
             ground = self._ground_fix
             fresh = ground is not None and t - ground[0] <= _GROUND_FIX_MAX_AGE_S
@@ -204,7 +232,7 @@ class StateTracker:
             self._ground_fix = None if alt is None else (t, alt, *self._current_latlon())
 
     def _gps_raw(self, m: mavlink.MAVLink_message, t: float) -> None:
-        g = GpsRaw(
+        g = _GpsRaw(
             t_mono=t,
             time_usec=m.time_usec,
             fix_type=m.fix_type,
@@ -217,30 +245,26 @@ class StateTracker:
             ground_speed_mps=_scaled(m.vel, 0.01, _UINT16_UNKNOWN),
             course_deg=_scaled(m.cog, 0.01, _UINT16_UNKNOWN),
         )
-        self.state = _replace_state(self.state, gps=g)
-        utc = self.state.utc
+        self._draft.gps = g
+        utc = self._draft.utc
         if (
             m.fix_type >= 2
             and _plausible_utc(m.time_usec)
             and (utc.source != "SYSTEM_TIME" or t - (utc.t_mono or t) > _SYSTEM_TIME_PREFERRED_S)
         ):
-            self.state = _replace_state(
-                self.state, utc=VehicleUtc(t, m.time_usec * 1e-6, "GPS_RAW_INT")
-            )
+            self._draft.utc = VehicleUtc(t, m.time_usec * 1e-6, "GPS_RAW_INT")
         if not self._gp_seen:
             self._altitude_changed(t)
 
     def _system_time(self, m: mavlink.MAVLink_message, t: float) -> None:
         # 0 (or a time in 1970) until the autopilot's clock is set, from its GPS.
         if _plausible_utc(m.time_unix_usec):
-            self.state = _replace_state(
-                self.state, utc=VehicleUtc(t, m.time_unix_usec * 1e-6, "SYSTEM_TIME")
-            )
+            self._draft.utc = VehicleUtc(t, m.time_unix_usec * 1e-6, "SYSTEM_TIME")
 
     def _global_position(self, m: mavlink.MAVLink_message, t: float) -> None:
         old_alt = self._current_alt_m()
-        old_gp = self.state.global_position
-        gp = GlobalPosition(
+        old_gp = self._draft.global_position
+        gp = _GlobalPosition(
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             lat_deg=m.lat * 1e-7,
@@ -252,15 +276,14 @@ class StateTracker:
             vz_mps=m.vz * 0.01,
             heading_deg=_scaled(m.hdg, 0.01, _UINT16_UNKNOWN),
         )
-        self.state = _replace_state(self.state, global_position=gp)
+        self._draft.global_position = gp
         if not self._gp_seen:
             self._gp_seen = True
-            alt = self.state.altitude
+            alt = self._draft.altitude
             if alt.reference_alt_m is not None and old_alt is not None:
                 # Switching from GPS to fused altitude: keep the pilot's value continuous.
-                self.state = _replace_state(
-                    self.state,
-                    altitude=replace(alt, reference_alt_m=alt.reference_alt_m + gp.alt_m - old_alt),
+                self._draft.altitude = quick_replace(
+                    alt, reference_alt_m=alt.reference_alt_m + gp.alt_m - old_alt
                 )
         else:
             self._check_altitude_frame(old_gp, gp, t)
@@ -289,13 +312,13 @@ class StateTracker:
         self._add_message(message)
 
     def _add_message(self, message: VehicleMessage) -> None:
-        old = self.state.messages
+        old = self._draft.messages
         recent = (*old.recent[-(MESSAGES_KEPT - 1) :], message)
         messages = VehicleMessages(t_mono=message.t_mono, count=old.count + 1, recent=recent)
-        self.state = _replace_state(self.state, messages=messages)
+        self._draft.messages = messages
 
     def _vfr_hud(self, m: mavlink.MAVLink_message, t: float) -> None:
-        hud = VfrHud(
+        hud = _VfrHud(
             t_mono=t,
             ground_speed_mps=m.groundspeed,
             airspeed_mps=m.airspeed,
@@ -304,10 +327,10 @@ class StateTracker:
             throttle_pct=float(m.throttle),
             alt_m=m.alt,
         )
-        self.state = _replace_state(self.state, vfr_hud=hud)
+        self._draft.vfr_hud = hud
 
     def _attitude(self, m: mavlink.MAVLink_message, t: float) -> None:
-        att = Attitude(
+        att = _Attitude(
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             roll_rad=m.roll,
@@ -317,42 +340,39 @@ class StateTracker:
             pitchspeed_rad_s=m.pitchspeed,
             yawspeed_rad_s=m.yawspeed,
         )
-        self.state = _replace_state(self.state, attitude=att)
+        self._draft.attitude = att
 
     def _rc_channels(self, m: mavlink.MAVLink_message, t: float) -> None:
-        pwm = tuple(getattr(m, f"chan{i}_raw") for i in range(1, 19))
-        rc = RcChannels(
+        pwm = _RC_PWM(m)
+        rc = _RcChannels(
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             chancount=m.chancount,
             pwm_us=pwm,
             rssi=None if m.rssi == 255 else m.rssi,
         )
-        self.state = _replace_state(self.state, rc=rc)
+        self._draft.rc = rc
 
     def _servo_output(self, m: mavlink.MAVLink_message, t: float) -> None:
-        pwm = tuple(getattr(m, f"servo{i}_raw", 0) for i in range(1, 17))
-        servo = ServoOutputs(t_mono=t, time_usec=m.time_usec, port=m.port, pwm_us=pwm)
-        self.state = _replace_state(self.state, servo=servo)
+        pwm = _SERVO_PWM(m)
+        servo = _ServoOutputs(t_mono=t, time_usec=m.time_usec, port=m.port, pwm_us=pwm)
+        self._draft.servo = servo
 
     def _sys_status(self, m: mavlink.MAVLink_message, t: float) -> None:
-        b = self.state.battery
+        b = self._draft.battery
         # A vehicle with no battery monitor sends 0 mV (and 0 A), not the "unknown" value:
         # no flying pack reads 0 V, so 0 means unknown, and its current with it.
         no_monitor = m.voltage_battery == 0
-        self.state = _replace_state(
-            self.state,
-            battery=Battery(
-                t_mono=t,
-                voltage_v=None if no_monitor else _scaled(m.voltage_battery, 1e-3, _UINT16_UNKNOWN),
-                current_a=None
-                if m.current_battery == -1 or (no_monitor and m.current_battery == 0)
-                else m.current_battery * 0.01,
-                remaining_pct=float(m.battery_remaining)
-                if m.battery_remaining != -1
-                else b.remaining_pct,
-                consumed_mah=b.consumed_mah,  # only BATTERY_STATUS says it
-            ),
+        self._draft.battery = _Battery(
+            t_mono=t,
+            voltage_v=None if no_monitor else _scaled(m.voltage_battery, 1e-3, _UINT16_UNKNOWN),
+            current_a=None
+            if m.current_battery == -1 or (no_monitor and m.current_battery == 0)
+            else m.current_battery * 0.01,
+            remaining_pct=float(m.battery_remaining)
+            if m.battery_remaining != -1
+            else b.remaining_pct,
+            consumed_mah=b.consumed_mah,  # only BATTERY_STATUS says it
         )
 
     def _battery_status(self, m: mavlink.MAVLink_message, t: float) -> None:
@@ -361,22 +381,19 @@ class StateTracker:
         cells_mv = [v for v in m.voltages if v != _UINT16_UNKNOWN]
         if not any(cells_mv):  # 0 mV: no monitor (as in SYS_STATUS), not an empty pack
             cells_mv = []
-        b = self.state.battery
-        self.state = _replace_state(
-            self.state,
-            battery=Battery(
-                t_mono=t,
-                voltage_v=sum(cells_mv) * 1e-3 if cells_mv else b.voltage_v,
-                current_a=m.current_battery * 0.01 if m.current_battery != -1 else b.current_a,
-                remaining_pct=float(m.battery_remaining)
-                if m.battery_remaining != -1
-                else b.remaining_pct,
-                consumed_mah=None if m.current_consumed == -1 else float(m.current_consumed),
-            ),
+        b = self._draft.battery
+        self._draft.battery = _Battery(
+            t_mono=t,
+            voltage_v=sum(cells_mv) * 1e-3 if cells_mv else b.voltage_v,
+            current_a=m.current_battery * 0.01 if m.current_battery != -1 else b.current_a,
+            remaining_pct=float(m.battery_remaining)
+            if m.battery_remaining != -1
+            else b.remaining_pct,
+            consumed_mah=None if m.current_consumed == -1 else float(m.current_consumed),
         )
 
     def _local_position(self, m: mavlink.MAVLink_message, t: float) -> None:
-        lp = LocalPosition(
+        lp = _LocalPosition(
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             x_m=m.x,
@@ -386,26 +403,26 @@ class StateTracker:
             vy_mps=m.vy,
             vz_mps=m.vz,
         )
-        self.state = _replace_state(self.state, local_position=lp)
+        self._draft.local_position = lp
 
     # -- the pilot's altitude (paper: relative to the altitude at arming) ---------------
 
     def _current_alt_m(self) -> float | None:
         if self._gp_seen:
-            return self.state.global_position.alt_m
-        gps = self.state.gps
+            return self._draft.global_position.alt_m
+        gps = self._draft.gps
         return gps.alt_m if gps.fix_type >= _GPS_3D_FIX else None
 
     def _current_latlon(self) -> tuple[float | None, float | None]:
         if self._gp_seen:
-            gp = self.state.global_position
+            gp = self._draft.global_position
             return gp.lat_deg, gp.lon_deg
-        return self.state.gps.lat_deg, self.state.gps.lon_deg
+        return self._draft.gps.lat_deg, self._draft.gps.lon_deg
 
     def _has_fix(self) -> bool:
-        if self.state.gps.t_mono is not None:
-            return self.state.gps.fix_type >= _GPS_3D_FIX
-        gp = self.state.global_position  # no GPS_RAW_INT at all: a fused position counts
+        if self._draft.gps.t_mono is not None:
+            return self._draft.gps.fix_type >= _GPS_3D_FIX
+        gp = self._draft.global_position  # no GPS_RAW_INT at all: a fused position counts
         return gp.lat_deg not in (None, 0.0) or gp.lon_deg not in (None, 0.0)
 
     def _take_reference(
@@ -423,21 +440,16 @@ class StateTracker:
             lat, lon = self._current_latlon()
         if alt is None:
             # Armed before any altitude: take the reference at the first altitude.
-            self.state = _replace_state(
-                self.state, altitude=PilotAltitude(t_mono=t, reference=f"pending_{reference}")
-            )
+            self._draft.altitude = _PilotAltitude(t_mono=t, reference=f"pending_{reference}")
             return
         now = self._current_alt_m()
-        self.state = _replace_state(
-            self.state,
-            altitude=PilotAltitude(
-                t_mono=t,
-                relative_alt_m=now - alt if now is not None else 0.0,
-                reference_alt_m=alt,
-                reference=reference,
-                home_lat_deg=lat,
-                home_lon_deg=lon,
-            ),
+        self._draft.altitude = _PilotAltitude(
+            t_mono=t,
+            relative_alt_m=now - alt if now is not None else 0.0,
+            reference_alt_m=alt,
+            reference=reference,
+            home_lat_deg=lat,
+            home_lon_deg=lon,
         )
 
     def _check_altitude_frame(self, old: GlobalPosition, new: GlobalPosition, t: float) -> None:
@@ -460,7 +472,7 @@ class StateTracker:
             shift, why = step, "EKF origin set" if primed else "altitude jump"
         elif primed and abs(step) > _ORIGIN_STEP_MIN_M and rate > _ORIGIN_STEP_MIN_MPS:
             shift, why = step, "EKF origin set"
-        gps = self.state.gps
+        gps = self._draft.gps
         fresh = (
             gps.t_mono is not None
             and gps.alt_m is not None
@@ -492,23 +504,20 @@ class StateTracker:
         if self._ground_fix is not None:
             g = self._ground_fix
             self._ground_fix = (g[0], g[1] + shift_m, g[2], g[3])
-        alt = self.state.altitude
+        alt = self._draft.altitude
         if alt.reference_alt_m is None:
             return
         self._origin_note_t = None  # this note has been acted on
-        self.state = _replace_state(
-            self.state,
-            altitude=replace(
-                alt,
-                t_mono=t,
-                reference_alt_m=alt.reference_alt_m + shift_m,
-                reference=alt.reference.removesuffix("_retaken") + "_retaken",
-                retaken_because=why,
-            ),
+        self._draft.altitude = quick_replace(
+            alt,
+            t_mono=t,
+            reference_alt_m=alt.reference_alt_m + shift_m,
+            reference=alt.reference.removesuffix("_retaken") + "_retaken",
+            retaken_because=why,
         )
 
     def _altitude_changed(self, t: float) -> None:
-        pilot = self.state.altitude
+        pilot = self._draft.altitude
         if pilot.reference.startswith("pending_"):
             if self._current_alt_m() is not None:
                 self._take_reference(pilot.reference.removeprefix("pending_"), t)
@@ -520,9 +529,8 @@ class StateTracker:
         alt = self._current_alt_m()
         if alt is None or pilot.reference_alt_m is None:
             return
-        self.state = _replace_state(
-            self.state,
-            altitude=replace(pilot, t_mono=t, relative_alt_m=alt - pilot.reference_alt_m),
+        self._draft.altitude = quick_replace(
+            pilot, t_mono=t, relative_alt_m=alt - pilot.reference_alt_m
         )
 
 

@@ -8,12 +8,19 @@ the contract for the WebSocket JSON, the recorder's CSV columns (flattened as
 
 Every class is frozen: the link publishes a new `VehicleState` (sharing unchanged
 groups) for every change, and readers in other threads hold snapshots that never move
-under them. Build changed copies with `dataclasses.replace`.
+under them. Build changed copies with `dataclasses.replace`, or on the link's hot path
+with `quick_constructor` / `quick_replace` (the same objects, built faster).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, make_dataclass
+from operator import attrgetter
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True, slots=True)
@@ -276,3 +283,71 @@ class VehicleState:
             if g.t_mono is not None
         ]
         return max(times) if times else None
+
+
+# -- quick construction (the link's per-packet path) ---------------------------------------
+#
+# A frozen dataclass's generated __init__ sets each field with object.__setattr__, a slow
+# call per field: building a VehicleState (13 fields) took about 4 us on the dev VM, and
+# the state merge built two or three objects per MAVLink packet. An unfrozen twin with the
+# same fields, defaults and slots (so the same memory layout) is filled with plain
+# attribute stores and then made an instance of the frozen class by assigning
+# `__class__`, which CPython allows between classes of the same slot layout. The result
+# is the frozen class's own object: its type, equality, hash, repr, fields and
+# frozenness (FrozenInstanceError on a store) are the class's.
+
+
+@functools.cache
+def _twin(cls: type) -> tuple[type, Callable[[Any], tuple[Any, ...]]]:
+    """The unfrozen twin of the frozen slots dataclass `cls`, and a getter of all its
+    field values in order."""
+    specs = [
+        (f.name, f.type, field(default=f.default, default_factory=f.default_factory))
+        for f in fields(cls)
+    ]
+    twin = make_dataclass(f"_{cls.__name__}Draft", specs, slots=True)
+    names = [f.name for f in fields(cls)]
+    return twin, attrgetter(*names) if len(names) > 1 else lambda obj: (getattr(obj, names[0]),)
+
+
+def unfrozen_twin(cls: type) -> type:
+    """A mutable dataclass with the fields and defaults of `cls`: a draft to fill and
+    hand to `quick_constructor(cls)` field by field, or to freeze with `freeze_draft`."""
+    return _twin(cls)[0]
+
+
+def quick_constructor(cls: type[T]) -> Callable[..., T]:
+    """`cls(...)` for a frozen slots dataclass of this module, three to five times
+    faster (positional arguments most): see the note above."""
+    twin = _twin(cls)[0]
+
+    def construct(*args: Any, **kwargs: Any) -> T:
+        obj = twin(*args, **kwargs)
+        obj.__class__ = cls
+        return obj  # type: ignore[return-value]
+
+    construct.__qualname__ = construct.__name__ = f"quick_{cls.__name__}"
+    return construct
+
+
+def freeze_draft(draft: Any, cls: type[T]) -> T:
+    """A frozen `cls` with the field values of `draft` (an `unfrozen_twin(cls)`), which
+    stays a draft to change further."""
+    twin, values = _twin(cls)
+    obj = twin(*values(draft))
+    obj.__class__ = cls
+    return obj  # type: ignore[no-any-return]
+
+
+def quick_replace(obj: T, **changes: Any) -> T:
+    """`dataclasses.replace(obj, **changes)` for a frozen slots dataclass of this module,
+    built the quick way; an unknown name is an AttributeError."""
+    cls = type(obj)
+    twin, values = _twin(cls)
+    new = twin(*values(obj))
+    for name, value in changes.items():
+        if name not in twin.__slots__:
+            raise AttributeError(f"{cls.__name__} has no field {name!r}")
+        setattr(new, name, value)
+    new.__class__ = cls
+    return new

@@ -33,6 +33,53 @@ def test_bad_crc_and_unknown_id_are_counted_and_skipped():
     assert f.counters.garbage_bytes >= 5
 
 
+def test_datagram_by_datagram_as_the_stream_in_one_piece():
+    """One whole frame per feed (a UDP datagram) is decoded as it is; a bad one, an
+    unknown id, one hiding a real packet inside, a cut one: as the stream in one piece."""
+    good = packets(3)
+    bad = bytearray(good[0])
+    bad[-1] ^= 0xFF
+    unknown = bytearray(good[1])
+    unknown[7:10] = (60000).to_bytes(3, "little")
+    # An "unknown id" frame whose payload holds a real packet: junk, not a packet.
+    inner = packets(1)[0]
+    hiding = bytearray([0xFD, len(inner) + 2, 0, 0, 0, 1, 1]) + (60001).to_bytes(3, "little")
+    hiding += b"\x00" + inner + b"\x00" + b"\x00\x00"
+    signed_flag = bytearray(good[2])
+    signed_flag[2] = 0x02  # an incompat flag the protocol does not know: no frame start
+    datagrams = [
+        good[0],
+        bytes(bad),
+        good[1],
+        bytes(unknown),
+        bytes(hiding),
+        good[2],
+        bytes(signed_flag),
+        good[0][:7],  # cut: the rest comes in the next datagram
+        good[0][7:],
+        good[1],
+        ENC.heartbeat_encode(2, 12, 0, 0, 4, 3).pack(ENC, force_mavlink1=True),  # MAVLink 1
+    ]
+    one_piece, by_datagram = MavFramer(), MavFramer()
+    whole = [
+        (m.get_type(), m.get_seq(), bytes(m.get_msgbuf()))
+        for m in one_piece.feed(b"".join(datagrams))
+    ]
+    split = [
+        (m.get_type(), m.get_seq(), bytes(m.get_msgbuf()))
+        for d in datagrams
+        for m in by_datagram.feed(d)
+    ]
+    assert split == whole
+    assert [t for t, _, _ in split].count("ATTITUDE") == 6  # inner is the one hidden
+    assert "UNKNOWN_60000" in [t for t, _, _ in split]
+    assert "UNKNOWN_60001" not in [t for t, _, _ in split]
+    assert split[-1][0] == "HEARTBEAT"
+    assert by_datagram.counters == one_piece.counters
+    assert by_datagram.counters.bad_crc >= 2 and by_datagram.counters.unknown_ids == 1
+    assert by_datagram.pending == 0
+
+
 def test_false_start_marker_in_garbage_does_not_swallow_a_packet():
     good = packets(1)[0]
     # 0xFD, length 200: a false frame that would eat the real packet behind it.

@@ -6,7 +6,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.state_tracker import StateTracker
-from companion.vehicle_state import MESSAGES_KEPT
+from companion.vehicle_state import MESSAGES_KEPT, VehicleState
 from core.mavlink.framing import MavFramer
 from tests.mav_vehicle import MavVehicle
 from twin.sensors import SensorParams
@@ -214,6 +214,20 @@ def test_published_snapshots_never_change():
     assert tracker.state.heartbeat is snapshot.heartbeat  # unchanged groups are shared
     with pytest.raises(dataclasses.FrozenInstanceError):
         snapshot.attitude.roll_rad = 1.0  # type: ignore[misc]
+    # The state is built from the tracker's draft when looked at: still a frozen
+    # VehicleState of its own, the same object until the next change, a new one after it.
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        snapshot.attitude = tracker.state.attitude  # type: ignore[misc]
+    now = tracker.state
+    assert type(now) is VehicleState and tracker.state is now
+    for d in MavFramer().feed(v.mav.param_value_encode(b"X", 1.0, 9, 1, 0).pack(v.mav)):
+        assert not tracker.update(d, 200.0)  # nothing it merges
+    assert tracker.state is now
+    v.roll_rad = 0.2
+    assert feed("ATTITUDE") and tracker.state is not now
+    assert tracker.state.global_position is now.global_position
+    assert tracker.state.attitude.roll_rad == pytest.approx(0.2)
+    assert now.attitude.roll_rad == pytest.approx(0.7)
 
 
 def test_unknown_sentinels_become_none():

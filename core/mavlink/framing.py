@@ -50,6 +50,18 @@ class MavFramer:
 
     def feed(self, data: bytes) -> list[mavlink.MAVLink_message]:
         buf = self._buf
+        if not buf and data and frame_length(data) == len(data):
+            # Nothing held back and `data` is one whole frame (a UDP datagram: the usual
+            # case): decode it as it is. Anything else, a bad checksum or an unknown id
+            # (whose inside is searched for a real packet) included, takes the general path.
+            try:
+                msg = self._mav.decode(bytearray(data))
+            except mavlink.MAVError:
+                pass
+            else:
+                if not isinstance(msg, mavlink.MAVLink_unknown):
+                    self.counters.packets += 1
+                    return [msg]
         buf += data
         if len(buf) > _MAX_BUFFER:  # cannot happen with real frames (max 280 bytes)
             self.counters.garbage_bytes += len(buf) - 280
@@ -70,9 +82,8 @@ class MavFramer:
                     self._skip_one()
                     continue
                 break  # wait for more bytes
-            frame = bytearray(buf[:total])
             try:
-                msg = self._mav.decode(frame)
+                msg = self._mav.decode(buf[:total])  # a copy: the message keeps it
             except mavlink.MAVError:
                 self._skip_one()
                 continue
