@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 
+import orjson
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
 from server.errors import Unavailable, deny_websocket
@@ -54,7 +54,7 @@ class _ClientAcks:
         if not text or len(text) > 100:  # an ack is tiny; anything else is ignored
             return
         try:
-            ack = json.loads(text).get("ack")
+            ack = orjson.loads(text).get("ack")  # 100 a second for two pages: in C
         except (ValueError, AttributeError):
             return
         if isinstance(ack, int) and not isinstance(ack, bool):
