@@ -4,10 +4,12 @@ rates, and no pump at all while nobody is connected."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 import time
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import replace
 
 from websockets.sync.client import connect
@@ -55,6 +57,32 @@ def read_until(ws, out: list[int], stop: threading.Event, ack_delay_s: float | N
             ws.send(json.dumps({"ack": m["version"]}))
 
 
+@contextlib.contextmanager
+def reading_clients(
+    urls: list[str], ack_delays: list[float | None], spacing_s: float = 0.0
+) -> Iterator[list[list[int]]]:
+    """One client per url, each read by a thread (`read_until`), connected `spacing_s`
+    apart; yields the versions each received so far."""
+    stop = threading.Event()
+    got: list[list[int]] = [[] for _ in urls]
+    clients, threads = [], []
+    try:
+        for url, delay, out in zip(urls, ack_delays, got, strict=True):
+            clients.append(connect(url, open_timeout=10))
+            threads.append(
+                threading.Thread(target=read_until, args=(clients[-1], out, stop, delay))
+            )
+            threads[-1].start()
+            time.sleep(spacing_s)
+        yield got
+    finally:
+        stop.set()
+        for t in threads:
+            t.join(10)
+        for ws in clients:
+            ws.close()
+
+
 def test_one_message_per_tick_is_shared_by_every_client():
     """Four clients at the default 50/s and one at 10/s, connected at different moments,
     with states published at 200/s: each tick's message is built once and sent to every
@@ -65,17 +93,12 @@ def test_one_message_per_tick_is_shared_by_every_client():
         station = app.state.station
         pump, shared = station.telemetry, station.telemetry_json
         url = base.replace("http", "ws") + "/ws/telemetry"
-        stop = threading.Event()
-        got: list[list[int]] = [[] for _ in range(5)]
-        clients, threads = [], []
-        with Publisher(station.state, hz=200):
-            for i in range(5):
-                clients.append(connect(url + ("?max_rate=10" if i == 4 else ""), open_timeout=10))
-                threads.append(
-                    threading.Thread(target=read_until, args=(clients[i], got[i], stop, None))
-                )
-                threads[-1].start()
-                time.sleep(0.013)  # out of phase, as browsers connect
+        urls = [url] * 4 + [url + "?max_rate=10"]
+        with (
+            Publisher(station.state, hz=200),
+            # out of phase, as browsers connect
+            reading_clients(urls, [None] * 5, spacing_s=0.013) as got,
+        ):
             assert wait_until(lambda: all(len(g) >= 5 for g in got), 30)
             ticks0, encodes0, sent0 = pump.ticks, shared.encodes, sum(map(len, got))
             slow0 = len(got[4])
@@ -84,11 +107,6 @@ def test_one_message_per_tick_is_shared_by_every_client():
             ticks, encodes = pump.ticks - ticks0, shared.encodes - encodes0
             sent, slow = sum(map(len, got)) - sent0, len(got[4]) - slow0
             elapsed = time.monotonic() - t0
-        stop.set()
-        for t in threads:
-            t.join(10)
-        for ws in clients:
-            ws.close()
     assert encodes <= ticks  # a body per new state at most, however many clients
     assert ticks <= 50 * elapsed + 5  # the highest rate asked for
     # Shared: at 50/s the four default clients take every tick, the fifth one in five
@@ -113,26 +131,13 @@ def test_clients_with_acks_in_any_phase_end_on_the_newest_state():
         station = app.state.station
         pump, shared = station.telemetry, station.telemetry_json
         url = base.replace("http", "ws") + "/ws/telemetry?ack=1"
-        stop = threading.Event()
-        got: list[list[int]] = [[], []]
-        clients = [connect(url, open_timeout=10) for _ in range(2)]
-        threads = [
-            threading.Thread(target=read_until, args=(ws, out, stop, delay))
-            for ws, out, delay in zip(clients, got, (0.0, 0.03))
-        ]
-        for t in threads:
-            t.start()
-        ticks0, encodes0 = pump.ticks, shared.encodes
-        with Publisher(station.state, hz=200):
-            time.sleep(1.5)
-        last = station.state.version
-        assert wait_until(lambda: all(g and g[-1] == last for g in got), 15), (last, got)
-        ticks, encodes = pump.ticks - ticks0, shared.encodes - encodes0
-        stop.set()
-        for t in threads:
-            t.join(10)
-        for ws in clients:
-            ws.close()
+        with reading_clients([url, url], [0.0, 0.03]) as got:
+            ticks0, encodes0 = pump.ticks, shared.encodes
+            with Publisher(station.state, hz=200):
+                time.sleep(1.5)
+            last = station.state.version
+            assert wait_until(lambda: all(g and g[-1] == last for g in got), 15), (last, got)
+            ticks, encodes = pump.ticks - ticks0, shared.encodes - encodes0
     assert encodes <= ticks
     for versions in got:
         assert versions == sorted(set(versions))
