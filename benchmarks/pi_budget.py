@@ -64,6 +64,7 @@ FANOUT_FILES = (
     "server/routes/video.py",
     "server/routes/telemetry.py",
     "server/telemetry_json.py",
+    "server/telemetry_pump.py",
 )
 PANEL_FILES = ("server/trajectory3d/", "/viser/")  # the live 3D panel's steps on the loop
 

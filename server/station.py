@@ -24,6 +24,7 @@ from server.pilot import Pilot
 from server.settings import Settings
 from server.tasks import TaskSupervisor
 from server.telemetry_json import SharedStateJson
+from server.telemetry_pump import TelemetryPump
 from server.trials import Trials, station_scene
 from server.video_fanout import FrameFanout
 
@@ -46,6 +47,9 @@ class Station:
     link: MavlinkLink | None = None
     state: Latest[VehicleState] = field(default_factory=Latest)
     telemetry_json: SharedStateJson = field(default_factory=SharedStateJson)
+    # One pump for every /ws/telemetry client (server/telemetry_pump.py); made in
+    # open_station once the state slot is chosen.
+    telemetry: TelemetryPump = field(init=False)
     recorder: Recorder | None = None
     # front and bottom; readers use `.frames` (a Latest[Frame])
     cameras: dict[str, Camera] = field(default_factory=dict)
@@ -107,6 +111,11 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
         if (vehicle_link := station.link) is not None:
             station.tasks.watch("mavlink link thread", lambda: vehicle_link.crashed)
             station.telemetry_json.clock = vehicle_link.clock  # a replay's ages: its time
+
+        # -- telemetry: one pump for the WebSocket clients, running while any is there
+        station.telemetry = TelemetryPump(
+            station.state, station.telemetry_json, station.tasks.spawn
+        )
 
         # -- cameras (after the twin, whose renderer the sim cameras use) ------------
         await _open_cameras(station, stack)

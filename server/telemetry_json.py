@@ -1,9 +1,10 @@
 """The vehicle state as JSON, encoded once per state version and shared by every client.
 
-The body is cached by version; each WebSocket message is a short per-send prefix
-(`t_server`, `t_server_mono`: the source's clock at the moment of sending: the station's
-for a live vehicle, the log's for a replay, as the state's times are) spliced onto
-that shared body, so twenty browsers cost one `json.dumps`, not twenty. Within a body each
+The body is cached by version; each WebSocket message is a short prefix (`t_server`,
+`t_server_mono`: the source's clock when the message was built: the station's for a live
+vehicle, the log's for a replay, as the state's times are) spliced onto that shared
+body. The telemetry pump (server/telemetry_pump.py) builds one message per tick and every
+due client sends it, so twenty browsers cost one `json.dumps`, not twenty. Within a body each
 group's JSON is cached too: a state shares the groups that did not change with the one
 before (companion.vehicle_state), so a new version encodes only the group or two that
 its packet changed.

@@ -1,16 +1,17 @@
 """`WS /ws/telemetry`: the vehicle state pushed to each browser as soon as it changes.
 
-One coroutine per client, each reading the station's latest-value slot: a client that
-reads slowly (or not at all) blocks only its own coroutine in `send_text`, then skips
-to the newest state; nothing queues and no client delays another. `?max_rate=` caps
-the messages per second for that client (default 50). The JSON body is built once per
-state version and shared (`server.telemetry_json`).
+One coroutine per client sends what the station's telemetry pump (server/telemetry_pump.py)
+gives it: one message per tick, built once and shared by every client that is due, at
+most `?max_rate=` per second for that client (default 50). The send stays in the
+client's own coroutine: a client that reads slowly (or not at all) blocks only itself in
+`send_text`, then skips to the newest message; nothing queues and no client delays
+another.
 
 `?ack=1`: bounded staleness for slow clients (a busy phone, goggles on weak Wi-Fi). The
 kernel's socket buffers hold whatever `send_text` handed over, so a client that reads
 slowly still falls seconds behind without it. With acks the station keeps at most one
 unacknowledged message in flight: the client sends `{"ack": <version>}` after handling a
-message, and the next message is the newest state at that moment, never a queue.
+message, and the next message is the newest one at that moment, never a queue.
 """
 
 from __future__ import annotations
@@ -18,29 +19,25 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
-from companion.latest import wait_resolved
 from server.errors import Unavailable, deny_websocket
 from server.station import Station
+from server.telemetry_pump import TelemetryClient
 
 router = APIRouter(tags=["telemetry"])
-
-_IDLE_CHECK_S = 1.0  # how often an idle handler looks whether its client went away
 
 
 class _ClientAcks:
     """Reads what the client sends until it disconnects; keeps the newest `{"ack": n}`.
 
-    The handler waits on a plain future that an ack (or the leave) resolves
-    (`companion.latest.wait_resolved`): a page acknowledges every message, 50 a second."""
+    An ack, and the leaving, wake the client's coroutine (`TelemetryClient.wait`): no
+    timer per wait, a page acknowledges every message, 50 a second."""
 
-    def __init__(self) -> None:
+    def __init__(self, client: TelemetryClient) -> None:
         self.acked = 0
-        self.gone = False
-        self._waiter: asyncio.Future[None] | None = None
+        self._client = client
 
     async def read_until_disconnect(self, ws: WebSocket) -> None:
         try:
@@ -51,8 +48,7 @@ class _ClientAcks:
                         return
                     self._note(msg.get("text"))
         finally:
-            self.gone = True
-            self._wake()  # a handler waiting for an ack ends now
+            self._client.leave()  # a coroutine waiting for an ack or a tick ends now
 
     def _note(self, text: str | None) -> None:
         if not text or len(text) > 100:  # an ack is tiny; anything else is ignored
@@ -63,30 +59,21 @@ class _ClientAcks:
             return
         if isinstance(ack, int) and not isinstance(ack, bool) and ack > self.acked:
             self.acked = ack
-            self._wake()
+            self._client.wake()
 
-    def _wake(self) -> None:
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
-
-    async def wait_for(self, version: int, within_s: float) -> bool:
-        """True once `version` is acknowledged; False when the client has gone, or when
-        `within_s` passed (or an older ack came) without it: the caller asks again."""
-        if self.acked < version and not self.gone:
-            self._waiter = asyncio.get_running_loop().create_future()
-            try:
-                await wait_resolved(self._waiter, within_s)
-            finally:
-                self._waiter = None
-        return self.acked >= version and not self.gone
+    async def wait_for(self, version: int) -> bool:
+        """True once `version` is acknowledged; False when the client has gone."""
+        client = self._client
+        while self.acked < version and not client.gone:
+            await client.wait()
+        return not client.gone
 
 
 @router.websocket("/ws/telemetry")
 async def ws_telemetry(
     ws: WebSocket,
-    # At least 1/s: a handler paced slower would sit out a client's leaving (and a value
-    # like 1e-300 would park it for good).
+    # At least 1/s: a slower feed is of no use to a page (and a value like 1e-300 would
+    # park its client for good).
     max_rate: float = Query(50.0, ge=1, le=1000, description="messages per second, at most"),
     ack: bool = Query(False, description='at most one message in flight: send {"ack": version}'),
 ) -> None:
@@ -99,36 +86,27 @@ async def ws_telemetry(
 
 
 async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack: bool) -> None:
-    slot = station.state
-    shared = station.telemetry_json
-    min_interval_s = 1.0 / max_rate
+    pump = station.telemetry
     await ws.accept()
-    acks = _ClientAcks()
+    client = TelemetryClient(max_rate)
+    acks = _ClientAcks(client)
     # Held and cancelled below: it notices the client leaving (and reads its acks).
     watcher = asyncio.ensure_future(acks.read_until_disconnect(ws))
     version = 0
-    next_send = 0.0
     try:
-        while not watcher.done():
-            # The pause first, then the waits: a state that came during the pause is sent
-            # at once, the states the pause skipped never wake this handler, and neither
-            # does an ack that came during it (a page acks within a few ms of 20).
-            delay = next_send - time.monotonic()
-            if delay > 0:
-                await asyncio.sleep(delay)
-            if ack and not await acks.wait_for(version, _IDLE_CHECK_S):
-                continue  # the last message is still in flight: look again for a leave
-            current = await slot.wait_newer(version, timeout=_IDLE_CHECK_S)
-            if slot.closed:
-                break
-            if current is None or current.version <= version:
-                continue
-            await ws.send_text(shared.message(current))
-            version = current.version
-            next_send = time.monotonic() + min_interval_s
+        await pump.join(client)
+        while not client.gone:
+            if ack and not await acks.wait_for(version):
+                break  # gone while its last message was in flight
+            message = await pump.next_message(client)
+            if message is None:
+                break  # gone, or the state slot closed (the station stops)
+            await ws.send_text(message.text)
+            version = message.version
     except (WebSocketDisconnect, RuntimeError, ConnectionError):
         pass  # the client went away mid-send
     finally:
+        pump.leave(client)
         watcher.cancel()
         with contextlib.suppress(asyncio.CancelledError, Exception):
             await watcher
