@@ -24,19 +24,18 @@ from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
 from server.errors import Unavailable, deny_websocket
 from server.station import Station
-from server.telemetry_pump import TelemetryClient
+from server.telemetry_pump import TelemetryClient, TelemetryPump
 
 router = APIRouter(tags=["telemetry"])
 
 
 class _ClientAcks:
-    """Reads what the client sends until it disconnects; keeps the newest `{"ack": n}`.
+    """Reads what the client sends until it disconnects; hands each `{"ack": n}` to the
+    pump, which counts the client in for the next tick (no wake-up of the client's
+    coroutine for an ack: a page acknowledges every message, 50 a second)."""
 
-    An ack, and the leaving, wake the client's coroutine (`TelemetryClient.wait`): no
-    timer per wait, a page acknowledges every message, 50 a second."""
-
-    def __init__(self, client: TelemetryClient) -> None:
-        self.acked = 0
+    def __init__(self, pump: TelemetryPump, client: TelemetryClient) -> None:
+        self._pump = pump
         self._client = client
 
     async def read_until_disconnect(self, ws: WebSocket) -> None:
@@ -46,9 +45,10 @@ class _ClientAcks:
                     msg = await ws.receive()
                     if msg["type"] == "websocket.disconnect":
                         return
-                    self._note(msg.get("text"))
+                    if self._client.ack:
+                        self._note(msg.get("text"))
         finally:
-            self._client.leave()  # a coroutine waiting for an ack or a tick ends now
+            self._client.leave()  # a coroutine waiting for its next message ends now
 
     def _note(self, text: str | None) -> None:
         if not text or len(text) > 100:  # an ack is tiny; anything else is ignored
@@ -57,16 +57,8 @@ class _ClientAcks:
             ack = orjson.loads(text).get("ack")  # 100 a second for two pages: in C
         except (ValueError, AttributeError):
             return
-        if isinstance(ack, int) and not isinstance(ack, bool) and ack > self.acked:
-            self.acked = ack
-            self._client.wake()
-
-    async def wait_for(self, version: int) -> bool:
-        """True once `version` is acknowledged; False when the client has gone."""
-        client = self._client
-        while self.acked < version and not client.gone:
-            await client.wait()
-        return not client.gone
+        if isinstance(ack, int) and not isinstance(ack, bool):
+            self._pump.acked(self._client, ack)
 
 
 @router.websocket("/ws/telemetry")
@@ -91,21 +83,13 @@ async def ws_telemetry(
 async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack: bool) -> None:
     pump = station.telemetry
     await ws.accept()
-    client = TelemetryClient(max_rate)
-    acks = _ClientAcks(client)
+    client = TelemetryClient(max_rate, ack)
     # Held and cancelled below: it notices the client leaving (and reads its acks).
-    watcher = asyncio.ensure_future(acks.read_until_disconnect(ws))
-    version = 0
+    watcher = asyncio.ensure_future(_ClientAcks(pump, client).read_until_disconnect(ws))
     try:
         await pump.join(client)
-        while not client.gone:
-            if ack and not await acks.wait_for(version):
-                break  # gone while its last message was in flight
-            message = await pump.next_message(client)
-            if message is None:
-                break  # gone, or the state slot closed (the station stops)
+        while (message := await pump.next_message(client)) is not None:
             await ws.send_text(message.text)
-            version = message.version
     except (WebSocketDisconnect, RuntimeError, ConnectionError):
         pass  # the client went away mid-send
     finally:
