@@ -1,28 +1,32 @@
 """One telemetry pump for every `/ws/telemetry` client: one message per tick, shared.
 
-Each client's coroutine (server/routes/telemetry.py) sends from its own socket, so a
-slow client delays only itself; what it sends comes from here. A tick takes the newest
-vehicle state and builds its message once (the JSON body, server/telemetry_json.py,
-and the `t_server` prefix); every client that is due then sends that same text. Before,
-each client paced itself with a timer of its own and, out of phase with the others, got
-a different state version: two page-like clients cost two timer wake-ups and two
-message builds per message instead of one.
+Each client's coroutine (server/routes/telemetry.py) sends on its own socket, so a slow
+client delays only itself; what it sends comes from here. A tick takes the newest
+vehicle state and builds its message once (the JSON body, server/telemetry_json.py, and
+the `t_server` prefix); every client that is due sends that same text. Before, each
+client paced itself with a timer of its own and, out of phase with the others, got a
+state version of its own: two page-like clients cost two timer wake-ups and two message
+builds per message instead of one.
 
 Who is due, and when the pump ticks:
-- A client is due once its own interval (`1 / max_rate`) has passed since it took its
-  last message, and the newest state is newer than the one it has.
+- A client is due once its own interval (`1 / max_rate`) has passed since the tick of
+  its last message, its last message is acknowledged (`?ack=1`), and a state newer than
+  the one it has exists.
 - Ticks come at most once per the shortest interval any client asked for (the highest
-  rate, default 50/s), and only when a waiting client is due: a tick is never built for
-  nobody. A client that comes back within a tick's interval (its ack arrived, its send
-  ended) takes that tick's message, so clients fall into step and share ticks. A client
-  with a lower `max_rate` takes every k-th tick, or the first one after its interval.
-- A client that is busy (sending, or waiting for its ack) skips ticks; when it is back
-  and due it gets the newest message at once: latest value wins, nothing queues.
+  rate, default 50/s), and only for a client that is due: never for nobody. A client
+  that becomes due within a tick's interval (its ack arrived) takes that tick's message,
+  so clients fall into step and share the ticks; a client with a lower `max_rate` takes
+  every k-th tick, or the first one after its interval.
+- A client that is busy (sending, or waiting for its ack) skips ticks; once it is due
+  again it gets the newest message at once: latest value wins, nothing queues. A client
+  behind the newest state gets it when due even if no newer state comes (the link's
+  last state, "link lost", reaches every page).
 
-The pump task waits on the state slot only when every waiting client has the newest
-state; otherwise on its own future, which a client that needs it sooner resolves (no
-thread hop, no syscall). It runs while any client is connected and is cancelled when
-the last one leaves: no client, no task and no timer.
+The pump task waits on the state slot when a client needs a newer state, else on a
+future of its own whose timer the clients move (no thread hop, no wake-up of the pump
+for an ack). An ack does not wake its client's coroutine either: the pump counts the
+client in and wakes it with the tick. The task runs while any client is connected and
+is cancelled when the last one leaves: no client, no task and no timer.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from companion.latest import Latest, Versioned, wait_resolved
+from companion.latest import Latest, Versioned
 from companion.vehicle_state import VehicleState
 from core.spawn import Spawn
 from server.telemetry_json import SharedStateJson
@@ -51,15 +55,25 @@ class TelemetryMessage:
 
 class TelemetryClient:
     """One WebSocket client as the pump sees it: its pace, what it has, and the one
-    future its coroutine waits on (for a tick, for its ack, for its leaving)."""
+    future its coroutine waits on (for its next message, or its leaving).
 
-    def __init__(self, max_rate: float) -> None:
+    `ack`: at most one message in flight; the next one waits for `{"ack": version}`."""
+
+    def __init__(self, max_rate: float, ack: bool = False) -> None:
         self.interval_s = 1.0 / max_rate
+        self.ack = ack
+        self.acked = 0  # the newest version it acknowledged
         self.version = 0  # of the last state it took
-        self.due_mono = -math.inf  # when its interval has passed
+        self.due_mono = -math.inf  # its last message's tick + its interval
         self.gone = False
-        self._offered = False  # a tick found it waiting and due
+        self._offered = False  # found waiting and due: it takes the newest message
         self._waiter: asyncio.Future[None] | None = None
+        self._timer: asyncio.TimerHandle | None = None  # its own, rarely (see next_message)
+
+    @property
+    def in_flight(self) -> bool:
+        """Its last message is not acknowledged yet: it gets nothing until it is."""
+        return self.ack and self.acked < self.version
 
     def wake(self) -> None:
         waiter = self._waiter
@@ -71,17 +85,11 @@ class TelemetryClient:
         self.gone = True
         self.wake()
 
-    async def wait(self, timeout: float | None = None) -> None:  # noqa: ASYNC109
-        """Until `wake` (a tick, an ack, the leaving), or `timeout` seconds."""
-        self._waiter = asyncio.get_running_loop().create_future()
-        try:
-            await wait_resolved(self._waiter, timeout)
-        finally:
-            self._waiter = None
-
-    def _take(self, message: TelemetryMessage, now: float) -> TelemetryMessage:
+    def _take(self, message: TelemetryMessage) -> TelemetryMessage:
         self.version = message.version
-        self.due_mono = now + self.interval_s
+        # From the tick, not from when this coroutine ran: clients of one rate stay due
+        # at the same moments and share the ticks.
+        self.due_mono = message.t_mono + self.interval_s
         return message
 
 
@@ -97,15 +105,17 @@ class TelemetryPump:
         self.message: TelemetryMessage | None = None  # the newest tick's
         self.ticks = 0  # messages built (for tests and benchmarks; bodies: shared.encodes)
         self._clients: set[TelemetryClient] = set()
-        self._waiting: set[TelemetryClient] = set()  # in next_message, nothing to take yet
+        self._waiting: set[TelemetryClient] = set()  # in next_message, not offered yet
         self._interval_s = math.inf  # the shortest any client asked for
         self._task: asyncio.Task[Any] | None = None
         self._stopping: asyncio.Task[Any] | None = None  # cancelled by the last leave
         self._running = False
-        # What the pump task waits on: its own future until `_sleep_until` (a waiting
-        # client that needs it sooner wakes it), or the slot until `_state_wait_until`
-        # (nobody can wake that wait: a client needing an earlier time keeps its own).
+        # What the pump task waits on: its own future until `_sleep_until` (a client that
+        # needs it sooner moves its timer, `_timer`), or the slot until
+        # `_state_wait_until` (nobody can wake that wait: a client needing an earlier
+        # time gets a timer of its own).
         self._wakeup: asyncio.Future[None] | None = None
+        self._timer: asyncio.TimerHandle | None = None
         self._sleep_until: float | None = None
         self._state_wait_until: float | None = None
 
@@ -134,42 +144,78 @@ class TelemetryPump:
         """Count `client` out; the last one stops the pump task."""
         self._clients.discard(client)
         self._waiting.discard(client)
+        _cancel(client._timer)
         self._interval_s = min((c.interval_s for c in self._clients), default=math.inf)
         if not self._clients and self._task is not None:
             self._stopping, self._task = self._task, None
             self._stopping.cancel()
 
+    def acked(self, client: TelemetryClient, version: int) -> None:
+        """`client` acknowledged `version`: if that was all it waited for, it gets the
+        newest message now, or is counted in for the next tick."""
+        if version <= client.acked:
+            return
+        client.acked = version
+        if client in self._waiting and not client._offered and not client.in_flight:
+            if self._serve_or_plan(client, asyncio.get_running_loop()) is not None:
+                self._offer(client)
+
     async def next_message(self, client: TelemetryClient) -> TelemetryMessage | None:
-        """The next message for `client` to send, as soon as it is due; None once the
-        client has gone or the pump has ended (the state slot closed)."""
+        """The next message for `client` to send, as soon as it is due (and, with acks,
+        its last one acknowledged); None once it has gone or the pump has ended (the
+        state slot closed)."""
         loop = asyncio.get_running_loop()
         while self._running and not client.gone:
-            now = loop.time()
             if client._offered:
                 client._offered = False
                 if self.message is not None and self.message.version > client.version:
-                    return client._take(self.message, now)
-            message = self._due_message(client, now)
+                    return client._take(self.message)
+            message = self._serve_or_plan(client, loop)
             if message is not None:
-                return client._take(message, now)
-            ready = self._ready_at(client)
-            timeout = None
-            if self._sleep_until is not None:
-                if ready < self._sleep_until or ready == math.inf:
-                    self._wake_pump()  # it must tick sooner, or watch the slot for us
-            elif self._state_wait_until is not None and ready < self._state_wait_until:
-                timeout = ready - now
+                return client._take(message)
             self._waiting.add(client)
+            client._waiter = loop.create_future()
             try:
-                await client.wait(timeout)
+                await client._waiter
             finally:
+                client._waiter = None
                 self._waiting.discard(client)
+                _cancel(client._timer)
+        return None
+
+    def _offer(self, client: TelemetryClient) -> None:
+        client._offered = True
+        client.wake()
+
+    def _serve_or_plan(
+        self, client: TelemetryClient, loop: asyncio.AbstractEventLoop
+    ) -> TelemetryMessage | None:
+        """The message `client` takes now; else make sure something wakes it when it is
+        due: the pump's timer, the pump itself (it must watch the slot), or, while the
+        pump waits on the slot, a timer of the client's own."""
+        now = loop.time()
+        message = self._due_message(client, now)
+        if message is not None:
+            return message
+        ready = self._ready_at(client, now)
+        if ready is None:
+            return None  # its ack comes first
+        if self._sleep_until is not None:
+            if ready == math.inf:
+                self._wake_pump()  # a newer state is needed: the pump watches the slot
+            elif ready < self._sleep_until:
+                self._sleep_until = ready
+                _cancel(self._timer)
+                self._timer = loop.call_at(ready, self._wake_pump)
+        elif self._state_wait_until is not None and ready < self._state_wait_until:
+            _cancel(client._timer)
+            client._timer = loop.call_at(ready, client.wake)
         return None
 
     def _due_message(self, client: TelemetryClient, now: float) -> TelemetryMessage | None:
         """What `client` takes now: this tick's message, or a new tick; None if it is not
-        due (its interval, the ticks' pace, or no newer state)."""
-        if client.due_mono > now:
+        due (its ack, its interval, the ticks' pace, or no newer state)."""
+        if client.due_mono > now or client.in_flight:
             return None
         message = self.message
         if message is not None and now < message.t_mono + self._interval_s:
@@ -180,16 +226,19 @@ class TelemetryPump:
             return None
         return self._tick(current, now)
 
-    def _ready_at(self, client: TelemetryClient) -> float:
-        """When `_due_message` gives `client` a message without a newer state; inf when
-        it needs one."""
+    def _ready_at(self, client: TelemetryClient, now: float) -> float | None:
+        """When to look at `client` again, for a client `_due_message` gave nothing now:
+        its due time (and the next tick's); inf when it is due but needs a newer state;
+        None while its ack is outstanding."""
+        if client.in_flight:
+            return None
+        at = client.due_mono  # then this tick's message if it is newer, else a new tick
         message = self.message
-        if message is not None and message.version > client.version:
-            return client.due_mono  # this tick's message, or (once it is old) a new tick
-        if self.slot.version > client.version:
-            next_tick = message.t_mono + self._interval_s if message is not None else -math.inf
-            return max(client.due_mono, next_tick)
-        return math.inf
+        if message is not None and message.version <= client.version:
+            at = max(at, message.t_mono + self._interval_s)
+        # Not due yet: look then (no watching the slot before; a state comes 100 times a
+        # second). Due already: nothing newer came, so wait for it.
+        return at if at > now else math.inf
 
     def _tick(self, current: Versioned[VehicleState], now: float) -> TelemetryMessage:
         # shared.message re-encodes only a state it has not seen; the same state again
@@ -212,31 +261,39 @@ class TelemetryPump:
                 for client in list(self._waiting):
                     if client._offered:
                         continue
-                    message = self._due_message(client, now)
-                    if message is not None:
-                        client._offered = True
-                        client.wake()
+                    if self._due_message(client, now) is not None:
+                        self._offer(client)
                         continue
-                    at = self._ready_at(client)
+                    at = self._ready_at(client, now)
+                    if at is None:
+                        continue  # its ack comes first
                     if at == math.inf:
                         need = client.version if need is None else min(need, client.version)
                     ready = min(ready, at)
-                timeout = ready - now if ready < math.inf else None
                 if need is not None:
                     self._state_wait_until = ready
                     try:
                         # Returns at once if a state came since the look above.
+                        timeout = ready - now if ready < math.inf else None
                         await self.slot.wait_newer(need, timeout=timeout)
                     finally:
                         self._state_wait_until = None
                 else:
                     self._wakeup = loop.create_future()
                     self._sleep_until = ready
+                    if ready < math.inf:
+                        self._timer = loop.call_at(ready, self._wake_pump)
                     try:
-                        await wait_resolved(self._wakeup, timeout)
+                        await self._wakeup
                     finally:
-                        self._wakeup = self._sleep_until = None
+                        _cancel(self._timer)
+                        self._wakeup = self._timer = self._sleep_until = None
         finally:
             self._running = False
             for client in self._waiting:  # the slot closed, or the station stops
                 client.wake()
+
+
+def _cancel(timer: asyncio.TimerHandle | None) -> None:
+    if timer is not None:
+        timer.cancel()
