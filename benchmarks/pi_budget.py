@@ -1,12 +1,14 @@
 """The Pi's budget: CPU per thread and per component, RSS and start-up of the whole station.
 
     python benchmarks/pi_budget.py [--seconds 20] [--warmup 5] [--repeat 2] [--3d both|on|off]
-                                   [--no-profile]
+                                   [--rates default|small-pi|both] [--no-profile]
 
 Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subprocess
 (tests/station_process.py):
 - the test vehicle (tests/mav_vehicle.py) over UDP, at the rates the station asks for
-  (SET_MESSAGE_INTERVAL: about 140 packets/s);
+  (SET_MESSAGE_INTERVAL: about 140 packets/s; `--rates small-pi`: the settings a Pi 3 or
+  Zero 2 W team uncomments in /etc/fpv-station/config.toml, server.install_service:
+  about 75 packets/s and the pages at 25 messages/s);
 - two USB MJPEG cameras at 640x480, 30 fps, through the station's own V4L2 source and its
   passthrough (the grabber is simulated at OpenCV's VideoCapture: usb_mjpeg_camera.py);
 - recording on (telemetry, tlog and both videos);
@@ -52,6 +54,7 @@ import httpx
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
+from server.install_service import small_pi_toml  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
 from tests.station_process import StationProcess, serve_station  # noqa: E402
 
@@ -317,7 +320,9 @@ async def clients(
 # -- one run ---------------------------------------------------------------------------------
 
 
-def one_run(args: argparse.Namespace, tmp: Path, with_3d: bool, label: str) -> Run:
+def one_run(
+    args: argparse.Namespace, tmp: Path, with_3d: bool, label: str, small_pi: bool = False
+) -> Run:
     front, bottom = tmp / "front", tmp / "bottom"
     sessions = tmp / f"sessions-{label}"
     vehicle = MavVehicle("udp").start()
@@ -327,6 +332,10 @@ def one_run(args: argparse.Namespace, tmp: Path, with_3d: bool, label: str) -> R
         *("--viser-port", "0", "--sessions-dir", str(sessions)),
         *(() if with_3d else ("--no-3d",)),
     ]
+    if small_pi:
+        config = tmp / "small-pi.toml"
+        config.write_text(small_pi_toml())
+        cmd += ["--config", str(config)]
     env = {"FPV_SERVER__TOKEN": json.dumps(TOKEN)}
     launcher = ("-m", "benchmarks.usb_mjpeg_camera")
     root = args.station_root or ROOT
@@ -504,6 +513,13 @@ def main() -> None:
         help="telemetry clients as the pages run them: ?ack=1, acknowledging each message "
         "(--no-telemetry-ack: the clients of rounds 1 and 2, which only read)",
     )
+    ap.add_argument(
+        "--rates",
+        choices=("default", "small-pi", "both"),
+        default="default",
+        help="the station's default message rates, a small Pi's (deploy/config.toml's "
+        "commented lines: --baseline stations older than them refuse it), or both side by side",
+    )
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
     ap.add_argument(
         "--no-visit",
@@ -537,19 +553,22 @@ def main() -> None:
     roots = (
         [(None, "")] if args.station_root is None else [(args.station_root, "base "), (None, "")]
     )
+    rate_sets = {"default": (False,), "small-pi": (True,), "both": (False, True)}[args.rates]
     runs = []
     for i in range(args.repeat):
         for with_3d in configs:
-            for root, tag in roots:
-                args_i = argparse.Namespace(**{**vars(args), "station_root": root})
-                label = f"{tag}3D {'on' if with_3d else 'off'} #{i + 1}"
-                run = one_run(args_i, tmp, with_3d, label)
-                report(run)
-                runs.append(run)
+            for small_pi in rate_sets:
+                for root, tag in roots:
+                    args_i = argparse.Namespace(**{**vars(args), "station_root": root})
+                    rates = " small-pi" if small_pi else ""
+                    label = f"{tag}3D {'on' if with_3d else 'off'}{rates} #{i + 1}"
+                    run = one_run(args_i, tmp, with_3d, label, small_pi)
+                    report(run)
+                    runs.append(run)
     print("\n# summary")
     for run in runs:
         print(
-            f"{run.label:<17} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
+            f"{run.label:<26} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
             f" ({run.rss_ready_mb:3.0f} at ready)"
             f"  ready {run.ready_s:5.2f} s ({run.ready_cpu_s:4.2f} CPU s)"
             f"  load {run.load[0]:.2f}->{run.load[1]:.2f}"

@@ -95,14 +95,40 @@ UMask=0027
 WantedBy=multi-user.target
 """
 
-CONFIG_TEMPLATE = """\
+# A small Pi (Pi 3, Pi Zero 2 W): the pages at 25 messages a second and about half the
+# MAVLink messages (75 a second instead of 140), which `benchmarks/pi_budget.py
+# --small-pi` measures (docs/PERFORMANCE.md, "A small Pi"). The horizon then redraws at
+# 25 Hz, about the cameras' rate; the trajectory and the tlog get positions at 10 Hz.
+# The config file has them commented out, one line in [server] and one in [link].
+SMALL_PI_SERVER = "telemetry_rate_hz = 25"
+SMALL_PI_LINK = (
+    "message_rates_hz = { ATTITUDE = 25, GLOBAL_POSITION_INT = 10, LOCAL_POSITION_NED = 10, "
+    "VFR_HUD = 5, GPS_RAW_INT = 5, RC_CHANNELS = 10, SERVO_OUTPUT_RAW = 5, SYS_STATUS = 2, "
+    "BATTERY_STATUS = 1, SYSTEM_TIME = 1 }"
+)
+
+
+def small_pi_toml() -> str:
+    """The small-Pi settings as a TOML file of their own (for the benchmark)."""
+    return f"[server]\n{SMALL_PI_SERVER}\n\n[link]\n{SMALL_PI_LINK}\n"
+
+
+CONFIG_TEMPLATE = (
+    """\
 # fpv-station settings (see `fpv-station serve --help`; flags override these).
 [server]
 token_file = "{state_dir}/token"
+# On a Pi 3 or a Pi Zero 2 W uncomment this line and the last one of [link]:
+# """
+    + SMALL_PI_SERVER
+    + """
 
 [link]
 # The Pixhawk on the Pi's UART (TELEM2 at 921600); a USB cable is /dev/ttyACM0.
 source = "/dev/serial0:921600"
+# """
+    + SMALL_PI_LINK.replace("{", "{{").replace("}", "}}")
+    + """
 
 [recording]
 sessions_dir = "{state_dir}/sessions"
@@ -113,6 +139,7 @@ spec = "v4l2:/dev/video0?width=640&height=480&fps=30&fourcc=MJPG"
 [cameras.bottom]
 spec = "v4l2:/dev/video2?width=640&height=480&fps=30&fourcc=MJPG"
 """
+)
 
 
 @dataclass(frozen=True)

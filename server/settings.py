@@ -49,6 +49,10 @@ class ServerSettings(Section):
     # the recorder and the link, whatever the process's RLIMIT_NOFILE. The control socket
     # has 8 places of its own (server.client_limits.CONTROL_CLIENTS).
     max_ws_clients: int = Field(200, ge=1, le=100_000)
+    # Telemetry messages a second for a client that does not ask (`?max_rate=`): the
+    # pages and the goggles. 50 draws the horizon as often as ATTITUDE comes; a small Pi
+    # takes 25 (deploy/small-pi.toml; docs/PERFORMANCE.md).
+    telemetry_rate_hz: float = Field(50.0, ge=1, le=1000)
     max_video_clients: int = Field(40, ge=1, le=10_000)
     fd_reserve: int = Field(128, ge=32, le=100_000)
 

@@ -126,6 +126,45 @@ def test_websocket_fan_out_with_a_stalled_client():
             ws.close()
 
 
+def test_a_client_that_does_not_ask_gets_the_stations_telemetry_rate():
+    """`server.telemetry_rate_hz` (a small Pi's 25) is what the pages get: they never ask
+    with ?max_rate=. A client that asks still gets its own rate."""
+    app = make_app(**{"server.telemetry_rate_hz": 4})
+    with run_uvicorn(app) as base:
+        slot = app.state.station.state
+        ws_base = base.replace("http", "ws")
+        page = connect(f"{ws_base}/ws/telemetry?ack=1")  # as web/telemetry.js
+        asking = connect(f"{ws_base}/ws/telemetry?max_rate=1000")
+        got: dict[str, list] = {"page": [], "asking": []}
+
+        def reader(ws, out, ack):
+            while True:
+                m = json.loads(ws.recv(timeout=5))
+                out.append(m)
+                if ack:
+                    ws.send(json.dumps({"ack": m["version"]}))
+                if m["version"] >= 40:
+                    return
+
+        threads = [
+            threading.Thread(target=reader, args=(page, got["page"], True)),
+            threading.Thread(target=reader, args=(asking, got["asking"], False)),
+        ]
+        for t in threads:
+            t.start()
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        publish_states(slot, 40, hz=20)
+        for t in threads:
+            t.join(10)
+        elapsed = time.monotonic() - t0
+        assert len(got["page"]) <= 4 * elapsed + 3  # the station's 4 a second, not 50
+        assert got["page"][-1]["version"] == 40  # and it ends on the newest state
+        assert len(got["asking"]) > 4 * elapsed + 3  # its own cap: every state it could
+        page.close()
+        asking.close()
+
+
 def test_slow_reader_with_acks_stays_fresh():
     """?ack=1: at most one message in flight, so a client that reads one message per
     100 ms through a small receive buffer always gets a state at most one tick old,

@@ -20,8 +20,17 @@ from pathlib import Path
 import httpx
 import pytest
 
+from companion.link_settings import LinkSettings
 from server.app import create_app
-from server.install_service import HIDDEN_FROM_SERVICE, UNIT_NAME, ServicePlan, install
+from server.install_service import (
+    HIDDEN_FROM_SERVICE,
+    SMALL_PI_LINK,
+    SMALL_PI_SERVER,
+    UNIT_NAME,
+    ServicePlan,
+    install,
+    small_pi_toml,
+)
 from server.sd_notify import Notifier, notify_loop
 from server.settings import load_settings
 from server.tasks import TaskSupervisor
@@ -60,6 +69,30 @@ def test_repo_config_is_the_rendered_default_and_loads(tmp_path):
     settings = load_settings(tmp_path / "config.toml", environ={})
     assert settings.recording.sessions_dir == Path("/var/lib/fpv-station/sessions")
     assert settings.link.source == "/dev/serial0:921600"
+
+
+def test_small_pi_lines_of_the_config_load_and_keep_every_stream(tmp_path):
+    """The two commented lines a Pi 3 or Zero 2 W team uncomments are valid settings,
+    ask for every message the station uses (a stream missing from the table would not
+    be requested at all), each at most at the default rate, and are what
+    `pi_budget.py --small-pi` measures."""
+    text = ServicePlan().config_text()
+    lines = [f"# {SMALL_PI_SERVER}", f"# {SMALL_PI_LINK}"]
+    assert all(line in text.splitlines() for line in lines)
+    for line in lines:
+        text = text.replace(line, line.removeprefix("# "))
+    (tmp_path / "config.toml").write_text(text)
+    small = load_settings(tmp_path / "config.toml", environ={})
+    (tmp_path / "bench.toml").write_text(small_pi_toml())
+    bench = load_settings(tmp_path / "bench.toml", environ={})
+    default = LinkSettings().message_rates_hz
+    for settings in (small, bench):
+        assert settings.server.telemetry_rate_hz == 25
+        rates = settings.link.message_rates_hz
+        assert set(rates) == set(default)
+        assert all(0 < rates[m] <= default[m] for m in default)
+        assert sum(rates.values()) + settings.link.heartbeat_hz < 80  # the issue's "about 80"
+    assert small.link.source == "/dev/serial0:921600"  # the rest of the file still applies
 
 
 def test_unit_has_what_a_field_station_needs():

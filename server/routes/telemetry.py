@@ -2,7 +2,7 @@
 
 One coroutine per client sends what the station's telemetry pump (server/telemetry_pump.py)
 gives it: one message per tick, built once and shared by every client that is due, at
-most `?max_rate=` per second for that client (default 50). The send stays in the
+most `?max_rate=` per second for that client (default `server.telemetry_rate_hz`, 50). The send stays in the
 client's own coroutine: a client that reads slowly (or not at all) blocks only itself in
 `send_text`, then skips to the newest message; nothing queues and no client delays
 another.
@@ -66,13 +66,16 @@ async def ws_telemetry(
     ws: WebSocket,
     # At least 1/s: a slower feed is of no use to a page (and a value like 1e-300 would
     # park its client for good).
-    max_rate: float = Query(50.0, ge=1, le=1000, description="messages per second, at most"),
+    max_rate: float | None = Query(
+        None, ge=1, le=1000, description="messages per second, at most (default: the station's)"
+    ),
     ack: bool = Query(False, description='at most one message in flight: send {"ack": version}'),
 ) -> None:
     station = ws.app.state.station
     try:
         with station.client_limits.websocket.slot():
-            await _serve_telemetry(ws, station, max_rate, ack)
+            rate = max_rate or station.settings.server.telemetry_rate_hz
+            await _serve_telemetry(ws, station, rate, ack)
     except Unavailable as exc:
         await deny_websocket(ws, 503, "Unavailable", exc.message)
 
