@@ -68,7 +68,7 @@ class TelemetryClient:
         self.gone = False
         self._offered = False  # found waiting and due: it takes the newest message
         self._waiter: asyncio.Future[None] | None = None
-        self._timer: asyncio.TimerHandle | None = None  # its own, rarely (see next_message)
+        self._timer: asyncio.TimerHandle | None = None  # its own, rarely (_serve_or_plan)
 
     @property
     def in_flight(self) -> bool:
@@ -105,7 +105,7 @@ class TelemetryPump:
         self.message: TelemetryMessage | None = None  # the newest tick's
         self.ticks = 0  # messages built (for tests and benchmarks; bodies: shared.encodes)
         self._clients: set[TelemetryClient] = set()
-        self._waiting: set[TelemetryClient] = set()  # in next_message, not offered yet
+        self._waiting: set[TelemetryClient] = set()  # clients waiting in next_message
         self._interval_s = math.inf  # the shortest any client asked for
         self._task: asyncio.Task[Any] | None = None
         self._stopping: asyncio.Task[Any] | None = None  # cancelled by the last leave
