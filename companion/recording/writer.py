@@ -15,11 +15,15 @@ second: most of this thread's CPU (kernel time), and journal writes on a Pi's SD
 So after a kill every telemetry row on disk names a frame frames.csv lists, and only the
 batch being written can have pack bytes without rows (recovery cuts them off).
 
-The thread writes in batches, every `batch_interval_s` (0.1 s): a producer does not wake
-it per item (60 frames, 30 rows and 140 packets a second were as many wake-ups, each a
-futex call and a pass over every queue), only when its queue is half full. The telemetry
-CSVs sit in their file buffers until the flush anyway, so a batch loses nothing a kill
-would not. At each flush the packs and frames.csv files are fdatasync'ed before
+The thread writes in batches, every `batch_interval_s` (0.5 s, the flush interval): a
+producer does not wake it per item (60 frames, 30 rows and 140 packets a second were as
+many wake-ups, each a futex call and a pass over every queue), only when its queue is
+half full. The telemetry CSVs sit in their file buffers until the flush anyway, so a
+batch as long as the flush interval loses nothing to a kill that the telemetry would not:
+frames and telemetry alike, at most the last half second. Each batch costs the thread
+its system calls (a writev per camera, frames.csv, the CSVs) and the GIL back after each:
+five batches a second instead of ten took the thread from 1.2-1.35 to 0.85-0.95 % of a
+core in benchmarks/pi_budget.py (docs/PERFORMANCE.md, round 4). At each flush the packs and frames.csv files are fdatasync'ed before
 telemetry.csv and the tlog, so a power cut keeps them in the same order.
 """
 
@@ -68,7 +72,7 @@ class WriterLimits:
     frame_queue: int = 90  # per camera: 3 s at 30 fps
     packet_queue: int = 20000
     flush_interval_s: float = 0.5
-    batch_interval_s: float = 0.1  # queued items wait at most this long for the thread
+    batch_interval_s: float = 0.5  # queued items wait at most this long for the thread
     min_free_bytes: int = 200 * 1024 * 1024
 
 
