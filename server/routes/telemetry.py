@@ -2,8 +2,8 @@
 
 One coroutine per client sends what the station's telemetry pump (server/telemetry_pump.py)
 gives it: one message per tick, built once and shared by every client that is due, at
-most `?max_rate=` per second for that client (default `server.telemetry_rate_hz`, 50). The send stays in the
-client's own coroutine: a client that reads slowly (or not at all) blocks only itself in
+most `?max_rate=` per second for that client (default `server.telemetry_rate_hz`, 50).
+The send stays in the client's own coroutine: a client that reads slowly (or not at all) blocks only itself in
 `send_text`, then skips to the newest message; nothing queues and no client delays
 another.
 
