@@ -333,21 +333,21 @@ def quick_constructor(cls: type[T]) -> Callable[..., T]:
 def freeze_draft(draft: Any, cls: type[T]) -> T:
     """A frozen `cls` with the field values of `draft` (an `unfrozen_twin(cls)`), which
     stays a draft to change further."""
-    twin, values = _twin(cls)
-    obj = twin(*values(draft))
-    obj.__class__ = cls
-    return obj  # type: ignore[no-any-return]
+    return _copy_as(draft, cls, {})
 
 
 def quick_replace(obj: T, **changes: Any) -> T:
     """`dataclasses.replace(obj, **changes)` for a frozen slots dataclass of this module,
-    built the quick way; an unknown name is an AttributeError."""
-    cls = type(obj)
+    built the quick way; an unknown name is an AttributeError (the twin has slots only)."""
+    return _copy_as(obj, type(obj), changes)
+
+
+def _copy_as(source: Any, cls: type[T], changes: dict[str, Any]) -> T:
+    """A new frozen `cls` with the field values of `source` (a `cls` or its twin) and
+    `changes`."""
     twin, values = _twin(cls)
-    new = twin(*values(obj))
+    new = twin(*values(source))
     for name, value in changes.items():
-        if name not in twin.__slots__:
-            raise AttributeError(f"{cls.__name__} has no field {name!r}")
         setattr(new, name, value)
     new.__class__ = cls
-    return new
+    return new  # type: ignore[no-any-return]
