@@ -30,6 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from benchmarks.pi_budget import thread_cpu_s  # noqa: E402
 from companion.latest import Latest  # noqa: E402
 from companion.link import MavlinkLink  # noqa: E402
 from companion.link_health import HealthMeter  # noqa: E402
@@ -154,16 +155,14 @@ def stages(packets, msgs, recorder, session, args) -> list[tuple[str, float]]:
 
     link = MavlinkLink(LinkSettings(source="udpin:127.0.0.1:1"))  # never started
     link.add_packet_listener(recorder.on_packet)
-    on_bytes = getattr(link, "_on_bytes", None)  # the link thread's per-datagram step
-    if on_bytes is not None:
 
-        def whole(k: int) -> None:
-            for i in range(k):
-                on_bytes(packets[i % count], time.monotonic())
-                link._publish_state()
+    def whole(k: int) -> None:  # the link thread's per-datagram step and its publish
+        for i in range(k):
+            link._on_bytes(packets[i % count], time.monotonic())
+            link._publish_state()
 
-        out.append(("link, all together", per_packet_us(whole, n)))
-        drain()
+    out.append(("link, all together", per_packet_us(whole, n)))
+    drain()
     if args.profile:
         for name, stage in (("state merge", state_merge), ("framing", framing)):
             profiler = cProfile.Profile()
@@ -185,11 +184,10 @@ def udp_thread_cost(seconds: float) -> None:
         try:
             time.sleep(3)  # heard, warmed up
             assert link._thread is not None
-            stat = f"/proc/self/task/{link._thread.native_id}/stat"
+            tid = link._thread.native_id
 
             def cpu_s() -> float:
-                fields = Path(stat).read_text().rsplit(")", 1)[1].split()
-                return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+                return sum(thread_cpu_s(os.getpid())[tid])
 
             c0, p0, t0 = cpu_s(), link.health().packets, time.monotonic()
             time.sleep(seconds)
