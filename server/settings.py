@@ -51,7 +51,7 @@ class ServerSettings(Section):
     max_ws_clients: int = Field(200, ge=1, le=100_000)
     # Telemetry messages a second for a client that does not ask (`?max_rate=`): the
     # pages and the goggles. 50 draws the horizon as often as ATTITUDE comes; a small Pi
-    # takes 25 (deploy/small-pi.toml; docs/PERFORMANCE.md).
+    # takes 25 (the commented lines of deploy/config.toml; docs/PERFORMANCE.md).
     telemetry_rate_hz: float = Field(50.0, ge=1, le=1000)
     max_video_clients: int = Field(40, ge=1, le=10_000)
     fd_reserve: int = Field(128, ge=32, le=100_000)
