@@ -109,7 +109,6 @@ class TelemetryPump:
         self._interval_s = math.inf  # the shortest any client asked for
         self._task: asyncio.Task[Any] | None = None
         self._stopping: asyncio.Task[Any] | None = None  # cancelled by the last leave
-        self._running = False
         # What the pump task waits on: its own future until `_sleep_until` (a client that
         # needs it sooner moves its timer, `_timer`), or the slot until
         # `_state_wait_until` (nobody can wake that wait: a client needing an earlier
@@ -121,7 +120,9 @@ class TelemetryPump:
 
     @property
     def running(self) -> bool:
-        return self._running
+        """The pump task is there: false once the last client left or the slot closed
+        (the task is done in the step whose `finally` in `_run` wakes the clients)."""
+        return self._task is not None and not self._task.done()
 
     @property
     def clients(self) -> int:
@@ -136,8 +137,7 @@ class TelemetryPump:
             # The last client left a moment ago and cancelled the task: let it end, so
             # that one pump task runs under its name.
             await asyncio.wait([stopping])
-        if self._task is None or self._task.done():
-            self._running = True
+        if not self.running:
             self._task = self._spawn(PUMP_TASK, self._run())
 
     def leave(self, client: TelemetryClient) -> None:
@@ -165,7 +165,7 @@ class TelemetryPump:
         its last one acknowledged); None once it has gone or the pump has ended (the
         state slot closed)."""
         loop = asyncio.get_running_loop()
-        while self._running and not client.gone:
+        while self.running and not client.gone:
             if client._offered:
                 client._offered = False
                 if self.message is not None and self.message.version > client.version:
@@ -289,7 +289,6 @@ class TelemetryPump:
                         _cancel(self._timer)
                         self._wakeup = self._timer = self._sleep_until = None
         finally:
-            self._running = False
             for client in self._waiting:  # the slot closed, or the station stops
                 client.wake()
 
