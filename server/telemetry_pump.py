@@ -71,6 +71,11 @@ class TelemetryClient:
         self._timer: asyncio.TimerHandle | None = None  # its own, rarely (_serve_or_plan)
 
     @property
+    def waiting(self) -> bool:
+        """Its coroutine waits in `next_message`."""
+        return self._waiter is not None
+
+    @property
     def in_flight(self) -> bool:
         """Its last message is not acknowledged yet: it gets nothing until it is."""
         return self.ack and self.acked < self.version
@@ -105,7 +110,6 @@ class TelemetryPump:
         self.message: TelemetryMessage | None = None  # the newest tick's
         self.ticks = 0  # messages built (for tests and benchmarks; bodies: shared.encodes)
         self._clients: set[TelemetryClient] = set()
-        self._waiting: set[TelemetryClient] = set()  # clients waiting in next_message
         self._interval_s = math.inf  # the shortest any client asked for
         self._task: asyncio.Task[Any] | None = None
         self._stopping: asyncio.Task[Any] | None = None  # cancelled by the last leave
@@ -143,7 +147,6 @@ class TelemetryPump:
     def leave(self, client: TelemetryClient) -> None:
         """Count `client` out; the last one stops the pump task."""
         self._clients.discard(client)
-        self._waiting.discard(client)
         _cancel(client._timer)
         self._interval_s = min((c.interval_s for c in self._clients), default=math.inf)
         if not self._clients and self._task is not None:
@@ -156,7 +159,7 @@ class TelemetryPump:
         if version <= client.acked:
             return
         client.acked = version
-        if client in self._waiting and not client._offered and not client.in_flight:
+        if client.waiting and not client._offered and not client.in_flight:
             if self._serve_or_plan(client, asyncio.get_running_loop()) is not None:
                 self._offer(client)
 
@@ -173,13 +176,11 @@ class TelemetryPump:
             message = self._serve_or_plan(client, loop)
             if message is not None:
                 return client._take(message)
-            self._waiting.add(client)
             client._waiter = loop.create_future()
             try:
                 await client._waiter
             finally:
                 client._waiter = None
-                self._waiting.discard(client)
                 _cancel(client._timer)
         return None
 
@@ -258,8 +259,8 @@ class TelemetryPump:
             while self._clients and not self.slot.closed:
                 now = loop.time()
                 ready, need = math.inf, None  # need: the version a newer state must pass
-                for client in list(self._waiting):
-                    if client._offered:
+                for client in self._clients:
+                    if not client.waiting or client._offered:
                         continue
                     if self._due_message(client, now) is not None:
                         self._offer(client)
@@ -289,7 +290,7 @@ class TelemetryPump:
                         _cancel(self._timer)
                         self._wakeup = self._timer = self._sleep_until = None
         finally:
-            for client in self._waiting:  # the slot closed, or the station stops
+            for client in self._clients:  # the slot closed, or the station stops
                 client.wake()
 
 
