@@ -4,6 +4,7 @@ rates, and no pump at all while nobody is connected."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import threading
@@ -14,8 +15,12 @@ from dataclasses import replace
 
 from websockets.sync.client import connect
 
+from companion.latest import Latest
 from companion.vehicle_state import Attitude, VehicleState
 from server.app import create_app
+from server.tasks import TaskSupervisor
+from server.telemetry_json import SharedStateJson
+from server.telemetry_pump import TelemetryClient, TelemetryPump
 from tests.helpers import run_uvicorn, station_settings, wait_until
 
 
@@ -164,3 +169,29 @@ def test_the_pump_runs_only_while_a_client_is_connected():
                 assert pump.running  # one client is still there
             assert wait_until(lambda: not pump.running and pump.clients == 0, 10)
         assert station.tasks.healthy
+
+
+def test_a_client_joining_as_the_last_one_leaves_gets_the_one_pump_task():
+    """The last client's leaving cancels the pump task, which ends only on the loop's
+    next turn; a client joining in between waits for that end, then starts the task
+    again under its name (the station's supervisor refuses a second task of one name)
+    and gets the next state."""
+
+    async def main() -> None:
+        slot: Latest[VehicleState] = Latest()
+        tasks = TaskSupervisor()
+        pump = TelemetryPump(slot, SharedStateJson(), tasks.spawn)
+        first, second = TelemetryClient(50), TelemetryClient(50)
+        await pump.join(first)
+        await asyncio.sleep(0)  # the pump task runs
+        pump.leave(first)
+        await pump.join(second)  # the first task is cancelled, not yet ended
+        assert pump.running
+        slot.publish(VehicleState())
+        message = await asyncio.wait_for(pump.next_message(second), 5)
+        assert message is not None and message.version == slot.version
+        pump.leave(second)
+        await tasks.aclose()
+        assert tasks.healthy
+
+    asyncio.run(main())
