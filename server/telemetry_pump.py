@@ -113,12 +113,13 @@ class TelemetryPump:
         self._interval_s = math.inf  # the shortest any client asked for
         self._task: asyncio.Task[Any] | None = None
         self._stopping: asyncio.Task[Any] | None = None  # cancelled by the last leave
-        # What the pump task waits on: its own future, `_wakeup`, until its `_timer` fires
-        # (none: until a client wakes it; a client that needs it sooner moves the timer),
-        # or the slot until `_state_wait_until` (nobody can wake that wait: a client
-        # needing an earlier time gets a timer of its own).
+        # What the pump task waits on: its own future until `_sleep_until` (a client that
+        # needs it sooner moves its timer, `_timer`), or the slot until
+        # `_state_wait_until` (nobody can wake that wait: a client needing an earlier
+        # time gets a timer of its own).
         self._wakeup: asyncio.Future[None] | None = None
         self._timer: asyncio.TimerHandle | None = None
+        self._sleep_until: float | None = None
         self._state_wait_until: float | None = None
 
     @property
@@ -200,10 +201,11 @@ class TelemetryPump:
         ready = self._ready_at(client, now)
         if ready is None:
             return None  # its ack comes first
-        if self._wakeup is not None:
+        if self._sleep_until is not None:
             if ready == math.inf:
                 self._wake_pump()  # a newer state is needed: the pump watches the slot
-            elif self._timer is None or ready < self._timer.when():
+            elif ready < self._sleep_until:
+                self._sleep_until = ready
                 _cancel(self._timer)
                 self._timer = loop.call_at(ready, self._wake_pump)
         elif self._state_wait_until is not None and ready < self._state_wait_until:
@@ -279,13 +281,14 @@ class TelemetryPump:
                         self._state_wait_until = None
                 else:
                     self._wakeup = loop.create_future()
+                    self._sleep_until = ready
                     if ready < math.inf:
                         self._timer = loop.call_at(ready, self._wake_pump)
                     try:
                         await self._wakeup
                     finally:
                         _cancel(self._timer)
-                        self._wakeup = self._timer = None
+                        self._wakeup = self._timer = self._sleep_until = None
         finally:
             for client in self._clients:  # the slot closed, or the station stops
                 client.wake()
