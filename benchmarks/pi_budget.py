@@ -53,6 +53,7 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from benchmarks.host_wake_cost import probe_in_subprocess  # noqa: E402
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
 from server.install_service import small_pi_toml  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
@@ -91,6 +92,10 @@ class Run:
     load: tuple[float, float]  # 1-min load average at the window's start and end
     threads: list[tuple[ThreadInfo, float]]  # (thread, CPU seconds in the window)
     thread_sys_s: dict[int, float]  # system (kernel) seconds of each thread in the window
+    # Context switches of each thread in the window: (voluntary, involuntary). Voluntary:
+    # it blocked (a wait for I/O, a timer, a lock or the GIL), so about one wake-up each.
+    switches: dict[int, tuple[int, int]]
+    host_wake_us: tuple[float, float]  # host_wake_cost.py before and after the window
     components: dict[str, float]
     top: list[tuple[str, float]] = field(default_factory=list)  # (function, share of samples)
     packets_per_s: float = 0.0
@@ -112,6 +117,22 @@ def thread_cpu_s(pid: int) -> dict[int, tuple[float, float]]:
             continue  # ended meanwhile
         fields = stat[stat.rindex(")") + 2 :].split()
         out[int(task.name)] = (int(fields[11]) / CLOCK_TICKS, int(fields[12]) / CLOCK_TICKS)
+    return out
+
+
+def thread_switches(pid: int) -> dict[int, tuple[int, int]]:
+    """(voluntary, involuntary) context switches of each live thread of `pid`."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            status = (task / "status").read_text()
+        except OSError:
+            continue
+        counts = dict(line.split(":\t") for line in status.splitlines() if "ctxt_switches" in line)
+        out[int(task.name)] = (
+            int(counts["voluntary_ctxt_switches"]),
+            int(counts["nonvoluntary_ctxt_switches"]),
+        )
     return out
 
 
@@ -376,10 +397,8 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
         result["end"] = await asyncio.to_thread(window_end, station)
 
     asyncio.run(drive())
-    (cpu0, threads0, status0, t0, load0, spy), (cpu1, threads1, status1, t1, load1) = (
-        result["start"],
-        result["end"],
-    )
+    (cpu0, threads0, sw0, status0, t0, load0, host0, spy) = result["start"]
+    (cpu1, threads1, sw1, status1, t1, load1, host1) = result["end"]
     seconds = t1 - t0
     profile = profile_path(station)
     samples: dict = {}
@@ -421,6 +440,11 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
         load=(load0, load1),
         threads=threads,
         thread_sys_s=thread_sys,
+        switches={
+            tid: (v - sw0.get(tid, (0, 0))[0], n - sw0.get(tid, (0, 0))[1])
+            for tid, (v, n) in sw1.items()
+        },
+        host_wake_us=(host0, host1),
         components=split_components(threads, pid, samples),
         top=top_functions(samples),
         packets_per_s=packets / seconds,
@@ -436,14 +460,17 @@ def profile_path(station: StationProcess) -> Path:
 
 def window_start(station: StationProcess, args: argparse.Namespace):
     pid = station.popen.pid
+    host = probe_in_subprocess()  # the host as the window starts, the clients running
     status = httpx.get(f"{station.base}/api/status", timeout=10).json()
     spy = None if args.no_profile else start_profile(pid, args.seconds, profile_path(station))
     return (
         process_cpu_s(pid),
         thread_cpu_s(pid),
+        thread_switches(pid),
         status,
         time.monotonic(),
         os.getloadavg()[0],
+        host,
         spy,
     )
 
@@ -451,11 +478,20 @@ def window_start(station: StationProcess, args: argparse.Namespace):
 def window_end(station: StationProcess):
     pid = station.popen.pid
     cpu, threads, t = process_cpu_s(pid), thread_cpu_s(pid), time.monotonic()
+    switches = thread_switches(pid)
     status = httpx.get(f"{station.base}/api/status", timeout=10).json()
-    return cpu, threads, status, t, os.getloadavg()[0]
+    return cpu, threads, switches, status, t, os.getloadavg()[0], probe_in_subprocess()
 
 
 # -- printing ----------------------------------------------------------------------------------
+
+
+def switches_per_s(run: Run) -> tuple[float, float]:
+    """The whole process's (voluntary, involuntary) context switches per second."""
+    return (
+        sum(v for v, _ in run.switches.values()) / run.seconds,
+        sum(n for _, n in run.switches.values()) / run.seconds,
+    )
 
 
 def report(run: Run) -> None:
@@ -478,13 +514,22 @@ def report(run: Run) -> None:
         "   per component (% of one core): "
         + ", ".join(f"{c} {s / run.seconds * 100:.2f}" for c, s in run.components.items())
     )
-    print(f"   {'thread':<40} {'tid':>7} {'% core':>7} {'of it sys':>9}")
+    vol, invol = switches_per_s(run)
+    print(
+        f"   context switches/s: {vol:.0f} voluntary (about one wake-up each), {invol:.0f} "
+        f"involuntary; host: a wake-up costs {run.host_wake_us[0]:.0f} / "
+        f"{run.host_wake_us[1]:.0f} us of CPU before / after (host_wake_cost.py)"
+    )
+    print(
+        f"   {'thread':<40} {'tid':>7} {'% core':>7} {'of it sys':>9} {'vol/s':>6} {'invol/s':>7}"
+    )
     for info, cpu in run.threads:
         if cpu > 0:
             sys_pct = run.thread_sys_s[info.tid] / run.seconds * 100
+            v, n = run.switches.get(info.tid, (0, 0))
             print(
                 f"   {info.name[:40]:<40} {info.tid:>7} {cpu / run.seconds * 100:>7.2f} "
-                f"{sys_pct:>9.2f}"
+                f"{sys_pct:>9.2f} {v / run.seconds:>6.0f} {n / run.seconds:>7.0f}"
             )
     idle = [info.name for info, cpu in run.threads if cpu <= 0]
     if idle:
@@ -572,6 +617,8 @@ def main() -> None:
             f" ({run.rss_ready_mb:3.0f} at ready)"
             f"  ready {run.ready_s:5.2f} s ({run.ready_cpu_s:4.2f} CPU s)"
             f"  load {run.load[0]:.2f}->{run.load[1]:.2f}"
+            f"  switches/s {sum(switches_per_s(run)):4.0f}"
+            f"  host wake {run.host_wake_us[0]:3.0f}/{run.host_wake_us[1]:3.0f} us"
         )
     shutil.rmtree(tmp, ignore_errors=True)
 
