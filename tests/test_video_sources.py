@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -261,6 +263,35 @@ def test_a_stalled_source_shows_no_signal_then_recovers():
         assert wait_until(lambda: not camera.frames.get().value.signal, 2.0)
         assert camera.stats().reason.startswith("stalled")
         assert wait_until(lambda: camera.frames.get().value.signal, 3.0)
+    finally:
+        camera.stop()
+
+
+def _voluntary_switches(thread) -> int:
+    """How often `thread` blocked (about once per wake-up): Linux's count for it."""
+    status = Path(f"/proc/self/task/{thread.native_id}/status").read_text()
+    return int(status.split("voluntary_ctxt_switches:")[1].split()[0])
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="Linux's /proc counts")
+def test_the_watchdog_sleeps_while_frames_flow():
+    """The stall watchdog wakes when the newest frame would be `stall_s` old, not on a
+    tick: while frames flow it costs no wake-up (it woke four times a second before)."""
+    camera = build_camera(
+        "front",
+        CameraConfig(fps=30, width=160, height=120),
+        link_source="sim",
+        renderer=lambda: CountingRenderer(160, 120),
+        stall_s=5.0,
+    )
+    camera.start()
+    try:
+        watchdog = next(t for t in threading.enumerate() if t.name == "camera-front-watchdog")
+        assert wait_until(lambda: camera.stats().frames >= 3, 2.0)
+        before = _voluntary_switches(watchdog)
+        time.sleep(1.5)
+        assert camera.stats().signal
+        assert _voluntary_switches(watchdog) - before <= 1
     finally:
         camera.stop()
 

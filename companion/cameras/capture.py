@@ -239,14 +239,21 @@ class Camera:
         """Show NO SIGNAL when an open source stops delivering (its read is stuck)."""
         # A slow camera (fps < 1.5) must not look stalled between two of its own frames.
         stall_s = max(self.config.stall_s, 3.0 / self.config.fps)
-        while not self._stop.wait(min(0.25, stall_s / 4)):
+        # It sleeps until the newest frame would be `stall_s` old, not a fixed tick: while
+        # frames flow it wakes once per `stall_s` (every wake-up of a thread costs the Pi,
+        # docs/PERFORMANCE.md), and a stall is seen when it begins, not up to a tick later.
+        wait_s = stall_s
+        while not self._stop.wait(wait_s):
             last = self._last_good_mono
             now = time.monotonic()
             if last is None or now - last < stall_s:
+                wait_s = stall_s if last is None else last + stall_s - now
                 continue
             if self._signal or now - self._no_signal_mono >= NO_SIGNAL_REFRESH_S:
                 if self._signal or (self._reason or "").startswith("stalled"):
                     self._publish_no_signal(f"stalled: no frame for {now - last:.0f} s")
+            # Stalled: look again when the NO SIGNAL frame is due for its refresh.
+            wait_s = max(self._no_signal_mono + NO_SIGNAL_REFRESH_S - time.monotonic(), 0.01)
 
     # -- figures -------------------------------------------------------------------------
     def delivered_fps(self) -> float:
