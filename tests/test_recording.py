@@ -1,6 +1,7 @@
 import asyncio
 import csv
 import json
+import selectors
 import shutil
 import time
 from collections import namedtuple
@@ -212,6 +213,48 @@ def test_auto_record_on_arm_with_post_disarm_tail(tmp_path):
     rows = read_csv(tmp_path / st.last_stop.id / layout.TELEMETRY_CSV)
     assert rows[-1]["heartbeat.armed"] == "0" and rows[0]["heartbeat.armed"] == "1"
     assert float(rows[-1]["t_s"]) - float(rows[0]["t_s"]) > 0.9  # kept the tail
+
+
+class _CountingSelector(selectors.DefaultSelector):
+    """The event loop's own selector, counting the loop's turns (each select call)."""
+
+    turns = 0
+
+    def select(self, timeout=None):
+        self.turns += 1
+        return super().select(timeout)
+
+
+def test_watching_for_arming_does_not_wake_the_event_loop_for_each_state(tmp_path):
+    """The vehicle's state changes 100 times a second; its armed flag twice a flight.
+    Only a change of the flag reaches the event loop (it looked 20 times a second)."""
+    vehicle = FakeVehicle(rate_hz=100).start()
+    rec = Recorder(tmp_path, vehicle.state, {}, options())
+    selector = _CountingSelector()
+
+    async def run():
+        await rec.open()
+        await asyncio.sleep(0.3)  # the first state: disarmed, seen once
+        turns = selector.turns
+        await asyncio.sleep(1.5)
+        quiet_turns = selector.turns - turns
+        vehicle.armed = True  # still seen at once
+        for _ in range(100):
+            await asyncio.sleep(0.05)
+            if rec.status().recording:
+                break
+        recording = rec.status().recording
+        await rec.aclose()
+        return quiet_turns, recording
+
+    loop = asyncio.SelectorEventLoop(selector)
+    try:
+        quiet_turns, recording = loop.run_until_complete(run())
+    finally:
+        loop.close()
+        vehicle.stop()
+    assert recording
+    assert quiet_turns <= 4  # the sleep's own turns; 30 and more before
 
 
 DiskUsage = namedtuple("usage", "total used free")

@@ -73,7 +73,6 @@ RETRY_MAX_S = 30.0
 # Sessions the recorder started by itself for a flight (arming, or again after a failed
 # write while armed): disarming ends them. One started by hand is stopped by hand.
 FLIGHT_TRIGGERS = ("arm", "retry")
-ARMING_CHECK_S = 0.05  # auto-record looks at the arming state at most this often
 
 
 class RecorderError(Exception):
@@ -115,6 +114,10 @@ class Recorder:
         self._retrying = False
         self._retry_delay = 1.0  # the retry's first wait (_failed, _retry)
         self._was_armed: bool | None = None  # source-clock arm watching (its thread)
+        # Live arm watching: the state slot's listener (the link's thread) notes the armed
+        # flag of each state and wakes `_watch_arming` only when it changes.
+        self._armed_seen: bool | None = None
+        self._armed_changed = asyncio.Event()
         self._tail_due: float | None = None  # end of the tail, source clock
 
     # -- service lifecycle ---------------------------------------------------------------
@@ -127,11 +130,14 @@ class Recorder:
         if self.clock.own:
             self.clock.add_listener(self._on_source_time)
         elif self.options.auto_record_on_arm:
+            self.state.add_listener(self._note_armed)
             self._spawn("recorder-arm-watch", self._watch_arming())
         return marked
 
     async def aclose(self) -> None:
         self._closed = True
+        self.state.remove_listener(self._note_armed)
+        self._armed_changed.set()  # the arm watcher ends
         await self.stop("shutdown")
 
     # -- control -------------------------------------------------------------------------
@@ -250,17 +256,28 @@ class Recorder:
 
     # -- automatic recording ---------------------------------------------------------------
 
+    def _note_armed(self, state: VehicleState) -> None:
+        """The state slot's listener, in the link's thread for each of its 100-odd states a
+        second: a comparison, and a hop to the event loop only when the armed flag changed
+        (before, the watcher looked at the state 20 times a second: 20 wake-ups of the
+        loop for a flag that changes twice a flight)."""
+        armed = bool(state.heartbeat.armed)
+        if armed is not self._armed_seen and self._loop is not None:
+            self._armed_seen = armed
+            try:
+                self._loop.call_soon_threadsafe(self._armed_changed.set)
+            except RuntimeError:  # the loop is closed: the station has stopped
+                pass
+
     async def _watch_arming(self) -> None:
-        version = 0
+        """Start a session when the vehicle arms, and stop it `post_disarm_tail_s` after it
+        disarms (if arming started it). A station started over an armed vehicle starts
+        recording at once."""
         was_armed: bool | None = None
-        while True:
-            got = await self.state.wait_newer(version, timeout=1.0)
-            if got is None or got.version <= version:
-                if self.state.closed:
-                    return
-                continue
-            version = got.version
-            armed = bool(got.value.heartbeat.armed)
+        while not self._closed:
+            self._armed_changed.clear()
+            got = self.state.get()
+            armed = got is not None and bool(got.value.heartbeat.armed)
             if armed and was_armed is not True:
                 try:
                     await self.start("arm")
@@ -269,9 +286,7 @@ class Recorder:
             elif not armed and was_armed is True:
                 self._schedule_tail()
             was_armed = armed
-            # Arming comes with a heartbeat (1-4 Hz): looking at the state of every packet
-            # would wake the event loop a hundred times a second for nothing.
-            await asyncio.sleep(ARMING_CHECK_S)
+            await self._armed_changed.wait()
 
     def _on_source_time(self, t: float | None) -> None:
         """The source's clock moved to `t` (None: it ended); in the source's thread."""
