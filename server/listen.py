@@ -18,6 +18,7 @@ import time
 
 import uvicorn
 
+from companion.latest import wait_resolved
 from server.errors import DenialLogFilter
 
 log = logging.getLogger(__name__)
@@ -55,7 +56,43 @@ class StationServer(uvicorn.Server):
     MJPEG streams never finish by themselves, so after `timeout_graceful_shutdown` it
     would cancel them, logging a traceback per viewer. `app.state.station.end_streams()`
     ends them first: each viewer's response completes after the part it is sending.
+
+    uvicorn's main loop also wakes ten times a second to see whether it should exit; an
+    idle station must cost nothing (every wake-up costs a Pi, docs/PERFORMANCE.md), so
+    here it wakes once a second, for the Date header, and at once when `should_exit` is
+    set (a signal handler, a test's thread).
     """
+
+    _main_loop_wakeup: tuple[asyncio.AbstractEventLoop, asyncio.Future[None]] | None = None
+
+    @property
+    def should_exit(self) -> bool:
+        return self._should_exit
+
+    @should_exit.setter
+    def should_exit(self, value: bool) -> None:
+        self._should_exit = value
+        wakeup = self._main_loop_wakeup
+        if value and wakeup is not None:
+            loop, fut = wakeup
+            try:
+                loop.call_soon_threadsafe(_resolve, fut)
+            except RuntimeError:  # that loop has closed: nothing waits any more
+                pass
+
+    async def main_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        counter = 0
+        while not await self.on_tick(counter):
+            # on_tick does its once-a-second work (the Date header) when counter % 10 == 0.
+            counter = (counter + 10) % 864000
+            fut = loop.create_future()
+            self._main_loop_wakeup = (loop, fut)
+            try:
+                if not self.should_exit:  # set before the wake-up was in place
+                    await wait_resolved(fut, 1.0)
+            finally:
+                self._main_loop_wakeup = None
 
     async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
         station = getattr(getattr(self.config.app, "state", None), "station", None)
@@ -78,6 +115,11 @@ class StationServer(uvicorn.Server):
             conn.transport.abort()  # type: ignore[attr-defined]
         if stalled:
             log.info("shutdown: closed %d connections whose clients stopped reading", len(stalled))
+
+
+def _resolve(fut: asyncio.Future[None]) -> None:
+    if not fut.done():
+        fut.set_result(None)
 
 
 def _unsent_bytes(conn: object) -> int:
