@@ -2,13 +2,15 @@
 
     python benchmarks/pi_budget.py [--seconds 20] [--warmup 5] [--repeat 2] [--3d both|on|off]
                                    [--rates default|small-pi|both] [--no-profile]
+                                   [--autopilot-streams requested|px4-onboard|both]
 
 Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subprocess
 (tests/station_process.py):
 - the test vehicle (tests/mav_vehicle.py) over UDP, at the rates the station asks for
   (SET_MESSAGE_INTERVAL: about 140 packets/s; `--rates small-pi`: the settings a Pi 3 or
   Zero 2 W team uncomments in /etc/fpv-station/config.toml, server.install_service:
-  about 75 packets/s and the pages at 25 messages/s);
+  about 75 packets/s and the pages at 25 messages/s; `--autopilot-streams px4-onboard`:
+  plus what PX4 streams unasked on a link in MAV_X_MODE Onboard, about 210 packets/s);
 - two USB MJPEG cameras at 640x480, 30 fps, through the station's own V4L2 source and its
   passthrough (the grabber is simulated at OpenCV's VideoCapture: usb_mjpeg_camera.py);
 - recording on (telemetry, tlog and both videos);
@@ -56,7 +58,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.host_wake_cost import probe_in_subprocess  # noqa: E402
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
 from server.install_service import small_pi_toml  # noqa: E402
-from tests.mav_vehicle import MavVehicle  # noqa: E402
+from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle  # noqa: E402
 from tests.station_process import StationProcess, serve_station  # noqa: E402
 
 TOKEN = "pi-budget-token"
@@ -342,11 +344,16 @@ async def clients(
 
 
 def one_run(
-    args: argparse.Namespace, tmp: Path, with_3d: bool, label: str, small_pi: bool = False
+    args: argparse.Namespace,
+    tmp: Path,
+    with_3d: bool,
+    label: str,
+    small_pi: bool = False,
+    px4_onboard: bool = False,
 ) -> Run:
     front, bottom = tmp / "front", tmp / "bottom"
     sessions = tmp / f"sessions-{label}"
-    vehicle = MavVehicle("udp").start()
+    vehicle = MavVehicle("udp", rates_hz=PX4_ONBOARD_RATES_HZ if px4_onboard else None).start()
     cmd = [
         *("--source", vehicle.station_source),
         *("--front", f"v4l2:{front}?fourcc=MJPG", "--bottom", f"v4l2:{bottom}?fourcc=MJPG"),
@@ -565,6 +572,13 @@ def main() -> None:
         help="the station's default message rates, a small Pi's (deploy/config.toml's "
         "commented lines: --baseline stations older than them refuse it), or both side by side",
     )
+    ap.add_argument(
+        "--autopilot-streams",
+        choices=("requested", "px4-onboard", "both"),
+        default="requested",
+        help="what the vehicle streams besides what the station asks for: nothing, or what "
+        "PX4 sends in MAV_X_MODE Onboard (about 210 packets/s more), or both side by side",
+    )
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
     ap.add_argument(
         "--no-visit",
@@ -599,21 +613,26 @@ def main() -> None:
         [(None, "")] if args.station_root is None else [(args.station_root, "base "), (None, "")]
     )
     rate_sets = {"default": (False,), "small-pi": (True,), "both": (False, True)}[args.rates]
+    stream_sets = {"requested": (False,), "px4-onboard": (True,), "both": (False, True)}[
+        args.autopilot_streams
+    ]
     runs = []
     for i in range(args.repeat):
         for with_3d in configs:
             for small_pi in rate_sets:
-                for root, tag in roots:
-                    args_i = argparse.Namespace(**{**vars(args), "station_root": root})
-                    rates = " small-pi" if small_pi else ""
-                    label = f"{tag}3D {'on' if with_3d else 'off'}{rates} #{i + 1}"
-                    run = one_run(args_i, tmp, with_3d, label, small_pi)
-                    report(run)
-                    runs.append(run)
+                for px4_onboard in stream_sets:
+                    for root, tag in roots:
+                        args_i = argparse.Namespace(**{**vars(args), "station_root": root})
+                        rates = " small-pi" if small_pi else ""
+                        streams = " px4-onboard" if px4_onboard else ""
+                        label = f"{tag}3D {'on' if with_3d else 'off'}{rates}{streams} #{i + 1}"
+                        run = one_run(args_i, tmp, with_3d, label, small_pi, px4_onboard)
+                        report(run)
+                        runs.append(run)
     print("\n# summary")
     for run in runs:
         print(
-            f"{run.label:<26} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
+            f"{run.label:<32} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
             f" ({run.rss_ready_mb:3.0f} at ready)"
             f"  ready {run.ready_s:5.2f} s ({run.ready_cpu_s:4.2f} CPU s)"
             f"  load {run.load[0]:.2f}->{run.load[1]:.2f}"

@@ -46,6 +46,38 @@ DEFAULT_RATES_HZ = {
     "SYSTEM_TIME": 1.0,
 }
 
+# What PX4 streams on a link in `MAV_X_MODE = Onboard` before anyone asks for anything
+# (src/modules/mavlink/mavlink_main.cpp, MAVLINK_MODE_ONBOARD), the streams a quadcopter
+# without extra sensors sends in position mode: rates the station asks for replace
+# theirs; the others (about 210 packets/s) it does not read. benchmarks/pi_budget.py
+# --autopilot-streams px4-onboard measures what they cost the station.
+PX4_ONBOARD_RATES_HZ = {
+    **DEFAULT_RATES_HZ,
+    "ALTITUDE": 10.0,
+    "ATTITUDE": 100.0,
+    "ATTITUDE_QUATERNION": 50.0,
+    "ATTITUDE_TARGET": 10.0,
+    "BATTERY_STATUS": 0.5,
+    "ESTIMATOR_STATUS": 1.0,
+    "EXTENDED_SYS_STATE": 5.0,
+    "GLOBAL_POSITION_INT": 50.0,
+    "HIGHRES_IMU": 50.0,
+    "HOME_POSITION": 0.5,
+    "LOCAL_POSITION_NED": 30.0,
+    "NAV_CONTROLLER_OUTPUT": 10.0,
+    "ODOMETRY": 30.0,
+    "PING": 1.0,
+    "POSITION_TARGET_GLOBAL_INT": 10.0,
+    "POSITION_TARGET_LOCAL_NED": 10.0,
+    "RC_CHANNELS": 20.0,
+    "SERVO_OUTPUT_RAW": 10.0,
+    "SYS_STATUS": 5.0,
+    "TIMESYNC": 10.0,
+    "UTM_GLOBAL_POSITION": 1.0,
+    "VFR_HUD": 10.0,
+    "WIND_COV": 10.0,
+}
+
 
 def px4_custom_mode(name: str) -> tuple[int, int]:
     base, main, sub = mavutil.px4_map[name]
@@ -329,7 +361,104 @@ class MavVehicle:
         if name == "SYSTEM_TIME":
             off = self.gps_utc_offset_s
             return m.system_time_encode(0 if off is None else int((time.time() + off) * 1e6), t)
-        raise ValueError(f"MavVehicle cannot build {name}")
+        extra = self._build_px4_extra(name, t, lat, lon)
+        if extra is None:
+            raise ValueError(f"MavVehicle cannot build {name}")
+        return extra
+
+    def _build_px4_extra(
+        self, name: str, t: int, lat: int, lon: int
+    ) -> mavlink.MAVLink_message | None:
+        """The streams of PX4_ONBOARD_RATES_HZ that the station does not ask for: plausible
+        values, for their cost to the station (it does not read them)."""
+        m, us = self.mav, t * 1000
+        q = [1.0, 0.0, 0.0, 0.0]
+        alt_mm, rel = int(self.alt_m * 1000), self.relative_alt_m
+        v = (self.vx_mps, self.vy_mps, self.vz_mps)
+        builders = {
+            "ALTITUDE": lambda: m.altitude_encode(us, self.alt_m, self.alt_m, rel, rel, -1, -1),
+            "ATTITUDE_QUATERNION": lambda: m.attitude_quaternion_encode(t, *q, 0.01, 0.02, 0.03, q),
+            "ATTITUDE_TARGET": lambda: m.attitude_target_encode(t, 0, q, 0.0, 0.0, 0.0, 0.5),
+            "ESTIMATOR_STATUS": lambda: m.estimator_status_encode(
+                us, 831, 0.1, 0.1, 0.1, 0.1, 0.0, 0.0, 0.5, 0.8
+            ),
+            "EXTENDED_SYS_STATE": lambda: m.extended_sys_state_encode(0, 2 if self.armed else 1),
+            "HIGHRES_IMU": lambda: m.highres_imu_encode(
+                us,
+                0.01,
+                -0.02,
+                -9.81,
+                0.001,
+                0.002,
+                0.003,
+                0.2,
+                0.0,
+                0.4,
+                1000.0,
+                0.0,
+                self.alt_m,
+                35.0,
+                0x1FFF,
+                0,
+            ),
+            "HOME_POSITION": lambda: m.home_position_encode(
+                lat, lon, alt_mm, 0.0, 0.0, 0.0, q, 0.0, 0.0, 0.0, us
+            ),
+            "NAV_CONTROLLER_OUTPUT": lambda: m.nav_controller_output_encode(
+                0.0, 0.0, 0, 0, 0, 0.0, 0.0, 0.0
+            ),
+            "ODOMETRY": lambda: m.odometry_encode(
+                us,
+                1,
+                8,
+                1.0,
+                2.0,
+                -rel,
+                q,
+                *v,
+                0.0,
+                0.0,
+                0.0,
+                [float("nan")] * 21,
+                [float("nan")] * 21,
+                0,
+                2,
+                100,
+            ),
+            "PING": lambda: m.ping_encode(us, t // 1000, 0, 0),
+            "POSITION_TARGET_GLOBAL_INT": lambda: m.position_target_global_int_encode(
+                t, 6, 0, lat, lon, rel, *v, 0.0, 0.0, 0.0, self.yaw_rad, 0.0
+            ),
+            "POSITION_TARGET_LOCAL_NED": lambda: m.position_target_local_ned_encode(
+                t, 1, 0, 1.0, 2.0, -rel, *v, 0.0, 0.0, 0.0, self.yaw_rad, 0.0
+            ),
+            "TIMESYNC": lambda: m.timesync_encode(0, us * 1000),
+            "UTM_GLOBAL_POSITION": lambda: m.utm_global_position_encode(
+                int(time.time() * 1e6),
+                [0] * 18,
+                lat,
+                lon,
+                alt_mm,
+                int(rel * 1000),
+                0,
+                0,
+                0,
+                500,
+                800,
+                100,
+                lat,
+                lon,
+                alt_mm,
+                100,
+                3,
+                0x3F,
+            ),
+            "WIND_COV": lambda: m.wind_cov_encode(
+                us, 0.5, 0.3, 0.0, 0.2, 0.2, self.alt_m, 1.0, 1.0
+            ),
+        }
+        builder = builders.get(name)
+        return builder() if builder is not None else None
 
     # -- threads -------------------------------------------------------------------------
 
