@@ -47,8 +47,11 @@ async function keepAwake() {
 document.addEventListener("visibilitychange", keepAwake);
 keepAwake();
 
+// Both eyes show it in stereo; the right eye, mounted later, starts with the current one.
+let taskLine = "";
 window.addEventListener("fpv:task-step", (e) => {
-  if (fpv.osd) fpv.osd.setLine("task", e.detail ? `TASK ${e.detail}` : "");
+  taskLine = e.detail ? `TASK ${e.detail}` : "";
+  for (const osd of [fpv.osd, fpv.osdRight]) if (osd) osd.setLine("task", taskLine);
 });
 
 // Side-by-side stereo for phone headsets: the same front picture and OSD for each eye.
@@ -63,6 +66,7 @@ function toggleStereo() {
     right.append(el("img", { class: "video-stream", alt: "front camera, right eye" }));
     $("goggles").append(right);
     fpv.osdRight = mountOsd(right, { menu: false });
+    fpv.osdRight.setLine("task", taskLine);
   }
   fpv.osdRight.setRunning(on); // a hidden eye draws nothing
   right.hidden = !on;
