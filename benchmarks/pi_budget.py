@@ -48,8 +48,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import httpx
 
@@ -62,6 +64,7 @@ from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle  # noqa: E402
 from tests.station_process import StationProcess, serve_station  # noqa: E402
 
 TOKEN = "pi-budget-token"
+T = TypeVar("T")
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 COMPONENTS = ("link", "cameras", "fan-out", "recorder", "web", "3D panel", "other")
 # Event-loop samples whose stack passes through these files are fan-out, the rest web.
@@ -109,33 +112,36 @@ class Run:
 # -- /proc -----------------------------------------------------------------------------
 
 
-def thread_cpu_s(pid: int) -> dict[int, tuple[float, float]]:
-    """CPU seconds (user, system) of each live thread of `pid`."""
+def _per_thread(pid: int, name: str, parse: Callable[[str], T]) -> dict[int, T]:
+    """`parse` of /proc/PID/task/TID/`name` for each live thread of `pid`."""
     out = {}
     for task in Path(f"/proc/{pid}/task").iterdir():
         try:
-            stat = (task / "stat").read_text()
+            text = (task / name).read_text()
         except OSError:
             continue  # ended meanwhile
-        fields = stat[stat.rindex(")") + 2 :].split()
-        out[int(task.name)] = (int(fields[11]) / CLOCK_TICKS, int(fields[12]) / CLOCK_TICKS)
+        out[int(task.name)] = parse(text)
     return out
+
+
+def _cpu_s(stat: str) -> tuple[float, float]:
+    fields = stat[stat.rindex(")") + 2 :].split()
+    return int(fields[11]) / CLOCK_TICKS, int(fields[12]) / CLOCK_TICKS
+
+
+def _switches(status: str) -> tuple[int, int]:
+    counts = dict(line.split(":\t") for line in status.splitlines() if "ctxt_switches" in line)
+    return int(counts["voluntary_ctxt_switches"]), int(counts["nonvoluntary_ctxt_switches"])
+
+
+def thread_cpu_s(pid: int) -> dict[int, tuple[float, float]]:
+    """CPU seconds (user, system) of each live thread of `pid`."""
+    return _per_thread(pid, "stat", _cpu_s)
 
 
 def thread_switches(pid: int) -> dict[int, tuple[int, int]]:
     """(voluntary, involuntary) context switches of each live thread of `pid`."""
-    out = {}
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        try:
-            status = (task / "status").read_text()
-        except OSError:
-            continue
-        counts = dict(line.split(":\t") for line in status.splitlines() if "ctxt_switches" in line)
-        out[int(task.name)] = (
-            int(counts["voluntary_ctxt_switches"]),
-            int(counts["nonvoluntary_ctxt_switches"]),
-        )
-    return out
+    return _per_thread(pid, "status", _switches)
 
 
 def process_cpu_s(pid: int) -> float:
@@ -547,6 +553,18 @@ def report(run: Run) -> None:
             print(f"   {share * 100:5.1f} %  {fn}")
 
 
+def add_variant_option(
+    ap: argparse.ArgumentParser, flag: str, names: tuple[str, str], help: str
+) -> None:
+    """An option naming the plain configuration, a variant of it, or both side by side."""
+    ap.add_argument(flag, choices=(*names, "both"), default=names[0], help=help)
+
+
+def variant_runs(choice: str, variant: str) -> tuple[bool, ...]:
+    """Whether each run of an option's choice is the variant: one run, or both in turn."""
+    return (False, True) if choice == "both" else (choice == variant,)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="measured window per run")
@@ -565,18 +583,18 @@ def main() -> None:
         help="telemetry clients as the pages run them: ?ack=1, acknowledging each message "
         "(--no-telemetry-ack: the clients of rounds 1 and 2, which only read)",
     )
-    ap.add_argument(
+    add_variant_option(
+        ap,
         "--rates",
-        choices=("default", "small-pi", "both"),
-        default="default",
-        help="the station's default message rates, a small Pi's (deploy/config.toml's "
+        ("default", "small-pi"),
+        "the station's default message rates, a small Pi's (deploy/config.toml's "
         "commented lines: --baseline stations older than them refuse it), or both side by side",
     )
-    ap.add_argument(
+    add_variant_option(
+        ap,
         "--autopilot-streams",
-        choices=("requested", "px4-onboard", "both"),
-        default="requested",
-        help="what the vehicle streams besides what the station asks for: nothing, or what "
+        ("requested", "px4-onboard"),
+        "what the vehicle streams besides what the station asks for: nothing, or what "
         "PX4 sends in MAV_X_MODE Onboard (about 210 packets/s more), or both side by side",
     )
     ap.add_argument("--no-profile", action="store_true", help="no py-spy (no loop split)")
@@ -612,10 +630,8 @@ def main() -> None:
     roots = (
         [(None, "")] if args.station_root is None else [(args.station_root, "base "), (None, "")]
     )
-    rate_sets = {"default": (False,), "small-pi": (True,), "both": (False, True)}[args.rates]
-    stream_sets = {"requested": (False,), "px4-onboard": (True,), "both": (False, True)}[
-        args.autopilot_streams
-    ]
+    rate_sets = variant_runs(args.rates, "small-pi")
+    stream_sets = variant_runs(args.autopilot_streams, "px4-onboard")
     runs = []
     for i in range(args.repeat):
         for with_3d in configs:
