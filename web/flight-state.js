@@ -7,11 +7,12 @@
 // The page shows LINK LOST when the station says the autopilot is silent, when the
 // station is unreachable, or when no state arrives at all.
 import { $, el } from "/lib.js";
-import { feed, reading } from "/telemetry.js";
+import { FLOW_S, feed, reading } from "/telemetry.js";
 
-// No message for this long while the socket is open: link lost. Source seconds (a replay's
-// log time, telemetry.js), or wall seconds before the first message.
-const STALE_S = 3;
+// No message for FLOW_S while the socket is open: link lost. Source seconds (a replay's
+// log time, telemetry.js), or wall seconds before the first message. The same threshold
+// as the pill's "no telemetry" and the OSD's LINK LOST (it was 3 s here, 2 s there: for a
+// second the OSD said LINK LOST while this banner did not).
 // Row (value element id) -> the reading it shows (telemetry.js READINGS: its groups and
 // stale age).
 const ROWS = {
@@ -98,10 +99,10 @@ function updateBanner() {
   const quietS = msg ? feed.sourceSince() : (performance.now() - openedAt) / 1000;
   let detail = null;
   if (!feed.socketOpen) detail = "no connection to the station";
-  else if (!msg) detail = quietS > STALE_S ? "no vehicle state" : null;
+  else if (!msg) detail = quietS > FLOW_S ? "no vehicle state" : null;
   else if (feed.ended) detail = "the replay has ended";
   else if (msg.state.link.link_lost) detail = "no heartbeat from the autopilot";
-  else if (quietS > STALE_S) detail = "telemetry stopped";
+  else if (quietS > FLOW_S) detail = "telemetry stopped";
   const banner = $("link-banner");
   banner.hidden = detail === null;
   $("link-banner-detail").textContent = detail ?? "";
