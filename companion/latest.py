@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
@@ -127,6 +127,15 @@ async def wait_resolved(fut: asyncio.Future[None], timeout: float | None) -> Non
             timer.cancel()
 
 
+def wake_from_any_thread(loop: asyncio.AbstractEventLoop, *futs: asyncio.Future[None]) -> None:
+    """Resolve `futs` on their `loop` from any thread, with one hop to that loop (a no-op
+    for each one resolved already, and once that loop has closed: nothing waits any more)."""
+    try:
+        loop.call_soon_threadsafe(_wake, futs)
+    except RuntimeError:
+        pass
+
+
 def _wake_waiters(waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[None]]]) -> None:
     # One call_soon_threadsafe per loop, not per waiter: each call writes to the loop's
     # self-pipe, and twenty WebSocket clients waiting on telemetry would mean twenty
@@ -135,13 +144,10 @@ def _wake_waiters(waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future[
     for loop, fut in waiters:
         by_loop.setdefault(loop, []).append(fut)
     for loop, futs in by_loop.items():
-        try:
-            loop.call_soon_threadsafe(_wake, futs)
-        except RuntimeError:  # that loop is closed: its waiters are gone with it
-            pass
+        wake_from_any_thread(loop, *futs)
 
 
-def _wake(futs: list[asyncio.Future[None]]) -> None:
+def _wake(futs: Iterable[asyncio.Future[None]]) -> None:
     for fut in futs:
         if not fut.done():
             fut.set_result(None)

@@ -18,7 +18,7 @@ import time
 
 import uvicorn
 
-from companion.latest import wait_resolved
+from companion.latest import wait_resolved, wake_from_any_thread
 from server.errors import DenialLogFilter
 
 log = logging.getLogger(__name__)
@@ -74,11 +74,7 @@ class StationServer(uvicorn.Server):
         self._should_exit = value
         wakeup = self._main_loop_wakeup
         if value and wakeup is not None:
-            loop, fut = wakeup
-            try:
-                loop.call_soon_threadsafe(_resolve, fut)
-            except RuntimeError:  # that loop has closed: nothing waits any more
-                pass
+            wake_from_any_thread(*wakeup)
 
     async def main_loop(self) -> None:
         loop = asyncio.get_running_loop()
@@ -115,11 +111,6 @@ class StationServer(uvicorn.Server):
             conn.transport.abort()  # type: ignore[attr-defined]
         if stalled:
             log.info("shutdown: closed %d connections whose clients stopped reading", len(stalled))
-
-
-def _resolve(fut: asyncio.Future[None]) -> None:
-    if not fut.done():
-        fut.set_result(None)
 
 
 def _unsent_bytes(conn: object) -> int:
