@@ -6,6 +6,8 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
+import selectors
+import threading
 import time
 
 import httpx
@@ -284,6 +286,67 @@ def test_a_first_viewer_gets_a_long_trail_without_holding_the_loop(unwatched_ser
     seen = asyncio.run(watch())
     assert seen[-1] == total
     assert any(0 < n < total for n in seen), seen  # the loop ran while the trail was drawn
+
+
+class _CountingSelector(selectors.DefaultSelector):
+    """The event loop's own selector, counting the loop's turns (each select call)."""
+
+    turns = 0
+
+    def select(self, timeout=None):
+        self.turns += 1
+        return super().select(timeout)
+
+
+def test_an_unwatched_panel_keeps_the_trail_without_waking_the_loop_for_each_state(
+    unwatched_service,
+):
+    """Nobody looks: the states for the trail are kept by the slot's listener, 15 a
+    second, and the loop takes them once a second (it woke 15 times a second); the first
+    viewer gets them all drawn."""
+    service = unwatched_service
+    stop = threading.Event()
+
+    def vehicle() -> None:  # 50 states a second, flying east
+        i = 0
+        while not stop.wait(0.02):
+            service.state.publish(make_state(i * 0.02, (i * 0.02, 0.0, 3.0)))
+            i += 1
+
+    selector = _CountingSelector()
+
+    async def fly() -> tuple[int, int, int]:
+        task = asyncio.create_task(service.run())
+        try:
+            await asyncio.sleep(0.5)
+            turns = selector.turns
+            await asyncio.sleep(2.0)
+            quiet_turns = selector.turns - turns
+            await asyncio.sleep(1.2)  # the last second's states are taken
+            kept = service.trail.n_points
+            with viser_viewer(service.port):
+                for _ in range(200):
+                    await asyncio.sleep(0.05)
+                    if service.scene.chunk_handles:
+                        break
+                drawn = sum(len(h.points) for h in service.scene.chunk_handles.values())
+            return quiet_turns, kept, drawn
+        finally:
+            service.state.close()
+            await asyncio.wait_for(task, 3.0)
+
+    thread = threading.Thread(target=vehicle, daemon=True)
+    thread.start()
+    loop = asyncio.SelectorEventLoop(selector)
+    try:
+        quiet_turns, kept, drawn = loop.run_until_complete(fly())
+    finally:
+        loop.close()
+        stop.set()
+        thread.join(5)
+    assert quiet_turns <= 10  # two seconds: two takes, 6 here (60 before)
+    assert kept >= 0.5 * 15 * 3.0  # about 15 states a second for 3.7 s: half, under load
+    assert drawn >= kept - 1  # the viewer got the whole trail (segments: points - 1)
 
 
 def test_origin_moves_to_the_arming_point(service):

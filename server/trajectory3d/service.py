@@ -7,7 +7,10 @@ tests drive it directly with a sequence of states.
 
 The scene is drawn only while someone has the panel open: until then a step only extends
 the trail (the flight's history), and the first viewer gets the whole trail drawn at once.
-A panel nobody looks at costs a fraction of one drawn (docs/PERFORMANCE.md). The viser
+A panel nobody looks at costs a fraction of one drawn (docs/PERFORMANCE.md): the states
+for its trail are kept by a listener on the state slot (the link's thread, `update_hz` a
+second), and the event loop takes them once a second, or as soon as a viewer comes,
+instead of waking `update_hz` times a second for them. The viser
 server itself (and viser's import) waits for `start()`, which the station calls on the
 first visit (server.station.start_3d_panels); the trail is kept from the station's start.
 """
@@ -15,6 +18,7 @@ first visit (server.station.start_3d_panels); the trail is kept from the station
 from __future__ import annotations
 
 import asyncio
+import collections
 import logging
 import math
 import time
@@ -23,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.latest import Latest
+from companion.latest import Latest, wait_resolved, wake_from_any_thread
 from companion.vehicle_state import VehicleState
 from core.geodesy import geodetic_to_enu
 from core.scene import Scene
@@ -44,6 +48,11 @@ MIN_FIX_TYPE = 3  # a 2D fix has no usable altitude: drawn as a gap
 # a new origin, another colour-coding): viser builds a chunk's handle in a few ms (more on
 # a Pi), and a long flight's trail sent at once held the station's loop for seconds.
 REDRAW_CHUNKS_PER_TURN = 8
+# While nobody watches, the loop takes the kept states this often (or when a viewer comes).
+UNWATCHED_TURN_S = 1.0
+# The states kept for an unwatched trail: 10 s of them at most (a loop held up longer
+# loses the oldest, not memory).
+KEPT_S = 10.0
 
 
 def _valid_fix(lat_deg: float | None, lon_deg: float | None, alt_m: float | None) -> bool:
@@ -119,6 +128,13 @@ class Trajectory3D:
         self._ground_for: Origin | None = None
         self._ground_up = 0.0
         self._stale = True  # the scene lags the trail: redraw it whole (for the next viewer)
+        # The states of the trail while nobody watches: appended by `_keep` (the link's
+        # thread), taken by `run()` (the loop); a deque's append and popleft are atomic.
+        self._kept: collections.deque[VehicleState] = collections.deque(
+            maxlen=int(KEPT_S * settings.update_hz)
+        )
+        self._next_keep = 0.0
+        self._viewer_wakeup: tuple[asyncio.AbstractEventLoop, asyncio.Future[None]] | None = None
 
     # -- lifecycle ----------------------------------------------------------------
 
@@ -149,6 +165,7 @@ class Trajectory3D:
             scene.set_origin(self.field.home_llh)
         self.scene, self.controls = scene, Controls(server, s.color_by)
         self._stale = True
+        server.on_client_connect(self._viewer_came)
         self.server = server
         log.info("3D panel (viser) on port %d", self.port)
 
@@ -164,11 +181,51 @@ class Trajectory3D:
             self.server = None
 
     async def run(self) -> None:
-        """Apply the newest state at most `update_hz` times a second until the slot closes."""
+        """Apply the states to the trail, `update_hz` of them a second, until the slot
+        closes: while someone watches, the newest one each 1 / `update_hz` s, drawn; while
+        nobody does, the ones `_keep` kept, once a second or as soon as a viewer comes."""
+        self.state.add_listener(self._keep)
+        try:
+            await self._run()
+        finally:
+            self.state.remove_listener(self._keep)
+
+    def _keep(self, state: VehicleState) -> None:
+        """The state slot's listener (the link's thread): one state per 1 / `update_hz` s."""
+        now = time.monotonic()
+        if now >= self._next_keep:
+            self._next_keep = now + 1.0 / self.settings.update_hz
+            self._kept.append(state)
+
+    def _viewer_came(self, _client: object) -> None:
+        """viser's connect callback (its thread): an unwatched wait ends now."""
+        wakeup = self._viewer_wakeup
+        if wakeup is not None:
+            wake_from_any_thread(*wakeup)
+
+    async def _take_kept_until_watched(self) -> None:
+        """Nobody watches: wait a second, or until a viewer comes, then bring the trail up
+        to the states kept meanwhile, in their order."""
+        loop = asyncio.get_running_loop()
+        fut = loop.create_future()
+        self._viewer_wakeup = (loop, fut)
+        try:
+            if not self.watched():  # one may have come before the wake-up was in place
+                await wait_resolved(fut, UNWATCHED_TURN_S)
+        finally:
+            self._viewer_wakeup = None
+        while self._kept:
+            self.step(self._kept.popleft(), draw=False)
+
+    async def _run(self) -> None:
         period_s = 1.0 / self.settings.update_hz
         version = 0
         next_step = time.monotonic()
         while not self.state.closed:
+            if not self.watched():
+                await self._take_kept_until_watched()
+                continue
+            self._kept.clear()  # drawn from the newest state below while watched
             delay = next_step - time.monotonic()
             if delay > 0:
                 await asyncio.sleep(delay)
@@ -201,13 +258,14 @@ class Trajectory3D:
         """Whether anyone has the panel open (a viser client is connected)."""
         return self.server is not None and bool(self.server.get_clients())
 
-    def step(self, state: VehicleState, redraw: bool = True) -> None:
+    def step(self, state: VehicleState, redraw: bool = True, draw: bool = True) -> None:
         """Bring the trail up to `state`, and while someone watches the scene too: origin,
         trail, vehicle, footprint, camera. A whole redraw the update calls for (a first
         viewer, a new origin, another colour-coding) is done here, or with `redraw` False
-        left to the caller: run() does it a few chunks per turn of the loop."""
+        left to the caller: run() does it a few chunks per turn of the loop. `draw` False
+        leaves the scene to that whole redraw (states taken late, a batch at a time)."""
         self.steps += 1
-        if self.server is None or not self.watched():
+        if not draw or self.server is None or not self.watched():
             self._stale = True
             self._step(state, draw=False)
             return
