@@ -6,6 +6,7 @@ import base64
 import contextlib
 import json
 import os
+import selectors
 import socket
 import threading
 import time
@@ -111,6 +112,17 @@ def viser_viewer(port: int) -> Iterator[None]:
     finally:
         ws.close()
         thread.join(5)
+
+
+class CountingSelector(selectors.DefaultSelector):
+    """An event loop's own selector, counting the loop's turns (each select call): run a
+    loop on it (`asyncio.SelectorEventLoop(selector)`) to count how often it wakes."""
+
+    turns = 0
+
+    def select(self, timeout=None):
+        self.turns += 1
+        return super().select(timeout)
 
 
 def wait_until(predicate, timeout: float = 5.0, interval: float = 0.02) -> bool:

@@ -3,23 +3,12 @@
 from __future__ import annotations
 
 import asyncio
-import selectors
 import threading
 
 import httpx
 
 from server.listen import listening_socket, uvicorn_server
-from tests.helpers import wait_until
-
-
-class _CountingSelector(selectors.DefaultSelector):
-    """The event loop's own selector, counting the loop's turns (each select call)."""
-
-    turns = 0
-
-    def select(self, timeout=None):
-        self.turns += 1
-        return super().select(timeout)
+from tests.helpers import CountingSelector, wait_until
 
 
 async def _app(scope, receive, send):
@@ -42,7 +31,7 @@ def test_an_idle_server_wakes_once_a_second_and_stops_at_once_when_asked():
     sock = listening_socket("127.0.0.1", 0)
     port = sock.getsockname()[1]
     server = uvicorn_server(_app, log_level="warning")
-    selector = _CountingSelector()
+    selector = CountingSelector()
 
     def serve() -> None:
         loop = asyncio.SelectorEventLoop(selector)

@@ -1,7 +1,6 @@
 import asyncio
 import csv
 import json
-import selectors
 import shutil
 import time
 from collections import namedtuple
@@ -16,6 +15,7 @@ from companion.recording.recorder import Recorder, RecorderOptions
 from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.video_frame import Frame
+from tests.helpers import CountingSelector
 from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs, recorded_frames
 
 FPS = 30.0
@@ -215,22 +215,12 @@ def test_auto_record_on_arm_with_post_disarm_tail(tmp_path):
     assert float(rows[-1]["t_s"]) - float(rows[0]["t_s"]) > 0.9  # kept the tail
 
 
-class _CountingSelector(selectors.DefaultSelector):
-    """The event loop's own selector, counting the loop's turns (each select call)."""
-
-    turns = 0
-
-    def select(self, timeout=None):
-        self.turns += 1
-        return super().select(timeout)
-
-
 def test_watching_for_arming_does_not_wake_the_event_loop_for_each_state(tmp_path):
     """The vehicle's state changes 100 times a second; its armed flag twice a flight.
     Only a change of the flag reaches the event loop (it looked 20 times a second)."""
     vehicle = FakeVehicle(rate_hz=100).start()
     rec = Recorder(tmp_path, vehicle.state, {}, options())
-    selector = _CountingSelector()
+    selector = CountingSelector()
 
     async def run():
         await rec.open()

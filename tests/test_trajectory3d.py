@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
-import selectors
 import threading
 import time
 
@@ -31,7 +30,13 @@ from server.trajectory3d.colors import ramp_rgb
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.service import Trajectory3D
 from server.trajectory3d.trail import Trail, TrailSample
-from tests.helpers import run_uvicorn, station_settings, viser_viewer, wait_until
+from tests.helpers import (
+    CountingSelector,
+    run_uvicorn,
+    station_settings,
+    viser_viewer,
+    wait_until,
+)
 
 FIELD = load_scene()
 ORIGIN = FIELD.home_llh
@@ -288,16 +293,6 @@ def test_a_first_viewer_gets_a_long_trail_without_holding_the_loop(unwatched_ser
     assert any(0 < n < total for n in seen), seen  # the loop ran while the trail was drawn
 
 
-class _CountingSelector(selectors.DefaultSelector):
-    """The event loop's own selector, counting the loop's turns (each select call)."""
-
-    turns = 0
-
-    def select(self, timeout=None):
-        self.turns += 1
-        return super().select(timeout)
-
-
 def test_an_unwatched_panel_keeps_the_trail_without_waking_the_loop_for_each_state(
     unwatched_service,
 ):
@@ -313,7 +308,7 @@ def test_an_unwatched_panel_keeps_the_trail_without_waking_the_loop_for_each_sta
             service.state.publish(make_state(i * 0.02, (i * 0.02, 0.0, 3.0)))
             i += 1
 
-    selector = _CountingSelector()
+    selector = CountingSelector()
 
     async def fly() -> tuple[int, int, int]:
         task = asyncio.create_task(service.run())
