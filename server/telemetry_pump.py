@@ -42,6 +42,9 @@ from core.spawn import Spawn
 from server.telemetry_json import SharedStateJson
 
 PUMP_TASK = "telemetry-pump"
+# A tick this much before a client's due time still counts as its tick: the loop's timers
+# fire to the millisecond (uvloop), so a tick meant for that moment may come a hair early.
+TICK_SLACK_S = 0.002
 
 
 @dataclass(frozen=True, slots=True)
@@ -220,8 +223,10 @@ class TelemetryPump:
             return None
         message = self.message
         if message is not None and now < message.t_mono + self._interval_s:
-            # Within this tick: its message if that is newer, else wait for the next one.
-            return message if message.version > client.version else None
+            # Within this tick: its message if that is newer and the tick came when the
+            # client was due, else wait for the next one. (A tick from before its due
+            # time would start its next interval early: a 10/s client got 12 a second.)
+            return message if self._serves(message, client) else None
         current = self.slot.get()
         if current is None or current.version <= client.version:
             return None
@@ -233,13 +238,19 @@ class TelemetryPump:
         None while its ack is outstanding."""
         if client.in_flight:
             return None
-        at = client.due_mono  # then this tick's message if it is newer, else a new tick
+        at = client.due_mono  # then this tick's message if it serves it, else a new tick
         message = self.message
-        if message is not None and message.version <= client.version:
+        if message is not None and not self._serves(message, client):
             at = max(at, message.t_mono + self._interval_s)
         # Not due yet: look then (no watching the slot before; a state comes 100 times a
         # second). Due already: nothing newer came, so wait for it.
         return at if at > now else math.inf
+
+    @staticmethod
+    def _serves(message: TelemetryMessage, client: TelemetryClient) -> bool:
+        """`message` is for `client`: newer than what it has, from a tick at its due time
+        or after (the tick its interval then counts from)."""
+        return message.version > client.version and message.t_mono >= client.due_mono - TICK_SLACK_S
 
     def _tick(self, current: Versioned[VehicleState], now: float) -> TelemetryMessage:
         # shared.message re-encodes only a state it has not seen; the same state again
