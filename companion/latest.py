@@ -11,7 +11,8 @@ the event loop's objects directly. `publish` is cheap when nobody waits.
 
 A consumer that must see every value, not the newest (the recorder takes every camera
 frame), registers a publish listener instead: called in the producer's thread with each
-value, it must only hand the value to a bounded buffer and return.
+value, it must only hand the value to a bounded buffer and return. A listener that only
+has to tell the loop "look now" (a flag changed, a viewer came) calls `Wakeup.wake`.
 """
 
 from __future__ import annotations
@@ -125,6 +126,40 @@ async def wait_resolved(fut: asyncio.Future[None], timeout: float | None) -> Non
     finally:
         if timer is not None:
             timer.cancel()
+
+
+class Wakeup:
+    """A wake-up that any thread gives and one event-loop coroutine waits for: an
+    `asyncio.Event` whose `wake` may be called from any thread, with one hop to the
+    loop only while the coroutine waits. A `wake` stays set until `clear`, so a waiter
+    that clears it, looks at what it watches and then waits misses none."""
+
+    def __init__(self) -> None:
+        self._set = False
+        self._waiter: tuple[asyncio.AbstractEventLoop, asyncio.Future[None]] | None = None
+
+    def wake(self) -> None:
+        """Any thread: the current or the next `wait` returns."""
+        self._set = True
+        waiter = self._waiter
+        if waiter is not None:
+            wake_from_any_thread(*waiter)
+
+    def clear(self) -> None:
+        self._set = False
+
+    async def wait(self, timeout: float | None = None) -> None:  # noqa: ASYNC109
+        """Until `wake` (at once if it came since `clear`), or `timeout` seconds."""
+        if self._set:
+            return
+        loop = asyncio.get_running_loop()
+        fut = loop.create_future()
+        self._waiter = (loop, fut)
+        try:
+            if not self._set:  # woken before the waiter was in place
+                await wait_resolved(fut, timeout)
+        finally:
+            self._waiter = None
 
 
 def wake_from_any_thread(loop: asyncio.AbstractEventLoop, *futs: asyncio.Future[None]) -> None:

@@ -18,7 +18,7 @@ import time
 
 import uvicorn
 
-from companion.latest import wait_resolved, wake_from_any_thread
+from companion.latest import Wakeup
 from server.errors import DenialLogFilter
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,9 @@ class StationServer(uvicorn.Server):
     set (a signal handler, a test's thread).
     """
 
-    _main_loop_wakeup: tuple[asyncio.AbstractEventLoop, asyncio.Future[None]] | None = None
+    def __init__(self, config: uvicorn.Config) -> None:
+        self._exit_wakeup = Wakeup()  # before uvicorn's __init__ sets should_exit
+        super().__init__(config)
 
     @property
     def should_exit(self) -> bool:
@@ -72,23 +74,15 @@ class StationServer(uvicorn.Server):
     @should_exit.setter
     def should_exit(self, value: bool) -> None:
         self._should_exit = value
-        wakeup = self._main_loop_wakeup
-        if value and wakeup is not None:
-            wake_from_any_thread(*wakeup)
+        if value:
+            self._exit_wakeup.wake()
 
     async def main_loop(self) -> None:
-        loop = asyncio.get_running_loop()
         counter = 0
         while not await self.on_tick(counter):
             # on_tick does its once-a-second work (the Date header) when counter % 10 == 0.
             counter = (counter + 10) % 864000
-            fut = loop.create_future()
-            self._main_loop_wakeup = (loop, fut)
-            try:
-                if not self.should_exit:  # set before the wake-up was in place
-                    await wait_resolved(fut, 1.0)
-            finally:
-                self._main_loop_wakeup = None
+            await self._exit_wakeup.wait(1.0)
 
     async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
         station = getattr(getattr(self.config.app, "state", None), "station", None)

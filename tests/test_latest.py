@@ -1,7 +1,7 @@
 import asyncio
 import threading
 
-from companion.latest import Latest
+from companion.latest import Latest, Wakeup
 
 
 def test_get_before_and_after_publish():
@@ -72,3 +72,32 @@ def test_a_publish_listener_sees_every_value_in_the_publishers_thread():
     slot.remove_listener(listener)
     slot.publish(100)
     assert seen == [(i, "producer") for i in range(100)]
+
+
+def test_a_wakeup_from_another_thread_is_not_missed():
+    """Given before the wait (after the clear) it ends the wait at once; given during it,
+    from a thread, it ends it with one hop to the loop; none given: the timeout."""
+
+    wakeup = Wakeup()
+
+    async def run() -> tuple[float, float, float]:
+        loop = asyncio.get_running_loop()
+        wakeup.clear()
+        threading.Thread(target=wakeup.wake).start()
+        await asyncio.sleep(0.1)  # woken while nobody waits: it stays set
+        t0 = loop.time()
+        await wakeup.wait(5.0)
+        before = loop.time() - t0
+        wakeup.clear()
+        threading.Timer(0.2, wakeup.wake).start()
+        t0 = loop.time()
+        await wakeup.wait(5.0)
+        during = loop.time() - t0
+        wakeup.clear()
+        t0 = loop.time()
+        await wakeup.wait(0.2)
+        return before, during, loop.time() - t0
+
+    before, during, none = asyncio.run(run())
+    assert before < 1.0 and during < 4.0  # not the 5 s timeout
+    assert none >= 0.15

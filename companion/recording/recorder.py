@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.latest import Latest
+from companion.latest import Latest, Wakeup
 from companion.recording import diskspace
 from companion.recording.meta import SessionMeta, SessionTask
 from companion.recording.recovery import mark_interrupted
@@ -117,7 +117,7 @@ class Recorder:
         # Live arm watching: the state slot's listener (the link's thread) notes the armed
         # flag of each state and wakes `_watch_arming` only when it changes.
         self._armed_seen: bool | None = None
-        self._armed_changed = asyncio.Event()
+        self._armed_changed = Wakeup()
         self._tail_due: float | None = None  # end of the tail, source clock
 
     # -- service lifecycle ---------------------------------------------------------------
@@ -137,7 +137,7 @@ class Recorder:
     async def aclose(self) -> None:
         self._closed = True
         self.state.remove_listener(self._note_armed)
-        self._armed_changed.set()  # the arm watcher ends
+        self._armed_changed.wake()  # the arm watcher ends
         await self.stop("shutdown")
 
     # -- control -------------------------------------------------------------------------
@@ -262,12 +262,9 @@ class Recorder:
         (before, the watcher looked at the state 20 times a second: 20 wake-ups of the
         loop for a flag that changes twice a flight)."""
         armed = bool(state.heartbeat.armed)
-        if armed is not self._armed_seen and self._loop is not None:
+        if armed is not self._armed_seen:
             self._armed_seen = armed
-            try:
-                self._loop.call_soon_threadsafe(self._armed_changed.set)
-            except RuntimeError:  # the loop is closed: the station has stopped
-                pass
+            self._armed_changed.wake()
 
     async def _watch_arming(self) -> None:
         """Start a session when the vehicle arms, and stop it `post_disarm_tail_s` after it

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from companion.latest import Latest, wait_resolved, wake_from_any_thread
+from companion.latest import Latest, Wakeup
 from companion.vehicle_state import VehicleState
 from core.geodesy import geodetic_to_enu
 from core.scene import Scene
@@ -134,7 +134,7 @@ class Trajectory3D:
             maxlen=int(KEPT_S * settings.update_hz)
         )
         self._next_keep = 0.0
-        self._viewer_wakeup: tuple[asyncio.AbstractEventLoop, asyncio.Future[None]] | None = None
+        self._viewer_came = Wakeup()  # viser's connect callback wakes an unwatched wait
 
     # -- lifecycle ----------------------------------------------------------------
 
@@ -165,7 +165,7 @@ class Trajectory3D:
             scene.set_origin(self.field.home_llh)
         self.scene, self.controls = scene, Controls(server, s.color_by)
         self._stale = True
-        server.on_client_connect(self._viewer_came)
+        server.on_client_connect(lambda _client: self._viewer_came.wake())
         self.server = server
         log.info("3D panel (viser) on port %d", self.port)
 
@@ -197,23 +197,12 @@ class Trajectory3D:
             self._next_keep = now + 1.0 / self.settings.update_hz
             self._kept.append(state)
 
-    def _viewer_came(self, _client: object) -> None:
-        """viser's connect callback (its thread): an unwatched wait ends now."""
-        wakeup = self._viewer_wakeup
-        if wakeup is not None:
-            wake_from_any_thread(*wakeup)
-
     async def _take_kept_until_watched(self) -> None:
         """Nobody watches: wait a second, or until a viewer comes, then bring the trail up
         to the states kept meanwhile, in their order."""
-        loop = asyncio.get_running_loop()
-        fut = loop.create_future()
-        self._viewer_wakeup = (loop, fut)
-        try:
-            if not self.watched():  # one may have come before the wake-up was in place
-                await wait_resolved(fut, UNWATCHED_TURN_S)
-        finally:
-            self._viewer_wakeup = None
+        self._viewer_came.clear()
+        if not self.watched():  # one may have come before the clear
+            await self._viewer_came.wait(UNWATCHED_TURN_S)
         while self._kept:
             self.step(self._kept.popleft(), draw=False)
 
