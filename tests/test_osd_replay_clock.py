@@ -38,21 +38,26 @@ def armed_log(path, end_s: float, fades: list[tuple[float, float]]):
     return log.write(path)
 
 
-# Every change of the OSD's texts and classes, with the source time of the page's newest
-# message then (seconds of the log).
+# Every change of the OSD's texts and classes and of the page's LINK LOST banner, with
+# the source time of the page's newest message then (seconds of the log).
 RECORD = """(t0) => {
   window.__osd = [];
   const root = document.querySelector('#front-view .osd');
+  const banner = document.querySelector('#link-banner');
   const note = () => {
     const m = window.fpv.latest;
     if (!m) return;
     const q = (n) => root.querySelector(`[data-osd=${n}]`);
     window.__osd.push({t: m.t_server_mono - t0, timer: q('timer').textContent,
       altitude: q('altitude').className, mode: q('mode').className,
-      warning: q('warning').textContent, age: q('age').textContent});
+      warning: q('warning').textContent, age: q('age').textContent,
+      banner: !banner.hidden,
+      detail: document.querySelector('#link-banner-detail').textContent});
   };
-  new MutationObserver(note).observe(root, {subtree: true, childList: true,
-    characterData: true, attributes: true, attributeFilter: ['class']});
+  for (const node of [root, banner]) {
+    new MutationObserver(note).observe(node, {subtree: true, childList: true,
+      characterData: true, attributes: true, attributeFilter: ['class', 'hidden']});
+  }
 }"""
 
 
@@ -144,23 +149,6 @@ def test_a_4x_replay_greys_what_is_stale_in_the_log_and_holds_at_its_end(browser
         expect(page.locator("#link-banner-detail")).to_have_text("the replay has ended")
 
 
-# Every change of the pilot page's LINK LOST banner, with the log time of the newest
-# message then (seconds), and the OSD's warning at that moment.
-BANNER_RECORD = """(t0) => {
-  window.__banner = [];
-  const banner = document.querySelector('#link-banner');
-  const note = () => {
-    const m = window.fpv.latest;
-    if (!m) return;
-    window.__banner.push({t: m.t_server_mono - t0, shown: !banner.hidden,
-      detail: document.querySelector('#link-banner-detail').textContent,
-      warning: document.querySelector('#front-view .osd [data-osd=warning]').textContent});
-  };
-  new MutationObserver(note).observe(banner, {subtree: true, childList: true,
-    characterData: true, attributes: true, attributeFilter: ['hidden']});
-}"""
-
-
 @pytest.mark.timeout(180)
 def test_the_banner_and_the_osd_say_link_lost_after_the_same_silence(browser, tmp_path):
     """A 2.5 s fade in the log (5 s of wall time at x0.5): no message for 2 s is LINK LOST
@@ -171,15 +159,13 @@ def test_the_banner_and_the_osd_say_link_lost_after_the_same_silence(browser, tm
     # No station link-lost message during the fade: the page's own clock is tested.
     with replay_station(path, "0.5", tmp_path, **{"link.link_lost_s": 10.0}) as base:
         page = open_osd(browser, base)
-        page.evaluate(BANNER_RECORD, T0)
         start = page.evaluate("window.fpv.latest.t_server_mono") - T0
         assert start < fade[0] - 1, f"the page was ready at {start:.1f} s of the log"
         wait_for_log_time(page, fade[1] + 0.5)
-        osd = page.evaluate("window.__osd")
-        banner = page.evaluate("window.__banner")
-    in_fade = lambda r: fade[0] - 0.1 <= r["t"] < fade[1]  # noqa: E731
-    assert any("LINK LOST" in r["warning"] for r in osd if in_fade(r)), osd[-5:]
-    shown = [r for r in banner if in_fade(r) and r["shown"]]
-    assert shown and shown[0]["detail"] == "telemetry stopped", banner
+        record = page.evaluate("window.__osd")
+    in_fade = [r for r in record if fade[0] - 0.1 <= r["t"] < fade[1]]
+    assert any("LINK LOST" in r["warning"] for r in in_fade), in_fade[-5:]
+    shown = [r for r in in_fade if r["banner"]]
+    assert shown and shown[0]["detail"] == "telemetry stopped", in_fade[-5:]
     # After the fade, the banner goes again.
-    assert not banner[-1]["shown"], banner[-3:]
+    assert not record[-1]["banner"], record[-3:]
