@@ -66,12 +66,28 @@ def replay_station(path, speed: str, tmp_path, **overrides):
     return run_uvicorn(create_app(settings))
 
 
-def open_osd(browser, base):
+def open_osd(browser, base, ready_before_s: float):
+    """The pilot page, recording (RECORD) from the moment its OSD shows the armed
+    vehicle, which must be before `ready_before_s` of the log; and that moment."""
     page = browser.new_page(viewport={"width": 1280, "height": 800})
     page.goto(base + "/")
     expect(page.locator("[data-osd=armed]")).to_have_text("ARMED", timeout=30_000)
     page.evaluate(RECORD, T0)
-    return page
+    start = page.evaluate("window.fpv.latest.t_server_mono") - T0
+    assert start < ready_before_s, f"the page was ready at {start:.1f} s of the log"
+    return page, start
+
+
+def record_until(page, t_s: float) -> list[dict]:
+    """The page's record once its newest message is `t_s` of the log or later."""
+    wait_for_log_time(page, t_s)
+    return page.evaluate("window.__osd")
+
+
+def during(record: list[dict], span: tuple[float, float]) -> list[dict]:
+    """What the OSD showed while the newest message was within `span` (a fade: the last
+    message before it)."""
+    return [r for r in record if span[0] - 0.1 <= r["t"] < span[1]]
 
 
 def wait_for_log_time(page, t_s: float) -> None:
@@ -96,11 +112,8 @@ def test_a_quarter_speed_replay_keeps_fresh_what_is_fresh_in_the_log(browser, tm
     fades = [(3.1, 3.9), (5.1, 5.9)]
     path = armed_log(tmp_path / "fades.tlog", 6.5, fades)
     with replay_station(path, "0.25", tmp_path) as base:
-        page = open_osd(browser, base)
-        start = page.evaluate("window.fpv.latest.t_server_mono") - T0
-        assert start < fades[0][0] - 0.5, f"the page was ready at {start:.1f} s of the log"
-        wait_for_log_time(page, 6.2)
-        record = page.evaluate("window.__osd")
+        page, start = open_osd(browser, base, ready_before_s=fades[0][0] - 0.5)
+        record = record_until(page, 6.2)
     assert len(record) > 20, record
     seen = [r for r in record if r["t"] >= start]
     stale = [r for r in seen if "osd-stale" in r["mode"] or "osd-stale" in r["altitude"]]
@@ -124,13 +137,8 @@ def test_a_4x_replay_greys_what_is_stale_in_the_log_and_holds_at_its_end(browser
     # The station's own link-lost (no heartbeat for link_lost_s) would send a message
     # during the fade; the OSD's ages are what is tested, not the station's.
     with replay_station(path, "4", tmp_path, **{"link.link_lost_s": 10.0}) as base:
-        page = open_osd(browser, base)
-        start = page.evaluate("window.fpv.latest.t_server_mono") - T0
-        assert start < fade[0] - 4, f"the page was ready at {start:.1f} s of the log"
-        wait_for_log_time(page, fade[1] + 1.0)
-        record = page.evaluate("window.__osd")
-        # (during the fade the newest message is the last one before it, at 40.04 s)
-        in_fade = [r for r in record if fade[0] - 0.1 <= r["t"] < fade[1]]
+        page, _ = open_osd(browser, base, ready_before_s=fade[0] - 4)
+        in_fade = during(record_until(page, fade[1] + 1.0), fade)
         assert any("osd-stale" in r["altitude"] for r in in_fade), in_fade[-5:]
         assert any("LINK LOST" in r["warning"] for r in in_fade), in_fade[-5:]
         # After the fade, fresh again.
@@ -158,12 +166,9 @@ def test_the_banner_and_the_osd_say_link_lost_after_the_same_silence(browser, tm
     path = armed_log(tmp_path / "fade.tlog", 9.0, [fade])
     # No station link-lost message during the fade: the page's own clock is tested.
     with replay_station(path, "0.5", tmp_path, **{"link.link_lost_s": 10.0}) as base:
-        page = open_osd(browser, base)
-        start = page.evaluate("window.fpv.latest.t_server_mono") - T0
-        assert start < fade[0] - 1, f"the page was ready at {start:.1f} s of the log"
-        wait_for_log_time(page, fade[1] + 0.5)
-        record = page.evaluate("window.__osd")
-    in_fade = [r for r in record if fade[0] - 0.1 <= r["t"] < fade[1]]
+        page, _ = open_osd(browser, base, ready_before_s=fade[0] - 1)
+        record = record_until(page, fade[1] + 0.5)
+    in_fade = during(record, fade)
     assert any("LINK LOST" in r["warning"] for r in in_fade), in_fade[-5:]
     shown = [r for r in in_fade if r["banner"]]
     assert shown and shown[0]["detail"] == "telemetry stopped", in_fade[-5:]
