@@ -193,12 +193,12 @@ def thread_names(pid: int) -> dict[int, ThreadInfo]:
     return infos
 
 
-def start_profile(pid: int, seconds: float, out: Path) -> subprocess.Popen | None:
+def start_profile(pid: int, seconds: float, out: Path, rate: int) -> subprocess.Popen | None:
     spy = py_spy()
     if spy is None:
         return None
     return subprocess.Popen(
-        [spy, "record", "--pid", str(pid), "--duration", str(int(seconds)), "--rate", "100"]
+        [spy, "record", "--pid", str(pid), "--duration", str(int(seconds)), "--rate", str(rate)]
         + ["--format", "raw", "--threads", "--gil", "--nonblocking", "--full-filenames"]
         + ["-o", str(out)],
         stdout=subprocess.DEVNULL,
@@ -475,7 +475,11 @@ def window_start(station: StationProcess, args: argparse.Namespace):
     pid = station.popen.pid
     host = probe_in_subprocess()  # the host as the window starts, the clients running
     status = httpx.get(f"{station.base}/api/status", timeout=10).json()
-    spy = None if args.no_profile else start_profile(pid, args.seconds, profile_path(station))
+    spy = (
+        None
+        if args.no_profile
+        else start_profile(pid, args.seconds, profile_path(station), args.profile_rate)
+    )
     return (
         process_cpu_s(pid),
         thread_cpu_s(pid),
@@ -604,6 +608,13 @@ def main() -> None:
         help="do not ask GET /api/viser (as the pilot page does): the 3D panels stay unstarted",
     )
     ap.add_argument("--profile-out", type=Path, help="keep py-spy's raw samples in this folder")
+    ap.add_argument(
+        "--profile-rate",
+        type=int,
+        default=100,
+        help="py-spy samples a second (more: a finer profile, and py-spy's own cost in the "
+        "figures)",
+    )
     ap.add_argument(
         "--baseline",
         type=Path,
