@@ -5,7 +5,7 @@
 Cameras and the vehicle are producer threads publishing into the station's own objects
 (`Latest[Frame]`, `Latest[VehicleState]`, real pymavlink packets at ~100/s); the JPEGs
 are pre-encoded (encoding is the camera's cost, not the recorder's). The recorder's CPU
-is the CPU time of its own threads (writer, sampler, and the event loop thread), read per
+is the CPU time of its own threads (the writer, and the event loop thread), read per
 thread from /proc through psutil; handing each frame to the writer runs in the camera's
 thread (a publish listener: a lock and a deque append), counted with the camera. The paper's approach is
 timed on the same frames: decode each JPEG and write it as one PNG.
@@ -86,7 +86,6 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     ids = {
         "event loop": threading.get_native_id(),
         "writer thread": tids["writer"],
-        "sampler thread": tids["sampler"],
     }
     cpu0, wall0 = thread_cpu_s(ids), time.monotonic()
     await asyncio.sleep(seconds)

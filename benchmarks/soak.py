@@ -173,8 +173,9 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
 
 def print_session_accounting(meta: dict, rate_hz: float) -> None:
     """Where the session's rows and frames went: lost (a bounded queue refused them: data
-    loss) or never produced (the sampler thread did not run at an instant: CPU starved;
-    the grid stays fixed and the instant is skipped, counted in telemetry_ticks_late)."""
+    loss) or never produced (the writer was held up past the state history, so what held
+    at an instant is not known; the grid stays fixed and the instant is skipped, counted
+    in telemetry_ticks_late)."""
     q = meta["quality"]
     expected = (meta["duration_s"] or 0.0) * rate_hz
     rows, late, dropped = (
@@ -185,8 +186,8 @@ def print_session_accounting(meta: dict, rate_hz: float) -> None:
     print(
         f"rows: {rows} written of ~{expected:.0f} instants at {rate_hz:g} Hz over "
         f"{meta['duration_s']:.1f} s ({100 * rows / max(expected, 1):.1f} %); not produced: "
-        f"{late} instants skipped by a late sampler (CPU starved); lost: {dropped} refused by "
-        f"the writer's queue; unaccounted: {expected - rows - late - dropped:+.0f}"
+        f"{late} instants skipped (writer held up past the state history); lost: {dropped} "
+        f"refused by the writer's queue; unaccounted: {expected - rows - late - dropped:+.0f}"
     )
     print(
         f"tlog: {q['tlog_packets']} packets written, {q['tlog_packets_dropped']} lost to a full "

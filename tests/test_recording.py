@@ -109,8 +109,7 @@ def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
             [0] + [int(row["bytes"]) for row in frames[:-1]]
         ).tolist()
         q = meta["quality"]["cameras"][cam]
-        # Every frame is written or counted: the Latest slot can skip frames only when
-        # both the consumer and the sampler were starved of CPU for a frame period.
+        # Every frame is written or counted (the slot's listener takes each one).
         assert q["frames_written"] == len(frames) == len(set(seqs))
         assert q["frames_written"] + q["frames_dropped"] == q["frames_captured"]
         assert q["frames_captured"] >= seqs[-1] - seqs[0] + 1
@@ -134,6 +133,49 @@ def test_records_rows_at_rate_with_every_frame_and_small_skew(tmp_path):
         n += 1
     assert n == meta["quality"]["tlog_packets"] > 100
     assert meta["quality"]["tlog_packets_dropped"] == 0
+
+
+def test_rows_sit_on_the_grid_with_the_state_newest_at_each_instant_and_no_sampler_thread(
+    tmp_path,
+):
+    """A live session takes its rows in the writer's thread, at each batch, from what
+    the slots published and when: each row at its exact grid instant (k / rate_hz), with
+    the state newest at that instant (never one from its future, never an older one),
+    and the session's one thread is the writer. Before, a sampler thread woke at every
+    instant (30 wake-ups a second) and stamped each row with when it woke."""
+    import threading
+
+    vehicle = FakeVehicle(rate_hz=97.0).start()  # out of step with the 30 Hz rows
+    published: list[float] = []
+    vehicle.state.add_listener(lambda s: published.append(s.heartbeat.t_mono))
+    rec = Recorder(tmp_path, vehicle.state, {}, options(rate_hz=30.0, auto_record_on_arm=False))
+
+    async def run():
+        await rec.open()
+        await rec.start("test")
+        threads = [t.name for t in threading.enumerate() if t.name.startswith("recorder")]
+        t0 = rec.session.t0_mono
+        await asyncio.sleep(2.0)
+        status = await rec.stop("requested")
+        return status, threads, t0
+
+    status, threads, t0 = asyncio.run(run())
+    vehicle.stop()
+    assert threads == ["recorder-writer"]
+    rows = read_csv(tmp_path / status.last_stop.id / layout.TELEMETRY_CSV)
+    t = np.array([float(r["t_s"]) for r in rows])
+    assert len(rows) >= 55, len(rows)
+    assert np.allclose(t, np.arange(len(t)) / 30.0, atol=2e-6), t[:5]
+    times = np.array(sorted(published)) - t0
+    for r in rows[1:]:  # the first row's state is the one held at the start
+        t_row, named = float(r["t_s"]), float(r["heartbeat.t_mono"])
+        assert named <= t_row + 1e-6, (t_row, named)
+        before_row = times[times <= t_row]
+        # The newest one; or the one before it when the newest was published within a
+        # millisecond of the instant (stamped here just before the slot's listener ran).
+        assert named == pytest.approx(before_row[-1], abs=2e-6) or (
+            t_row - before_row[-1] < 0.001 and named == pytest.approx(before_row[-2], abs=2e-6)
+        ), (t_row, named, before_row[-3:])
 
 
 def test_a_burst_loses_no_frame_and_a_sequence_gap_is_counted(tmp_path):

@@ -15,7 +15,7 @@ not flagged; a twentieth of a camera's frames missing is.
                  than link_loss_pct of the session
   dropped_frames a camera lost more than dropped_frames_pct of the frames it captured
   telemetry_rows more than missing_rows_pct of the telemetry grid's rows are missing
-                 (the sampler ran late, or the writer's queue was full)
+                 (the writer was held up past the state history, or its queue was full)
 """
 
 from __future__ import annotations

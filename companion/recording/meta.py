@@ -51,8 +51,9 @@ class Quality(_Model):
     telemetry_rows: int = 0
     telemetry_achieved_hz: float | None = None
     telemetry_rows_dropped: int = 0
-    # Row instants skipped because the sampler thread was held up (CPU starved): the
-    # grid stays fixed, so a late sampler leaves gaps instead of bunching rows.
+    # Row instants skipped because what held then is not known: the writer thread (which
+    # takes a live session's rows) was held up longer than the state history spans (a
+    # stalled disk). The grid stays fixed: gaps, never rows bunched or with later states.
     telemetry_ticks_late: int = 0
     tlog_packets: int = 0
     tlog_packets_dropped: int = 0

@@ -14,8 +14,9 @@ class SkewStats:
     """Every row's skew for one camera (8 bytes a row: 2.9 MB for an hour at 100 Hz)."""
 
     def __init__(self) -> None:
-        # The sampler appends while the writer thread reads for session.json: an array
-        # cannot grow while numpy holds its buffer, so both sides take the lock.
+        # Rows append (the writer's thread, or a replay's) while session.json is written
+        # from another: an array cannot grow while numpy holds its buffer, so both sides
+        # take the lock.
         self._lock = threading.Lock()
         self._skews_s = array("d")
         self._max_s: float | None = None

@@ -1,7 +1,7 @@
 """Turning one telemetry sample into one telemetry.csv row (the columns of `layout`).
 
 A sample is cheap to take (references to immutable snapshots and a few floats); the
-writer thread formats it, so the sampler never spends time on strings.
+writer thread formats it when it writes the batch.
 """
 
 from __future__ import annotations

@@ -1,12 +1,20 @@
-"""One recording session: a sampler thread, a frame listener per camera, one writer thread.
+"""One recording session: listeners on the state and camera slots, one writer thread.
 
 Inputs are exactly the station's objects: the vehicle state `Latest[VehicleState]`, each
 camera's `Latest[Frame]`, and raw packets pushed into `on_packet(t_wall, packet)` by the
 link's thread. Every frame a camera publishes reaches the writer through `_offer_frame`,
 called in the camera's capture thread by a publish listener on its slot (so a starved
-event loop or sampler loses no frame) and by the sampler (so a row names the newest frame
-at its instant); a frame is queued once, and gaps in sequence numbers are counted as
-missed frames.
+event loop loses no frame); a frame is queued once, and gaps in sequence numbers are
+counted as missed frames.
+
+Telemetry rows sit on a fixed grid (`rate_hz` from the session's start), each with the
+state and the frames that were newest at its instant. A live session keeps what each
+slot held and since when (its listeners note each state and each accepted frame with the
+time it was published), and the writer thread, at each of its batches, turns the
+instants up to now into rows (`_sample_due`): the same rows a thread waking at every
+instant took, without its 30 wake-ups a second (docs/PERFORMANCE.md, round 6), and each
+at its exact instant. A source on its own clock (a replay) is sampled from its thread
+instead (`advance`).
 """
 
 from __future__ import annotations
@@ -16,6 +24,7 @@ import functools
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,6 +69,14 @@ class SessionConfig:
     clock_max_disagree_s: float = DEFAULT_MAX_DISAGREE_S
 
 
+# What a live session remembers between the writer's batches (0.5 s apart): the states
+# the link published (about 100 a second; a writer stalled longer than this span by its
+# disk skips the rows it cannot know, counted as late), and the frames the writer
+# accepted per camera (its queue holds 90, so the span is never reached).
+STATE_HISTORY = 4096
+FRAME_HISTORY = 1024
+
+
 class _CameraTrack:
     """What the session knows about one camera's frames (guarded by its lock)."""
 
@@ -70,6 +87,10 @@ class _CameraTrack:
         self.ref: FrameRef | None = None  # newest frame accepted by the writer
         self.missed = 0
         self.skew = SkewStats()
+        # Live sessions: each accepted frame with when it was published, until a row's
+        # instant passes it (`row_ref`: the newest one at the last row's instant).
+        self.published: deque[tuple[float, FrameRef]] = deque(maxlen=FRAME_HISTORY)
+        self.row_ref: FrameRef | None = None
 
 
 class RecordingSession:
@@ -96,6 +117,13 @@ class RecordingSession:
         self.t0_wall = self.clock.wall()
         self.t0_mono = self.clock.mono()
         self._next_sample = self.t0_mono
+        # Live sessions: each state published since the last row's instant, with when
+        # (the slot listener `_note_state`, the link's thread), and the state at that
+        # instant; `_states_lost_until`: the newest time a full history let go of.
+        self._states: deque[tuple[float, VehicleState]] = deque(maxlen=STATE_HISTORY)
+        self._row_state: VehicleState | None = None
+        self._states_lost_until: float | None = None
+        self._stop_mono: float | None = None  # the last row's instant, once stopping
         self._station_synced = None if self.clock.own else clock_synchronised()
         naming = self._choose_clock()
         self.id, self.folder = create_session_dir(
@@ -123,6 +151,7 @@ class RecordingSession:
                 config.limits,
                 on_flush=self._on_flush,
                 on_failure=self._writer_failed,
+                before_batch=None if self.clock.own else self._sample_due,
             )
         except OSError:
             # Nothing was recorded (EMFILE, a full disk): no empty folder may stay behind
@@ -130,37 +159,40 @@ class RecordingSession:
             discard_session_dir(self.folder, self.cameras)
             raise
         self._write_meta(layout.STATUS_RECORDING)
-        self._sampler = threading.Thread(
-            target=self._sample_loop, name="recorder-sampler", daemon=True
-        )
 
     # -- lifecycle -----------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the threads and take every frame the cameras publish from now on."""
+        """Start the writer and take every state and frame the slots publish from now on.
+        What they hold now is what the pilot saw at the start: the first row's."""
+        live = not self.clock.own
+        if live:
+            self._state.add_listener(self._note_state)
+            current_state = self._state.get()
+            self._row_state = current_state.value if current_state is not None else None
         self.writer.start()
-        if not self.clock.own:
-            self._sampler.start()
         for cam, slot in self._camera_slots.items():
             listener = functools.partial(self._take_frame, cam)
             self._frame_listeners[cam] = listener
             slot.add_listener(listener)
-            # The frame shown now is part of what the pilot saw at the start.
             current = slot.get()
             if current is not None:
-                self._offer_frame(cam, current.value)
+                self._offer_frame(cam, current.value, self.t0_mono)
 
     async def stop(self, reason: str) -> SessionMeta:
         """Stop sampling, write what is buffered, close the files, finalize session.json."""
         if self.stop_reason is None:
             self.stop_reason = reason
-        self._stop.set()
-        self._drop_frame_listeners()
+        self._end_sampling()
+        self._drop_listeners()
         return await asyncio.to_thread(self._finish)
 
+    def _end_sampling(self) -> None:
+        if self._stop_mono is None:
+            self._stop_mono = self.clock.mono()
+        self._stop.set()
+
     def _finish(self) -> SessionMeta:
-        if self._sampler.is_alive():
-            self._sampler.join(5.0)
         self.writer.close()
         self.end_wall = self.writer.stats.last_row_wall or self.clock.wall()
         if self.writer.failure is None:
@@ -189,7 +221,7 @@ class RecordingSession:
 
     def thread_ids(self) -> dict[str, int | None]:
         """Native ids of the session's threads (for CPU accounting in benchmarks)."""
-        return {"writer": self.writer.native_id, "sampler": self._sampler.native_id}
+        return {"writer": self.writer.native_id}
 
     # -- inputs ----------------------------------------------------------------------------
 
@@ -197,8 +229,11 @@ class RecordingSession:
         """The link's packet listener (link thread): never blocks."""
         self.writer.put_packet(t_wall, packet)
 
-    def _offer_frame(self, cam: str, frame: Frame) -> FrameRef | None:
-        """Queue `frame` if it is new; returns the camera's newest accepted frame."""
+    def _offer_frame(
+        self, cam: str, frame: Frame, published_mono: float | None = None
+    ) -> FrameRef | None:
+        """Queue `frame` if it is new; returns the camera's newest accepted frame. A live
+        session notes an accepted frame with when it was published (default: now)."""
         track = self._tracks[cam]
         with track.lock:
             if not frame.signal or (track.last_seq is not None and frame.seq <= track.last_seq):
@@ -210,6 +245,9 @@ class RecordingSession:
             track.last_seq = frame.seq
             if self.writer.put_frame(cam, frame):
                 track.ref = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
+                if not self.clock.own:
+                    at = time.monotonic() if published_mono is None else published_mono
+                    track.published.append((at, track.ref))
             return track.ref
 
     def _take_frame(self, cam: str, frame: Frame) -> None:
@@ -221,30 +259,65 @@ class RecordingSession:
         except Exception:  # the camera's thread must go on whatever the recorder does
             log.exception("recording frame %s of %s failed", frame.seq, cam)
 
-    def _drop_frame_listeners(self) -> None:
+    def _note_state(self, state: VehicleState) -> None:
+        """The state slot's publish listener (the link's thread), live sessions: the state
+        and when, for the rows of the instants it holds for. Never blocks."""
+        states = self._states
+        if len(states) == STATE_HISTORY:  # the writer is far behind: the oldest goes
+            self._states_lost_until = states[0][0]
+        states.append((time.monotonic(), state))
+
+    def _drop_listeners(self) -> None:
+        self._state.remove_listener(self._note_state)
         for cam, listener in self._frame_listeners.items():
             self._camera_slots[cam].remove_listener(listener)
         self._frame_listeners.clear()
 
-    # -- the sampler thread ------------------------------------------------------------------
+    # -- rows ----------------------------------------------------------------------------
 
-    def _sample_loop(self) -> None:
+    def _sample_due(self) -> None:
+        """A live session's rows for every grid instant up to now (up to the stop, once
+        stopping), each with the state and frames that were newest at its instant. Called
+        by the writer thread before each batch, so the rows are written with the frames
+        they name."""
         period = 1.0 / self.config.rate_hz
-        next_t = self.t0_mono
-        while not self._stop.is_set():
-            now = time.monotonic()
-            if now < next_t:
-                self._stop.wait(next_t - now)
+        end = self._stop_mono if self._stop_mono is not None else time.monotonic()
+        wall_offset = time.time() - time.monotonic()
+        while self._next_sample <= end:
+            t = self._next_sample
+            self._next_sample += period
+            if self._state_lost_at(t):
+                self.ticks_late += 1  # as a sampler that ran late: no row rather than a wrong one
                 continue
-            late = int((now - next_t) / period)
-            if late:  # the thread was held up: keep the grid, count the skipped instants
-                self.ticks_late += late
-                next_t += late * period
+            refs = tuple(self._frame_at(cam, t) for cam in self.cameras)
             try:
-                self._sample(now)
+                self._row(t, t + wall_offset, self._state_at(t), refs)
             except Exception:  # one bad sample must not end the recording
                 log.exception("telemetry sample failed")
-            next_t += period
+
+    def _state_lost_at(self, t: float) -> bool:
+        """The history let go of what may have held at `t` (the writer was stalled)."""
+        if self._states_lost_until is None:
+            return False
+        if self._states and t < self._states[0][0]:
+            return True
+        self._states_lost_until = None
+        return False
+
+    def _state_at(self, t: float) -> VehicleState | None:
+        """The newest state published at or before `t` (the last row's if none came since)."""
+        states = self._states
+        while states and states[0][0] <= t:
+            self._row_state = states.popleft()[1]
+        return self._row_state
+
+    def _frame_at(self, cam: str, t: float) -> FrameRef | None:
+        """The newest accepted frame of `cam` published at or before `t`."""
+        track = self._tracks[cam]
+        published = track.published
+        while published and published[0][0] <= t:
+            track.row_ref = published.popleft()[1]
+        return track.row_ref
 
     def advance(self, t: float) -> None:
         """The source's clock reached `t`: the rows of every instant before it (source's
@@ -259,7 +332,8 @@ class RecordingSession:
                 log.exception("telemetry sample failed")
             self._next_sample += period
 
-    def _sample(self, now_mono: float, now_wall: float | None = None) -> None:
+    def _sample(self, now_mono: float, now_wall: float) -> None:
+        """The row of `now_mono` on a source's own clock: what the slots hold now."""
         versioned = self._state.get()
         state = versioned.value if versioned is not None else None
         refs: list[FrameRef | None] = []
@@ -271,10 +345,19 @@ class RecordingSession:
                 else self._tracks[cam].ref
             )
             refs.append(ref)
+        self._row(now_mono, now_wall, state, tuple(refs))
+
+    def _row(
+        self,
+        now_mono: float,
+        wall: float,
+        state: VehicleState | None,
+        refs: tuple[FrameRef | None, ...],
+    ) -> None:
+        for cam, ref in zip(self.cameras, refs, strict=True):
             if ref is not None:
                 self._tracks[cam].skew.add(now_mono - ref.t_mono)
-        wall = time.time() if now_wall is None else now_wall
-        self.writer.put_row(Sample(now_mono, wall, state, tuple(refs)))
+        self.writer.put_row(Sample(now_mono, wall, state, refs))
         # Link loss is about the autopilot: a radio's or another ground station's packets
         # keep arriving while the vehicle is silent, so only the autopilot's messages count.
         last_heard = state.last_heard_mono() if state is not None else None
@@ -305,7 +388,7 @@ class RecordingSession:
     def _writer_failed(self, reason: str) -> None:
         if self.stop_reason is None:
             self.stop_reason = reason
-        self._stop.set()  # stop sampling now; the owner finalizes through stop()
+        self._end_sampling()  # no rows after now; the owner finalizes through stop()
         if self._on_failure is not None:
             self._on_failure(self.id, reason)
 

@@ -1,7 +1,8 @@
 """The session's one writer thread: bounded buffers in, files out, flushed every half second.
 
-Producers (the sampler thread, the cameras' capture threads, the link thread's
-packet listener) only append to bounded deques and never wait; when a buffer is full the
+Producers (the cameras' capture threads, the link thread's packet listener, and the
+session's rows, which it puts from this thread before each batch) only append to bounded
+deques and never wait; when a buffer is full the
 item is refused and counted, never silently lost. The thread writes frames before rows,
 so a row on disk never names a frame that is not on disk yet, flushes (and fdatasyncs)
 the CSVs and the tlog at least every `flush_interval_s`, and stops the session with a
@@ -85,7 +86,10 @@ class SessionWriter:
         limits: WriterLimits = WriterLimits(),
         on_flush: Callable[[WriterStats], None] | None = None,
         on_failure: Callable[[str], None] | None = None,
+        before_batch: Callable[[], None] | None = None,
     ) -> None:
+        """`before_batch`: called in the thread before each batch is taken (a live
+        session puts the rows of the instants up to now: companion.recording.session)."""
         self.folder = folder
         self.cameras = formatter.cameras
         self.formatter = formatter
@@ -97,6 +101,7 @@ class SessionWriter:
         self.failure: str | None = None  # why writing stopped early, if it did
         self._on_flush = on_flush
         self._on_failure = on_failure
+        self._before_batch = before_batch
         self._cond = threading.Condition()
         self._rows: deque[Sample] = deque()
         self._packets: deque[tuple[float, bytes]] = deque()
@@ -244,8 +249,14 @@ class SessionWriter:
                         break
                     self._cond.wait(wait_s)
                 next_batch = time.monotonic() + self.limits.batch_interval_s
-                taken = self._take()
                 closing = self._closing
+            if self._before_batch is not None:
+                try:
+                    self._before_batch()  # outside the lock: it puts rows
+                except Exception:  # the frames and packets are written whatever it does
+                    log.exception("%s: taking the batch's rows failed", self.folder)
+            with self._cond:
+                taken = self._take()
                 self._cond.notify_all()  # room again for a producer in wait_for_room
             self._write_or_count(*taken)
             now = time.monotonic()
