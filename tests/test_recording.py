@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from companion.latest import Latest
 from companion.recording import layout
 from companion.recording.recorder import Recorder, RecorderOptions
-from companion.recording.session import SessionConfig
+from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.writer import WriterLimits
+from companion.vehicle_state import Heartbeat, VehicleState
 from companion.video_frame import Frame
 from tests.helpers import CountingSelector
 from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs, recorded_frames
@@ -176,6 +178,39 @@ def test_rows_sit_on_the_grid_with_the_state_newest_at_each_instant_and_no_sampl
         assert named == pytest.approx(before_row[-1], abs=2e-6) or (
             t_row - before_row[-1] < 0.001 and named == pytest.approx(before_row[-2], abs=2e-6)
         ), (t_row, named, before_row[-3:])
+
+
+def test_a_writer_held_up_past_the_state_history_skips_rows_it_cannot_know(tmp_path):
+    """States kept for the writer's next batch are bounded (`state_history`). When more
+    come before it runs (a disk that stalls the writer), the instants whose state was
+    let go of get no row and are counted late; no row carries a state from after its
+    instant or one older than what held then."""
+    state: Latest[VehicleState] = Latest(VehicleState())
+    config = SessionConfig(rate_hz=100.0, state_history=8, limits=WriterLimits(min_free_bytes=1))
+    session = RecordingSession(tmp_path, state, {}, config)
+    published: list[float] = []
+    session.start()
+    for _ in range(30):  # 30 states in 150 ms, before the writer's first batch (0.5 s)
+        now = time.monotonic()
+        state.publish(VehicleState(heartbeat=Heartbeat(t_mono=now)))
+        published.append(now)
+        time.sleep(0.005)
+    time.sleep(0.2)
+    meta = asyncio.run(session.stop("requested"))
+    rows = read_csv(session.folder / layout.TELEMETRY_CSV)
+    t = np.array([float(r["t_s"]) for r in rows])
+    kept_from = published[-8] - session.t0_mono  # the oldest state still kept
+    late = meta.quality.telemetry_ticks_late
+    assert late >= 5, late  # the instants of the first 22 states' 110 ms
+    assert t[0] >= kept_from - 0.01 - 1e-6, (t[0], kept_from)  # none in between
+    assert len(rows) + late == pytest.approx(t[-1] * 100 + 1, abs=1)  # the grid, whole
+    times = np.array(published) - session.t0_mono
+    for r in rows:
+        t_row, named = float(r["t_s"]), float(r["heartbeat.t_mono"] or "nan")
+        if t_row > times[-1] + 0.001:
+            assert named == pytest.approx(times[-1], abs=2e-6)  # the last one holds
+        elif named == named:  # nan: the state at the start (no heartbeat yet)
+            assert named <= t_row + 1e-6
 
 
 def test_a_burst_loses_no_frame_and_a_sequence_gap_is_counted(tmp_path):

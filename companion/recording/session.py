@@ -67,13 +67,14 @@ class SessionConfig:
     camera_fps: Mapping[str, float | None] = field(default_factory=dict)
     meta_interval_s: float = 2.0
     clock_max_disagree_s: float = DEFAULT_MAX_DISAGREE_S
+    # States a live session keeps between the writer's batches (0.5 s apart; about 40 s
+    # of the link's 100 a second): a writer held up longer by its disk skips the rows it
+    # cannot know, counted in telemetry_ticks_late.
+    state_history: int = 4096
 
 
-# What a live session remembers between the writer's batches (0.5 s apart): the states
-# the link published (about 100 a second; a writer stalled longer than this span by its
-# disk skips the rows it cannot know, counted as late), and the frames the writer
-# accepted per camera (its queue holds 90, so the span is never reached).
-STATE_HISTORY = 4096
+# The frames the writer accepted, per camera, that a live session keeps between the
+# writer's batches (the writer's queue holds 90, so this is never reached).
 FRAME_HISTORY = 1024
 
 
@@ -120,7 +121,7 @@ class RecordingSession:
         # Live sessions: each state published since the last row's instant, with when
         # (the slot listener `_note_state`, the link's thread), and the state at that
         # instant; `_states_lost_until`: the newest time a full history let go of.
-        self._states: deque[tuple[float, VehicleState]] = deque(maxlen=STATE_HISTORY)
+        self._states: deque[tuple[float, VehicleState]] = deque(maxlen=config.state_history)
         self._row_state: VehicleState | None = None
         self._states_lost_until: float | None = None
         self._stop_mono: float | None = None  # the last row's instant, once stopping
@@ -263,8 +264,11 @@ class RecordingSession:
         """The state slot's publish listener (the link's thread), live sessions: the state
         and when, for the rows of the instants it holds for. Never blocks."""
         states = self._states
-        if len(states) == STATE_HISTORY:  # the writer is far behind: the oldest goes
-            self._states_lost_until = states[0][0]
+        if len(states) == states.maxlen:  # the writer is far behind: the oldest goes
+            try:
+                self._states_lost_until = states[0][0]
+            except IndexError:  # the writer emptied it meanwhile: nothing goes
+                pass
         states.append((time.monotonic(), state))
 
     def _drop_listeners(self) -> None:
