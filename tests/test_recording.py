@@ -2,6 +2,7 @@ import asyncio
 import csv
 import json
 import shutil
+import threading
 import time
 from collections import namedtuple
 from pathlib import Path
@@ -145,8 +146,6 @@ def test_rows_sit_on_the_grid_with_the_state_newest_at_each_instant_and_no_sampl
     the state newest at that instant (never one from its future, never an older one),
     and the session's one thread is the writer. Before, a sampler thread woke at every
     instant (30 wake-ups a second) and stamped each row with when it woke."""
-    import threading
-
     vehicle = FakeVehicle(rate_hz=97.0).start()  # out of step with the 30 Hz rows
     published: list[float] = []
     vehicle.state.add_listener(lambda s: published.append(s.heartbeat.t_mono))
@@ -173,10 +172,11 @@ def test_rows_sit_on_the_grid_with_the_state_newest_at_each_instant_and_no_sampl
         t_row, named = float(r["t_s"]), float(r["heartbeat.t_mono"])
         assert named <= t_row + 1e-6, (t_row, named)
         before_row = times[times <= t_row]
-        # The newest one; or the one before it when the newest was published within a
-        # millisecond of the instant (stamped here just before the slot's listener ran).
+        # The newest one; or the one before it when the newest was stamped just before the
+        # instant (the vehicle stamps a state, then publishes it: a loaded box can hold
+        # the thread between the two).
         assert named == pytest.approx(before_row[-1], abs=2e-6) or (
-            t_row - before_row[-1] < 0.001 and named == pytest.approx(before_row[-2], abs=2e-6)
+            t_row - before_row[-1] < 0.02 and named == pytest.approx(before_row[-2], abs=2e-6)
         ), (t_row, named, before_row[-3:])
 
 
@@ -186,24 +186,28 @@ def test_a_writer_held_up_past_the_state_history_skips_rows_it_cannot_know(tmp_p
     let go of get no row and are counted late; no row carries a state from after its
     instant or one older than what held then."""
     state: Latest[VehicleState] = Latest(VehicleState())
-    config = SessionConfig(rate_hz=100.0, state_history=8, limits=WriterLimits(min_free_bytes=1))
+    # The writer held up: its one batch comes at the stop.
+    stalled = WriterLimits(min_free_bytes=1, flush_interval_s=60.0, batch_interval_s=60.0)
+    config = SessionConfig(rate_hz=100.0, state_history=8, limits=stalled)
     session = RecordingSession(tmp_path, state, {}, config)
     published: list[float] = []
     session.start()
-    for _ in range(30):  # 30 states in 150 ms, before the writer's first batch (0.5 s)
+    for _ in range(30):  # 30 states; the history keeps the last 8
         now = time.monotonic()
         state.publish(VehicleState(heartbeat=Heartbeat(t_mono=now)))
         published.append(now)
         time.sleep(0.005)
-    time.sleep(0.2)
+    time.sleep(0.1)
     meta = asyncio.run(session.stop("requested"))
     rows = read_csv(session.folder / layout.TELEMETRY_CSV)
     t = np.array([float(r["t_s"]) for r in rows])
     kept_from = published[-8] - session.t0_mono  # the oldest state still kept
     late = meta.quality.telemetry_ticks_late
-    assert late >= 5, late  # the instants of the first 22 states' 110 ms
-    assert t[0] >= kept_from - 0.01 - 1e-6, (t[0], kept_from)  # none in between
-    assert len(rows) + late == pytest.approx(t[-1] * 100 + 1, abs=1)  # the grid, whole
+    # The instants before it are skipped and counted; the rows start at the first one
+    # after it, and the grid is whole.
+    assert late >= 10 and t[0] == pytest.approx(late / 100, abs=2e-6), (late, t[0])
+    assert kept_from - 1e-6 <= t[0] < kept_from + 0.05, (t[0], kept_from)  # 0.01 + a held thread
+    assert np.allclose(np.diff(t), 0.01, atol=2e-6)
     times = np.array(published) - session.t0_mono
     for r in rows:
         t_row, named = float(r["t_s"]), float(r["heartbeat.t_mono"] or "nan")

@@ -2,11 +2,11 @@
 
 Producers (the cameras' capture threads, the link thread's packet listener, and the
 session's rows, which it puts from this thread before each batch) only append to bounded
-deques and never wait; when a buffer is full the
-item is refused and counted, never silently lost. The thread writes frames before rows,
-so a row on disk never names a frame that is not on disk yet, flushes (and fdatasyncs)
-the CSVs and the tlog at least every `flush_interval_s`, and stops the session with a
-reason when free space falls under `min_free_bytes` or a write fails.
+deques and never wait; when a buffer is full the item is refused and counted, never
+silently lost. The thread writes frames before rows, so a row on disk never names a
+frame that is not on disk yet, flushes (and fdatasyncs) the CSVs and the tlog at least
+every `flush_interval_s`, and stops the session with a reason when free space falls
+under `min_free_bytes` or a write fails.
 
 Frames go to one append-only file per camera, `<camera>/frames.mjpeg` (the frame pack,
 `companion.recording.frame_pack`): per batch one `writev` of its JPEGs, then its
