@@ -136,13 +136,12 @@ class RecordingSession:
         self._gaps = LinkLossTracker(self.t0_mono, QUALITY_THRESHOLDS.telemetry_gap_s)
         self._arming: Arming | None = None
         self._was_armed: bool | None = None
-        self.ticks_late = 0  # sample instants skipped because the sampler ran late
+        self.ticks_late = 0  # row instants skipped: the writer fell behind the state history
         self.stop_reason: str | None = None
         self.end_wall: float | None = None
         self._on_failure = on_failure
         self._meta_lock = threading.Lock()
         self._next_meta_mono = 0.0
-        self._stop = threading.Event()
         self._frame_listeners: dict[str, Callable[[Frame], None]] = {}
         formatter = RowFormatter(self.cameras, self.t0_mono)
         try:
@@ -191,7 +190,6 @@ class RecordingSession:
     def _end_sampling(self) -> None:
         if self._stop_mono is None:
             self._stop_mono = self.clock.mono()
-        self._stop.set()
 
     def _finish(self) -> SessionMeta:
         self.writer.close()
@@ -210,10 +208,6 @@ class RecordingSession:
                 apply_census(meta, census, layout.utc_label())
         self._save(meta)
         return meta
-
-    @property
-    def stopping(self) -> bool:
-        return self._stop.is_set()
 
     def frames_dropped(self) -> dict[str, int]:
         """Per camera: frames captured but not (going to be) on disk, so far."""
@@ -253,7 +247,7 @@ class RecordingSession:
 
     def _take_frame(self, cam: str, frame: Frame) -> None:
         """The camera slot's publish listener (the capture thread): never blocks."""
-        if self._stop.is_set():
+        if self._stop_mono is not None:
             return
         try:
             self._offer_frame(cam, frame)
@@ -328,7 +322,7 @@ class RecordingSession:
         thread; the state is the one that held until `t`). Waits while the writer is
         behind, so that a replay at full speed loses no row."""
         period = 1.0 / self.config.rate_hz
-        while self._next_sample < t and not self._stop.is_set():
+        while self._next_sample < t and self._stop_mono is None:
             self.writer.wait_for_room()
             try:
                 self._sample(self._next_sample, self._next_sample)
