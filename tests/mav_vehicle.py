@@ -375,90 +375,96 @@ class MavVehicle:
         q = [1.0, 0.0, 0.0, 0.0]
         alt_mm, rel = int(self.alt_m * 1000), self.relative_alt_m
         v = (self.vx_mps, self.vy_mps, self.vz_mps)
-        builders = {
-            "ALTITUDE": lambda: m.altitude_encode(us, self.alt_m, self.alt_m, rel, rel, -1, -1),
-            "ATTITUDE_QUATERNION": lambda: m.attitude_quaternion_encode(t, *q, 0.01, 0.02, 0.03, q),
-            "ATTITUDE_TARGET": lambda: m.attitude_target_encode(t, 0, q, 0.0, 0.0, 0.0, 0.5),
-            "ESTIMATOR_STATUS": lambda: m.estimator_status_encode(
-                us, 831, 0.1, 0.1, 0.1, 0.1, 0.0, 0.0, 0.5, 0.8
-            ),
-            "EXTENDED_SYS_STATE": lambda: m.extended_sys_state_encode(0, 2 if self.armed else 1),
-            "HIGHRES_IMU": lambda: m.highres_imu_encode(
-                us,
-                0.01,
-                -0.02,
-                -9.81,
-                0.001,
-                0.002,
-                0.003,
-                0.2,
-                0.0,
-                0.4,
-                1000.0,
-                0.0,
-                self.alt_m,
-                35.0,
-                0x1FFF,
-                0,
-            ),
-            "HOME_POSITION": lambda: m.home_position_encode(
-                lat, lon, alt_mm, 0.0, 0.0, 0.0, q, 0.0, 0.0, 0.0, us
-            ),
-            "NAV_CONTROLLER_OUTPUT": lambda: m.nav_controller_output_encode(
-                0.0, 0.0, 0, 0, 0, 0.0, 0.0, 0.0
-            ),
-            "ODOMETRY": lambda: m.odometry_encode(
-                us,
-                1,
-                8,
-                1.0,
-                2.0,
-                -rel,
-                q,
-                *v,
-                0.0,
-                0.0,
-                0.0,
-                [float("nan")] * 21,
-                [float("nan")] * 21,
-                0,
-                2,
-                100,
-            ),
-            "PING": lambda: m.ping_encode(us, t // 1000, 0, 0),
-            "POSITION_TARGET_GLOBAL_INT": lambda: m.position_target_global_int_encode(
-                t, 6, 0, lat, lon, rel, *v, 0.0, 0.0, 0.0, self.yaw_rad, 0.0
-            ),
-            "POSITION_TARGET_LOCAL_NED": lambda: m.position_target_local_ned_encode(
-                t, 1, 0, 1.0, 2.0, -rel, *v, 0.0, 0.0, 0.0, self.yaw_rad, 0.0
-            ),
-            "TIMESYNC": lambda: m.timesync_encode(0, us * 1000),
-            "UTM_GLOBAL_POSITION": lambda: m.utm_global_position_encode(
-                int(time.time() * 1e6),
-                [0] * 18,
-                lat,
-                lon,
-                alt_mm,
-                int(rel * 1000),
-                0,
-                0,
-                0,
-                500,
-                800,
-                100,
-                lat,
-                lon,
-                alt_mm,
-                100,
-                3,
-                0x3F,
-            ),
-            "WIND_COV": lambda: m.wind_cov_encode(
-                us, 0.5, 0.3, 0.0, 0.2, 0.2, self.alt_m, 1.0, 1.0
-            ),
-        }
-        builder = builders.get(name)
-        return builder() if builder is not None else None
+        match name:
+            case "ALTITUDE":
+                return m.altitude_encode(us, self.alt_m, self.alt_m, rel, rel, -1, -1)
+            case "ATTITUDE_QUATERNION":
+                return m.attitude_quaternion_encode(t, *q, 0.01, 0.02, 0.03, q)
+            case "ATTITUDE_TARGET":
+                return m.attitude_target_encode(t, 0, q, 0.0, 0.0, 0.0, 0.5)
+            case "ESTIMATOR_STATUS":
+                return m.estimator_status_encode(us, 831, 0.1, 0.1, 0.1, 0.1, 0.0, 0.0, 0.5, 0.8)
+            case "EXTENDED_SYS_STATE":
+                return m.extended_sys_state_encode(0, 2 if self.armed else 1)
+            case "HIGHRES_IMU":
+                return m.highres_imu_encode(
+                    us,
+                    0.01,
+                    -0.02,
+                    -9.81,
+                    0.001,
+                    0.002,
+                    0.003,
+                    0.2,
+                    0.0,
+                    0.4,
+                    1000.0,
+                    0.0,
+                    self.alt_m,
+                    35.0,
+                    0x1FFF,
+                    0,
+                )
+            case "HOME_POSITION":
+                return m.home_position_encode(lat, lon, alt_mm, 0.0, 0.0, 0.0, q, 0.0, 0.0, 0.0, us)
+            case "NAV_CONTROLLER_OUTPUT":
+                return m.nav_controller_output_encode(0.0, 0.0, 0, 0, 0, 0.0, 0.0, 0.0)
+            case "ODOMETRY":
+                return m.odometry_encode(
+                    us,
+                    1,
+                    8,
+                    1.0,
+                    2.0,
+                    -rel,
+                    q,
+                    *v,
+                    0.0,
+                    0.0,
+                    0.0,
+                    [float("nan")] * 21,
+                    [float("nan")] * 21,
+                    0,
+                    2,
+                    100,
+                )
+            case "PING":
+                return m.ping_encode(us, t // 1000, 0, 0)
+            case "POSITION_TARGET_GLOBAL_INT":
+                return m.position_target_global_int_encode(
+                    t, 6, 0, lat, lon, rel, *v, 0.0, 0.0, 0.0, self.yaw_rad, 0.0
+                )
+            case "POSITION_TARGET_LOCAL_NED":
+                return m.position_target_local_ned_encode(
+                    t, 1, 0, 1.0, 2.0, -rel, *v, 0.0, 0.0, 0.0, self.yaw_rad, 0.0
+                )
+            case "TIMESYNC":
+                return m.timesync_encode(0, us * 1000)
+            case "UTM_GLOBAL_POSITION":
+                return m.utm_global_position_encode(
+                    int(time.time() * 1e6),
+                    [0] * 18,
+                    lat,
+                    lon,
+                    alt_mm,
+                    int(rel * 1000),
+                    0,
+                    0,
+                    0,
+                    500,
+                    800,
+                    100,
+                    lat,
+                    lon,
+                    alt_mm,
+                    100,
+                    3,
+                    0x3F,
+                )
+            case "WIND_COV":
+                return m.wind_cov_encode(us, 0.5, 0.3, 0.0, 0.2, 0.2, self.alt_m, 1.0, 1.0)
+            case _:
+                return None
 
     # -- threads -------------------------------------------------------------------------
 
