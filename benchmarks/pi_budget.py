@@ -14,8 +14,10 @@ Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subp
 - two USB MJPEG cameras at 640x480, 30 fps, through the station's own V4L2 source and its
   passthrough (the grabber is simulated at OpenCV's VideoCapture: usb_mjpeg_camera.py);
 - recording on (telemetry, tlog and both videos);
-- two telemetry WebSocket clients that acknowledge each message as the pages do
-  (`?ack=1`; `--no-telemetry-ack`: clients that only read, as in rounds 1 and 2), and
+- two telemetry WebSocket clients that acknowledge their messages as the pages do
+  (`?ack=2`, an ack every second message; `--telemetry-ack 1`: one per message, the pages
+  before round 7; `--telemetry-ack 0` or `--no-telemetry-ack`: clients that only read, as
+  in rounds 1 and 2), and
   two MJPEG viewers per camera, in this process;
 - the 3D panel on, off, or both runs side by side. "On": the pilot page's GET /api/viser
   starts its viser servers once the station is ready (`--no-visit`: not), nobody looks.
@@ -64,6 +66,7 @@ from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle  # noqa: E402
 from tests.station_process import StationProcess, serve_station  # noqa: E402
 
 TOKEN = "pi-budget-token"
+PAGE_ACK_WINDOW = 2  # web/telemetry.js's ACK_WINDOW: the pages' ?ack=
 T = TypeVar("T")
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 COMPONENTS = ("link", "cameras", "fan-out", "recorder", "web", "3D panel", "other")
@@ -301,17 +304,17 @@ def prepare_checkout(root: Path) -> None:
 
 
 async def clients(
-    port: int, seconds: float, warmup: float, telemetry: int, viewers: int, ack: bool = False
+    port: int, seconds: float, warmup: float, telemetry: int, viewers: int, ack: int = 0
 ):
     """Telemetry WebSocket clients and MJPEG viewers for warmup + seconds; their rates.
-    `ack`: the telemetry clients ask for one message in flight and acknowledge each, as the
-    pages do (web/telemetry.js: /ws/telemetry?ack=1, {"ack": version} per message)."""
+    `ack`: the telemetry clients ask for at most `ack` messages in flight and acknowledge
+    when that many are unacknowledged, as the pages do (web/telemetry.js: ?ack=2)."""
     from websockets.asyncio.client import connect
 
     loop = asyncio.get_running_loop()
     counts = [0] * telemetry
     stop = asyncio.Event()
-    url = f"ws://127.0.0.1:{port}/ws/telemetry" + ("?ack=1" if ack else "")
+    url = f"ws://127.0.0.1:{port}/ws/telemetry" + (f"?ack={ack}" if ack else "")
 
     async def telemetry_client(i: int) -> None:
         async with connect(url, max_size=1 << 20) as ws:
@@ -321,7 +324,7 @@ async def clients(
                 except TimeoutError:
                     continue
                 counts[i] += 1
-                if ack:
+                if ack and counts[i] % ack == 0:
                     await ws.send(json.dumps({"ack": json.loads(message)["version"]}))
 
     tasks = [asyncio.create_task(telemetry_client(i)) for i in range(telemetry)]
@@ -582,10 +585,19 @@ def main() -> None:
     ap.add_argument("--no-record", action="store_true", help="no recording")
     ap.add_argument(
         "--telemetry-ack",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="telemetry clients as the pages run them: ?ack=1, acknowledging each message "
-        "(--no-telemetry-ack: the clients of rounds 1 and 2, which only read)",
+        type=int,
+        default=PAGE_ACK_WINDOW,
+        metavar="N",
+        help="telemetry clients as the pages run them: ?ack=N, an ack when N messages are "
+        "unacknowledged (2, web/telemetry.js; 1: the pages before round 7; 0: clients that "
+        "only read, as in rounds 1 and 2)",
+    )
+    ap.add_argument(
+        "--no-telemetry-ack",
+        dest="telemetry_ack",
+        action="store_const",
+        const=0,
+        help="--telemetry-ack 0",
     )
     add_variant_option(
         ap,
@@ -629,7 +641,7 @@ def main() -> None:
     print(
         f"# fpv-station Pi budget: UDP test vehicle, 2 USB MJPEG cameras 640x480 @ 30 fps "
         f"(passthrough), {'no recording' if args.no_record else 'recording'}, "
-        f"{args.telemetry_clients} telemetry clients{' (ack, as the pages)' if args.telemetry_ack else ''}, "
+        f"{args.telemetry_clients} telemetry clients{f' (ack={args.telemetry_ack})' if args.telemetry_ack else ''}, "
         f"{args.viewers} viewers per camera; "
         f"{args.seconds:g} s windows after {args.warmup:g} s; machine {platform.machine()}, "
         f"{os.cpu_count()} cores, Python {platform.python_version()}; "

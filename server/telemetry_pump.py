@@ -10,8 +10,8 @@ builds per message instead of one.
 
 Who is due, and when the pump ticks:
 - A client is due once its own interval (`1 / max_rate`) has passed since the tick of
-  its last message, its last message is acknowledged (`?ack=1`), and a state newer than
-  the one it has exists.
+  its last message, it has room in its acknowledgement window (`?ack=N`: fewer than N
+  messages unacknowledged), and a state newer than the one it has exists.
 - Ticks come at most once per the shortest interval any client asked for (the highest
   rate, default 50/s), and only for a client that is due: never for nobody. A client
   that becomes due within a tick's interval (its ack arrived) takes that tick's message,
@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -66,12 +67,15 @@ class TelemetryClient:
     """One WebSocket client as the pump sees it: its pace, what it has, and the one
     future its coroutine waits on (for its next message, or its leaving).
 
-    `ack`: at most one message in flight; the next one waits for `{"ack": version}`."""
+    `ack_window`: 0, no acknowledgements; N, at most N messages unacknowledged (in flight),
+    the next one waits for `{"ack": version}`, which acknowledges every message up to
+    `version` (the versions a client gets only grow)."""
 
-    def __init__(self, max_rate: float, ack: bool = False) -> None:
+    def __init__(self, max_rate: float, ack_window: int = 0) -> None:
         self.interval_s = 1.0 / max_rate
-        self.ack = ack
+        self.ack_window = ack_window
         self.acked = 0  # the newest version it acknowledged
+        self._unacked: deque[int] = deque()  # versions sent, not acknowledged, oldest first
         self.version = 0  # of the last state it took
         self.due_mono = -math.inf  # its last message's tick + its interval
         self.gone = False
@@ -86,8 +90,20 @@ class TelemetryClient:
 
     @property
     def in_flight(self) -> bool:
-        """Its last message is not acknowledged yet: it gets nothing until it is."""
-        return self.ack and self.acked < self.version
+        """Its window is full: it gets nothing until an acknowledgement makes room."""
+        return self.ack_window > 0 and len(self._unacked) >= self.ack_window
+
+    def acknowledge(self, version: int) -> bool:
+        """`{"ack": version}` came: every message up to `version` is acknowledged. True if
+        that made room in a window that was full."""
+        if version <= self.acked:
+            return False
+        was_full = self.in_flight
+        self.acked = version
+        unacked = self._unacked
+        while unacked and unacked[0] <= version:
+            unacked.popleft()
+        return was_full and not self.in_flight
 
     def wake(self) -> None:
         waiter = self._waiter
@@ -101,6 +117,8 @@ class TelemetryClient:
 
     def _take(self, message: TelemetryMessage) -> TelemetryMessage:
         self.version = message.version
+        if self.ack_window:
+            self._unacked.append(message.version)
         # From the tick, not from when this coroutine ran: clients of one rate stay due
         # at the same moments and share the ticks.
         self.due_mono = message.t_mono + self.interval_s
@@ -164,18 +182,17 @@ class TelemetryPump:
             self._stopping.cancel()
 
     def acked(self, client: TelemetryClient, version: int) -> None:
-        """`client` acknowledged `version`: if that was all it waited for, it gets the
-        newest message now, or is counted in for the next tick."""
-        if version <= client.acked:
-            return
-        client.acked = version
-        if client.waiting and not client._offered and not client.in_flight:
+        """`client` acknowledged `version`: if its full window was all it waited for, it
+        gets the newest message now, or is counted in for the next tick."""
+        if not client.acknowledge(version):
+            return  # it had room already, so it is in the pump's plans
+        if client.waiting and not client._offered:
             if self._serve_or_plan(client, asyncio.get_running_loop()) is not None:
                 self._offer(client)
 
     async def next_message(self, client: TelemetryClient) -> TelemetryMessage | None:
         """The next message for `client` to send, as soon as it is due (and, with acks,
-        its last one acknowledged); None once it has gone or the pump has ended (the
+        has room in its window); None once it has gone or the pump has ended (the
         state slot closed)."""
         loop = asyncio.get_running_loop()
         while self.running and not client.gone:
@@ -242,7 +259,7 @@ class TelemetryPump:
     def _ready_at(self, client: TelemetryClient, now: float) -> float | None:
         """When to look at `client` again, for a client `_due_message` gave nothing now:
         its due time (and the next tick's); inf when it is due but needs a newer state;
-        None while its ack is outstanding."""
+        None while its window is full."""
         if client.in_flight:
             return None
         at = client.due_mono  # then this tick's message if it serves it, else a new tick

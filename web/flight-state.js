@@ -1,6 +1,6 @@
 // fpv-station pilot page: the flight state table, the connection pill and LINK LOST.
 //
-// The telemetry comes from telemetry.js (the page's one WS /ws/telemetry?ack=1 feed; other
+// The telemetry comes from telemetry.js (the page's one WS /ws/telemetry?ack=2 feed; other
 // modules listen to its window "fpv:telemetry" events). Freshness is honest: the pill says
 // "live" only while messages actually arrive, and each row greys out and shows its age
 // when the telemetry it is drawn from is older than its stale age (telemetry.js READINGS).

@@ -6,7 +6,7 @@
 // the goggles' task step).
 //
 // Drawn in the browser, once per animation frame (the display's rate, so at least the
-// video's), from the page's one telemetry feed (telemetry.js: WS /ws/telemetry?ack=1, so
+// video's), from the page's one telemetry feed (telemetry.js: WS /ws/telemetry?ack=2, so
 // what it shows is never a backlog). The horizon and the heading tape are canvases; every
 // other element is text, outlined so that it reads over sky and grass. Every element
 // carries data-osd="<name>" and its text is the value shown (tests read them; the two

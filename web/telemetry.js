@@ -19,8 +19,10 @@
 //   reading(name)       {value, age, stale} of one of READINGS (what the pilot page's table
 //                       and the OSD show): the value and its age come from one group
 //
-// One socket per page (ES modules load once): WS /ws/telemetry?ack=1, acknowledged after
-// each message is handled, so a slow browser gets the newest state, never a backlog.
+// One socket per page (ES modules load once): WS /ws/telemetry?ack=2, acknowledged after
+// every second message is handled (the station keeps at most ACK_WINDOW messages
+// unacknowledged, server/routes/telemetry.py), so a slow browser gets the newest state,
+// never a backlog, and the station reads half as many acks as one per message.
 //
 // The source's clock. Messages carry the source's time (server/telemetry_json.py): the
 // station's for a live vehicle, the log's for a replay, which runs at its ?speed= (x0.25,
@@ -47,8 +49,12 @@ const RATE_SAMPLES = 4;
 const RATE_SNAP = 0.1;
 // Faster than this (a replay at ?speed=max) ages are extrapolated at this rate: a few
 // milliseconds of wall time are seconds of the log there, and the states of those seconds
-// exist but have not been sent yet (one message in flight), so they are not ages.
+// exist but have not been sent yet (a few messages in flight at most), so they are not ages.
 const RATE_MAX = 8;
+// At most this many messages unacknowledged (two: 40 ms of states at 50 a second, what a
+// busy browser can fall behind); the ack goes when the window is full, and reaches the
+// station before its next tick on any usable network, so the rate does not drop.
+const ACK_WINDOW = 2;
 const fpv = (window.fpv = window.fpv || {});
 
 const samples = []; // [performance.now(), t_server_mono] of past messages, oldest first
@@ -89,9 +95,11 @@ function measureRate(now, t) {
   }
 }
 
-const socket = liveSocket("/ws/telemetry?ack=1", {
+let unacked = 0; // messages handled since the last ack
+const socket = liveSocket(`/ws/telemetry?ack=${ACK_WINDOW}`, {
   open() {
     feed.socketOpen = true;
+    unacked = 0;
     samples.length = 0; // a new connection: perhaps a restarted station on another source
   },
   message(msg) {
@@ -100,7 +108,10 @@ const socket = liveSocket("/ws/telemetry?ack=1", {
     feed.latest = fpv.latest = msg;
     feed.receivedAt = now;
     window.dispatchEvent(new CustomEvent("fpv:telemetry", { detail: msg }));
-    socket.send({ ack: msg.version });
+    if (++unacked >= ACK_WINDOW) {
+      socket.send({ ack: msg.version }); // acknowledges every message up to this one
+      unacked = 0;
+    }
   },
   close() { feed.socketOpen = false; },
 });

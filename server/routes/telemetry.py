@@ -7,11 +7,17 @@ The send stays in the client's own coroutine: a client that reads slowly (or not
 `send_text`, then skips to the newest message; nothing queues and no client delays
 another.
 
-`?ack=1`: bounded staleness for slow clients (a busy phone, goggles on weak Wi-Fi). The
+`?ack=N`: bounded staleness for slow clients (a busy phone, goggles on weak Wi-Fi). The
 kernel's socket buffers hold whatever `send_text` handed over, so a client that reads
-slowly still falls seconds behind without it. With acks the station keeps at most one
-unacknowledged message in flight: the client sends `{"ack": <version>}` after handling a
-message, and the next message is the newest one at that moment, never a queue.
+slowly still falls seconds behind without it. With acks the station keeps at most N
+unacknowledged messages in flight: the client sends `{"ack": <version>}` after handling
+messages, which acknowledges every message up to that version, and once N are
+unacknowledged the next message waits, then is the newest one at that moment, never a
+queue. `?ack=1` acknowledges each message. The pages use `?ack=2` and acknowledge every
+second message (web/telemetry.js): the station reads half the acks of `?ack=1` (each one
+a wake-up of the Pi's event loop, docs/PERFORMANCE.md) for at most two messages in
+flight, and as with `?ack=1` the ack has until the next tick to arrive before the page's
+rate drops.
 """
 
 from __future__ import annotations
@@ -27,12 +33,14 @@ from server.station import Station
 from server.telemetry_pump import TelemetryClient, TelemetryPump
 
 router = APIRouter(tags=["telemetry"])
+# The largest `?ack=` window: a larger one would not bound a slow client's staleness.
+MAX_ACK_WINDOW = 16
 
 
 class _ClientAcks:
     """Reads what the client sends until it disconnects; hands each `{"ack": n}` to the
     pump, which counts the client in for the next tick (no wake-up of the client's
-    coroutine for an ack: a page acknowledges every message, 50 a second)."""
+    coroutine for an ack: a page acknowledges every second message, 25 a second)."""
 
     def __init__(self, pump: TelemetryPump, client: TelemetryClient) -> None:
         self._pump = pump
@@ -45,7 +53,7 @@ class _ClientAcks:
                     msg = await ws.receive()
                     if msg["type"] == "websocket.disconnect":
                         return
-                    if self._client.ack:
+                    if self._client.ack_window:
                         self._note(msg.get("text"))
         finally:
             self._client.leave()  # a coroutine waiting for its next message ends now
@@ -54,7 +62,7 @@ class _ClientAcks:
         if not text or len(text) > 100:  # an ack is tiny; anything else is ignored
             return
         try:
-            ack = orjson.loads(text).get("ack")  # 100 a second for two pages: in C
+            ack = orjson.loads(text).get("ack")  # 50 a second for two pages: in C
         except (ValueError, AttributeError):
             return
         if isinstance(ack, int) and not isinstance(ack, bool):
@@ -69,7 +77,13 @@ async def ws_telemetry(
     max_rate: float | None = Query(
         None, ge=1, le=1000, description="messages per second, at most (default: the station's)"
     ),
-    ack: bool = Query(False, description='at most one message in flight: send {"ack": version}'),
+    ack: int = Query(
+        0,
+        ge=0,
+        le=MAX_ACK_WINDOW,
+        description='0: no acks; N: at most N messages unacknowledged, {"ack": version} '
+        "acknowledges every message up to version",
+    ),
 ) -> None:
     station = ws.app.state.station
     try:
@@ -80,7 +94,7 @@ async def ws_telemetry(
         await deny_websocket(ws, 503, "Unavailable", exc.message)
 
 
-async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack: bool) -> None:
+async def _serve_telemetry(ws: WebSocket, station: Station, max_rate: float, ack: int) -> None:
     pump = station.telemetry
     await ws.accept()
     client = TelemetryClient(max_rate, ack)
