@@ -26,7 +26,9 @@ The stations start from bytecode, as an installed one does (`prepare_checkout`).
 
 Printed per run: start-up (spawn to the first healthy /api/health), the process's CPU in
 % of one core over the window (CPU seconds from /proc, not wall time), RSS (when ready and
-at the end), CPU per
+at the end; at the end also its anonymous part: the mapped libraries' pages count in RSS
+by whole page-cache folios, so a freshly `pip install`ed environment reads about 20 MB
+more on this kernel until those files are read back from disk), CPU per
 thread (/proc/PID/task/TID/stat; names from `py-spy dump`), and per component: link,
 cameras, fan-out (frames and telemetry to clients), recorder, web (the rest of the event
 loop), 3D panel, other. The event loop thread is split between fan-out, 3D panel and web by
@@ -96,6 +98,9 @@ class Run:
     seconds: float
     cpu_s: float
     rss_mb: float  # at the end of the window
+    # Of it, the process's own memory (the rest is the mapped files' pages: the libraries'
+    # code, counted in whole page-cache folios, so it depends on how they were cached).
+    rss_anon_mb: float
     rss_ready_mb: float  # when first healthy, before any client (or the 3D panel's visit)
     load: tuple[float, float]  # 1-min load average at the window's start and end
     threads: list[tuple[ThreadInfo, float]]  # (thread, CPU seconds in the window)
@@ -154,9 +159,11 @@ def process_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
 
 
-def rss_mb(pid: int) -> float:
+def rss_mb(pid: int, field: str = "VmRSS") -> float:
+    """`VmRSS` (all resident memory) or `RssAnon` (the process's own, without mapped
+    files) from /proc/PID/status, in MB."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith(field + ":"):
             return int(line.split()[1]) / 1024
     return float("nan")
 
@@ -452,6 +459,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
         seconds=seconds,
         cpu_s=cpu1 - cpu0,
         rss_mb=rss_mb(pid),
+        rss_anon_mb=rss_mb(pid, "RssAnon"),
         rss_ready_mb=rss_ready,
         load=(load0, load1),
         threads=threads,
@@ -518,7 +526,7 @@ def report(run: Run) -> None:
     pct = run.cpu_s / run.seconds * 100
     print(
         f"\n## {run.label}: CPU {pct:.1f} % of one core, RSS {run.rss_mb:.0f} MB "
-        f"({run.rss_ready_mb:.0f} MB when ready), "
+        f"({run.rss_anon_mb:.0f} MB of it anonymous; {run.rss_ready_mb:.0f} MB when ready), "
         f"ready in {run.ready_s:.2f} s ({run.ready_cpu_s:.2f} CPU s); "
         f"load {run.load[0]:.2f} -> {run.load[1]:.2f}"
     )
@@ -672,7 +680,7 @@ def main() -> None:
     for run in runs:
         print(
             f"{run.label:<32} CPU {run.cpu_s / run.seconds * 100:5.1f} %  RSS {run.rss_mb:5.0f} MB"
-            f" ({run.rss_ready_mb:3.0f} at ready)"
+            f" ({run.rss_ready_mb:3.0f} at ready, {run.rss_anon_mb:3.0f} anon)"
             f"  ready {run.ready_s:5.2f} s ({run.ready_cpu_s:4.2f} CPU s)"
             f"  load {run.load[0]:.2f}->{run.load[1]:.2f}"
             f"  switches/s {sum(switches_per_s(run)):4.0f}"
