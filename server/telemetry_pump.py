@@ -74,7 +74,6 @@ class TelemetryClient:
     def __init__(self, max_rate: float, ack_window: int = 0) -> None:
         self.interval_s = 1.0 / max_rate
         self.ack_window = ack_window
-        self.acked = 0  # the newest version it acknowledged
         self._unacked: deque[int] = deque()  # versions sent, not acknowledged, oldest first
         self.version = 0  # of the last state it took
         self.due_mono = -math.inf  # its last message's tick + its interval
@@ -89,21 +88,19 @@ class TelemetryClient:
         return self._waiter is not None
 
     @property
-    def in_flight(self) -> bool:
+    def window_full(self) -> bool:
         """Its window is full: it gets nothing until an acknowledgement makes room."""
         return self.ack_window > 0 and len(self._unacked) >= self.ack_window
 
     def acknowledge(self, version: int) -> bool:
-        """`{"ack": version}` came: every message up to `version` is acknowledged. True if
-        that made room in a window that was full."""
-        if version <= self.acked:
-            return False
-        was_full = self.in_flight
-        self.acked = version
+        """`{"ack": version}` came: every message up to `version` is acknowledged (an old
+        or repeated ack changes nothing; one beyond what was sent, all). True if that made
+        room in a window that was full."""
+        was_full = self.window_full
         unacked = self._unacked
         while unacked and unacked[0] <= version:
             unacked.popleft()
-        return was_full and not self.in_flight
+        return was_full and not self.window_full
 
     def wake(self) -> None:
         waiter = self._waiter
@@ -243,7 +240,7 @@ class TelemetryPump:
     def _due_message(self, client: TelemetryClient, now: float) -> TelemetryMessage | None:
         """What `client` takes now: this tick's message, or a new tick; None if it is not
         due (its ack, its interval, the ticks' pace, or no newer state)."""
-        if client.in_flight or not _reached(client.due_mono, now):
+        if client.window_full or not _reached(client.due_mono, now):
             return None
         message = self.message
         if message is not None and not _reached(message.t_mono + self._interval_s, now):
@@ -260,7 +257,7 @@ class TelemetryPump:
         """When to look at `client` again, for a client `_due_message` gave nothing now:
         its due time (and the next tick's); inf when it is due but needs a newer state;
         None while its window is full."""
-        if client.in_flight:
+        if client.window_full:
             return None
         at = client.due_mono  # then this tick's message if it serves it, else a new tick
         message = self.message
