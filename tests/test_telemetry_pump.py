@@ -188,6 +188,12 @@ def test_an_ack_window_bounds_what_is_in_flight_and_one_ack_covers_every_message
             assert len(two_more) == 2, [m["version"] for m in two_more]
             ws.send(json.dumps({"ack": two_more[0]["version"] - 1}))  # old news: no room
             assert recv_for(ws, 0.4) == []
+            # An ack beyond anything sent covers all; the acks after it still count.
+            ws.send(json.dumps({"ack": 10**12}))
+            again = recv_for(ws, 0.6)
+            assert len(again) == 2, [m["version"] for m in again]
+            ws.send(json.dumps({"ack": again[1]["version"]}))
+            assert len(recv_for(ws, 0.6)) == 2
 
         # As web/telemetry.js: an ack when two are unacknowledged; the ticks' full rate.
         with Publisher(station.state, hz=200), connect(url, open_timeout=10) as ws:
