@@ -33,7 +33,10 @@ thread (/proc/PID/task/TID/stat; names from `py-spy dump`), and per component: l
 cameras, fan-out (frames and telemetry to clients), recorder, web (the rest of the event
 loop), 3D panel, other. The event loop thread is split between fan-out, 3D panel and web by
 py-spy's samples of it that hold the GIL (`--no-profile`: not split); the busiest
-functions (self time in those samples, every thread) follow.
+functions (self time in those samples, every thread) follow. `--count-instructions`
+adds perf's count of the instructions the station ran and the cycles they took: the
+work itself, which the host under a VM does not change, apart from what the host made
+of it (cycles per instruction).
 Figures, machine and load average go in docs/PERFORMANCE.md.
 """
 
@@ -48,6 +51,7 @@ import os
 import platform
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -110,6 +114,9 @@ class Run:
     switches: dict[int, tuple[int, int]]
     host_wake_us: tuple[float, float]  # host_wake_cost.py before and after the window
     components: dict[str, float]
+    # perf's counts over the window, per second: instructions and cycles, user and kernel
+    # ("instructions:u", ...); empty without perf or hardware counters.
+    counters: dict[str, float] = field(default_factory=dict)
     top: list[tuple[str, float]] = field(default_factory=list)  # (function, share of samples)
     packets_per_s: float = 0.0
     fps: dict[str, float] = field(default_factory=dict)
@@ -214,6 +221,44 @@ def start_profile(pid: int, seconds: float, out: Path, rate: int) -> subprocess.
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+
+
+COUNTED = ("instructions:u", "instructions:k", "cycles:u", "cycles:k")
+
+
+def start_counting(pid: int, out: Path) -> subprocess.Popen | None:
+    """`perf stat` on the station's threads for the window: the instructions it runs,
+    which the host under a VM does not change, and the cycles they took, which it does
+    (cold caches after each wake-up). None where perf is not installed. Under a VM the
+    counters are saved and restored at every context switch, which the CPU figure then
+    includes (17.7 against about 13 % here): compare runs that counted with runs that did."""
+    perf = shutil.which("perf")
+    if perf is None:
+        return None
+    return subprocess.Popen(
+        [perf, "stat", "-x,", "-e", ",".join(COUNTED), "-p", str(pid), "-o", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+def stop_counting(perf: subprocess.Popen | None, out: Path) -> dict[str, int]:
+    """The counts of `start_counting`; empty where the machine has no such counters
+    (perf prints "<not supported>")."""
+    if perf is None:
+        return {}
+    perf.send_signal(signal.SIGINT)
+    try:
+        perf.wait(10)
+    except subprocess.TimeoutExpired:
+        perf.kill()
+        return {}
+    counts = {}
+    for line in out.read_text().splitlines() if out.exists() else []:
+        value, _, event = (line.split(",") + ["", ""])[:3]
+        if event in COUNTED and value.isdigit():
+            counts[event] = int(value)
+    return counts
 
 
 def read_profile(path: Path) -> dict[int, list[tuple[list[str], int]]]:
@@ -417,11 +462,11 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
         await asyncio.sleep(args.warmup)
         result["start"] = await asyncio.to_thread(window_start, station, args)
         result["rates"] = await task
-        result["end"] = await asyncio.to_thread(window_end, station)
+        result["end"] = await asyncio.to_thread(window_end, station, result["start"][-1])
 
     asyncio.run(drive())
-    (cpu0, threads0, sw0, status0, t0, load0, host0, spy) = result["start"]
-    (cpu1, threads1, sw1, status1, t1, load1, host1) = result["end"]
+    (cpu0, threads0, sw0, status0, t0, load0, host0, spy, perf) = result["start"]
+    (cpu1, threads1, sw1, status1, t1, load1, host1, counts) = result["end"]
     seconds = t1 - t0
     profile = profile_path(station)
     samples: dict = {}
@@ -469,6 +514,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
             for tid, (v, n) in sw1.items()
         },
         host_wake_us=(host0, host1),
+        counters={event: n / seconds for event, n in counts.items()},
         components=split_components(threads, pid, samples),
         top=top_functions(samples),
         packets_per_s=packets / seconds,
@@ -482,6 +528,10 @@ def profile_path(station: StationProcess) -> Path:
     return station.log_path.with_name("profile.txt")  # each station has its own folder
 
 
+def counters_path(station: StationProcess) -> Path:
+    return station.log_path.with_name("perf-stat.txt")
+
+
 def window_start(station: StationProcess, args: argparse.Namespace):
     pid = station.popen.pid
     host = probe_in_subprocess()  # the host as the window starts, the clients running
@@ -491,6 +541,7 @@ def window_start(station: StationProcess, args: argparse.Namespace):
         if args.no_profile
         else start_profile(pid, args.seconds, profile_path(station), args.profile_rate)
     )
+    perf = start_counting(pid, counters_path(station)) if args.count_instructions else None
     return (
         process_cpu_s(pid),
         thread_cpu_s(pid),
@@ -500,15 +551,18 @@ def window_start(station: StationProcess, args: argparse.Namespace):
         os.getloadavg()[0],
         host,
         spy,
+        perf,
     )
 
 
-def window_end(station: StationProcess):
+def window_end(station: StationProcess, perf: subprocess.Popen | None):
     pid = station.popen.pid
     cpu, threads, t = process_cpu_s(pid), thread_cpu_s(pid), time.monotonic()
+    counts = stop_counting(perf, counters_path(station))
     switches = thread_switches(pid)
     status = httpx.get(f"{station.base}/api/status", timeout=10).json()
-    return cpu, threads, switches, status, t, os.getloadavg()[0], probe_in_subprocess()
+    host = probe_in_subprocess()
+    return cpu, threads, switches, status, t, os.getloadavg()[0], host, counts
 
 
 # -- printing ----------------------------------------------------------------------------------
@@ -520,6 +574,25 @@ def switches_per_s(run: Run) -> tuple[float, float]:
         sum(v for v, _ in run.switches.values()) / run.seconds,
         sum(n for _, n in run.switches.values()) / run.seconds,
     )
+
+
+def describe_counters(c: dict[str, float]) -> str:
+    """Instructions a second (the work) and cycles per instruction (what the host's cold
+    caches made of it), user and kernel."""
+    parts = []
+    for ring, name in (("u", "user"), ("k", "kernel")):
+        insn, cycles = c.get(f"instructions:{ring}"), c.get(f"cycles:{ring}")
+        if insn:
+            cpi = f", {cycles / insn:.2f} cycles each" if cycles else ""
+            parts.append(f"{name} {insn / 1e6:.0f} M instructions/s{cpi}")
+    return "; ".join(parts)
+
+
+def summary_counters(c: dict[str, float]) -> str:
+    """All instructions a second and cycles per instruction, user and kernel together."""
+    insn = c.get("instructions:u", 0.0) + c.get("instructions:k", 0.0)
+    cycles = c.get("cycles:u", 0.0) + c.get("cycles:k", 0.0)
+    return f"M insn/s {insn / 1e6:4.0f}  cycles/insn {cycles / insn:4.2f}" if insn else ""
 
 
 def report(run: Run) -> None:
@@ -548,6 +621,8 @@ def report(run: Run) -> None:
         f"involuntary; host: a wake-up costs {run.host_wake_us[0]:.0f} / "
         f"{run.host_wake_us[1]:.0f} us of CPU before / after (host_wake_cost.py)"
     )
+    if run.counters:
+        print(f"   perf stat: {describe_counters(run.counters)}")
     print(
         f"   {'thread':<40} {'tid':>7} {'% core':>7} {'of it sys':>9} {'vol/s':>6} {'invol/s':>7}"
     )
@@ -591,6 +666,12 @@ def main() -> None:
     # what each part costs (the difference), not the budget.
     ap.add_argument("--telemetry-clients", type=int, default=2, help="telemetry WebSockets")
     ap.add_argument("--no-record", action="store_true", help="no recording")
+    ap.add_argument(
+        "--count-instructions",
+        action="store_true",
+        help="perf stat's instructions and cycles over the window (the work, whatever the "
+        "host; perf's counting adds to the CPU figure under a VM: compare like with like)",
+    )
     ap.add_argument(
         "--telemetry-ack",
         type=int,
@@ -685,6 +766,7 @@ def main() -> None:
             f"  load {run.load[0]:.2f}->{run.load[1]:.2f}"
             f"  switches/s {sum(switches_per_s(run)):4.0f}"
             f"  host wake {run.host_wake_us[0]:3.0f}/{run.host_wake_us[1]:3.0f} us"
+            + (f"  {summary_counters(run.counters)}" if run.counters else "")
         )
     shutil.rmtree(tmp, ignore_errors=True)
 
