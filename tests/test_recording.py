@@ -625,3 +625,48 @@ def test_rows_reach_the_disk_only_after_the_frames_they_name(tmp_path):
     assert writer.stats.rows_written == 600 and writer.stats.frames_written["front"] == 1
     assert len(read_csv(csv_path)) == 600
     assert read_csv(frames_csv)[0]["offset"] == "0"
+
+
+def test_a_rows_text_is_what_csv_writes_of_its_cells():
+    """`RowFormatter.line` (what the writer writes, each group's text reused while the
+    group is unchanged) is exactly `csv.writer`'s text of `RowFormatter.row`: for the
+    states of a vehicle through the link's tracker (groups shared between rows, some
+    changing every row, some not), a mode that needs quoting, no state yet, a camera
+    without a frame, and no camera at all."""
+    import io
+    from dataclasses import replace
+
+    from companion.link_settings import LinkSettings
+    from companion.recording.rows import FrameRef, RowFormatter, Sample
+    from companion.state_tracker import StateTracker
+    from core.mavlink.framing import MavFramer
+    from tests.mav_vehicle import MavVehicle
+
+    vehicle, tracker, framer = MavVehicle(), StateTracker(), MavFramer()
+    rates = {**LinkSettings().message_rates_hz, "HEARTBEAT": 1.0}
+    due = dict.fromkeys(rates, 0.0)
+    samples = [Sample(0.0, 1.7e9, None, (None, None))]
+    for step in range(3000):  # 3 s of the vehicle, a row every 1/30 s
+        t = step / 1000
+        for name, hz in rates.items():
+            if t >= due[name]:
+                due[name] += 1 / hz
+                vehicle.alt_m, vehicle.vx_mps = 10 + t, t % 3
+                for msg in framer.feed(bytes(vehicle.build(name).pack(vehicle.mav))):
+                    tracker.update(msg, t)
+        if step % 33 == 0:
+            state = tracker.state
+            if step == 1980:
+                state = replace(state, heartbeat=replace(state.heartbeat, mode='AUTO, "RTL"'))
+            ref = FrameRef(step // 33, t - 0.01, 1.7e9 + t)
+            samples.append(Sample(t, 1.7e9 + t, state, (ref, None if step % 2 else ref)))
+    assert len({id(s.state.attitude) for s in samples[1:]}) > 50  # changing groups
+    assert len({id(s.state.rc) for s in samples[1:]}) < len(samples) - 10  # shared ones
+    for cameras in (("front", "bottom"), ()):
+        cells, text = RowFormatter(cameras, 0.0), RowFormatter(cameras, 0.0)
+        for s in samples:
+            s = replace(s, frames=s.frames[: len(cameras)])
+            expected = io.StringIO()
+            csv.writer(expected).writerow(cells.row(s))
+            assert text.line(s) == expected.getvalue()
+    assert '"AUTO, ""RTL"""' in text.line(samples[61])

@@ -6,6 +6,9 @@ writer thread formats it when it writes the batch.
 
 from __future__ import annotations
 
+import csv
+import io
+from collections.abc import Callable
 from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any
@@ -31,52 +34,87 @@ class Sample:
     frames: tuple[FrameRef | None, ...]  # one per camera, in the session's camera order
 
 
-def _cell(value: Any) -> Any:
-    if value is None:
-        return ""
-    if value is True:
-        return 1
-    if value is False:
-        return 0
-    return value
+@dataclass(frozen=True, slots=True)
+class _GroupColumns:
+    """One state group's columns: a getter of all their fields (a tuple, in column order),
+    which of them take an element of a tuple field, and which are monotonic times."""
+
+    get: Callable[[Any], tuple[Any, ...]]
+    indexed: tuple[tuple[int, int], ...]  # (column, element)
+    monos: tuple[int, ...]
+
+    @classmethod
+    def of(cls, cols: list[tuple[str, int | None]]) -> _GroupColumns:
+        fields = [field for field, _ in cols]
+        get = attrgetter(*fields)
+        return cls(
+            get=get if len(fields) > 1 else lambda obj: (get(obj),),
+            indexed=tuple((pos, index) for pos, (_, index) in enumerate(cols) if index is not None),
+            monos=tuple(
+                pos
+                for pos, (field, index) in enumerate(cols)
+                if index is None and (field == "t_mono" or field.endswith("_mono"))
+            ),
+        )
+
+
+class _CsvText:
+    """Cells as the `csv` module writes them into a row (its quoting and number text),
+    without the line's end."""
+
+    def __init__(self) -> None:
+        self._buf = io.StringIO()
+        self._writer = csv.writer(self._buf, lineterminator="")
+
+    def __call__(self, cells: list[Any]) -> str:
+        if len(cells) == 1 and cells[0] == "":
+            return ""  # csv quotes a row of one empty cell (""); inside a row it is empty
+        buf = self._buf
+        buf.seek(0)
+        buf.truncate()
+        self._writer.writerow(cells)
+        return buf.getvalue()
 
 
 class RowFormatter:
-    """Flattens samples into rows; `header` is exactly `layout.telemetry_columns(cameras)`."""
+    """Flattens samples into rows; `header` is exactly `layout.telemetry_columns(cameras)`.
+    `row` gives a row's cells, `line` the same row as telemetry.csv's text (csv's excel
+    dialect, CRLF)."""
 
     def __init__(self, cameras: tuple[str, ...], t0_mono: float) -> None:
         self.cameras = cameras
         self.t0_mono = t0_mono
         self.header = layout.telemetry_columns(cameras)
-        # Per state group: its attribute name and one (field getter, tuple index, is a
-        # monotonic time) per column, built once from the dataclass fields (generic: a new
-        # VehicleState field becomes a column without touching this module).
-        groups: dict[str, list[tuple[Any, int | None, bool]]] = {}
+        # Per state group: its getter and its columns' (built once from the dataclass
+        # fields: a new VehicleState field becomes a column without touching this module).
+        groups: dict[str, list[tuple[str, int | None]]] = {}
         for group, field, index in layout.state_fields():
-            is_mono = field == "t_mono" or field.endswith("_mono")
-            groups.setdefault(group, []).append((attrgetter(field), index, is_mono))
-        self._groups = [(attrgetter(g), cols) for g, cols in groups.items()]
+            groups.setdefault(group, []).append((field, index))
+        self._groups = [(attrgetter(g), _GroupColumns.of(cols)) for g, cols in groups.items()]
         # The link shares unchanged groups between snapshots (frozen dataclasses), so the
         # cells of a group are reused while it is the same object: most groups change at
         # 1-20 Hz while rows go at up to 100 Hz.
         self._cache: list[tuple[Any, list[Any]]] = [(None, [])] * len(self._groups)
+        # The same for `line`, with each group's cells as text: formatting numbers as text
+        # was most of a row's cost (126 columns, most of them floats), and a group's text
+        # is reused while the group is the same object.
+        self._text_cache: list[tuple[Any, str]] = [(None, "")] * len(self._groups)
+        self._csv_text = _CsvText()
         self._empty_state = VehicleState()
 
-    def _group_cells(self, obj: Any, cols: list[tuple[Any, int | None, bool]]) -> list[Any]:
+    def _group_cells(self, obj: Any, cols: _GroupColumns) -> list[Any]:
+        values = list(cols.get(obj))  # every field at once (one C call)
+        for pos, index in cols.indexed:  # an element of a tuple field (pwm_us[3])
+            value = values[pos]
+            values[pos] = value[index] if index < len(value) else None
         t0 = self.t0_mono
-        cells = []
-        for getter, index, is_mono in cols:
-            value = getter(obj)
-            if index is not None:
-                value = value[index] if index < len(value) else None
-            elif is_mono and value is not None:
-                value = round(value - t0, 6)  # station monotonic -> session clock
-            cells.append(_cell(value))
-        return cells
+        for pos in cols.monos:  # station monotonic -> session clock
+            if values[pos] is not None:
+                values[pos] = round(values[pos] - t0, 6)
+        return ["" if v is None else 1 if v is True else 0 if v is False else v for v in values]
 
     def row(self, s: Sample) -> list[Any]:
-        t0 = self.t0_mono
-        out: list[Any] = [round(s.t_mono - t0, 6), round(s.t_wall, 6)]
+        out: list[Any] = self._times(s)
         state = s.state if s.state is not None else self._empty_state
         cache = self._cache
         for i, (get_group, cols) in enumerate(self._groups):
@@ -86,6 +124,32 @@ class RowFormatter:
                 cells = self._group_cells(obj, cols)
                 cache[i] = (obj, cells)
             out.extend(cells)
+        out.extend(self._frame_cells(s))
+        return out
+
+    def line(self, s: Sample) -> str:
+        """`row(s)` as one line of telemetry.csv, as `csv.writer` writes it."""
+        text = self._csv_text
+        parts = [text(self._times(s))]
+        state = s.state if s.state is not None else self._empty_state
+        cache = self._text_cache
+        for i, (get_group, cols) in enumerate(self._groups):
+            obj = get_group(state)
+            cached_obj, group_text = cache[i]
+            if obj is not cached_obj:  # as in `row`
+                group_text = text(self._group_cells(obj, cols))
+                cache[i] = (obj, group_text)
+            parts.append(group_text)
+        frames = self._frame_cells(s)
+        if frames:  # no camera, no frame columns (and no empty text between commas)
+            parts.append(text(frames))
+        return ",".join(parts) + "\r\n"
+
+    def _times(self, s: Sample) -> list[Any]:
+        return [round(s.t_mono - self.t0_mono, 6), round(s.t_wall, 6)]
+
+    def _frame_cells(self, s: Sample) -> list[Any]:
+        out: list[Any] = []
         for cam, ref in zip(self.cameras, s.frames):
             if ref is None:
                 out.extend(("", "", "", ""))

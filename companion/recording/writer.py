@@ -204,8 +204,7 @@ class SessionWriter:
         self._csv_file = self._kept(
             open(f / layout.TELEMETRY_CSV, "w", newline="", buffering=1 << 16)
         )
-        self._csv = csv.writer(self._csv_file)
-        self._csv.writerow(self.formatter.header)
+        csv.writer(self._csv_file).writerow(self.formatter.header)  # rows: formatter.line
         self._tlog = self._kept(open(f / layout.MAVLINK_TLOG, "wb", buffering=1 << 16))
         self._messages_file = self._kept(
             open(f / layout.MESSAGES_CSV, "w", newline="", buffering=1 << 12)
@@ -323,7 +322,7 @@ class SessionWriter:
             packets.clear()
         while rows:
             sample = rows[0]
-            self._csv.writerow(self.formatter.row(sample))
+            self._csv_file.write(self.formatter.line(sample))
             if sample.state is not None:
                 self._write_messages(sample)
             rows.popleft()
