@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any
@@ -115,14 +115,7 @@ class RowFormatter:
 
     def row(self, s: Sample) -> list[Any]:
         out: list[Any] = self._times(s)
-        state = s.state if s.state is not None else self._empty_state
-        cache = self._cache
-        for i, (get_group, cols) in enumerate(self._groups):
-            obj = get_group(state)
-            cached_obj, cells = cache[i]
-            if obj is not cached_obj:  # identity: the cache holds obj, so ids never recycle
-                cells = self._group_cells(obj, cols)
-                cache[i] = (obj, cells)
+        for cells in self._per_group(s, self._cache, self._group_cells):
             out.extend(cells)
         out.extend(self._frame_cells(s))
         return out
@@ -131,19 +124,30 @@ class RowFormatter:
         """`row(s)` as one line of telemetry.csv, as `csv.writer` writes it."""
         text = self._csv_text
         parts = [text(self._times(s))]
-        state = s.state if s.state is not None else self._empty_state
-        cache = self._text_cache
-        for i, (get_group, cols) in enumerate(self._groups):
-            obj = get_group(state)
-            cached_obj, group_text = cache[i]
-            if obj is not cached_obj:  # as in `row`
-                group_text = text(self._group_cells(obj, cols))
-                cache[i] = (obj, group_text)
-            parts.append(group_text)
+        parts.extend(
+            self._per_group(
+                s, self._text_cache, lambda obj, cols: text(self._group_cells(obj, cols))
+            )
+        )
         frames = self._frame_cells(s)
         if frames:  # no camera, no frame columns (and no empty text between commas)
             parts.append(text(frames))
         return ",".join(parts) + "\r\n"
+
+    def _per_group(
+        self, s: Sample, cache: list[tuple[Any, Any]], make: Callable[[Any, _GroupColumns], Any]
+    ) -> Iterator[Any]:
+        """`make(group, columns)` of each state group of `s`, in column order, reused from
+        `cache` while the group is the same object (identity: the cache holds the object,
+        so ids never recycle)."""
+        state = s.state if s.state is not None else self._empty_state
+        for i, (get_group, cols) in enumerate(self._groups):
+            obj = get_group(state)
+            cached_obj, made = cache[i]
+            if obj is not cached_obj:
+                made = make(obj, cols)
+                cache[i] = (obj, made)
+            yield made
 
     def _times(self, s: Sample) -> list[Any]:
         return [round(s.t_mono - self.t0_mono, 6), round(s.t_wall, 6)]
