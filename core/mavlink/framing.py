@@ -12,7 +12,7 @@ pymavlink's own `parse_buffer` (even with `robust_parsing`) drops a whole frame'
 of bytes when a stray 0xFD/0xFE in garbage starts a false frame, which can swallow a
 real packet behind it. Here a frame that fails its checksum costs one byte: the search
 for the next start marker resumes right after the false one, as MAVLink routers do.
-Decoding and checksums are pymavlink's (`MAVLink.decode`).
+Decoding and checksums are pymavlink's (`MAVLink.decode`, through core.mavlink.fast_decode).
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from core.mavlink.fast_decode import FastDecoder
 
 MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD
@@ -40,7 +42,7 @@ class MavFramer:
 
     def __init__(self) -> None:
         self._buf = bytearray()
-        self._mav = mavlink.MAVLink(None)
+        self._mav = FastDecoder()  # pymavlink's decode, cheaper for the plain messages
         self.counters = FramerCounters()
 
     @property
