@@ -94,7 +94,11 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
         # frame's capture time and its publish (0.964 at load 5-7 once, against 0.97).
         assert np.mean(ok) >= 0.9, (cam, np.mean(ok), q)
         skews = np.array([float(r[f"{cam}.skew_s"]) for r in rows if r[f"{cam}.seq"]])
-        assert np.median(skews) < period, (cam, q)
+        # The freshest frame is under one period old at the median row, a period of the
+        # frames as they came: the configured one on a quiet machine (20 ms here); a starved
+        # box renders fewer (20.8 of 30 fps once in CI, median 34.8 ms), and each is older.
+        # A recorder one frame behind would be at one and a half periods.
+        assert np.median(skews) < max(period, 1.0 / q["achieved_fps"]), (cam, q)
         print(
             f"{cam}: skew median {np.median(skews) * 1e3:.1f} ms, p99 "
             f"{q['skew_p99_s'] * 1e3:.1f} ms, frame period {period * 1e3:.1f} ms"
