@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any
@@ -67,8 +67,6 @@ class _CsvText:
         self._writer = csv.writer(self._buf, lineterminator="")
 
     def __call__(self, cells: list[Any]) -> str:
-        if len(cells) == 1 and cells[0] == "":
-            return ""  # csv quotes a row of one empty cell (""); inside a row it is empty
         buf = self._buf
         buf.seek(0)
         buf.truncate()
@@ -77,9 +75,8 @@ class _CsvText:
 
 
 class RowFormatter:
-    """Flattens samples into rows; `header` is exactly `layout.telemetry_columns(cameras)`.
-    `row` gives a row's cells, `line` the same row as telemetry.csv's text (csv's excel
-    dialect, CRLF)."""
+    """Turns samples into telemetry.csv lines (csv's excel dialect, CRLF); `header` is
+    exactly `layout.telemetry_columns(cameras)`."""
 
     def __init__(self, cameras: tuple[str, ...], t0_mono: float) -> None:
         self.cameras = cameras
@@ -91,13 +88,10 @@ class RowFormatter:
         for group, field, index in layout.state_fields():
             groups.setdefault(group, []).append((field, index))
         self._groups = [(attrgetter(g), _GroupColumns.of(cols)) for g, cols in groups.items()]
-        # The link shares unchanged groups between snapshots (frozen dataclasses), so the
-        # cells of a group are reused while it is the same object: most groups change at
-        # 1-20 Hz while rows go at up to 100 Hz.
-        self._cache: list[tuple[Any, list[Any]]] = [(None, [])] * len(self._groups)
-        # The same for `line`, with each group's cells as text: formatting numbers as text
-        # was most of a row's cost (126 columns, most of them floats), and a group's text
-        # is reused while the group is the same object.
+        # The link shares unchanged groups between snapshots (frozen dataclasses), and
+        # most groups change at 1-20 Hz while rows go at up to 100 Hz: a group's text
+        # (formatting numbers as text is most of a row's cost: 126 columns, most of them
+        # floats) is reused while the group is the same object.
         self._text_cache: list[tuple[Any, str]] = [(None, "")] * len(self._groups)
         self._csv_text = _CsvText()
         self._empty_state = VehicleState()
@@ -113,41 +107,23 @@ class RowFormatter:
                 values[pos] = round(values[pos] - t0, 6)
         return ["" if v is None else 1 if v is True else 0 if v is False else v for v in values]
 
-    def row(self, s: Sample) -> list[Any]:
-        out: list[Any] = self._times(s)
-        for cells in self._per_group(s, self._cache, self._group_cells):
-            out.extend(cells)
-        out.extend(self._frame_cells(s))
-        return out
-
     def line(self, s: Sample) -> str:
-        """`row(s)` as one line of telemetry.csv, as `csv.writer` writes it."""
+        """The telemetry.csv line of `s`, as `csv.writer` writes its cells."""
         text = self._csv_text
         parts = [text(self._times(s))]
-        parts.extend(
-            self._per_group(
-                s, self._text_cache, lambda obj, cols: text(self._group_cells(obj, cols))
-            )
-        )
+        state = s.state if s.state is not None else self._empty_state
+        cache = self._text_cache
+        for i, (get_group, cols) in enumerate(self._groups):
+            obj = get_group(state)
+            cached_obj, group_text = cache[i]
+            if obj is not cached_obj:  # identity: the cache holds obj, so ids never recycle
+                group_text = text(self._group_cells(obj, cols))
+                cache[i] = (obj, group_text)
+            parts.append(group_text)
         frames = self._frame_cells(s)
         if frames:  # no camera, no frame columns (and no empty text between commas)
             parts.append(text(frames))
         return ",".join(parts) + "\r\n"
-
-    def _per_group(
-        self, s: Sample, cache: list[tuple[Any, Any]], make: Callable[[Any, _GroupColumns], Any]
-    ) -> Iterator[Any]:
-        """`make(group, columns)` of each state group of `s`, in column order, reused from
-        `cache` while the group is the same object (identity: the cache holds the object,
-        so ids never recycle)."""
-        state = s.state if s.state is not None else self._empty_state
-        for i, (get_group, cols) in enumerate(self._groups):
-            obj = get_group(state)
-            cached_obj, made = cache[i]
-            if obj is not cached_obj:
-                made = make(obj, cols)
-                cache[i] = (obj, made)
-            yield made
 
     def _times(self, s: Sample) -> list[Any]:
         return [round(s.t_mono - self.t0_mono, 6), round(s.t_wall, 6)]
