@@ -24,8 +24,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 _V1_HEADER = 6
 _V2_HEADER = 10
-# What pymavlink's decode sets per packet: not copied from the prototype.
-_PER_PACKET = frozenset(("_header", "_msgbuf", "_payload", "_crc", "_signed", "_link_id"))
+# What pymavlink's decode sets per packet: not copied from the prototype (whose `_signed`
+# False and `_link_id` None are what an unsigned packet, the only kind decoded here, has).
+_PER_PACKET = frozenset(("_header", "_msgbuf", "_payload", "_crc"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,8 +120,6 @@ class FastDecoder:
         attrs = msg.__dict__
         attrs.update(layout.constant)
         attrs.update(zip(layout.fieldnames, values))
-        attrs["_signed"] = False
-        attrs["_link_id"] = None
         attrs["_msgbuf"] = buf
         attrs["_payload"] = buf[6 : n - 2]
         attrs["_crc"] = crc
