@@ -16,6 +16,7 @@ reader can tell a slower host from a slower station (docs/PERFORMANCE.md).
 from __future__ import annotations
 
 import argparse
+import shutil
 import subprocess
 import sys
 import time
@@ -69,17 +70,59 @@ def probe_in_subprocess(wakes: int = 100, sleep_s: float = 0.005) -> float:
     return float(out.stdout.split()[0])
 
 
+def busy(seconds: float) -> None:
+    """The step in a warm loop for `seconds`: what perf stat times for `warm_speed`."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        _step()
+
+
+def warm_speed(seconds: float = 2.0) -> float | None:
+    """User-space instructions warm Python runs here per second of CPU (perf stat over
+    `busy` in a fresh interpreter); None without perf or its counters.
+
+    A process's user instructions a second over this figure is the share of one core its
+    work would take at warm speed; the rest of its user time is the cost of waking
+    (docs/PERFORMANCE.md, round 8: under 1 % of a core of the station's 12 % here)."""
+    perf = shutil.which("perf")
+    if perf is None:
+        return None
+    command = [sys.executable, str(Path(__file__)), "--busy", str(seconds)]
+    out = subprocess.run(
+        [perf, "stat", "-x,", "-e", "instructions:u,task-clock", "--", *command],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    counts = {}
+    for line in out.stderr.splitlines():  # value,unit,event,... (perf's CSV output)
+        value, _, event = (line.split(",") + ["", ""])[:3]
+        try:
+            counts[event] = float(value)
+        except ValueError:  # "<not supported>", or a line that is not a count
+            continue
+    instructions, cpu_ms = counts.get("instructions:u"), counts.get("task-clock")
+    return instructions / (cpu_ms / 1e3) if instructions and cpu_ms else None
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--wakes", type=int, default=100)
     ap.add_argument("--sleep-ms", type=float, default=5.0)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--quiet", action="store_true", help="print the per-wake figure only")
+    ap.add_argument("--busy", type=float, help="only run the step warm for this many seconds")
     args = ap.parse_args()
+    if args.busy is not None:
+        busy(args.busy)
+        return
     if args.quiet:
         print(f"{wake_cost_us(args.wakes, args.sleep_ms / 1e3):.1f}")
         return
     print(f"# warm step: {warm_step_us():.1f} us of CPU")
+    speed = warm_speed()
+    if speed is not None:
+        print(f"# warm Python here: {speed / 1e6:.0f} M instructions per CPU second (perf stat)")
     for _ in range(args.repeat):
         cost = wake_cost_us(args.wakes, args.sleep_ms / 1e3)
         print(

@@ -36,7 +36,9 @@ py-spy's samples of it that hold the GIL (`--no-profile`: not split); the busies
 functions (self time in those samples, every thread) follow. `--count-instructions`
 adds perf's count of the instructions the station ran and the cycles they took: the
 work itself, which the host under a VM does not change, apart from what the host made
-of it (cycles per instruction).
+of it (cycles per instruction), and the share of a core the user-space part would take
+at the speed of warm Python on this host (host_wake_cost.warm_speed, just after the
+window): the rest of the CPU figure is what waking costs here.
 Figures, machine and load average go in docs/PERFORMANCE.md.
 """
 
@@ -65,7 +67,7 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.host_wake_cost import probe_in_subprocess  # noqa: E402
+from benchmarks.host_wake_cost import probe_in_subprocess, warm_speed  # noqa: E402
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
 from server.install_service import small_pi_toml  # noqa: E402
 from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle  # noqa: E402
@@ -117,6 +119,8 @@ class Run:
     # perf's counts over the window, per second: instructions and cycles, user and kernel
     # ("instructions:u", ...); empty without perf or hardware counters.
     counters: dict[str, float] = field(default_factory=dict)
+    # User instructions warm Python runs here per CPU second, after the window (perf).
+    warm_insn_per_s: float | None = None
     top: list[tuple[str, float]] = field(default_factory=list)  # (function, share of samples)
     packets_per_s: float = 0.0
     fps: dict[str, float] = field(default_factory=dict)
@@ -466,7 +470,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
 
     asyncio.run(drive())
     (cpu0, threads0, sw0, status0, t0, load0, host0, spy, perf) = result["start"]
-    (cpu1, threads1, sw1, status1, t1, load1, host1, counts) = result["end"]
+    (cpu1, threads1, sw1, status1, t1, load1, host1, counts, warm) = result["end"]
     seconds = t1 - t0
     profile = profile_path(station)
     samples: dict = {}
@@ -515,6 +519,7 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
         },
         host_wake_us=(host0, host1),
         counters={event: n / seconds for event, n in counts.items()},
+        warm_insn_per_s=warm,
         components=split_components(threads, pid, samples),
         top=top_functions(samples),
         packets_per_s=packets / seconds,
@@ -562,7 +567,8 @@ def window_end(station: StationProcess, perf: subprocess.Popen | None):
     switches = thread_switches(pid)
     status = httpx.get(f"{station.base}/api/status", timeout=10).json()
     host = probe_in_subprocess()
-    return cpu, threads, switches, status, t, os.getloadavg()[0], host, counts
+    warm = warm_speed() if counts else None
+    return cpu, threads, switches, status, t, os.getloadavg()[0], host, counts, warm
 
 
 # -- printing ----------------------------------------------------------------------------------
@@ -586,6 +592,12 @@ def describe_counters(c: dict[str, float]) -> str:
             cpi = f", {cycles / insn:.2f} cycles each" if cycles else ""
             parts.append(f"{name} {insn / 1e6:.0f} M instructions/s{cpi}")
     return "; ".join(parts)
+
+
+def warm_share(run: Run) -> float | None:
+    """% of one core the run's user instructions would take at warm Python's speed."""
+    insn = run.counters.get("instructions:u")
+    return insn / run.warm_insn_per_s * 100 if insn and run.warm_insn_per_s else None
 
 
 def summary_counters(c: dict[str, float]) -> str:
@@ -623,6 +635,12 @@ def report(run: Run) -> None:
     )
     if run.counters:
         print(f"   perf stat: {describe_counters(run.counters)}")
+        share = warm_share(run)
+        if share is not None:
+            print(
+                f"   at warm Python's speed here ({run.warm_insn_per_s / 1e6:.0f} M instructions "
+                f"per CPU second) the user instructions would take {share:.2f} % of one core"
+            )
     print(
         f"   {'thread':<40} {'tid':>7} {'% core':>7} {'of it sys':>9} {'vol/s':>6} {'invol/s':>7}"
     )
@@ -767,6 +785,7 @@ def main() -> None:
             f"  switches/s {sum(switches_per_s(run)):4.0f}"
             f"  host wake {run.host_wake_us[0]:3.0f}/{run.host_wake_us[1]:3.0f} us"
             + (f"  {summary_counters(run.counters)}" if run.counters else "")
+            + (f"  warm {share:.2f} %" if (share := warm_share(run)) is not None else "")
         )
     shutil.rmtree(tmp, ignore_errors=True)
 
