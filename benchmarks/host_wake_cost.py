@@ -94,15 +94,22 @@ def warm_speed(seconds: float = 2.0) -> float | None:
         text=True,
         timeout=30,
     )
+    counts = perf_counts(out.stderr)
+    instructions, cpu_ms = counts.get("instructions:u"), counts.get("task-clock")
+    return instructions / (cpu_ms / 1e3) if instructions and cpu_ms else None
+
+
+def perf_counts(text: str) -> dict[str, float]:
+    """Event -> count in `perf stat -x,` output (value,unit,event,...); what perf could
+    not count ("<not supported>", "<not counted>") is left out."""
     counts = {}
-    for line in out.stderr.splitlines():  # value,unit,event,... (perf's CSV output)
+    for line in text.splitlines():
         value, _, event = (line.split(",") + ["", ""])[:3]
         try:
             counts[event] = float(value)
-        except ValueError:  # "<not supported>", or a line that is not a count
+        except ValueError:  # "<not counted>" and the like, or a comment line
             continue
-    instructions, cpu_ms = counts.get("instructions:u"), counts.get("task-clock")
-    return instructions / (cpu_ms / 1e3) if instructions and cpu_ms else None
+    return counts
 
 
 def main() -> None:

@@ -67,7 +67,7 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.host_wake_cost import probe_in_subprocess, warm_speed  # noqa: E402
+from benchmarks.host_wake_cost import perf_counts, probe_in_subprocess, warm_speed  # noqa: E402
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
 from server.install_service import small_pi_toml  # noqa: E402
 from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle  # noqa: E402
@@ -257,12 +257,8 @@ def stop_counting(perf: subprocess.Popen | None, out: Path) -> dict[str, int]:
     except subprocess.TimeoutExpired:
         perf.kill()
         return {}
-    counts = {}
-    for line in out.read_text().splitlines() if out.exists() else []:
-        value, _, event = (line.split(",") + ["", ""])[:3]
-        if event in COUNTED and value.isdigit():
-            counts[event] = int(value)
-    return counts
+    counts = perf_counts(out.read_text()) if out.exists() else {}
+    return {event: int(n) for event, n in counts.items() if event in COUNTED}
 
 
 def read_profile(path: Path) -> dict[int, list[tuple[list[str], int]]]:
