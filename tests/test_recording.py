@@ -629,7 +629,8 @@ def test_rows_reach_the_disk_only_after_the_frames_they_name(tmp_path):
 
 def test_a_rows_text_is_what_csv_writes_of_its_cells():
     """`RowFormatter.line` (what the writer writes, each group's text reused while the
-    group is unchanged) is exactly `csv.writer`'s text of the row's cells, taken here
+    group is unchanged) and its `header_line` are exactly `csv.writer`'s text of the
+    row's cells and of the columns, taken here
     plainly, column by column from `layout.state_fields`: for the
     states of a vehicle through the link's tracker (groups shared between rows, some
     changing every row, some not), a mode that needs quoting, no state yet, a camera
@@ -693,6 +694,9 @@ def test_a_rows_text_is_what_csv_writes_of_its_cells():
 
     for cameras in (("front", "bottom"), ()):
         text = RowFormatter(cameras, 0.0)
+        expected = io.StringIO()
+        csv.writer(expected).writerow(layout.telemetry_columns(cameras))
+        assert text.header_line() == expected.getvalue()
         for s in samples:
             s = replace(s, frames=s.frames[: len(cameras)])
             expected = io.StringIO()

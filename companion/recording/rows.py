@@ -58,6 +58,9 @@ class _GroupColumns:
         )
 
 
+_EOL = "\r\n"  # the csv module's excel dialect ends its rows so
+
+
 class _CsvText:
     """Cells as the `csv` module writes them into a row (its quoting and number text),
     without the line's end."""
@@ -76,7 +79,7 @@ class _CsvText:
 
 class RowFormatter:
     """Turns samples into telemetry.csv lines (csv's excel dialect, CRLF); `header` is
-    exactly `layout.telemetry_columns(cameras)`."""
+    exactly `layout.telemetry_columns(cameras)`, and `header_line` its line."""
 
     def __init__(self, cameras: tuple[str, ...], t0_mono: float) -> None:
         self.cameras = cameras
@@ -107,6 +110,10 @@ class RowFormatter:
                 values[pos] = round(values[pos] - t0, 6)
         return ["" if v is None else 1 if v is True else 0 if v is False else v for v in values]
 
+    def header_line(self) -> str:
+        """The file's first line: the column names, written as the rows are."""
+        return self._csv_text(self.header) + _EOL
+
     def line(self, s: Sample) -> str:
         """The telemetry.csv line of `s`, as `csv.writer` writes its cells."""
         text = self._csv_text
@@ -123,7 +130,7 @@ class RowFormatter:
         frames = self._frame_cells(s)
         if frames:  # no camera, no frame columns (and no empty text between commas)
             parts.append(text(frames))
-        return ",".join(parts) + "\r\n"
+        return ",".join(parts) + _EOL
 
     def _times(self, s: Sample) -> list[Any]:
         return [round(s.t_mono - self.t0_mono, 6), round(s.t_wall, 6)]

@@ -204,7 +204,7 @@ class SessionWriter:
         self._csv_file = self._kept(
             open(f / layout.TELEMETRY_CSV, "w", newline="", buffering=1 << 16)
         )
-        csv.writer(self._csv_file).writerow(self.formatter.header)  # rows: formatter.line
+        self._csv_file.write(self.formatter.header_line())
         self._tlog = self._kept(open(f / layout.MAVLINK_TLOG, "wb", buffering=1 << 16))
         self._messages_file = self._kept(
             open(f / layout.MESSAGES_CSV, "w", newline="", buffering=1 << 12)
