@@ -15,7 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink2
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from analysis.errors import NoGpsFixError, TrackLoadError
 from analysis.vehicle_clock import on_vehicle_clock

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from core.geodesy import geodetic_to_enu
 from twin.control import AUTO_LOITER, AUTO_MISSION

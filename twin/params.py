@@ -6,7 +6,7 @@ are read-only: change the twin through its settings, not PARAM_SET.
 from __future__ import annotations
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from twin.sim import SimConfig
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from core.geodesy import enu_to_geodetic
 from core.mavlink.px4_modes import px4_custom_mode

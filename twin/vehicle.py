@@ -28,7 +28,7 @@ import math
 import socket
 from dataclasses import dataclass
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES, px4_main_sub, px4_mode_name
 from core.mavlink.signing import SignatureCheck, enable_signing
