@@ -164,7 +164,7 @@ def stages(packets, msgs, recorder, session, args) -> list[tuple[str, float]]:
     out.append(("link, all together", per_packet_us(whole, n)))
     drain()
     if args.profile:
-        for name, stage in (("state merge", state_merge), ("framing", framing)):
+        for name, stage in (("state merge", state_merge), ("framing", framing), ("link", whole)):
             profiler = cProfile.Profile()
             profiler.runcall(stage, n)
             print(f"-- cProfile: {name}")
