@@ -15,7 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from analysis.errors import NoGpsFixError, TrackLoadError
 from analysis.vehicle_clock import on_vehicle_clock
@@ -23,13 +23,13 @@ from core.mavlink.framing import message_id
 from core.mavlink.tlog_records import TlogReader
 
 _WANTED = {
-    mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT,
-    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-    mavlink2.MAVLINK_MSG_ID_HEARTBEAT,
-    mavlink2.MAVLINK_MSG_ID_VFR_HUD,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD,
 }
-_ARMED = mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
-_NOT_AUTOPILOT = (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER)
+_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+_NOT_AUTOPILOT = (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER)
 _UINT16_UNKNOWN = 65535
 
 
@@ -42,7 +42,7 @@ def read_tlog_samples(path: Path, min_fix_type: int = 3) -> dict[str, np.ndarray
     hb: list[tuple[float, bool]] = []
     rel: list[tuple[float, float]] = []
     hud: list[tuple[float, float, float]] = []
-    decoder = mavlink2.MAVLink(None)
+    decoder = mavlink.MAVLink(None)
     decoder.robust_parsing = True
     reader = TlogReader(path)
     try:
@@ -69,7 +69,7 @@ def read_tlog_samples(path: Path, min_fix_type: int = 3) -> dict[str, np.ndarray
                 )  # fmt: skip
                 rel.append((t, msg.relative_alt / 1000.0))
             elif kind == "HEARTBEAT":
-                if msg.type in _NOT_AUTOPILOT or msg.autopilot == mavlink2.MAV_AUTOPILOT_INVALID:
+                if msg.type in _NOT_AUTOPILOT or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
                     continue  # the station's or a companion's own heartbeat
                 hb.append((t, bool(msg.base_mode & _ARMED)))
             elif kind == "VFR_HUD":
