@@ -20,6 +20,7 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -102,14 +103,30 @@ def warm_speed(seconds: float = 2.0) -> float | None:
 def perf_counts(text: str) -> dict[str, float]:
     """Event -> count in `perf stat -x,` output (value,unit,event,...); what perf could
     not count ("<not supported>", "<not counted>") is left out."""
-    counts = {}
+    return {event: value for _, event, value in _perf_lines(text, per_thread=False)}
+
+
+def perf_counts_per_thread(text: str) -> dict[int, dict[str, float]]:
+    """Thread id -> event -> count in `perf stat --per-thread -x,` output, whose lines
+    start with the thread's `comm-tid` (python-28961,value,unit,event,...)."""
+    counts: dict[int, dict[str, float]] = {}
+    for tid, event, value in _perf_lines(text, per_thread=True):
+        counts.setdefault(tid, {})[event] = value
+    return counts
+
+
+def _perf_lines(text: str, per_thread: bool) -> Iterator[tuple[int, str, float]]:
+    """(thread id, or 0 without --per-thread; event; count) of each counted line."""
     for line in text.splitlines():
-        value, _, event = (line.split(",") + ["", ""])[:3]
+        fields = line.split(",")
+        tid = "0"
+        if per_thread:
+            tid = fields.pop(0).rpartition("-")[2]
+        value, _, event = (fields + ["", "", ""])[:3]
         try:
-            counts[event] = float(value)
+            yield int(tid), event, float(value)
         except ValueError:  # "<not counted>" and the like, or a comment line
             continue
-    return counts
 
 
 def main() -> None:

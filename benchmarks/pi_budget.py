@@ -34,9 +34,9 @@ cameras, fan-out (frames and telemetry to clients), recorder, web (the rest of t
 loop), 3D panel, other. The event loop thread is split between fan-out, 3D panel and web by
 py-spy's samples of it that hold the GIL (`--no-profile`: not split); the busiest
 functions (self time in those samples, every thread) follow. `--count-instructions`
-adds perf's count of the instructions the station ran and the cycles they took: the
-work itself, which the host under a VM does not change, apart from what the host made
-of it (cycles per instruction), and the share of a core the user-space part would take
+adds perf's count of the instructions the station ran and the cycles they took, in all
+and per thread: the work itself, which the host under a VM does not change, apart from
+what the host made of it (cycles per instruction), and the share of a core the user-space part would take
 at the speed of warm Python on this host (host_wake_cost.warm_speed, just after the
 window): the rest of the CPU figure is what waking costs here.
 Figures, machine and load average go in docs/PERFORMANCE.md.
@@ -67,7 +67,11 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.host_wake_cost import perf_counts, probe_in_subprocess, warm_speed  # noqa: E402
+from benchmarks.host_wake_cost import (  # noqa: E402
+    perf_counts_per_thread,
+    probe_in_subprocess,
+    warm_speed,
+)
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
 from server.install_service import small_pi_toml  # noqa: E402
 from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle  # noqa: E402
@@ -119,6 +123,7 @@ class Run:
     # perf's counts over the window, per second: instructions and cycles, user and kernel
     # ("instructions:u", ...); empty without perf or hardware counters.
     counters: dict[str, float] = field(default_factory=dict)
+    thread_counters: dict[int, dict[str, float]] = field(default_factory=dict)  # the same, per tid
     # User instructions warm Python runs here per CPU second, after the window (perf).
     warm_insn_per_s: float | None = None
     top: list[tuple[str, float]] = field(default_factory=list)  # (function, share of samples)
@@ -231,7 +236,7 @@ COUNTED = ("instructions:u", "instructions:k", "cycles:u", "cycles:k")
 
 
 def start_counting(pid: int, out: Path) -> subprocess.Popen | None:
-    """`perf stat` on the station's threads for the window: the instructions it runs,
+    """`perf stat` on each of the station's threads for the window: the instructions it runs,
     which the host under a VM does not change, and the cycles they took, which it does
     (cold caches after each wake-up). None where perf is not installed. Under a VM the
     counters are saved and restored at every context switch, which the CPU figure then
@@ -240,15 +245,16 @@ def start_counting(pid: int, out: Path) -> subprocess.Popen | None:
     if perf is None:
         return None
     return subprocess.Popen(
-        [perf, "stat", "-x,", "-e", ",".join(COUNTED), "-p", str(pid), "-o", str(out)],
+        [perf, "stat", "--per-thread", "-x,", "-e", ",".join(COUNTED), "-p", str(pid)]
+        + ["-o", str(out)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
 
 
-def stop_counting(perf: subprocess.Popen | None, out: Path) -> dict[str, int]:
-    """The counts of `start_counting`; empty where the machine has no such counters
-    (perf prints "<not supported>")."""
+def stop_counting(perf: subprocess.Popen | None, out: Path) -> dict[int, dict[str, float]]:
+    """The counts of `start_counting`, per thread id; empty where the machine has no
+    such counters (perf prints "<not supported>")."""
     if perf is None:
         return {}
     perf.send_signal(signal.SIGINT)
@@ -257,8 +263,11 @@ def stop_counting(perf: subprocess.Popen | None, out: Path) -> dict[str, int]:
     except subprocess.TimeoutExpired:
         perf.kill()
         return {}
-    counts = perf_counts(out.read_text()) if out.exists() else {}
-    return {event: int(n) for event, n in counts.items() if event in COUNTED}
+    counts = perf_counts_per_thread(out.read_text()) if out.exists() else {}
+    return {
+        tid: {event: n for event, n in events.items() if event in COUNTED}
+        for tid, events in counts.items()
+    }
 
 
 def read_profile(path: Path) -> dict[int, list[tuple[list[str], int]]]:
@@ -514,7 +523,15 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
             for tid, (v, n) in sw1.items()
         },
         host_wake_us=(host0, host1),
-        counters={event: n / seconds for event, n in counts.items()},
+        counters={
+            event: sum(events.get(event, 0.0) for events in counts.values()) / seconds
+            for event in COUNTED
+            if any(event in events for events in counts.values())
+        },
+        thread_counters={
+            tid: {event: n / seconds for event, n in events.items()}
+            for tid, events in counts.items()
+        },
         warm_insn_per_s=warm,
         components=split_components(threads, pid, samples),
         top=top_functions(samples),
@@ -590,6 +607,17 @@ def describe_counters(c: dict[str, float]) -> str:
     return "; ".join(parts)
 
 
+def thread_counter_columns(c: dict[str, float] | None) -> str:
+    """A thread's columns of the table with perf: user instructions a second (millions)
+    and cycles per instruction; blank without them."""
+    if c is None:
+        return ""
+    insn, cycles = c.get("instructions:u", 0.0), c.get("cycles:u", 0.0)
+    if not insn:
+        return f" {'-':>9} {'-':>8}"
+    return f" {insn / 1e6:>9.1f} {cycles / insn:>8.2f}"
+
+
 def warm_share(run: Run) -> float | None:
     """% of one core the run's user instructions would take at warm Python's speed."""
     insn = run.counters.get("instructions:u")
@@ -637,8 +665,12 @@ def report(run: Run) -> None:
                 f"   at warm Python's speed here ({run.warm_insn_per_s / 1e6:.0f} M instructions "
                 f"per CPU second) the user instructions would take {share:.2f} % of one core"
             )
+    # With perf, each thread's user instructions a second and the cycles each took: a
+    # thread that works in batches runs them warm, one woken for each item cold.
+    counted = " M insn/s cyc/insn" if run.thread_counters else ""
     print(
         f"   {'thread':<40} {'tid':>7} {'% core':>7} {'of it sys':>9} {'vol/s':>6} {'invol/s':>7}"
+        + counted
     )
     for info, cpu in run.threads:
         if cpu > 0:
@@ -647,6 +679,7 @@ def report(run: Run) -> None:
             print(
                 f"   {info.name[:40]:<40} {info.tid:>7} {cpu / run.seconds * 100:>7.2f} "
                 f"{sys_pct:>9.2f} {v / run.seconds:>6.0f} {n / run.seconds:>7.0f}"
+                + thread_counter_columns(run.thread_counters.get(info.tid) if counted else None)
             )
     idle = [info.name for info, cpu in run.threads if cpu <= 0]
     if idle:
