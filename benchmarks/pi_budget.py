@@ -36,9 +36,10 @@ py-spy's samples of it that hold the GIL (`--no-profile`: not split); the busies
 functions (self time in those samples, every thread) follow. `--count-instructions`
 adds perf's count of the instructions the station ran and the cycles they took, in all
 and per thread: the work itself, which the host under a VM does not change, apart from
-what the host made of it (cycles per instruction), and the share of a core the user-space part would take
-at the speed of warm Python on this host (host_wake_cost.warm_speed, just after the
-window): the rest of the CPU figure is what waking costs here.
+what the host made of it (cycles per instruction), and the share of a core the
+user-space part would take at the speed of warm Python on this host
+(host_wake_cost.warm_speed, just after the window): the rest of the CPU figure is what
+waking costs here.
 Figures, machine and load average go in docs/PERFORMANCE.md.
 """
 
