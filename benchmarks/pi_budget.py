@@ -121,10 +121,9 @@ class Run:
     switches: dict[int, tuple[int, int]]
     host_wake_us: tuple[float, float]  # host_wake_cost.py before and after the window
     components: dict[str, float]
-    # perf's counts over the window, per second: instructions and cycles, user and kernel
-    # ("instructions:u", ...); empty without perf or hardware counters.
-    counters: dict[str, float] = field(default_factory=dict)
-    thread_counters: dict[int, dict[str, float]] = field(default_factory=dict)  # the same, per tid
+    # perf's counts over the window per thread id, per second: instructions and cycles,
+    # user and kernel ("instructions:u", ...); empty without perf or hardware counters.
+    thread_counters: dict[int, dict[str, float]] = field(default_factory=dict)
     # User instructions warm Python runs here per CPU second, after the window (perf).
     warm_insn_per_s: float | None = None
     top: list[tuple[str, float]] = field(default_factory=list)  # (function, share of samples)
@@ -132,6 +131,14 @@ class Run:
     fps: dict[str, float] = field(default_factory=dict)
     telemetry_msgs_per_s: list[float] = field(default_factory=list)
     viewer_fps: list[float] = field(default_factory=list)
+
+    @property
+    def counters(self) -> dict[str, float]:
+        """The process's counts a second: its threads' summed."""
+        total: collections.Counter[str] = collections.Counter()
+        for events in self.thread_counters.values():
+            total.update(events)
+        return dict(total)
 
 
 # -- /proc -----------------------------------------------------------------------------
@@ -264,11 +271,7 @@ def stop_counting(perf: subprocess.Popen | None, out: Path) -> dict[int, dict[st
     except subprocess.TimeoutExpired:
         perf.kill()
         return {}
-    counts = perf_counts_per_thread(out.read_text()) if out.exists() else {}
-    return {
-        tid: {event: n for event, n in events.items() if event in COUNTED}
-        for tid, events in counts.items()
-    }
+    return perf_counts_per_thread(out.read_text()) if out.exists() else {}
 
 
 def read_profile(path: Path) -> dict[int, list[tuple[list[str], int]]]:
@@ -524,11 +527,6 @@ def measure(args: argparse.Namespace, station: StationProcess, label: str) -> Ru
             for tid, (v, n) in sw1.items()
         },
         host_wake_us=(host0, host1),
-        counters={
-            event: sum(events.get(event, 0.0) for events in counts.values()) / seconds
-            for event in COUNTED
-            if any(event in events for events in counts.values())
-        },
         thread_counters={
             tid: {event: n / seconds for event, n in events.items()}
             for tid, events in counts.items()
@@ -608,11 +606,9 @@ def describe_counters(c: dict[str, float]) -> str:
     return "; ".join(parts)
 
 
-def thread_counter_columns(c: dict[str, float] | None) -> str:
+def thread_counter_columns(c: dict[str, float]) -> str:
     """A thread's columns of the table with perf: user instructions a second (millions)
-    and cycles per instruction; blank without them."""
-    if c is None:
-        return ""
+    and cycles per instruction; dashes for a thread perf did not count."""
     insn, cycles = c.get("instructions:u", 0.0), c.get("cycles:u", 0.0)
     if not insn:
         return f" {'-':>9} {'-':>8}"
@@ -680,7 +676,7 @@ def report(run: Run) -> None:
             print(
                 f"   {info.name[:40]:<40} {info.tid:>7} {cpu / run.seconds * 100:>7.2f} "
                 f"{sys_pct:>9.2f} {v / run.seconds:>6.0f} {n / run.seconds:>7.0f}"
-                + thread_counter_columns(run.thread_counters.get(info.tid) if counted else None)
+                + (thread_counter_columns(run.thread_counters.get(info.tid, {})) if counted else "")
             )
     idle = [info.name for info, cpu in run.threads if cpu <= 0]
     if idle:
