@@ -54,6 +54,8 @@ class ServerSettings(Section):
     # takes 25 (the commented lines of deploy/config.toml; docs/PERFORMANCE.md).
     telemetry_rate_hz: float = Field(50.0, ge=1, le=1000)
     max_video_clients: int = Field(40, ge=1, le=10_000)
+    # Viewers of the 3D panels, both viser servers together, under the same budget.
+    max_3d_viewers: int = Field(20, ge=1, le=10_000)
     fd_reserve: int = Field(128, ge=32, le=100_000)
 
 

@@ -86,7 +86,11 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
     station.analysis_limiter = anyio.CapacityLimiter(1)
     srv = settings.server
     station.client_limits = ClientLimits.fitted(
-        srv.max_ws_clients, srv.max_video_clients, srv.fd_reserve, raise_nofile_limit()
+        srv.max_ws_clients,
+        srv.max_video_clients,
+        srv.fd_reserve,
+        raise_nofile_limit(),
+        max_3d=srv.max_3d_viewers if settings.viser.enabled else 0,
     )
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
