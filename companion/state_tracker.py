@@ -17,23 +17,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.vehicle_state import (
     MESSAGES_KEPT,
     UTC_PLAUSIBLE_AFTER_S,
-    Attitude,
-    Battery,
     GlobalPosition,
-    GpsRaw,
-    Heartbeat,
-    LinkStatus,
-    LocalPosition,
-    PilotAltitude,
-    RcChannels,
-    ServoOutputs,
     VehicleMessage,
-    VehicleMessages,
     VehicleState,
-    VehicleUtc,
-    VfrHud,
     freeze_draft,
-    quick_constructor,
     quick_replace,
     unfrozen_twin,
 )
@@ -67,6 +54,16 @@ _FRESH_GPS_S = 2.0
 _SLIDE_MPS = 2.0  # offset changing faster than this after agreeing: the frame still moves
 
 
+# A new reference (`_take_reference`) before there is an altitude to take: the values
+# of the one before it no longer hold.
+_NO_REFERENCE = {
+    "relative_alt_m": None,
+    "reference_alt_m": None,
+    "retaken_because": None,
+    "home_lat_deg": None,
+    "home_lon_deg": None,
+}
+
 # SYSTEM_TIME is the autopilot's UTC; a Unix GPS_RAW_INT time only stands in without it.
 _SYSTEM_TIME_PREFERRED_S = 10.0
 
@@ -75,20 +72,12 @@ def _plausible_utc(usec: int) -> bool:
     return UTC_PLAUSIBLE_AFTER_S <= usec * 1e-6 < 4_102_444_800.0  # before 2100
 
 
-# The groups are built with quick constructors (companion.vehicle_state: the same frozen
-# objects at a third of the cost), and the tracker keeps its groups in a mutable draft of
-# the state that `state` freezes when read after a change: one VehicleState per reader's
-# look (the link's: one per wake-up), not one per group changed.
-_Heartbeat = quick_constructor(Heartbeat)
-_GpsRaw = quick_constructor(GpsRaw)
-_GlobalPosition = quick_constructor(GlobalPosition)
-_VfrHud = quick_constructor(VfrHud)
-_Attitude = quick_constructor(Attitude)
-_RcChannels = quick_constructor(RcChannels)
-_ServoOutputs = quick_constructor(ServoOutputs)
-_Battery = quick_constructor(Battery)
-_LocalPosition = quick_constructor(LocalPosition)
-_PilotAltitude = quick_constructor(PilotAltitude)
+# A message updates its group with `quick_replace` (companion.vehicle_state: the
+# `dataclasses.replace` of the fields it carries, built the quick way), never by building
+# the group anew: a field another message sets (BATTERY_STATUS's `consumed_mah` in the
+# group SYS_STATUS updates too) keeps its value. The tracker keeps its groups in a mutable
+# draft of the state that `state` freezes when read after a change: one VehicleState per
+# reader's look (the link's: one per wake-up), not one per group changed.
 _StateDraft = unfrozen_twin(VehicleState)
 # The channels as one tuple, read in C. SERVO_OUTPUT_RAW's servo9-16 are MAVLink 2
 # extensions: the dialect's message has them (0) also when a MAVLink 1 packet lacks them.
@@ -188,7 +177,8 @@ class StateTracker:
         link = self._draft.link
         if link.link_lost == lost and link.last_heartbeat_mono == last_heartbeat_mono:
             return False
-        self._draft.link = LinkStatus(
+        self._draft.link = quick_replace(
+            link,
             t_mono=t_mono if link.link_lost != lost else link.t_mono,
             link_lost=lost,
             last_heartbeat_mono=last_heartbeat_mono,
@@ -206,7 +196,8 @@ class StateTracker:
         # the disarming beat and held until the next arming.
         since = t if armed and not was_armed else old.armed_since_mono
         armed_for = t - since if since is not None and (armed or was_armed) else old.armed_for_s
-        hb = _Heartbeat(
+        hb = quick_replace(
+            old,
             t_mono=t,
             sysid=m.get_srcSystem(),
             compid=m.get_srcComponent(),
@@ -232,7 +223,8 @@ class StateTracker:
             self._ground_fix = None if alt is None else (t, alt, *self._current_latlon())
 
     def _gps_raw(self, m: mavlink.MAVLink_message, t: float) -> None:
-        g = _GpsRaw(
+        g = quick_replace(
+            self._draft.gps,
             t_mono=t,
             time_usec=m.time_usec,
             fix_type=m.fix_type,
@@ -252,19 +244,24 @@ class StateTracker:
             and _plausible_utc(m.time_usec)
             and (utc.source != "SYSTEM_TIME" or t - (utc.t_mono or t) > _SYSTEM_TIME_PREFERRED_S)
         ):
-            self._draft.utc = VehicleUtc(t, m.time_usec * 1e-6, "GPS_RAW_INT")
+            self._draft.utc = quick_replace(
+                utc, t_mono=t, unix_s=m.time_usec * 1e-6, source="GPS_RAW_INT"
+            )
         if not self._gp_seen:
             self._altitude_changed(t)
 
     def _system_time(self, m: mavlink.MAVLink_message, t: float) -> None:
         # 0 (or a time in 1970) until the autopilot's clock is set, from its GPS.
         if _plausible_utc(m.time_unix_usec):
-            self._draft.utc = VehicleUtc(t, m.time_unix_usec * 1e-6, "SYSTEM_TIME")
+            self._draft.utc = quick_replace(
+                self._draft.utc, t_mono=t, unix_s=m.time_unix_usec * 1e-6, source="SYSTEM_TIME"
+            )
 
     def _global_position(self, m: mavlink.MAVLink_message, t: float) -> None:
         old_alt = self._current_alt_m()
         old_gp = self._draft.global_position
-        gp = _GlobalPosition(
+        gp = quick_replace(
+            old_gp,
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             lat_deg=m.lat * 1e-7,
@@ -314,11 +311,13 @@ class StateTracker:
     def _add_message(self, message: VehicleMessage) -> None:
         old = self._draft.messages
         recent = (*old.recent[-(MESSAGES_KEPT - 1) :], message)
-        messages = VehicleMessages(t_mono=message.t_mono, count=old.count + 1, recent=recent)
-        self._draft.messages = messages
+        self._draft.messages = quick_replace(
+            old, t_mono=message.t_mono, count=old.count + 1, recent=recent
+        )
 
     def _vfr_hud(self, m: mavlink.MAVLink_message, t: float) -> None:
-        hud = _VfrHud(
+        hud = quick_replace(
+            self._draft.vfr_hud,
             t_mono=t,
             ground_speed_mps=m.groundspeed,
             airspeed_mps=m.airspeed,
@@ -330,7 +329,8 @@ class StateTracker:
         self._draft.vfr_hud = hud
 
     def _attitude(self, m: mavlink.MAVLink_message, t: float) -> None:
-        att = _Attitude(
+        att = quick_replace(
+            self._draft.attitude,
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             roll_rad=m.roll,
@@ -344,7 +344,8 @@ class StateTracker:
 
     def _rc_channels(self, m: mavlink.MAVLink_message, t: float) -> None:
         pwm = _RC_PWM(m)
-        rc = _RcChannels(
+        rc = quick_replace(
+            self._draft.rc,
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             chancount=m.chancount,
@@ -355,7 +356,9 @@ class StateTracker:
 
     def _servo_output(self, m: mavlink.MAVLink_message, t: float) -> None:
         pwm = _SERVO_PWM(m)
-        servo = _ServoOutputs(t_mono=t, time_usec=m.time_usec, port=m.port, pwm_us=pwm)
+        servo = quick_replace(
+            self._draft.servo, t_mono=t, time_usec=m.time_usec, port=m.port, pwm_us=pwm
+        )
         self._draft.servo = servo
 
     def _sys_status(self, m: mavlink.MAVLink_message, t: float) -> None:
@@ -363,7 +366,8 @@ class StateTracker:
         # A vehicle with no battery monitor sends 0 mV (and 0 A), not the "unknown" value:
         # no flying pack reads 0 V, so 0 means unknown, and its current with it.
         no_monitor = m.voltage_battery == 0
-        self._draft.battery = _Battery(
+        self._draft.battery = quick_replace(
+            b,
             t_mono=t,
             voltage_v=None if no_monitor else _scaled(m.voltage_battery, 1e-3, _UINT16_UNKNOWN),
             current_a=None
@@ -372,7 +376,6 @@ class StateTracker:
             remaining_pct=float(m.battery_remaining)
             if m.battery_remaining != -1
             else b.remaining_pct,
-            consumed_mah=b.consumed_mah,  # only BATTERY_STATUS says it
         )
 
     def _battery_status(self, m: mavlink.MAVLink_message, t: float) -> None:
@@ -382,7 +385,8 @@ class StateTracker:
         if not any(cells_mv):  # 0 mV: no monitor (as in SYS_STATUS), not an empty pack
             cells_mv = []
         b = self._draft.battery
-        self._draft.battery = _Battery(
+        self._draft.battery = quick_replace(
+            b,
             t_mono=t,
             voltage_v=sum(cells_mv) * 1e-3 if cells_mv else b.voltage_v,
             current_a=m.current_battery * 0.01 if m.current_battery != -1 else b.current_a,
@@ -393,7 +397,8 @@ class StateTracker:
         )
 
     def _local_position(self, m: mavlink.MAVLink_message, t: float) -> None:
-        lp = _LocalPosition(
+        lp = quick_replace(
+            self._draft.local_position,
             t_mono=t,
             time_boot_ms=m.time_boot_ms,
             x_m=m.x,
@@ -440,14 +445,18 @@ class StateTracker:
             lat, lon = self._current_latlon()
         if alt is None:
             # Armed before any altitude: take the reference at the first altitude.
-            self._draft.altitude = _PilotAltitude(t_mono=t, reference=f"pending_{reference}")
+            self._draft.altitude = quick_replace(
+                self._draft.altitude, t_mono=t, reference=f"pending_{reference}", **_NO_REFERENCE
+            )
             return
         now = self._current_alt_m()
-        self._draft.altitude = _PilotAltitude(
+        self._draft.altitude = quick_replace(
+            self._draft.altitude,
             t_mono=t,
             relative_alt_m=now - alt if now is not None else 0.0,
             reference_alt_m=alt,
             reference=reference,
+            retaken_because=None,
             home_lat_deg=lat,
             home_lon_deg=lon,
         )

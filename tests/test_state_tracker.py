@@ -306,3 +306,104 @@ def test_the_twins_mah_used_reaches_the_state():
     drawn_mah = (af.capacity_ah * 3600 - sim.state.charge_c[0]) / 3.6
     assert drawn_mah > 1  # it has flown on its battery
     assert tracker.state.battery.consumed_mah == int(drawn_mah)
+
+
+# The fields each message carries: the only ones it may change. A field not named here
+# (one added to a group later, or another message's) must keep its value.
+_GPS = ("fix_type", "satellites", "lat_deg", "lon_deg", "alt_m", "eph_m", "epv_m")
+_POSITION = ("lat_deg", "lon_deg", "alt_m", "relative_alt_m", "vx_mps", "vy_mps", "vz_mps")
+_PILOT = ("relative_alt_m", "reference_alt_m", "reference", "retaken_because")
+CARRIED = {
+    "HEARTBEAT": {
+        "heartbeat": (
+            "sysid", "compid", "autopilot", "vehicle_type", "armed", "mode", "base_mode",
+            "custom_mode", "system_status", "mavlink_version", "armed_since_mono",
+            "armed_for_s",
+        ),
+    },
+    "GPS_RAW_INT": {
+        "gps": ("time_usec", *_GPS, "ground_speed_mps", "course_deg"),
+        "utc": ("unix_s", "source"),
+    },
+    "GLOBAL_POSITION_INT": {
+        "global_position": ("time_boot_ms", *_POSITION, "heading_deg"),
+        "altitude": _PILOT,  # the pilot's altitude follows the fused one
+    },
+    "VFR_HUD": {
+        "vfr_hud": (
+            "ground_speed_mps", "airspeed_mps", "climb_mps", "heading_deg", "throttle_pct",
+            "alt_m",
+        ),
+    },
+    "ATTITUDE": {
+        "attitude": (
+            "time_boot_ms", "roll_rad", "pitch_rad", "yaw_rad", "rollspeed_rad_s",
+            "pitchspeed_rad_s", "yawspeed_rad_s",
+        ),
+    },
+    "RC_CHANNELS": {"rc": ("time_boot_ms", "chancount", "pwm_us", "rssi")},
+    "SERVO_OUTPUT_RAW": {"servo": ("time_usec", "port", "pwm_us")},
+    "SYS_STATUS": {"battery": ("voltage_v", "current_a", "remaining_pct")},
+    "BATTERY_STATUS": {"battery": ("voltage_v", "current_a", "remaining_pct", "consumed_mah")},
+    "LOCAL_POSITION_NED": {
+        "local_position": ("time_boot_ms", "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps"),
+    },
+    "SYSTEM_TIME": {"utc": ("unix_s", "source")},
+    "STATUSTEXT": {"messages": ("count", "recent")},
+    "COMMAND_ACK": {"messages": ("count", "recent")},
+}  # fmt: skip
+
+
+def _sentinel(value, name: str):
+    """A value of the field's kind that no message of the test sets."""
+    if name == "t_mono":
+        return 50.0  # before every message fed (the tracker's arithmetic needs a time)
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, tuple):
+        return (7,) * len(value) if all(isinstance(v, int) for v in value) else ()
+    if isinstance(value, int):
+        return 7
+    if isinstance(value, str):
+        return "sentinel"
+    return 7.25  # float or None
+
+
+@pytest.mark.parametrize("message", CARRIED)
+def test_each_message_changes_only_the_fields_it_carries(message):
+    """Every field of every group set to a sentinel, then one message: the fields it
+    carries (and its group's time) change, every other field keeps its sentinel."""
+    tracker, v, feed = make(autopilot="ardupilot")
+    v.gps_utc_offset_s = 0.0
+    feed("HEARTBEAT", "GPS_RAW_INT", "GLOBAL_POSITION_INT")  # the autopilot followed
+    draft = tracker._draft
+    for group in dataclasses.fields(VehicleState):
+        old = getattr(draft, group.name)
+        values = {f.name: _sentinel(getattr(old, f.name), f.name) for f in dataclasses.fields(old)}
+        setattr(draft, group.name, dataclasses.replace(old, **values))
+    if message == "GLOBAL_POSITION_INT":
+        draft.global_position = dataclasses.replace(draft.global_position, alt_m=v.alt_m)
+    before = {g.name: getattr(draft, g.name) for g in dataclasses.fields(VehicleState)}
+    ap = v.mav
+    if message == "STATUSTEXT":
+        msg = ap.statustext_encode(6, b"EKF3 IMU0 is using GPS")
+    elif message == "COMMAND_ACK":
+        msg = ap.command_ack_encode(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 0, 0)
+    else:
+        msg = v.build(message)
+    feed.t += 0.1
+    for decoded in feed.framer.feed(msg.pack(ap)):
+        assert tracker.update(decoded, feed.t)
+    after = tracker.state
+    carried = CARRIED[message]
+    for group, old in before.items():
+        new, own = getattr(after, group), carried.get(group, ())
+        for f in dataclasses.fields(old):
+            was, now = getattr(old, f.name), getattr(new, f.name)
+            if f.name not in own and not (own and f.name == "t_mono"):
+                assert now == was, f"{message} changed {group}.{f.name}: {was!r} -> {now!r}"
+    first = next(iter(carried))  # the message's own group: updated, at the message's time
+    assert getattr(after, first).t_mono == feed.t
+    assert any(
+        getattr(getattr(after, first), n) != getattr(before[first], n) for n in carried[first]
+    )
