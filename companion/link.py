@@ -314,26 +314,29 @@ class MavlinkLink:
         reader = TlogReader(path)
         self._meter.connected = True
         clock = self.clock
-        t0_rec: float | None = None
-        t0_mono = time.monotonic()
-        for t_rec, packet in reader:
-            if self._stop.is_set():
-                return
-            if t0_rec is None:
-                t0_rec = t_rec
-            if self.spec.speed > 0:
-                due = t0_mono + (t_rec - t0_rec) / self.spec.speed
-                while (wait := due - time.monotonic()) > 0 and not self._stop.is_set():
-                    self._stop.wait(min(wait, _TICK_S))
-                    # Between records the log's clock runs with the wall clock (x speed),
-                    # so a silence in the log is a silence as it passes.
-                    now = t_rec - max(due - time.monotonic(), 0.0) * self.spec.speed
-                    clock.advance(now)
-                    self._housekeeping(None, clock.mono())
-            clock.advance(t_rec)  # listeners see the time before the record applies
-            self._on_bytes(packet, clock.mono())
-            self._publish_state()
-            self._housekeeping(None, clock.mono())
+        for segment, records in reader.segments():
+            if segment > 0:
+                self._next_recording(reader)
+            t0_rec: float | None = None
+            t0_mono = time.monotonic()
+            for t_rec, packet in records:
+                if self._stop.is_set():
+                    return
+                if t0_rec is None:
+                    t0_rec = t_rec
+                if self.spec.speed > 0:
+                    due = t0_mono + (t_rec - t0_rec) / self.spec.speed
+                    while (wait := due - time.monotonic()) > 0 and not self._stop.is_set():
+                        self._stop.wait(min(wait, _TICK_S))
+                        # Between records the log's clock runs with the wall clock (x
+                        # speed), so a silence in the log is a silence as it passes.
+                        now = t_rec - max(due - time.monotonic(), 0.0) * self.spec.speed
+                        clock.advance(now)
+                        self._housekeeping(None, clock.mono())
+                clock.advance(t_rec)  # listeners see the time before the record applies
+                self._on_bytes(packet, clock.mono())
+                self._publish_state()
+                self._housekeeping(None, clock.mono())
         self._meter.truncated_records = reader.truncated
         self._meter.replay_done = True
         self._meter.connected = False
@@ -344,6 +347,31 @@ class MavlinkLink:
         clock.end()
         log.info("replay of %s done (%d truncated records)", path, reader.truncated)
         self._idle_forever()
+
+    def _next_recording(self, reader: TlogReader) -> None:
+        """The replayed log's clock stepped back: another recording joined to it begins.
+        The one before ends as a replay ends (link lost; the clock's listeners told, so
+        the recorder closes its session), and the vehicle is heard anew, on the new
+        recording's clock, from a state that knows nothing yet (not armed: an armed
+        start of the next recording is an arming, and starts its own session)."""
+        step = reader.clock_steps[-1]
+        log.warning(
+            "replay of %s: the log's clock steps back %.1f s at record %d; "
+            "playing it as another recording",
+            self.spec.path,
+            step.from_s - step.to_s,
+            step.record,
+        )
+        now = self.clock.mono()
+        self._state_changed |= self._tracker.set_link_lost(True, now, self._last_hb_mono)
+        self._publish_state()
+        self.clock.step_back()
+        self._tracker = StateTracker(self.settings.sysid, gcs_sysid=self.settings.gcs_sysid)
+        self._last_hb_mono = None
+        self._framer.reset()
+        self._meter.on_clock_step_back()
+        self._state_changed = True
+        self._publish_state()
 
     def _idle(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds

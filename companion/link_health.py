@@ -129,6 +129,12 @@ class HealthMeter:
     def on_reconnect(self) -> None:
         self.loss.restart()  # a new connection starts new sequences
 
+    def on_clock_step_back(self) -> None:
+        """The source's clock started over, earlier (another recording in a replayed log):
+        new sequences, and rates measured from its own times on."""
+        self.loss.restart()
+        self._snapshots.clear()
+
     def tick(self, t_mono: float) -> None:
         """Take a counter snapshot if due and refresh the rates from the window."""
         if self._snapshots and t_mono - self._snapshots[-1][0] < _SNAPSHOT_EVERY_S:

@@ -11,7 +11,9 @@ Unix seconds.
 Listeners (the recorder) run in the source's thread, synchronously, each time its clock
 moves (`cb(t)`, before the record at `t` is applied) and once when it ends (`cb(None)`),
 so that at `?speed=max` nothing is skipped: a listener may take the time it needs, the
-replay waits for it.
+replay waits for it. A log that holds several recordings (its clock steps back, see
+core.mavlink.tlog_records) ends one run and starts the next: `cb(None)`, then times from
+the earlier start on (`step_back`); the clock never stands still at the newest time.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ class SourceClock:
         self.own = own  # True: the source's own time (a replay), False: the station's
         self.ended = False
         self._t: float | None = None
+        self._may_go_back = False  # set by step_back until the next advance
         self._listeners: list[ClockListener] = []
         self._first = threading.Event()
 
@@ -53,12 +56,22 @@ class SourceClock:
         self._listeners = [*self._listeners, cb]  # copy-on-write: the source thread iterates
 
     def advance(self, t: float) -> None:
-        """The source's time is now `t` (never goes back); tells the listeners."""
-        if self._t is not None and t <= self._t:
+        """The source's time is now `t` (never goes back, but after `step_back`); tells
+        the listeners."""
+        if self._t is not None and t <= self._t and not self._may_go_back:
             return
+        self._may_go_back = False
         self._t = t
         self._first.set()
         self._tell(t)
+
+    def step_back(self) -> None:
+        """The source starts another run on an earlier clock (the next recording in a
+        replayed log): the listeners are told this run ended, and the next `advance`
+        may go back."""
+        if not self.ended:
+            self._may_go_back = True
+            self._tell(None)
 
     def end(self) -> None:
         """The source has nothing more (a replay reached the end of its file)."""

@@ -293,3 +293,14 @@ def vehicle_flight(
             else:
                 log.emit(ap, now, msg, lost=fade is not None and fade[0] <= now < fade[1])
     return log
+
+
+def write_joined(path: Path, *logs: Shaper) -> Path:
+    """Several recordings in one file, each after the one before whatever their times (a
+    log appended to, or files concatenated): where a later one's clock starts earlier,
+    the file's clock steps back."""
+    with open(path, "wb") as f:
+        for log in logs:
+            for t, packet in sorted(log.records, key=lambda r: r[0]):
+                f.write(_TIME.pack(int(round(t * 1e6))) + packet)
+    return path
