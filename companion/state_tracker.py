@@ -101,6 +101,16 @@ def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: in
     return ardupilot_mode_name(vehicle_type, base_mode, custom_mode)
 
 
+def _climb_m(old: GlobalPosition, new: GlobalPosition, dt_s: float) -> float:
+    """How much the vehicle climbed between two positions by their `relative_alt`; 0
+    when it is missing or moved faster than a vehicle climbs (the autopilot moved its
+    home with the frame: then the whole step is the frame's)."""
+    if old.relative_alt_m is None or new.relative_alt_m is None:
+        return 0.0
+    climb = new.relative_alt_m - old.relative_alt_m
+    return climb if abs(climb) <= _ORIGIN_STEP_MIN_MPS * max(dt_s, 1e-3) else 0.0
+
+
 def _scaled(value: int, scale: float, unknown: int | None = None) -> float | None:
     if unknown is not None and value == unknown:
         return None
@@ -465,7 +475,10 @@ class StateTracker:
         """Re-take the pilot's reference when the fused altitude changed frame (ArduPilot's
         EKF origin): a step no vehicle can fly, a sudden step just after "origin set", or
         fused and GPS altitude coming to agree after disagreeing. The reference moves by
-        the frame's step, so the pilot's altitude stays continuous (a hop stays a hop)."""
+        the frame's step, so the pilot's altitude stays continuous (a hop stays a hop).
+        The step between two positions is the frame's plus what the vehicle climbed
+        meanwhile (most of a metre between positions a second apart): `relative_alt`,
+        which the origin does not move, says how much that was."""
         if old.alt_m is None or new.alt_m is None:
             return
         step = new.alt_m - old.alt_m
@@ -474,13 +487,14 @@ class StateTracker:
         else:
             dt = t - (old.t_mono if old.t_mono is not None else t)
         rate = abs(step) / max(dt, 1e-3)
+        climb = _climb_m(old, new, dt)
         primed = self._origin_note_t is not None and t - self._origin_note_t <= _ORIGIN_WINDOW_S
         shift: float | None = None
         why = ""
         if abs(step) > _JUMP_MIN_M and rate > _JUMP_MIN_MPS:
-            shift, why = step, "EKF origin set" if primed else "altitude jump"
+            shift, why = step - climb, "EKF origin set" if primed else "altitude jump"
         elif primed and abs(step) > _ORIGIN_STEP_MIN_M and rate > _ORIGIN_STEP_MIN_MPS:
-            shift, why = step, "EKF origin set"
+            shift, why = step - climb, "EKF origin set"
         gps = self._draft.gps
         fresh = (
             gps.t_mono is not None

@@ -165,7 +165,9 @@ class PilotAltitude:
     (`reference` says which). The paper's definition, not the autopilot's relative_alt,
     which drifts with the power-on position. When the autopilot's altitude frame moves
     under it (ArduPilot setting its EKF origin: a jump of tens or hundreds of metres), the
-    reference is re-taken by the frame's step: `reference` gains "_retaken" and
+    reference is re-taken by the frame's step (the step of `alt` less that of the
+    autopilot's `relative_alt`, which the frame does not move: what the vehicle climbed
+    meanwhile stays in the pilot's altitude): `reference` gains "_retaken" and
     `retaken_because` says what showed it.
     """
 

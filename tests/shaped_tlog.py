@@ -234,6 +234,9 @@ def vehicle_flight(
     origin_set_s: float | None = None,
     boot_s: float = 30.0,
     t0: float = 1_700_000_000.0,
+    position_hz: int = 10,
+    alt_error_m: np.ndarray | None = None,
+    mavlink1: bool = False,
 ) -> Shaper:
     """A dense flight (`tests/synthetic.Flight`: positions and the armed state) as its
     autopilot sends it at a real log's rates: ATTITUDE 50 Hz, GLOBAL_POSITION_INT and
@@ -246,9 +249,16 @@ def vehicle_flight(
     - `origin_set_s`: ArduPilot's EKF origin. Before it GLOBAL_POSITION_INT says altitudes
       near 0 (height above the power-on point); at it the autopilot says "EKF3 IMU0 Origin
       set to GPS" and the altitude jumps to the true AMSL. GPS_RAW_INT is AMSL throughout.
+      `relative_alt` is the height above the ground throughout (continuous across it).
+    - `position_hz`: GLOBAL_POSITION_INT and VFR_HUD's rate (a divisor of 50; real
+      ArduPilot logs over a radio have 1 to 10 Hz).
+    - `alt_error_m` (one per flight sample): added to GLOBAL_POSITION_INT `alt` only, as
+      2013 ArduCopter put its GPS altitude there (metres of wander) while `relative_alt`
+      came from the barometer.
+    - `mavlink1`: the autopilot speaks MAVLink 1 (old firmware).
     """
     log = Shaper(t0=t0)
-    ap = log.sender(1, 1)
+    ap = log.sender(1, 1, mavlink1=mavlink1)
     mav = ap.mav
     t = flight.t_s
     llh = flight.llh()
@@ -266,9 +276,11 @@ def vehicle_flight(
         if origin_set_s is not None and tick == int(round(origin_set_s * 50)):
             # said as the origin is set, before the first position in the new frame
             out.append(mav.statustext_encode(6, b"EKF3 IMU0 Origin set to GPS"))
-        if tick % 5 == 0:
+        if tick % (50 // position_hz) == 0:
             origin_set = origin_set_s is None or now >= origin_set_s
             fused = home_alt + up if origin_set else up + 0.3  # the EKF's frame
+            if alt_error_m is not None:
+                fused += float(alt_error_m[i])
             out.append(
                 mav.global_position_int_encode(
                     t_ms, lat, lon, int(round(fused * 1000)), int(round(up * 1000)),

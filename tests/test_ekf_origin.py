@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from analysis.flights import split_flights
 from companion.recording import layout
 from companion.state_tracker import StateTracker
 from core.mavlink.framing import MavFramer
@@ -126,3 +127,55 @@ def test_replayed_session_records_the_hop_not_the_jump(tmp_path):
     assert HOP_M - 0.3 <= recorded <= HOP_M + 0.5
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
     assert meta["arming"]["reference_alt_m"] == pytest.approx(180.0, abs=0.5)
+
+
+# A real ArduCopter log's first sortie: a 1.26 m hop, positions at 1 Hz over the radio,
+# and the EKF origin set while it climbs, so that the frame's step and a climb of most of
+# a metre fall between two positions. `relative_alt` is continuous across it.
+HOP_1HZ_M = 1.26
+
+
+def fast_hop() -> syn.Flight:
+    """Armed at 5 s, a 0.8 m/s climb from 10 s to HOP_1HZ_M, 3 s up, down, disarmed."""
+    t = np.arange(0.0, 30.0, 0.02)
+    up = np.clip(np.minimum(0.8 * (t - 10.0), 0.8 * (16.0 - t)), 0.0, HOP_1HZ_M)
+    xyz = np.stack([np.zeros_like(t), np.zeros_like(t), up], 1)
+    return syn.Flight(t_s=t, xyz_m=xyz, armed=(t >= 5.0) & (t < 20.0))
+
+
+def test_a_hop_whose_climb_falls_in_the_frames_step_is_still_a_hop(tmp_path):
+    """The step between two positions is the frame's shift plus the climb; the shift is
+    the step of `alt` less the step of `relative_alt`. Taking the whole step as the shift
+    read 0.46 m, and the analysis said "never flew"."""
+    log = shaped_tlog.vehicle_flight(fast_hop(), ARDUPILOT, origin_set_s=10.5, position_hz=1)
+    path = log.write(tmp_path / "hop.tlog")
+    alts, refs = pilot_altitudes(path)
+    assert "arming_retaken" in refs
+    assert alts.max() == pytest.approx(HOP_1HZ_M, abs=0.1)
+
+
+@pytest.mark.timeout(120)
+def test_the_missed_hops_session_holds_a_flight(tmp_path):
+    """Replayed into a real station recording on arming: the session's pilot altitude
+    holds one flight of the hop's height, and the analysis finds it (the hop is too low
+    for a hover trial, which it says, but not that the vehicle never flew)."""
+    log = shaped_tlog.vehicle_flight(fast_hop(), ARDUPILOT, origin_set_s=10.5, position_hz=1)
+    path = log.write(tmp_path / "hop.tlog")
+    settings = station_settings(
+        f"replay:{path}?speed=max", tmp_path / "sessions", **{"recording.auto_record_on_arm": True}
+    )
+    with run_uvicorn(create_app(settings)) as base:
+        get = lambda url: httpx.get(f"{base}{url}", timeout=30)  # noqa: E731
+        assert wait_until(lambda: get("/api/status").json()["link"]["replay_done"], timeout=60)
+        assert wait_until(lambda: not get("/api/recording").json()["recording"], timeout=10)
+        (session,) = get("/api/sessions").json()
+        reply = get(f"/api/sessions/{session['id']}/analysis?task=hover")
+    assert "never flew" not in reply.text  # before: "the vehicle never flew"
+    with open(tmp_path / "sessions" / session["id"] / layout.TELEMETRY_CSV) as f:
+        rows = list(csv.DictReader(f))
+    height = np.array([float(r["altitude.relative_alt_m"] or "nan") for r in rows])
+    armed = np.array([r["heartbeat.armed"] == "1" for r in rows])
+    t = np.array([float(r["t_s"]) for r in rows])
+    (flight,) = split_flights(t, armed, height)
+    assert np.nanmax(height[armed]) == pytest.approx(HOP_1HZ_M, abs=0.1)
+    assert flight.airborne_s == pytest.approx(HOP_1HZ_M / 0.8 * 2 + 3 - 2 * 0.5 / 0.8, abs=1.1)
