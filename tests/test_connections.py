@@ -4,9 +4,19 @@ reserve kept."""
 
 from __future__ import annotations
 
+import json
+import resource
+import socket
 import threading
+import time
+
+import httpx
+import psutil
+from websockets.sync.client import connect
 
 from server.client_limits import BASELINE_FDS, CONTROL_CLIENTS, HTTP_ROOM, ClientLimits
+from tests.helpers import wait_until
+from tests.station_process import serve_station
 
 
 def test_every_kind_of_client_fits_under_the_descriptor_limit_with_the_reserve_kept():
@@ -40,3 +50,114 @@ def test_a_cap_counts_places_taken_from_many_threads():
     assert cap.active == 0 and len(taken) + cap.refused == 8000
     assert all(cap.try_take() for _ in range(50)) and not cap.try_take()
     assert cap.active == 50 and cap.refused >= 1
+
+
+# `fpv-station serve` with RLIMIT_NOFILE at 256 (soft and hard), as `prlimit --nofile=256`
+# starts it: the station cannot raise it, and fits its budget under it.
+LOW_LIMIT = (
+    "-c",
+    "import resource, sys; resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256)); "
+    "sys.argv[0] = 'fpv-station'; from server.cli import main; sys.exit(main())",
+)
+
+
+class SlowHeaders:
+    """Clients that send a request's headers a byte at a time and never finish; each one
+    the station closes comes back at once."""
+
+    def __init__(self, port: int, count: int) -> None:
+        self.port = port
+        self.socks: list[socket.socket | None] = [None] * count
+        self.reconnects = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> SlowHeaders:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(10)
+        for s in self.socks:
+            if s is not None:
+                s.close()
+
+    def _run(self) -> None:
+        line = b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 10_000
+        sent = [0] * len(self.socks)
+        while not self._stop.wait(0.5):
+            for i, s in enumerate(self.socks):
+                try:
+                    if s is None:
+                        s = self.socks[i] = socket.create_connection(
+                            ("127.0.0.1", self.port), timeout=2
+                        )
+                        sent[i] = 0
+                        self.reconnects += 1
+                    s.sendall(line[sent[i] : sent[i] + 1])
+                    sent[i] += 1
+                except OSError:  # closed by the station (or not accepted yet): again
+                    if s is not None:
+                        s.close()
+                    self.socks[i] = None
+
+
+def test_idle_and_slow_header_sockets_leave_health_and_arming_under_256_descriptors(tmp_path):
+    """Under `prlimit --nofile=256` 400 idle TCP connections once filled the descriptor
+    table: health checks failed and arming could not create a session (EMFILE). Idle
+    connections are now closed after their request timeout, or sooner for a newer
+    connection, slow-header clients after the timeout, and the recorder's reserve
+    stays: health answers and arming the twin starts a recording."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, min(hard, 4096)), hard))
+    args = ["--source", "sim", "--open", "--no-3d", "--sessions-dir", str(tmp_path)]
+    env = {"FPV_RECORDING__MIN_FREE_MB": "0"}
+    idle: list[socket.socket] = []
+    try:
+        with serve_station(args, env, launcher=LOW_LIMIT) as station:
+            assert station.process.rlimit(psutil.RLIMIT_NOFILE) == (256, 256)
+            with SlowHeaders(station.port, 30) as slow:
+                for _ in range(400):
+                    try:
+                        idle.append(socket.create_connection(("127.0.0.1", station.port), 5))
+                    except OSError:
+                        pass
+                assert len(idle) >= 300
+                assert station.process.num_fds() < 256 - 64  # the recorder's room is kept
+                with httpx.Client(timeout=10) as client:
+                    for _ in range(10):
+                        reply = client.get(f"{station.base}/api/health")
+                        assert reply.status_code == 200, reply.text
+                        time.sleep(0.2)
+                    # Arm the twin through the control API: arming starts a recording.
+                    ws_url = station.base.replace("http", "ws") + "/ws/control"
+                    with connect(ws_url, open_timeout=10) as ws:
+                        assert json.loads(ws.recv(timeout=10))["type"] == "hello"
+                        ws.send(json.dumps({"type": "arm"}))
+                        ack = json.loads(ws.recv(timeout=15))
+                        assert (ack["cmd"], ack["ok"]) == ("arm", True), ack
+                        assert wait_until(
+                            lambda: client.get(f"{station.base}/api/recording").json()["recording"],
+                            15,
+                        ), client.get(f"{station.base}/api/recording").text
+                    assert client.get(f"{station.base}/api/health").status_code == 200
+                # Slow clients are closed (they came back), idle ones too.
+                assert slow.reconnects > 30
+                closed = sum(1 for s in idle if _closed_by_peer(s))
+                assert closed >= len(idle) - 40, closed
+            log = station.log_path.read_text()
+            assert "Too many open files" not in log and "Traceback" not in log, log[-3000:]
+    finally:
+        for s in idle:
+            s.close()
+
+
+def _closed_by_peer(s: socket.socket) -> bool:
+    s.setblocking(False)
+    try:
+        return s.recv(1) == b""
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True
