@@ -50,6 +50,11 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.settings = settings
+    # Each WebSocket route's largest frame, for the server (server/listen.py).
+    app.state.ws_frame_limits = {
+        "/ws/telemetry": telemetry.MAX_FRAME_BYTES,
+        "/ws/control": control.MAX_FRAME_BYTES,
+    }
     install_error_handlers(app)
     # Origin, content type and body size, before any route (server/guard.py).
     app.add_middleware(

@@ -16,6 +16,10 @@ host on the field Wi-Fi can reach the Pi. Three checks, token or no token:
   before a byte is read; a chunked body is cut off at the limit the same way.
 
 Replies use the one error shape {"error", "error_msg"} (server.errors).
+
+WebSocket messages are bounded too: each route's frame limit (server/listen.py), and
+`loads_message` for their JSON, whose nesting is limited before it is parsed (Python's
+parser would end a deep enough document with RecursionError, dropping the socket).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ Send = Callable[[Message], Awaitable[None]]
 ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 
 _SAFE_METHODS = {"GET", "HEAD", "OPTIONS"}
+MAX_JSON_DEPTH = 8  # every message the station takes is a flat object
 _DEFAULT_PORTS = {"http": 80, "https": 443, "ws": 80, "wss": 443}
 
 
@@ -141,6 +146,29 @@ class RequestGuard:
             return {"type": "http.request", "body": body, "more_body": False}
 
         await self.app(scope, replay, send)
+
+
+def loads_message(text: str, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """A WebSocket message's JSON; ValueError (with the reason) when it is not JSON or
+    is nested deeper than `max_depth`, before the parser sees it."""
+    depth, in_string, escaped = 0, False, False
+    for ch in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            if depth > max_depth:
+                raise ValueError(f"JSON nested deeper than {max_depth} levels")
+        elif ch in "]}":
+            depth -= 1
+    return json.loads(text)
 
 
 async def _reply(send: Send, status: int, name: str, message: str) -> None:

@@ -39,6 +39,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from core.mavlink.px4_modes import PX4_MODES
 from server.auth import require_control_token
 from server.errors import ApiError, BadRequest, Unavailable, deny_websocket
+from server.guard import loads_message
 from server.pilot import DEADMAN_S, Pilot
 
 if TYPE_CHECKING:
@@ -48,6 +49,9 @@ if TYPE_CHECKING:
 router = APIRouter(tags=["control"])
 
 RATE_HZ = 50.0
+# The largest frame the pilot's page sends is a stick message of ~100 bytes (a larger
+# frame is refused with 1009 before it is read, server/listen.py).
+MAX_FRAME_BYTES = 4096
 # The modes a pilot may choose, as PX4 names them. MANUAL is sent as STABILIZED: on a
 # multicopter PX4 flies the two alike, and the twin knows only STABILIZED.
 PILOT_MODES = {
@@ -222,7 +226,7 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
                 await ws.close(code=1003, reason="binary frames are not accepted")
                 break
             try:
-                data = json.loads(text)
+                data = loads_message(text)
                 if not isinstance(data, dict):
                     raise ValueError("a message is a JSON object")
                 if data.get("type") == "sticks":

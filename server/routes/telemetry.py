@@ -35,6 +35,9 @@ from server.telemetry_pump import TelemetryClient, TelemetryPump
 router = APIRouter(tags=["telemetry"])
 # The largest `?ack=` window: a larger one would not bound a slow client's staleness.
 MAX_ACK_WINDOW = 16
+# The largest frame a client may send: an ack is a few bytes (server/listen.py closes the
+# socket with 1009 on a larger frame, before reading it).
+MAX_FRAME_BYTES = 1024
 
 
 class _ClientAcks:
