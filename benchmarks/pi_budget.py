@@ -399,7 +399,7 @@ async def clients(
             transport, viewer = await loop.create_connection(
                 lambda: MjpegViewer(loop.create_future()), "127.0.0.1", port
             )
-            transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: b\r\n\r\n".encode())
+            transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
             mjpeg.append(viewer)
             transports.append(transport)
     await asyncio.sleep(warmup)

@@ -64,10 +64,10 @@ async def stalled_clients(port: int, n: int, stop: asyncio.Event) -> None:
         s.setblocking(False)
         await asyncio.get_running_loop().sock_connect(s, ("127.0.0.1", port))
         if i % 2:
-            s.send(b"GET /video/front.mjpg HTTP/1.1\r\nHost: s\r\n\r\n")
+            s.send(b"GET /video/front.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         else:
             s.send(
-                b"GET /ws/telemetry HTTP/1.1\r\nHost: s\r\nUpgrade: websocket\r\n"
+                b"GET /ws/telemetry HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
                 b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
                 b"Sec-WebSocket-Version: 13\r\n\r\n"
             )
@@ -121,7 +121,7 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
             lambda d=done: MjpegViewer(d), "127.0.0.1", port
         )
         cam = "front" if i % 2 == 0 else "bottom"
-        transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: b\r\n\r\n".encode())
+        transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
         viewers.append(viewer)
         transports.append(transport)
     tasks.append(asyncio.create_task(stalled_clients(port, args.stalled, stop)))

@@ -146,7 +146,7 @@ async def watch(port: int, cameras: list[str], per_camera: int, seconds: float, 
             transport, viewer = await loop.create_connection(
                 lambda d=done: MjpegViewer(d), "127.0.0.1", port
             )
-            transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: b\r\n\r\n".encode())
+            transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
             viewers.append(viewer)
             transports.append(transport)
     await asyncio.sleep(warmup)

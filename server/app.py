@@ -56,11 +56,12 @@ def create_app(settings: Settings) -> FastAPI:
         "/ws/control": control.MAX_FRAME_BYTES,
     }
     install_error_handlers(app)
-    # Origin, content type and body size, before any route (server/guard.py).
+    # Host, Origin, content type and body size, before any route (server/guard.py).
     app.add_middleware(
         RequestGuard,
         allowed_origins=settings.server.allowed_origins,
         max_body_bytes=settings.server.max_body_bytes,
+        allowed_hosts=[settings.server.host, *settings.server.allowed_hosts],
     )
     redact_tokens_in_access_log()
     app.include_router(health.router)

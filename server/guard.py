@@ -1,7 +1,15 @@
 """Who may change things, checked before any route runs (an ASGI middleware).
 
 The pilot's browser visits other websites while it holds the station's page open, and any
-host on the field Wi-Fi can reach the Pi. Three checks, token or no token:
+host on the field Wi-Fi can reach the Pi. Four checks, token or no token, in every
+mode (`--open` too):
+
+- **Host.** DNS rebinding: a page on `evil.example` re-points its name at the Pi, and its
+  requests are then same-origin for the browser, with `Host: evil.example`. Every request
+  and upgrade must name the station by an IP literal (its own address, however it was
+  reached), `localhost`, the machine's own name (`NAME`, `NAME.local`) or a name in
+  `server.allowed_hosts`; otherwise 421 (a WebSocket is closed with 1008). A request
+  without `Host` (HTTP/1.0, not a browser) passes.
 
 - **Origin.** A browser names the page that makes a request in `Origin`. A request that
   changes something (any method but GET/HEAD/OPTIONS) and every WebSocket upgrade must
@@ -15,7 +23,9 @@ host on the field Wi-Fi can reach the Pi. Three checks, token or no token:
 - **Body size.** A declared `Content-Length` over `server.max_body_bytes` is refused (413)
   before a byte is read; a chunked body is cut off at the limit the same way.
 
-Replies use the one error shape {"error", "error_msg"} (server.errors).
+Replies use the one error shape {"error", "error_msg"} (server.errors). Every HTTP
+answer carries `Content-Security-Policy: frame-ancestors 'self'` and `X-Frame-Options:
+SAMEORIGIN`: no other site can frame the pilot's page and steer clicks on it.
 
 WebSocket messages are bounded too: each route's frame limit (server/listen.py), and
 `loads_message` for their JSON, whose nesting is limited before it is parsed (Python's
@@ -24,9 +34,12 @@ parser would end a deep enough document with RecursionError, dropping the socket
 
 from __future__ import annotations
 
+import contextlib
+import ipaddress
 import json
 import logging
 import re
+import socket
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 from urllib.parse import urlsplit
@@ -54,16 +67,55 @@ def _origin_key(origin: str) -> tuple[str, int] | None:
     return parts.hostname.lower(), port
 
 
+_FRAMING = [
+    (b"content-security-policy", b"frame-ancestors 'self'"),
+    (b"x-frame-options", b"SAMEORIGIN"),
+]
+
+
+def own_names(extra: list[str]) -> set[str]:
+    """The names a request may reach the station by, besides IP literals."""
+    names = {"localhost", *(n.lower().rstrip(".") for n in extra)}
+    with contextlib.suppress(OSError):
+        host = socket.gethostname().lower()
+        names |= {host, f"{host}.local"}
+    return names
+
+
+def _host_name(host: str) -> str | None:
+    """The name or address of a Host header, without its port; None for junk."""
+    try:
+        name = urlsplit(f"http://{host}").hostname
+    except ValueError:
+        return None
+    return name.rstrip(".") if name else None
+
+
+def _is_ip(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True
+
+
 def _host_key(host: str, scheme: str) -> tuple[str, int] | None:
     """(host, port) of a Host header as the browser used it."""
     return _origin_key(f"{'https' if scheme in ('https', 'wss') else 'http'}://{host}")
 
 
 class RequestGuard:
-    def __init__(self, app: ASGIApp, allowed_origins: list[str], max_body_bytes: int) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        allowed_origins: list[str],
+        max_body_bytes: int,
+        allowed_hosts: list[str] | None = None,
+    ) -> None:
         self.app = app
         self.allowed = {k for o in allowed_origins if (k := _origin_key(o)) is not None}
         self.max_body = max_body_bytes
+        self.names = own_names([*(allowed_hosts or []), *(h for h, _ in self.allowed)])
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         kind = scope["type"]
@@ -71,6 +123,18 @@ class RequestGuard:
             await self.app(scope, receive, send)
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
+        if kind == "http":
+            send = _with_framing_headers(send)
+        if not self._host_ok(headers.get("host")):
+            why = (
+                f"Host '{headers.get('host', '')[:100]}' is not this station: reach it by its "
+                "address or a name in server.allowed_hosts."
+            )
+            if kind == "websocket":
+                await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
+            else:
+                await _reply(send, 421, "MisdirectedRequest", why)
+            return
         changes = kind == "websocket" or scope["method"] not in _SAFE_METHODS
         if changes and not self._origin_ok(headers, scope):
             why = (
@@ -102,6 +166,12 @@ class RequestGuard:
             )
             return
         await self._call_with_body_limit(scope, receive, send)
+
+    def _host_ok(self, host: str | None) -> bool:
+        if host is None:
+            return True  # HTTP/1.0: not a browser
+        name = _host_name(host)
+        return name is not None and (_is_ip(name) or name.lower() in self.names)
 
     def _origin_ok(self, headers: dict[str, str], scope: Scope) -> bool:
         origin = headers.get("origin")
@@ -169,6 +239,17 @@ def loads_message(text: str, max_depth: int = MAX_JSON_DEPTH) -> Any:
         elif ch in "]}":
             depth -= 1
     return json.loads(text)
+
+
+def _with_framing_headers(send: Send) -> Send:
+    async def framed(message: Message) -> None:
+        if message["type"] == "http.response.start":
+            names = {k.lower() for k, _ in message.get("headers", [])}
+            extra = [(k, v) for k, v in _FRAMING if k not in names]
+            message = {**message, "headers": [*message.get("headers", []), *extra]}
+        await send(message)
+
+    return framed
 
 
 async def _reply(send: Send, status: int, name: str, message: str) -> None:

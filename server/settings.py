@@ -40,6 +40,9 @@ class ServerSettings(Section):
     token_file: Path | None = None  # None: $XDG_CONFIG_HOME/fpv-station/token
     # Browser origins besides the station's own that may change things (scheme://host:port).
     allowed_origins: list[str] = Field(default_factory=list)
+    # Names the station may be reached by besides IP literals, localhost and the machine's
+    # own name (NAME, NAME.local): any other Host is refused (DNS rebinding, server/guard.py).
+    allowed_hosts: list[str] = Field(default_factory=list)
     # Request bodies: larger ones are refused (413) before they are read. Every body the
     # API takes is a small JSON document.
     max_body_bytes: int = Field(8 * 1024, ge=1024, le=64 * 1024 * 1024)

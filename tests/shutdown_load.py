@@ -25,8 +25,8 @@ from tests.mjpeg_client import Viewer
 from tests.test_recording_kill import spawn, station_up
 
 STALLED_REQUESTS = (
-    b"GET /video/front.mjpg HTTP/1.1\r\nHost: s\r\n\r\n",
-    b"GET /ws/telemetry HTTP/1.1\r\nHost: s\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+    b"GET /video/front.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+    b"GET /ws/telemetry HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
     b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n",
 )
 

@@ -75,7 +75,7 @@ def test_a_huge_body_is_refused_before_it_is_read(base):
     with socket.create_connection((host, int(port)), timeout=5) as sock:
         # Declares 300 MB and sends none of it: the answer must come at once.
         sock.sendall(
-            b"PUT /api/replay3d HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            b"PUT /api/replay3d HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
             b"Content-Length: 300000000\r\n\r\n"
         )
         reply = sock.recv(4096).decode()
@@ -190,7 +190,7 @@ def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
             s = socket.create_connection(("127.0.0.1", port), timeout=5)
             key = base64.b64encode(os.urandom(16)).decode()
             s.sendall(
-                f"GET /ws/telemetry HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+                f"GET /ws/telemetry HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
                 f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
                 "Sec-WebSocket-Version: 13\r\n\r\n".encode()
             )
@@ -257,3 +257,45 @@ def test_a_websocket_beyond_its_cap_is_refused_with_a_reason_and_no_false_error(
             assert [r.getMessage() for r in records] == [DenialLogFilter.MESSAGE]
         finally:
             uvicorn_errors.removeHandler(handler)
+
+
+@pytest.mark.parametrize("mode", ["open", "token"])
+def test_a_rebound_name_is_refused_in_every_mode_and_no_site_can_frame_the_pages(tmp_path, mode):
+    """DNS rebinding: a page on evil.example re-points its name at the station, and its
+    requests are then same-origin for the browser, with `Host: evil.example`: refused,
+    in `--open` mode as with a token. The station's addresses, localhost and configured
+    names pass; every answer forbids framing by another site."""
+    token = {"server.token": "s3cret-token"} if mode == "token" else {}
+    settings = station_settings(
+        "none",
+        tmp_path,
+        **{"server.control": mode, "server.allowed_hosts": ["station.field"], **token},
+    )
+    with run_uvicorn(create_app(settings)) as base:
+        port = base.rsplit(":", 1)[1]
+        for host in ("evil.example", f"evil.example:{port}", "127.0.0.1.nip.io", "x:y:z"):
+            r = httpx.get(f"{base}/api/status", headers={"Host": host})
+            assert r.status_code == 421 and r.json()["error"] == "MisdirectedRequest", host
+            assert r.headers["x-frame-options"] == "SAMEORIGIN"
+        assert httpx.get(f"{base}/", headers={"Host": "evil.example"}).status_code == 421
+        r = httpx.post(f"{base}/api/recording/start", headers={"Host": "evil.example"})
+        assert r.status_code == 421
+        assert httpx.get(f"{base}/api/recording").json()["recording"] is False
+        for host in (f"127.0.0.1:{port}", "10.0.0.7", f"[::1]:{port}", "localhost",
+                     f"station.field:{port}", "STATION.FIELD"):  # fmt: skip
+            r = httpx.get(f"{base}/api/status", headers={"Host": host})
+            assert r.status_code == 200, host
+        # The upgrade is refused before it is accepted.
+        for host, status in (("evil.example", b"403"), (f"127.0.0.1:{port}", b"101")):
+            with socket.create_connection(("127.0.0.1", int(port)), timeout=5) as s:
+                s.sendall(
+                    f"GET /ws/telemetry HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\n"
+                    "Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                    "Sec-WebSocket-Version: 13\r\n\r\n".encode()
+                )
+                assert s.recv(64).split(b" ")[1] == status, host
+        page = httpx.get(f"{base}/")
+        assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+        assert page.headers["content-security-policy"] == "frame-ancestors 'self'"
+        assert page.headers["x-frame-options"] == "SAMEORIGIN"
+        assert httpx.get(f"{base}/api/health").headers["x-frame-options"] == "SAMEORIGIN"

@@ -89,7 +89,7 @@ def test_a_viewer_that_stops_reading_does_not_delay_the_others(server):
     stuck = socket.socket()
     stuck.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     stuck.connect(("127.0.0.1", port))
-    stuck.sendall(b"GET /video/front.mjpg HTTP/1.1\r\nHost: x\r\n\r\n")
+    stuck.sendall(b"GET /video/front.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
     try:
         time.sleep(0.3)  # let its buffers fill: from here on its socket write blocks
         before = _cameras(server)["front"]["frames"]
