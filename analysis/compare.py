@@ -32,6 +32,18 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
     ("max_speed_mps", "Max speed (m/s)"),
     ("time_in_window_s", "Time in window (s)"),
     ("obstacle_contacts", "Obstacle contacts"),
+    ("landing_accuracy_m", "Landing accuracy (m)"),
+    ("valid", "Valid"),
+)
+# The metrics where a smaller figure is the better flight (pages mark them).
+LOWER_IS_BETTER = frozenset(
+    {
+        "hover_distance_m",
+        "lateral_deviation_m",
+        "height_deviation_m",
+        "obstacle_contacts",
+        "landing_accuracy_m",
+    }
 )
 
 
@@ -63,6 +75,13 @@ class Comparison:
         lines = [f"**{self.title}**", "", "| " + " | ".join(head) + " |"]
         lines.append("| " + " | ".join(["---"] * 2 + ["---:"] * (len(head) - 2)) + " |")
         lines += ["| " + " | ".join(row) + " |" for row in self.rows()]
+        lines += [""] + [
+            f"- {r.label} is not valid: {'; '.join(r.invalid_reasons)}."
+            for r in self.results
+            if not r.valid
+        ]
+        lower = [h for n, h in self.columns if n in LOWER_IS_BETTER]
+        lines.append(f"Lower is better: {', '.join(lower)}.")
         return "\n".join(lines) + "\n"
 
     def to_csv(self) -> str:
@@ -77,7 +96,10 @@ class Comparison:
         return {
             "task": self.task,
             "title": self.title,
-            "columns": [{"field": n, "heading": h} for n, h in self.columns],
+            "columns": [
+                {"field": n, "heading": h, "lower_is_better": n in LOWER_IS_BETTER}
+                for n, h in self.columns
+            ],
             "results": [r.to_dict() for r in self.results],
         }
 
@@ -99,6 +121,8 @@ def compare(results: list[TaskResult] | tuple[TaskResult, ...]) -> Comparison:
 def _fmt(value: object) -> str:
     if value is None:
         return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.3f}" if abs(value) < 100 else f"{value:.1f}"
     return str(value)

@@ -14,6 +14,8 @@ message and exits with status 2.
 
 from __future__ import annotations
 
+import re
+
 
 class AnalysisError(ValueError):
     """Base of every analysis error."""
@@ -37,3 +39,13 @@ class TaskWindowError(AnalysisError):
 
 class UnknownTaskError(AnalysisError):
     pass
+
+
+# An absolute path: a slash-separated run of names starting at the root (no spaces).
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~-])/(?:[^\s'\"/]+/)*([^\s'\"/]*)")
+
+
+def without_dirs(message: str) -> str:
+    """`message` with each absolute path cut to its last name (a session folder to its id,
+    a file to its name): what a remote client may read. The CLI keeps full paths."""
+    return _ABSOLUTE_PATH.sub(lambda m: m.group(1) or "/", message)

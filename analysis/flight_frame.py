@@ -103,7 +103,7 @@ def align_track(
 ) -> AlignedTrack:
     if len(track) < min_points:
         raise TooFewPointsError(
-            f"'{track.source}' has {len(track)} GPS samples with a fix; at least "
+            f"'{track.label}' has {len(track)} GPS samples with a fix; at least "
             f"{min_points} are needed to analyse a flight."
         )
     i0 = (

@@ -11,8 +11,10 @@ figure 8s) is listed in `skipped` with the reason, unless it is the only one ask
 The field (pads and obstacles of the twin's scene) is used for a flight that starts
 within `scene_radius_m` of one of its pads: its landing pad then gives the +x direction
 (unless a reference is given), plots draw it, and twin flights get their obstacle
-contacts counted. Contacts are not counted for physical flights: the scene only
-approximates the real obstacles, and GPS noise would invent contacts.
+contacts counted and their landing judged on or off the pad. Neither is judged for
+physical flights: the scene only approximates the real field, and GPS noise would invent
+faults. A session folder's crash reports (the vehicle's STATUSTEXTs in messages.csv, as
+its quality flags read them) make the flight they fall in invalid.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ from analysis.flight_frame import AlignedTrack, align_track
 from analysis.flights import Flight, track_flights
 from analysis.tasks import TaskParams, TaskResult, analyze, check_task
 from analysis.track import Track, load_track
+from companion.recording import layout
+from companion.recording.flags import is_crash, vehicle_texts
 from core.geodesy import geodetic_to_enu
 
 SCENE_RADIUS_M = 150.0
@@ -88,7 +92,7 @@ def flight_tracks(track: Track, params: TaskParams, flight: int | None = None) -
     flights = track_flights(track, params.airborne_height_m, params.min_airborne_s)
     if flight is not None and not 1 <= flight <= len(flights):
         raise TaskWindowError(
-            f"'{track.source}' has {len(flights)} flight(s); there is no flight {flight}."
+            f"'{track.label}' has {len(flights)} flight(s); there is no flight {flight}."
         )
     if not flights:
         return [track]
@@ -116,9 +120,18 @@ def analyze_tracks(
     aligned, results, skipped = [], [], []
     for whole in tracks:
         parts = flight_tracks(whole, p, flight)
-        for track in parts:
+        crashes = session_crashes(whole)
+        starts = [float(part.t_s[0]) if len(part) else 0.0 for part in parts]
+        for k, track in enumerate(parts):
+            # A crash belongs to the flight it follows (the first flight: also any before).
+            mine = [
+                (t, text)
+                for t, text in crashes
+                if t is None
+                or ((k == 0 or t >= starts[k]) and (k + 1 == len(parts) or t < starts[k + 1]))
+            ]
             try:
-                a, result = _analyze_one(track, task, reference_latlon, field, p)
+                a, result = _analyze_one(track, task, reference_latlon, field, p, mine)
             except AnalysisError as exc:
                 if len(parts) == 1:
                     raise
@@ -135,12 +148,29 @@ def analyze_tracks(
     )
 
 
+def session_crashes(track: Track) -> list[tuple[float | None, str]]:
+    """The crash reports of the session folder a track was read from (session time,
+    text); none for a bare file (its folder is not a session) or a zip."""
+    source = Path(track.source)
+    folder = source if source.is_dir() else source.parent
+    if not (folder / layout.SESSION_JSON).is_file():
+        return []
+    return [(t, text) for t, text in vehicle_texts(folder / layout.MESSAGES_CSV) if is_crash(text)]
+
+
+def _landing_pad(meta: dict) -> str | None:
+    task = meta.get("task")
+    pad = task.get("end_pad") if isinstance(task, dict) else None
+    return pad if isinstance(pad, str) else None
+
+
 def _analyze_one(
     track: Track,
     task: str,
     reference_latlon: tuple[float, float] | None,
     field: FieldLayout | None,
     p: TaskParams,
+    crashes: Sequence[tuple[float | None, str]] = (),
 ) -> tuple[AlignedTrack, TaskResult]:
     near = field_for(track, field)
     a = align_track(
@@ -151,8 +181,9 @@ def _analyze_one(
         min_reference_m=p.margin_m,
         ground_height_m=p.airborne_height_m,
     )
-    # Draw the field for every flight, count contacts for the twin only (see above).
-    result = analyze(a, task, p, count_contacts=track.platform == "twin")
+    # Draw the field for every flight, judge contacts and landing for the twin only.
+    twin = track.platform == "twin"
+    result = analyze(a, task, p, twin, crashes, _landing_pad(track.meta))
     return a, replace(result, flight=track.meta.get("flight"))
 
 

@@ -15,22 +15,34 @@
   mean speed = path length / trial time, max speed over `speed_span_s` (1 s) baselines
   (GPS noise makes sample-to-sample speeds meaningless), time in window, and obstacle
   contacts when the field is known.
+- Validity: a trial is `valid` unless the vehicle reported a crash during it, touched an
+  obstacle, or landed off its landing pad; `invalid_reasons` says which, in words. A
+  deviation measured on a crashed flight is not a result to set beside the paper's.
+- Landing accuracy: horizontal distance from the landing point (where the vehicle sat
+  when it disarmed, else its last airborne sample) to the centre of its landing pad (the
+  session's task's end pad, else the pad nearest take-off for tasks that return, else
+  the nearest other pad). Contacts and "off the pad" are judged only where the field is
+  the one flown (`judge_field`): for a physical flight the scene only approximates the
+  real pads and obstacles, and GPS noise would invent faults.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, get_args
 
 import numpy as np
 
 from analysis.errors import TaskWindowError, TooFewPointsError, UnknownTaskError
-from analysis.field_layout import obstacle_contacts
+from analysis.field_layout import FieldLayout, Pad, obstacle_contacts
 from analysis.flight_frame import AlignedTrack, HeightSource
 
 TaskName = Literal["hover", "a-to-b", "obstacle", "figure8"]
 TASKS: tuple[str, ...] = get_args(TaskName)
+# Tasks that land where they took off; the others land on another pad.
+RETURN_TASKS = frozenset({"hover", "figure8"})
 TASK_TITLES = {
     "hover": "Task 1: Take off, hover, and land",
     "a-to-b": "Task 2: A to B",
@@ -124,15 +136,83 @@ class TaskResult:
     origin_lon_deg: float
     origin_alt_m: float
     flight: int | None = None  # which flight of its file (1-based), when split into flights
+    valid: bool = True  # False: crashed, touched an obstacle or landed off the pad
+    invalid_reasons: tuple[str, ...] = ()  # why not valid, in words
+    landing_pad: str | None = None  # the pad the trial should end on, when the field is known
+    landing_accuracy_m: float | None = None  # landing point to that pad's centre (horizontal)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """As JSON gives it back (lists, not tuples)."""
+        return {**dataclasses.asdict(self), "invalid_reasons": list(self.invalid_reasons)}
 
 
 def check_task(task: str) -> str:
     if task not in TASKS:
         raise UnknownTaskError(f"Unknown task '{task}'; use one of: {', '.join(TASKS)}.")
     return task
+
+
+@dataclass(frozen=True)
+class Landing:
+    pad: str
+    accuracy_m: float  # horizontal distance from the pad's centre
+    on_pad: bool  # the vehicle (a disc of `vehicle_radius_m`) overlaps the pad's square
+
+
+def landing_index(a: AlignedTrack, i_land: int) -> int:
+    """Where the vehicle came to rest: its last armed sample from the landing on (it
+    disarmed there), else the sample after the last airborne one."""
+    armed = np.flatnonzero(a.track.armed[i_land:])
+    if armed.size:
+        return i_land + int(armed[-1])
+    return min(i_land + 1, len(a.track) - 1)
+
+
+def landing(
+    a: AlignedTrack, task: str, trial: tuple[int, int], p: TaskParams, pad_name: str | None
+) -> Landing | None:
+    """The landing against the field's pad (see the module docstring); None without a
+    field or pads."""
+    field = a.field
+    if field is None or not field.pads:
+        return None
+    i_to, i_land = trial
+    at = a.xyz_m[landing_index(a, i_land), :2]
+    pad = field.pad(pad_name) if pad_name else None
+    if pad is None:
+        pad = _expected_pad(field, task, a.xyz_m[i_to, :2], at)
+    d = at - (pad.x_m, pad.y_m)
+    # The pad's square is axis-aligned in the scene; the track frame is turned by
+    # `rotation_rad`, so turn back into the pad's own axes.
+    c, s = np.cos(-a.rotation_rad), np.sin(-a.rotation_rad)
+    u, v = c * d[0] - s * d[1], s * d[0] + c * d[1]
+    reach = pad.size_m / 2 + p.vehicle_radius_m
+    return Landing(pad.name, float(np.hypot(*d)), bool(abs(u) <= reach and abs(v) <= reach))
+
+
+def _expected_pad(field: FieldLayout, task: str, takeoff_xy, landed_xy) -> Pad:
+    def nearest(xy, pads) -> Pad:
+        return min(pads, key=lambda q: float(np.hypot(q.x_m - xy[0], q.y_m - xy[1])))
+
+    start = nearest(takeoff_xy, field.pads)
+    if task in RETURN_TASKS or len(field.pads) == 1:
+        return start
+    return nearest(landed_xy, [q for q in field.pads if q is not start])
+
+
+def invalid_reasons(
+    crashes: Sequence[tuple[float | None, str]], contacts: int | None, land: Landing | None
+) -> tuple[str, ...]:
+    """Why a trial is not valid, in words (empty: valid)."""
+    out = []
+    for t_s, text in crashes[:1]:
+        when = f" at {t_s:.1f} s" if t_s is not None else ""
+        out.append(f"the vehicle reported a crash{when} ({text})")
+    if contacts:
+        out.append(f"it touched an obstacle ({contacts} contact{'s' if contacts > 1 else ''})")
+    if land is not None and not land.on_pad:
+        out.append(f"it landed off pad '{land.pad}', {land.accuracy_m:.1f} m from its centre")
+    return tuple(out)
 
 
 def trial_span(a: AlignedTrack, p: TaskParams) -> tuple[int, int]:
@@ -148,7 +228,7 @@ def trial_span(a: AlignedTrack, p: TaskParams) -> tuple[int, int]:
     keep = (t[ends] - t[starts]) >= p.min_airborne_s
     if not keep.any():
         raise TaskWindowError(
-            f"'{a.track.source}': the vehicle never flew (never armed and more than "
+            f"'{a.label}': the vehicle never flew (never armed and more than "
             f"{p.airborne_height_m:g} m above the start for {p.min_airborne_s:g} s), so "
             "there is no trial to analyse."
         )
@@ -163,14 +243,14 @@ def task_window(a: AlignedTrack, task: str, p: TaskParams, trial: tuple[int, int
         reached = np.flatnonzero(z[i_to : i_land + 1] >= target)
         if reached.size == 0:
             raise TaskWindowError(
-                f"'{a.track.source}': the vehicle never reached {target:g} m "
+                f"'{a.label}': the vehicle never reached {target:g} m "
                 f"(highest {np.max(z):.2f} m above the start); no hover window."
             )
         i0 = i_to + int(reached[0])
         t_end = t[i0] + p.hover_window_s
         if t_end > t[i_land]:
             raise TaskWindowError(
-                f"'{a.track.source}': it landed {t[i_land] - t[i0]:.1f} s after reaching "
+                f"'{a.label}': it landed {t[i_land] - t[i0]:.1f} s after reaching "
                 f"{p.hover_height_m:g} m; the hover window needs {p.hover_window_s:g} s."
             )
         i1 = int(np.searchsorted(t, t_end, side="right")) - 1
@@ -180,27 +260,35 @@ def task_window(a: AlignedTrack, task: str, p: TaskParams, trial: tuple[int, int
         short_of_end = np.flatnonzero(np.abs(x[seg] - x[i_land]) >= p.margin_m)
         if past_start.size == 0 or short_of_end.size == 0:
             raise TaskWindowError(
-                f"'{a.track.source}': the vehicle never went {p.margin_m:g} m along x from "
+                f"'{a.label}': the vehicle never went {p.margin_m:g} m along x from "
                 f"its take-off or landing point; no {task} window."
             )
         i0, i1 = i_to + int(past_start[0]), i_to + int(short_of_end[-1])
         if i1 <= i0:
             raise TaskWindowError(
-                f"'{a.track.source}': it is never both {p.margin_m:g} m past the start and "
+                f"'{a.label}': it is never both {p.margin_m:g} m past the start and "
                 f"{p.margin_m:g} m short of the end along x; no {task} window."
             )
     if i1 - i0 + 1 < p.min_window_points:
         raise TooFewPointsError(
-            f"'{a.track.source}': only {i1 - i0 + 1} GPS samples in the {task} window."
+            f"'{a.label}': only {i1 - i0 + 1} GPS samples in the {task} window."
         )
     return Window(i0=i0, i1=i1, start_s=float(t[i0]), end_s=float(t[i1]))
 
 
 def analyze(
-    a: AlignedTrack, task: str, params: TaskParams | None = None, count_contacts: bool = True
+    a: AlignedTrack,
+    task: str,
+    params: TaskParams | None = None,
+    judge_field: bool = True,
+    crashes: Sequence[tuple[float | None, str]] = (),
+    landing_pad: str | None = None,
 ) -> TaskResult:
-    """The paper's metrics (and the extras) for one aligned flight; obstacle contacts when
-    `count_contacts` and the field's obstacles are known (else None)."""
+    """The paper's metrics (and the extras) for one aligned flight, and whether the trial
+    is valid. `crashes`: the vehicle's crash reports during this flight (session time,
+    text). Obstacle contacts are counted, and a landing off the pad judged, when
+    `judge_field` and the field is known (else contacts are None); `landing_pad` names
+    the pad the trial should end on (else it is inferred, see the module docstring)."""
     p = params or TaskParams()
     check_task(task)
     trial = trial_span(a, p)
@@ -213,10 +301,12 @@ def analyze(
     trial_s = float(t[i_land] - t[i_to])
     path_m = float(np.sum(np.linalg.norm(np.diff(fly, axis=0), axis=1)))
     contacts = None
-    if count_contacts and a.field is not None and a.field.obstacles:
+    if judge_field and a.field is not None and a.field.obstacles:
         body = fly.copy()
         body[:, 2] = a.height_m(p.height_source)[i_to : i_land + 1]
         contacts = obstacle_contacts(body, a.field.obstacles, p.vehicle_radius_m)
+    land = landing(a, task, trial, p, landing_pad)
+    reasons = invalid_reasons(crashes, contacts, land if judge_field else None)
     return TaskResult(
         task=task,
         label=a.label,
@@ -243,6 +333,10 @@ def analyze(
         origin_lat_deg=a.origin[0],
         origin_lon_deg=a.origin[1],
         origin_alt_m=a.origin[2],
+        valid=not reasons,
+        invalid_reasons=reasons,
+        landing_pad=land.pad if land else None,
+        landing_accuracy_m=land.accuracy_m if land else None,
     )
 
 

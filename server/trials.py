@@ -7,6 +7,9 @@ pads only count for flights that start on them, as in `fpv-station analyze`). Sc
 runs `analysis.report.analyze_paths` on the finished session, the same call as
 `fpv-station analyze --task T SESSION [--scene FILE]`, in a worker thread behind the
 station's analysis limiter, and stores the result in the session's `session.json`.
+The result says whether the trial is `valid` (no crash, no obstacle touched, landed on the
+pad) and how far from the pad's centre it landed. The score is read by anonymous pages:
+its texts name the session by its id, never by the server's folders.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from typing import Any
 
 import anyio
 
-from analysis.errors import AnalysisError
+from analysis.errors import AnalysisError, without_dirs
 from analysis.report import analyze_paths
 from analysis.tasks import PAPER_RESULTS
 from companion.recording import layout
@@ -63,8 +66,9 @@ def score_session(folder: Path, task: SessionTask) -> TrialScore:
     try:
         analysis = analyze_paths([folder], task.analysis, scene=scene)
     except AnalysisError as exc:  # never reached the window, no GPS fix, too short ...
-        return TrialScore(task=task.analysis, ok=False, reason=str(exc), scored_utc=now)
-    result = analysis.results[0].to_dict()
+        reason = without_dirs(str(exc))
+        return TrialScore(task=task.analysis, ok=False, reason=reason, scored_utc=now)
+    result = {**analysis.results[0].to_dict(), "source": folder.name}
     return TrialScore(task=task.analysis, ok=True, scored_utc=now, result=result)
 
 

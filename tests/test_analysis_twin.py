@@ -139,10 +139,13 @@ def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
     assert res["hover_distance_m"] < 0.5 and res["window_samples"] >= 40  # 5 Hz GPS, 10 s
     assert 10 < res["trial_time_s"] < 60 and res["obstacle_contacts"] == 0
     assert res["height_deviation_m"] < 0.5
+    # Flown to the letter: a valid trial, landed on the start pad near its centre.
+    assert res["valid"] and res["invalid_reasons"] == [] and res["landing_pad"] == "start"
+    assert res["landing_accuracy_m"] < 0.75
     # Scored on landing, with the same code: the same numbers as REST and the CLI.
     score = task["last_score"]
     assert task["last_session"] == flight.session_id and score["ok"] and score["task"] == "hover"
-    for key in ("hover_distance_m", "height_deviation_m", "trial_time_s"):
+    for key in ("hover_distance_m", "height_deviation_m", "trial_time_s", "valid"):
         assert score["result"][key] == res[key]
     out = tmp_path / "cli"
     assert cli_main(["analyze", "--task", "hover", str(flight.folder), "--out", str(out)]) == 0

@@ -36,9 +36,11 @@ def recorded_twin_flight(
     timeout_s: float = 120.0,
     before_flight: Callable[[str], None] | None = None,
     legs: list[Leg] | None = None,
+    crash: bool = False,
 ) -> Iterator[RecordedFlight]:
     """`before_flight(base_url)` runs once the station is up; `legs` replace the task's
-    scripted plan (an aborted trial, say)."""
+    scripted plan (an aborted trial, say); `crash`: the plan must end in a crash (the
+    twin then disarms in the air) instead of being flown to its end."""
     settings = load_settings(
         None,
         {
@@ -66,7 +68,10 @@ def recorded_twin_flight(
         legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))
         pilot = Pilot(legs)
         fly_twin(station.twin, pilot, timeout_s=timeout_s)
-        assert pilot.done, pilot.log
+        if crash:
+            assert station.twin.sim.state.crash[0] and not pilot.done, pilot.log
+        else:
+            assert pilot.done, pilot.log
         # Landed: the commander disarms 2 s later, then the 1 s tail ends the session.
         assert wait_until(
             lambda: (

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import math
 import re
 from pathlib import Path
 
@@ -109,24 +110,40 @@ def _length(iv: LinkLoss, duration_s: float | None) -> float | None:
     return None if end is None else max(0.0, end - iv.start_s)
 
 
-def _vehicle_flags(path: Path) -> list[QualityFlag]:
-    """Crash and failsafe, from the vehicle's STATUSTEXTs (the first of each is named)."""
-    crash = failsafe = None
+def vehicle_texts(path: Path) -> list[tuple[float | None, str]]:
+    """The vehicle's STATUSTEXTs in a messages.csv: (session time or None, text)."""
     try:
         with open(path, newline="", encoding="utf-8", errors="replace") as f:
             text = f.read(_MESSAGES_READ_MAX)
     except OSError:
         return []
+    out = []
     for row in csv.DictReader(text.splitlines()):
         if row.get("kind") != "statustext" or not row.get("text"):
             continue
         try:
-            said = f"{row['text'].strip()} (at {float(row.get('t_s') or 'nan'):.1f} s)"
+            t_s: float | None = float(row.get("t_s") or "nan")
         except ValueError:
-            said = row["text"].strip()
-        if crash is None and _CRASH.search(row["text"]):
+            t_s = None
+        if t_s is not None and not math.isfinite(t_s):
+            t_s = None
+        out.append((t_s, row["text"].strip()))
+    return out
+
+
+def is_crash(text: str) -> bool:
+    """Whether a vehicle's message reports a crash."""
+    return _CRASH.search(text) is not None
+
+
+def _vehicle_flags(path: Path) -> list[QualityFlag]:
+    """Crash and failsafe, from the vehicle's STATUSTEXTs (the first of each is named)."""
+    crash = failsafe = None
+    for t_s, text in vehicle_texts(path):
+        said = f"{text} (at {t_s:.1f} s)" if t_s is not None else text
+        if crash is None and is_crash(text):
             crash = said
-        if failsafe is None and _FAILSAFE.search(row["text"]):
+        if failsafe is None and _FAILSAFE.search(text):
             failsafe = said
     flags = []
     if crash is not None:

@@ -27,6 +27,7 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import Response
 
 from analysis import errors as ae
+from analysis.errors import without_dirs
 from analysis.field_layout import load_field_layout
 from analysis.plots import PLOTS
 from analysis.report import Analysis, analyze_tracks
@@ -74,10 +75,12 @@ _ERRORS: dict[type[Exception], type[ApiError]] = {
 
 
 def _api_error(exc: Exception) -> ApiError:
+    """The error for a client: its message names sessions and files, never folders."""
+    msg = without_dirs(str(exc))
     for kind, api in _ERRORS.items():
         if isinstance(exc, kind):
-            return api(str(exc))
-    return Unprocessable(str(exc))
+            return api(msg)
+    return Unprocessable(msg)
 
 
 def _session_files(store: st.SessionStore, session_id: str) -> tuple[Path, Path | None]:
@@ -207,8 +210,12 @@ _P = Depends(_thresholds)
 
 
 def _table(an: Analysis) -> dict:
-    skipped = [{"label": label, "reason": why} for label, why in an.skipped]
-    return {**an.comparison.to_dict(), "skipped": skipped}
+    """The CLI's TABLE.json, with each row's source its session id (not its folder)."""
+    skipped = [{"label": label, "reason": without_dirs(why)} for label, why in an.skipped]
+    table = an.comparison.to_dict()
+    for row in table["results"]:
+        row["source"] = Path(row["source"]).name
+    return {**table, "skipped": skipped}
 
 
 @router.get("/api/sessions/{session_id}/analysis", summary="Task metrics of one session")
