@@ -1,6 +1,9 @@
 // The paper's task analysis of recorded sessions: the table from GET /api/analysis, the
 // figures from /api/analysis/{plot}.png. ?sessions=ID&task=...&reference=LAT,LON
-// preselects (a link to a comparison).
+// preselects (a link to a comparison). Without a task in the link, the task is the one
+// the chosen session was flown as (its session.json `task`), until the user picks one.
+// Columns where a smaller figure is the better flight are marked; a trial that does not
+// count (a crash, an obstacle touched, a landing off the pad) says so and why.
 import { $, el, api } from "/lib.js";
 
 const PLOTS = ["trajectory3d", "birdseye", "history"];
@@ -26,21 +29,36 @@ function showError(text) {
   $("error").hidden = !text;
 }
 
+const LOWER = "\u2193"; // marks a column where lower is better
+
+const legend = el("p", { id: "legend", class: "note" });
+const invalid = el("ul", { id: "invalid", class: "flags" });
+$("table").after(legend, invalid);
+
 function render(data, q) {
   $("title").textContent = data.title;
   const head = $("table").tHead, body = $("table").tBodies[0];
   head.replaceChildren();
   body.replaceChildren();
   const hr = head.insertRow();
-  for (const h of ["Platform used", "Session", ...data.columns.map((c) => c.heading)]) {
-    hr.appendChild(el("th", {}, h));
+  hr.append(el("th", {}, "Platform used"), el("th", {}, "Session"));
+  for (const c of data.columns) {
+    const th = el("th", { "data-field": c.field }, c.lower_is_better ? `${c.heading} ${LOWER}` : c.heading);
+    if (c.lower_is_better) th.title = "lower is better";
+    hr.appendChild(th);
   }
   for (const r of data.results) {
     const tr = body.insertRow();
+    tr.dataset.valid = String(r.valid);
+    if (!r.valid) tr.className = "invalid";
     const cells = [PLATFORM[r.platform] || r.platform, r.label,
-      ...data.columns.map((c) => fmt(r[c.field]))];
+      ...data.columns.map((c) => (c.field === "valid" ? (r.valid ? "valid" : "invalid") : fmt(r[c.field])))];
     for (const c of cells) tr.insertCell().textContent = c;
   }
+  const lower = data.columns.filter((c) => c.lower_is_better).map((c) => c.heading);
+  legend.textContent = lower.length ? `${LOWER} lower is better: ${lower.join(", ")}.` : "";
+  invalid.replaceChildren(...data.results.filter((r) => !r.valid).map((r) =>
+    el("li", { "data-flag": "invalid" }, el("b", {}, `${r.label} is not valid:`), ` ${r.invalid_reasons.join("; ")}`)));
   const figs = $("figures");
   figs.replaceChildren();
   for (const plot of PLOTS) figs.appendChild(el("img", { alt: plot, src: `/api/analysis/${plot}.png?${q}` }));
@@ -59,9 +77,19 @@ async function analyse(ev) {
   }
 }
 
+// The task the first chosen session was flown as (its analysis), else null.
+function sessionTask(byId) {
+  for (const opt of $("sessions").selectedOptions) {
+    const s = byId.get(opt.value);
+    if (s && s.task && s.task.analysis) return s.task.analysis;
+  }
+  return null;
+}
+
 async function init() {
   const pre = new URLSearchParams(location.search);
-  if (pre.get("task")) $("task").value = pre.get("task");
+  let taskChosen = Boolean(pre.get("task")); // by the link or by hand: then it stays
+  if (taskChosen) $("task").value = pre.get("task");
   if (pre.get("reference")) $("reference").value = pre.get("reference");
   const wanted = new Set(pre.getAll("sessions"));
   let sessions;
@@ -70,10 +98,18 @@ async function init() {
   } catch (err) {
     return showError(`Cannot list sessions: ${err.message}`);
   }
+  const byId = new Map(sessions.map((s) => [s.id, s]));
   for (const s of sessions) {
     const opt = new Option(`${s.id} (${s.source})`, s.id, false, wanted.has(s.id));
     $("sessions").add(opt);
   }
+  const followSessions = () => {
+    const task = taskChosen ? null : sessionTask(byId);
+    if (task) $("task").value = task;
+  };
+  followSessions();
+  $("sessions").addEventListener("change", followSessions);
+  $("task").addEventListener("change", () => { taskChosen = true; });
   $("form").addEventListener("submit", analyse);
   if (wanted.size) analyse();
 }

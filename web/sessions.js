@@ -4,7 +4,8 @@
 // died, cut short by a failed write); its quality column lists the station's flags
 // (companion/recording/flags.py: a crash, a failsafe, telemetry gaps, link loss, dropped
 // frames; each with its reason and threshold) or "ok" with the counts. A crashed flight's
-// row is marked.
+// row is marked. Each session links to its analysis (which opens as the task it was flown as), and
+// its score says whether the trial counts.
 import { $, el, api } from "/lib.js";
 
 const tbody = document.querySelector("#sessions tbody");
@@ -58,7 +59,19 @@ function scoreText(s) {
   const main = s.score.task === "hover"
     ? `hover ${r.hover_distance_m.toFixed(3)} m`
     : `lateral ${r.lateral_deviation_m.toFixed(3)} m`;
-  return `${main}, height ${r.height_deviation_m.toFixed(3)} m, ${r.trial_time_s.toFixed(1)} s`;
+  const figures = `${main}, height ${r.height_deviation_m.toFixed(3)} m, ${r.trial_time_s.toFixed(1)} s`;
+  return r.valid === false ? `invalid: ${figures}` : figures;
+}
+
+function scoreTitle(s) {
+  if (!s.score) return "";
+  if (!s.score.ok) return s.score.reason || "";
+  const r = s.score.result;
+  const parts = [];
+  if (r.valid === false) parts.push(`not valid: ${r.invalid_reasons.join("; ")}`);
+  if (r.landing_accuracy_m != null) parts.push(`landed ${r.landing_accuracy_m.toFixed(2)} m from pad ${r.landing_pad}`);
+  parts.push("lower is better");
+  return parts.join("; ");
 }
 
 function cell(tr, text, cls) {
@@ -103,13 +116,14 @@ async function load() {
     if (crashed) status.append(" ", el("span", { class: "crash-mark" }, "CRASHED"));
     qualityCell(tr, s);
     cell(tr, s.task ? `${s.task.id}. ${s.task.name}` : "--", "task");
-    cell(tr, scoreText(s), s.score && !s.score.ok ? "quality-bad score" : "score").title =
-      s.score && s.score.reason ? s.score.reason : "";
+    const bad = s.score && (!s.score.ok || (s.score.result && s.score.result.valid === false));
+    cell(tr, scoreText(s), bad ? "quality-bad score" : "score").title = scoreTitle(s);
     const id = encodeURIComponent(s.id);
     const del = el("button", { type: "button", class: "delete", disabled: s.recording_now }, "delete");
     del.addEventListener("click", () => remove(s.id));
     cell(tr, "").append(
       el("a", { class: "replay", href: `/replay.html?session=${id}` }, "replay"), " ",
+      el("a", { class: "analysis", href: `/analysis.html?sessions=${id}` }, "analysis"), " ",
       el("a", { class: "download", href: `/api/sessions/${id}/download` }, "download"), " ",
       del,
     );

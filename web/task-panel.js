@@ -6,8 +6,11 @@
 //
 // Steps are detected here from the telemetry the page already has (window "fpv:telemetry"
 // events of flight-state.js): armed, took off (0.5 m), reached the task's height, held it
-// (tasks with a hold time), passed each obstacle on the way (tasks that cross the field),
-// landed and disarmed. Positions are metres east/north of the scene's home, which is
+// (tasks with a hold time: the time counts only while the height stays within the
+// tolerance of the task's, and starts again when it leaves it), passed each obstacle on
+// the way (tasks that cross the field), landed and disarmed. The score says whether the
+// trial counts (valid: no crash, no obstacle touched, landed on the pad), how far from
+// the pad's centre it landed, and which figures are better when lower. Positions are metres east/north of the scene's home, which is
 // plenty exact over a 60 m field (an equirectangular projection).
 import { $, el, api, ApiError } from "/lib.js";
 
@@ -107,7 +110,7 @@ function track(msg) {
     vehicle = { ...toField(fix.lat_deg, fix.lon_deg), heading: s.vfr_hud.heading_deg };
   }
   if (armed && (!flight || flight.ended)) {
-    flight = { done: new Set([0]), trail: [], heightAt: null, ended: false, pos: null };
+    flight = { done: new Set([0]), trail: [], heldSince: null, ended: false, pos: null };
   }
   if (!flight) return;
   if (vehicle && armed) {
@@ -128,13 +131,14 @@ function track(msg) {
   if (armed && airborne) done.add(i);
   const tookOff = done.has(1);
   i += 1;
-  if (tookOff && alt != null && alt >= task.altitude_m - HEIGHT_TOL_M) {
-    done.add(i);
-    if (flight.heightAt === null) flight.heightAt = t;
-  }
+  if (tookOff && alt != null && alt >= task.altitude_m - HEIGHT_TOL_M) done.add(i);
   i += 1;
   if (task.hold_s > 0) {
-    if (flight.heightAt !== null && t - flight.heightAt >= task.hold_s) done.add(i);
+    // Held: the height within the tolerance for hold_s without a break.
+    const atHeight = tookOff && armed && alt != null && Math.abs(alt - task.altitude_m) <= HEIGHT_TOL_M;
+    if (!atHeight) flight.heldSince = null;
+    else if (flight.heldSince === null) flight.heldSince = t;
+    else if (t - flight.heldSince >= task.hold_s) done.add(i);
     i += 1;
   }
   if (task.start_pad !== task.end_pad && scene) {
@@ -252,6 +256,8 @@ function fmt(v, unit) {
   return v == null ? "--" : `${v.toFixed(unit === "s" ? 1 : 3)} ${unit}`;
 }
 
+const LOWER_IS_BETTER = "lower is better: distance, deviations, landing offset";
+
 function renderScore() {
   const task = taskInfo && taskInfo.selected;
   if (!task) { score.replaceChildren(); return; }
@@ -264,7 +270,12 @@ function renderScore() {
       const metric = task.analysis === "hover"
         ? `hover ${fmt(r.hover_distance_m, "m")}, height dev. ${fmt(r.height_deviation_m, "m")}`
         : `lateral dev. ${fmt(r.lateral_deviation_m, "m")}, height dev. ${fmt(r.height_deviation_m, "m")}`;
-      rows.push(el("p", { id: "task-result", class: "result" }, `Last trial: ${metric}, time ${fmt(r.trial_time_s, "s")}`));
+      const landed = r.landing_accuracy_m == null ? "" : `, landed ${fmt(r.landing_accuracy_m, "m")} from pad ${r.landing_pad}`;
+      const valid = r.valid !== false;
+      rows.push(el("p", { id: "task-result", class: valid ? "result" : "result bad", "data-valid": String(valid) },
+        el("b", {}, valid ? "Valid" : "Invalid"), ` trial: ${metric}${landed}, time ${fmt(r.trial_time_s, "s")}`));
+      if (!valid) rows.push(el("p", { id: "task-invalid", class: "result bad" }, `Does not count: ${r.invalid_reasons.join("; ")}`));
+      rows.push(el("p", { class: "note" }, LOWER_IS_BETTER));
     } else {
       rows.push(el("p", { id: "task-result", class: "result bad" }, `Last trial not scored: ${last.reason}`));
     }
@@ -280,7 +291,8 @@ function renderScore() {
   if (taskInfo.attempts.length) {
     rows.push(el("ul", { id: "task-attempts", class: "attempts" },
       ...taskInfo.attempts.map((a) => el("li", {}, `${a.start_utc.slice(11, 19)} ` +
-        (a.score.ok ? (task.analysis === "hover" ? fmt(a.score.result.hover_distance_m, "m") : fmt(a.score.result.lateral_deviation_m, "m")) + `, ${fmt(a.score.result.trial_time_s, "s")}` : `not scored`)))));
+        (a.score.ok ? (task.analysis === "hover" ? fmt(a.score.result.hover_distance_m, "m") : fmt(a.score.result.lateral_deviation_m, "m")) + `, ${fmt(a.score.result.trial_time_s, "s")}` +
+          (a.score.result.valid === false ? " (invalid)" : "") : `not scored`)))));
   }
   score.replaceChildren(...rows);
 }
