@@ -10,7 +10,9 @@ never changes under a reader.
 
 from __future__ import annotations
 
+from collections import deque
 from operator import attrgetter
+from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -51,6 +53,16 @@ _ORIGIN_STEP_MIN_MPS = 20.0
 # vertical error is metres, barometric drift over a flight some 10 m).
 _DISAGREE_M = 40.0
 _FRESH_GPS_S = 2.0
+# Old firmware (2013 ArduCopter) puts its GPS altitude in GLOBAL_POSITION_INT `alt` and
+# its barometer's height in `relative_alt`. The two come from one estimator on every
+# autopilot since (their difference, the home altitude, holds still on the ground); on
+# the ground before arming, a difference that wanders by more than this is two sensors,
+# and the flight's altitude is `relative_alt`'s.
+_GROUND_WANDER_M = 1.0
+_GROUND_WINDOW_S = 30.0
+# A `relative_alt` that has not moved from its value at arming while `alt` has moved
+# this much is not filled in (a minimal autopilot's 0): back to `alt`.
+_RELATIVE_FROZEN_M = 5.0
 _SLIDE_MPS = 2.0  # offset changing faster than this after agreeing: the frame still moves
 
 
@@ -101,6 +113,14 @@ def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: in
     return ardupilot_mode_name(vehicle_type, base_mode, custom_mode)
 
 
+class _GroundFix(NamedTuple):
+    t_mono: float
+    alt_m: float
+    lat_deg: float | None
+    lon_deg: float | None
+    relative_alt_m: float | None
+
+
 def _climb_m(old: GlobalPosition, new: GlobalPosition, dt_s: float) -> float:
     """How much the vehicle climbed between two positions by their `relative_alt`; 0
     when it is missing or moved faster than a vehicle climbs (the autopilot moved its
@@ -129,10 +149,14 @@ class StateTracker:
         self._state = VehicleState()  # the draft frozen, as `state` last returned it
         self._changed = False  # the draft changed since
         self._gp_seen = False  # GLOBAL_POSITION_INT ever received (preferred altitude)
-        # Where the vehicle stood at its last disarmed HEARTBEAT: (t_mono, alt, lat, lon).
-        # Arming is only seen in the next HEARTBEAT (1 Hz on PX4), by which time a quick
-        # pilot is already climbing; the ground position one beat earlier is the truth.
-        self._ground_fix: tuple[float, float, float | None, float | None] | None = None
+        # Where the vehicle stood at its last disarmed HEARTBEAT. Arming is only seen in
+        # the next HEARTBEAT (1 Hz on PX4), by which time a quick pilot is already
+        # climbing; the ground position one beat earlier is the truth.
+        self._ground_fix: _GroundFix | None = None
+        # (t_mono, alt - relative_alt, relative_alt) on the ground lately (disarmed)
+        self._ground_offsets: deque[tuple[float, float, float]] = deque(maxlen=512)
+        self._relative_reference_m: float | None = None  # relative_alt at the reference
+        self._relative_moved = False  # relative_alt moved from it since
         self._origin_note_t: float | None = None  # when the autopilot said "origin set"
         # fused - GPS altitude when they began to disagree (a frame not anchored to GPS)
         self._frame_offset_m: float | None = None
@@ -226,11 +250,14 @@ class StateTracker:
         self._draft.heartbeat = hb
         if armed and not was_armed:
             ground = self._ground_fix
-            fresh = ground is not None and t - ground[0] <= _GROUND_FIX_MAX_AGE_S
-            self._take_reference("arming", t, ground[1:] if fresh else None)
+            fresh = ground is not None and t - ground.t_mono <= _GROUND_FIX_MAX_AGE_S
+            self._take_reference("arming", t, ground if fresh else None)
         if not armed:
             alt = self._current_alt_m()
-            self._ground_fix = None if alt is None else (t, alt, *self._current_latlon())
+            rel = self._draft.global_position.relative_alt_m if self._gp_seen else None
+            self._ground_fix = (
+                None if alt is None else _GroundFix(t, alt, *self._current_latlon(), rel)
+            )
 
     def _gps_raw(self, m: mavlink.MAVLink_message, t: float) -> None:
         g = quick_replace(
@@ -294,6 +321,11 @@ class StateTracker:
                 )
         else:
             self._check_altitude_frame(old_gp, gp, t)
+        if not self._draft.heartbeat.armed and gp.alt_m is not None:
+            offsets = self._ground_offsets
+            offsets.append((t, gp.alt_m - gp.relative_alt_m, gp.relative_alt_m))
+            while offsets and t - offsets[0][0] > _GROUND_WINDOW_S:
+                offsets.popleft()
         self._altitude_changed(t)
 
     def _statustext(self, m: mavlink.MAVLink_message, t: float) -> None:
@@ -440,36 +472,49 @@ class StateTracker:
         gp = self._draft.global_position  # no GPS_RAW_INT at all: a fused position counts
         return gp.lat_deg not in (None, 0.0) or gp.lon_deg not in (None, 0.0)
 
-    def _take_reference(
-        self,
-        reference: str,
-        t: float,
-        at: tuple[float, float | None, float | None] | None = None,
-    ) -> None:
-        """Make the altitude now (or `at` = (alt, lat, lon), where the vehicle stood
-        a moment ago) the zero of the pilot's altitude."""
+    def _take_reference(self, reference: str, t: float, at: _GroundFix | None = None) -> None:
+        """Make the altitude now (or `at`, where the vehicle stood a moment ago) the zero
+        of the pilot's altitude, measured by `alt` or, at arming where the two disagree on
+        the ground, by `relative_alt` (`_altitude_source`)."""
         if at is not None:
-            alt, lat, lon = at
+            alt, lat, lon, rel = at.alt_m, at.lat_deg, at.lon_deg, at.relative_alt_m
         else:
             alt = self._current_alt_m()
             lat, lon = self._current_latlon()
+            rel = self._draft.global_position.relative_alt_m if self._gp_seen else None
+        source = "alt"
+        if reference == "arming" and rel is not None:
+            source = self._altitude_source(at.t_mono if at is not None else t)
+        self._relative_reference_m = rel if source == "relative_alt" else None
+        self._relative_moved = False
         if alt is None:
             # Armed before any altitude: take the reference at the first altitude.
             self._draft.altitude = quick_replace(
                 self._draft.altitude, t_mono=t, reference=f"pending_{reference}", **_NO_REFERENCE
             )
             return
-        now = self._current_alt_m()
         self._draft.altitude = quick_replace(
             self._draft.altitude,
             t_mono=t,
-            relative_alt_m=now - alt if now is not None else 0.0,
+            relative_alt_m=0.0,  # set from the altitude now by _altitude_changed
             reference_alt_m=alt,
             reference=reference,
+            source=source,
             retaken_because=None,
             home_lat_deg=lat,
             home_lon_deg=lon,
         )
+        self._altitude_changed(t)
+
+    def _altitude_source(self, until: float) -> str:
+        """What measures the flight: "relative_alt" when `alt` and `relative_alt`
+        disagreed on the ground lately (their difference wandered: old firmware's GPS
+        altitude in `alt`) up to `until` (the last disarmed beat; after it a quick pilot
+        may be climbing already), else "alt"."""
+        offsets = [o for t, o, _ in self._ground_offsets if t <= until]
+        if len(offsets) < 2:
+            return "alt"
+        return "relative_alt" if max(offsets) - min(offsets) > _GROUND_WANDER_M else "alt"
 
     def _check_altitude_frame(self, old: GlobalPosition, new: GlobalPosition, t: float) -> None:
         """Re-take the pilot's reference when the fused altitude changed frame (ArduPilot's
@@ -525,8 +570,8 @@ class StateTracker:
 
     def _rebase(self, shift_m: float, why: str, t: float) -> None:
         if self._ground_fix is not None:
-            g = self._ground_fix
-            self._ground_fix = (g[0], g[1] + shift_m, g[2], g[3])
+            self._ground_fix = self._ground_fix._replace(alt_m=self._ground_fix.alt_m + shift_m)
+        self._ground_offsets.clear()  # a frame's step is no wander
         alt = self._draft.altitude
         if alt.reference_alt_m is None:
             return
@@ -550,6 +595,22 @@ class StateTracker:
                 self._take_reference("first_fix", t)
             return
         alt = self._current_alt_m()
+        if self._relative_reference_m is not None and pilot.source == "relative_alt":
+            rel = self._draft.global_position.relative_alt_m
+            self._relative_moved |= rel != self._relative_reference_m
+            frozen = (
+                not self._relative_moved
+                and alt is not None
+                and pilot.reference_alt_m is not None
+                and abs(alt - pilot.reference_alt_m) > _RELATIVE_FROZEN_M
+            )
+            if not frozen and rel is not None:
+                self._draft.altitude = quick_replace(
+                    pilot, t_mono=t, relative_alt_m=rel - self._relative_reference_m
+                )
+                return
+            self._relative_reference_m = None
+            pilot = self._draft.altitude = quick_replace(pilot, source="alt")
         if alt is None or pilot.reference_alt_m is None:
             return
         self._draft.altitude = quick_replace(

@@ -175,6 +175,11 @@ class PilotAltitude:
     relative_alt_m: float | None = None
     reference_alt_m: float | None = None  # MSL altitude the value is relative to
     reference: str = "none"  # "none", "first_fix", "arming", "first_fix_retaken", "arming_retaken"
+    # What measures it: "alt" (GLOBAL_POSITION_INT `alt`, or GPS_RAW_INT's without it,
+    # minus `reference_alt_m`) or "relative_alt" (the autopilot's `relative_alt` minus its
+    # value at arming): chosen at arming, "relative_alt" where the two disagreed on the
+    # ground (old firmware's GPS altitude in `alt`, metres of wander).
+    source: str = "alt"
     retaken_because: str | None = None  # "EKF origin set", "altitude jump", "GPS agrees again"
     home_lat_deg: float | None = None  # where the reference was taken
     home_lon_deg: float | None = None

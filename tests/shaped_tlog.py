@@ -252,9 +252,9 @@ def vehicle_flight(
       `relative_alt` is the height above the ground throughout (continuous across it).
     - `position_hz`: GLOBAL_POSITION_INT and VFR_HUD's rate (a divisor of 50; real
       ArduPilot logs over a radio have 1 to 10 Hz).
-    - `alt_error_m` (one per flight sample): added to GLOBAL_POSITION_INT `alt` only, as
-      2013 ArduCopter put its GPS altitude there (metres of wander) while `relative_alt`
-      came from the barometer.
+    - `alt_error_m` (one per flight sample): the GPS altitude's error, in GPS_RAW_INT and
+      in GLOBAL_POSITION_INT `alt`, where 2013 ArduCopter put its GPS altitude (metres of
+      wander) while `relative_alt` came from the barometer.
     - `mavlink1`: the autopilot speaks MAVLink 1 (old firmware).
     """
     log = Shaper(t0=t0)
@@ -289,9 +289,10 @@ def vehicle_flight(
             )  # fmt: skip
             out.append(mav.vfr_hud_encode(0.0, float(np.hypot(ve, vn)), 90, 40, fused, vu))
         if tick % 10 == 0:
+            gps_alt = llh[i, 2] + (0.0 if alt_error_m is None else float(alt_error_m[i]))
             out.append(
                 mav.gps_raw_int_encode(
-                    int((boot_s + now) * 1e6), 3, lat, lon, int(round(llh[i, 2] * 1000)),
+                    int((boot_s + now) * 1e6), 3, lat, lon, int(round(gps_alt * 1000)),
                     80, 120, int(round(100 * np.hypot(ve, vn))), 0, 14,
                 )
             )  # fmt: skip

@@ -132,16 +132,17 @@ def test_pilot_altitude_first_fix_then_arming_and_rearming():
     feed("GPS_RAW_INT")
     alt = tracker.state.altitude
     assert alt.reference == "first_fix" and alt.reference_alt_m == pytest.approx(200.0)
-    v.alt_m = 201.5
+    # The autopilot's own relative_alt, relative to its power-on home at 196 m.
+    v.alt_m, v.relative_alt_m = 201.5, 5.5
     feed("GLOBAL_POSITION_INT")  # switch from GPS to fused altitude: no jump
     assert tracker.state.altitude.relative_alt_m == pytest.approx(0.0)
-    v.alt_m = 203.0
+    v.alt_m, v.relative_alt_m = 203.0, 7.0
     feed("GLOBAL_POSITION_INT")
     assert tracker.state.altitude.relative_alt_m == pytest.approx(1.5)
-    v.relative_alt_m = 7.0  # the autopilot's own, relative to its power-on home
     v.arm()
     feed("HEARTBEAT")
     assert tracker.state.altitude.reference == "arming"
+    assert tracker.state.altitude.source == "alt"  # the two agree on the ground
     assert tracker.state.altitude.relative_alt_m == 0.0
     v.alt_m = 207.0
     feed("GLOBAL_POSITION_INT")

@@ -55,13 +55,15 @@ function draw() {
   $("v-climb").textContent = num(reading("climb").value);
   const alt = msg.state.altitude;
   $("v-rel-alt").textContent = num(alt.relative_alt_m);
-  $("v-rel-alt-ref").textContent = {
+  const by = alt.source === "relative_alt" ? ", by the autopilot's relative altitude" : "";
+  const ref = {
     arming: "from arming",
     arming_retaken: `from arming (re-taken: ${alt.retaken_because})`,
     first_fix: "from first GPS fix (not armed yet)",
     first_fix_retaken: `from first GPS fix (re-taken: ${alt.retaken_because})`,
     none: "no reference yet",
   }[alt.reference];
+  $("v-rel-alt-ref").textContent = ref === undefined ? "" : ref + by;
   const hb = reading("heartbeat").value;
   const armed = $("v-armed");
   armed.textContent = hb === null ? "--" : hb.armed ? "ARMED" : "disarmed";

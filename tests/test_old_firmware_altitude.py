@@ -1,0 +1,101 @@
+"""Old firmware: 2013 ArduCopter (MAVLink 1) put its GPS altitude in GLOBAL_POSITION_INT
+`alt` (metres of wander) and its barometer's height in `relative_alt`. Measured by `alt`,
+the pilot's altitude read -3.6 m on the ground after landing. Where the two disagree on
+the ground before arming, the pilot's altitude is `relative_alt`'s, and the state (and so
+every recorded row) says which one measured it. Shaped tlogs (tests/shaped_tlog) go
+through the station's framer and tracker, and through a real replay into a session."""
+
+from __future__ import annotations
+
+import csv
+
+import httpx
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.recording import layout
+from companion.state_tracker import StateTracker
+from core.mavlink.framing import MavFramer
+from core.mavlink.tlog_records import TlogReader
+from server.app import create_app
+from tests import shaped_tlog
+from tests import synthetic as syn
+from tests.helpers import run_uvicorn, station_settings, wait_until
+
+ARDUPILOT = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+ARM_S, LAND_S, END_S = 20.0, 44.0, 55.0
+HEIGHT_M = 3.0
+
+
+def flight() -> syn.Flight:
+    """On the ground 20 s, armed, a 3 m climb, 12 m along x, down by 44 s, disarmed 3 s
+    after touching down."""
+    t = np.arange(0.0, END_S, 0.02)
+    tau = t - ARM_S
+    z = np.clip(np.minimum(tau - 1.0, LAND_S - t), 0.0, HEIGHT_M)
+    x = 1.0 * np.clip(tau - 6.0, 0.0, 12.0)
+    armed = (t >= ARM_S) & (t < LAND_S + 3.0)
+    return syn.Flight(t_s=t, xyz_m=np.stack([x, np.zeros_like(t), z], 1), armed=armed)
+
+
+def gps_wander(t: np.ndarray) -> np.ndarray:
+    """A GPS altitude's slow wander: 3.6 m lower after landing than at arming."""
+    return 3.05 * np.sin(2 * np.pi * t / 50.0)
+
+
+def replay_through_tracker(path):
+    """The pilot's altitude and its source after each packet, and whether armed."""
+    tracker, framer, rows = StateTracker(), MavFramer(), []
+    for t, packet in TlogReader(path):
+        for msg in framer.feed(packet):
+            if tracker.update(msg, t):
+                s = tracker.state
+                rows.append((t, s.heartbeat.armed, s.altitude.relative_alt_m, s.altitude.source))
+    return rows
+
+
+def on_ground_after_landing(rows, t0):
+    return [a for t, armed, a, _ in rows if t - t0 > LAND_S + 1.0 and a is not None]
+
+
+def test_gps_altitude_in_alt_reads_the_barometers_height_instead(tmp_path):
+    f = flight()
+    log = shaped_tlog.vehicle_flight(f, ARDUPILOT, alt_error_m=gps_wander(f.t_s), mavlink1=True)
+    rows = replay_through_tracker(log.write(tmp_path / "old.tlog"))
+    after = on_ground_after_landing(rows, log.t0)
+    assert after and max(abs(a) for a in after) < 0.3, (min(after), max(after))  # was -3.6
+    flying = [a for t, armed, a, _ in rows if armed and a is not None]
+    assert max(flying) == pytest.approx(HEIGHT_M, abs=0.2)
+    assert {src for t, armed, _, src in rows if armed} == {"relative_alt"}
+
+
+def test_an_autopilot_whose_alt_and_relative_alt_agree_keeps_alt(tmp_path):
+    """The same flight where `alt` is the estimator's: measured by `alt`, as before."""
+    log = shaped_tlog.vehicle_flight(flight(), ARDUPILOT)
+    rows = replay_through_tracker(log.write(tmp_path / "new.tlog"))
+    assert {src for t, armed, _, src in rows if armed} == {"alt"}
+    after = on_ground_after_landing(rows, log.t0)
+    assert max(abs(a) for a in after) < 0.1
+
+
+@pytest.mark.timeout(120)
+def test_the_session_records_which_altitude_measured_the_flight(tmp_path):
+    f = flight()
+    log = shaped_tlog.vehicle_flight(f, ARDUPILOT, alt_error_m=gps_wander(f.t_s), mavlink1=True)
+    path = log.write(tmp_path / "old.tlog")
+    settings = station_settings(
+        f"replay:{path}?speed=max", tmp_path / "sessions", **{"recording.auto_record_on_arm": True}
+    )
+    with run_uvicorn(create_app(settings)) as base:
+        get = lambda url: httpx.get(f"{base}{url}", timeout=30)  # noqa: E731
+        assert wait_until(lambda: get("/api/status").json()["link"]["replay_done"], timeout=60)
+        assert get("/api/status").json()["state"]["altitude"]["source"] == "relative_alt"
+        assert wait_until(lambda: not get("/api/recording").json()["recording"], timeout=10)
+        (session,) = get("/api/sessions").json()
+    with open(tmp_path / "sessions" / session["id"] / layout.TELEMETRY_CSV) as fh:
+        rows = [r for r in csv.DictReader(fh) if r["heartbeat.armed"] == "1"]
+    assert {r["altitude.source"] for r in rows} == {"relative_alt"}
+    heights = [float(r["altitude.relative_alt_m"]) for r in rows]
+    assert max(heights) == pytest.approx(HEIGHT_M, abs=0.2)
+    assert abs(heights[-1]) < 0.3  # on the ground at disarming, not -3.6 m
