@@ -10,7 +10,7 @@ from fastapi.staticfiles import StaticFiles
 
 from server import __version__
 from server.errors import install_error_handlers
-from server.guard import RequestGuard, redact_tokens_in_access_log
+from server.guard import RequestGuard, redact_tokens_in_logs
 from server.routes import (
     analysis,
     control,
@@ -63,7 +63,7 @@ def create_app(settings: Settings) -> FastAPI:
         max_body_bytes=settings.server.max_body_bytes,
         allowed_hosts=[settings.server.host, *settings.server.allowed_hosts],
     )
-    redact_tokens_in_access_log()
+    redact_tokens_in_logs()
     app.include_router(health.router)
     app.include_router(status.router)
     app.include_router(telemetry.router)

@@ -264,15 +264,21 @@ def run_serve(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     check_link_settings(settings)
     srv = settings.server
+    token_from = "the --token given"
     if srv.control == "token" and not srv.token:
         from server.token_file import default_token_file, load_or_create_token
 
         srv.token = load_or_create_token(srv.token_file)
-        print(f"fpv-station: control token in {srv.token_file or default_token_file()}")
+        token_from = str(srv.token_file or default_token_file())
+        print(f"fpv-station: control token in {token_from}")
     app = create_app(settings)
     url = f"http://{_display_host(srv.host)}:{srv.port}/"
-    if srv.control == "token":  # the page keeps the token and takes it out of the URL
+    if srv.control == "token" and sys.stdout.isatty():
+        # The page keeps the token and takes it out of the URL. Only on a terminal: a
+        # log (the journal under systemd, a file) must not hold the token.
         url += f"?token={srv.token}"
+    elif srv.control == "token":
+        url += f" (add ?token= with the token in {token_from} once)"
     else:
         print("fpv-station: control is OPEN (server.control = 'open'): anyone can fly it")
     print(f"fpv-station: open {url}")

@@ -269,20 +269,38 @@ async def _reply(send: Send, status: int, name: str, message: str) -> None:
 
 
 class RedactTokens(logging.Filter):
-    """Keeps `?token=...` out of the access log (uvicorn logs the full request target)."""
+    """Keeps `?token=...` out of every log line: uvicorn's access log and its WebSocket
+    lines (`"WebSocket /ws/control?token=..." [accepted]`) log the full request target.
+    Each string argument is redacted where it is (uvicorn's access formatter unpacks the
+    arguments by position), then the message and a traceback's text."""
 
-    _TOKEN = re.compile(r"(token=)[^&\s\"]+")
+    _TOKEN = re.compile(r"(token=)[^&\s\"']+", re.IGNORECASE)
+
+    def _redact(self, value: object) -> object:
+        return self._TOKEN.sub(r"\1<redacted>", value) if isinstance(value, str) else value
 
     def filter(self, record: logging.LogRecord) -> bool:
         if isinstance(record.args, tuple):
-            record.args = tuple(
-                self._TOKEN.sub(r"\1<redacted>", a) if isinstance(a, str) else a
-                for a in record.args
-            )
+            record.args = tuple(self._redact(a) for a in record.args)
+        elif isinstance(record.args, dict):
+            record.args = {k: self._redact(v) for k, v in record.args.items()}
+        record.msg = self._redact(record.msg)
+        if record.exc_info and not record.exc_text:
+            record.exc_text = logging.Formatter().formatException(record.exc_info)
+        if record.exc_text:
+            record.exc_text = self._TOKEN.sub(r"\1<redacted>", record.exc_text)
         return True
 
 
-def redact_tokens_in_access_log() -> None:
-    access = logging.getLogger("uvicorn.access")
-    if not any(isinstance(f, RedactTokens) for f in access.filters):
-        access.addFilter(RedactTokens())
+_REDACTED_LOGGERS = ("", "uvicorn", "uvicorn.error", "uvicorn.access")
+
+
+def redact_tokens_in_logs() -> None:
+    """Install `RedactTokens` on uvicorn's loggers and on the handlers of the root and
+    uvicorn loggers (a handler's filter sees the records every logger propagates to it).
+    Call again after logging is configured anew (uvicorn's Config does)."""
+    for name in _REDACTED_LOGGERS:
+        logger = logging.getLogger(name)
+        for holder in (logger, *logger.handlers):
+            if not any(isinstance(f, RedactTokens) for f in holder.filters):
+                holder.addFilter(RedactTokens())

@@ -53,6 +53,7 @@ from websockets.http11 import Request
 from companion.latest import Wakeup
 from server.client_limits import ClientCap
 from server.errors import DenialLogFilter
+from server.guard import redact_tokens_in_logs
 
 log = logging.getLogger(__name__)
 
@@ -357,4 +358,5 @@ def uvicorn_server(app, log_level: str = "info") -> uvicorn.Server:
     errors = logging.getLogger("uvicorn.error")
     if not any(isinstance(f, DenialLogFilter) for f in errors.filters):
         errors.addFilter(DenialLogFilter())
+    redact_tokens_in_logs()  # uvicorn's handlers are new
     return StationServer(config)

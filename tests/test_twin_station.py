@@ -179,9 +179,11 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
         # First start: a control token is made, kept only for this user, and put in the URL.
         token_file = tmp_path / "config" / "fpv-station" / "token"
         assert str(token_file) in proc.stdout.readline()
-        url = proc.stdout.readline().split("open ", 1)[1].strip()
+        line = proc.stdout.readline()
         token = token_file.read_text().strip()
-        assert url == f"http://127.0.0.1:{port}/?token={token}" and len(token) >= 32
+        # Not a terminal (a log, the journal): the URL without the token, and where it is.
+        assert line.startswith(f"fpv-station: open http://127.0.0.1:{port}/ (add ?token=")
+        assert str(token_file) in line and token not in line and len(token) >= 32
         assert token_file.stat().st_mode & 0o077 == 0
         start = f"http://127.0.0.1:{port}/api/recording/start"
         assert httpx.post(start, timeout=5).status_code == 401
