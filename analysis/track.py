@@ -2,7 +2,8 @@
 a downloaded session zip, or a bare `.tlog`.
 
 One sample per GPS solution, timed by the vehicle's clock where the file has it (see
-`analysis.vehicle_clock`). The recorder writes one CSV row per telemetry tick (faster
+`analysis.vehicle_clock`), and also by the session clock of the first row that holds it
+(`row_t_s`: the one time axis that views share with the rows and frames). The recorder writes one CSV row per telemetry tick (faster
 than the GPS updates), so the same GPS solution appears on several rows; counting it
 several times would weight slow-update stretches more than others and bias every mean
 and standard deviation. We keep the first row of each GPS *message*, recognised by a
@@ -45,7 +46,7 @@ class Track:
 
     label: str  # how tables and plots name this flight ("physical", "twin", folder name)
     source: str  # the file or folder it came from
-    t_s: Array  # session clock (s), starts near 0
+    t_s: Array  # when the GPS took the sample: vehicle clock placed on the session clock
     wall_time: Array  # Unix time (s) of the sample, NaN if unknown
     lat_deg: Array
     lon_deg: Array
@@ -56,6 +57,13 @@ class Track:
     ground_speed_mps: Array
     climb_mps: Array
     meta: dict = field(default_factory=dict)  # the session's metadata, when it has some
+    # Session clock of the first telemetry.csv row holding the sample: at any instant the
+    # row shows this sample, and the frames are stamped on this clock (None: `t_s`).
+    row_t_s: Array = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.row_t_s is None:
+            object.__setattr__(self, "row_t_s", self.t_s)
 
     def __len__(self) -> int:
         return int(self.t_s.size)
@@ -84,6 +92,7 @@ _ARRAY_FIELDS = (
     "relative_alt_m",
     "ground_speed_mps",
     "climb_mps",
+    "row_t_s",
 )
 
 
@@ -232,12 +241,12 @@ def load_telemetry_csv(
         except ValueError as exc:
             raise TrackLoadError(f"'{source}': column {name}: {exc}") from None
 
-    t_s, lat, lon, alt, fix = (column(k) for k in ("t_s", "lat", "lon", "alt", "fix"))
-    wall = column("wall_time")
+    row_t, lat, lon, alt, fix = (column(k) for k in ("t_s", "lat", "lon", "alt", "fix"))
+    wall, t_s = column("wall_time"), row_t
     if chosen["vehicle_t"] is not None:  # when the GPS took it, not when a burst brought it
         scale = 1e-6 if chosen["vehicle_t"].endswith("_usec") else 1e-3
-        taken = on_vehicle_clock(t_s, column("vehicle_t") * scale)
-        wall, t_s = wall + (taken - t_s), taken
+        taken = on_vehicle_clock(row_t, column("vehicle_t") * scale)
+        wall, t_s = wall + (taken - row_t), taken
     ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & np.isfinite(t_s)
     ok &= ~((lat == 0) & (lon == 0))  # autopilots report 0,0 before a fix
     if chosen["fix"] is not None:
@@ -256,6 +265,7 @@ def load_telemetry_csv(
         label=label,
         source=source,
         t_s=t_s[ok],
+        row_t_s=row_t[ok],
         wall_time=wall[ok],
         lat_deg=lat[ok],
         lon_deg=lon[ok],

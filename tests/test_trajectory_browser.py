@@ -174,12 +174,12 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
             timeout=30_000,
         )
         front_src = page.locator("#replay-front").get_attribute("src")
-        # The newest frame at or before the instant's time (the sample times come from the
-        # vehicle's clock, placed on the session's: 29.9997 s here shows frame 149).
+        # The newest frame captured at or before the instant, on the session clock as the
+        # slider: 5 fps, so frame 150 at 30 s.
         reply = httpx.get(f"{base}/api/sessions/{SESSION_A}/trajectory").json()
-        i = max(k for k, t in enumerate(reply["t_s"]) if t <= 30.0)  # the sample shown at 30 s
-        assert front_src.endswith(reply["frames"]["front"][i])
-        assert abs(math.floor(reply["t_s"][i] * 5.0 + 1e-9) - 150) <= 1  # 5 fps, t = 30 s
+        index = reply["frame_index"]["front"]
+        k = max(k for k, t in enumerate(index["t_s"]) if t <= 30.0)
+        assert front_src.endswith(index["file"][k]) and index["file"][k].endswith("150.jpg")
         png = page.locator("#replay-top").screenshot(path=str(tmp_path / "replay.png"))
         img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).astype(int)
         b, g, r = img[..., 0], img[..., 1], img[..., 2]

@@ -11,7 +11,6 @@ import httpx
 import numpy as np
 import pytest
 
-from analysis.vehicle_clock import on_vehicle_clock
 from companion.recording import layout
 from tests.helpers import viser_viewer, wait_until
 from tests.twin_flights import recorded_twin_flight
@@ -44,13 +43,11 @@ def test_twin_session_trajectory_matches_local_position(tmp_path):
     ned = np.array([[float(r[f"local_position.{k}_m"]) for k in "xyz"] for r in rows])
     enu_local = np.column_stack([ned[:, 1], ned[:, 0], -ned[:, 2]])
     enu_local -= enu_local[np.argmax(armed)]  # the same origin: where it armed
-    # On the clock the trajectory's fixes are on: the vehicle's, placed on the session's
-    # (analysis.vehicle_clock), each position message at the first row that holds it. The
-    # rows' own times are when the station sampled: on a starved machine the twin's
-    # packets arrive late, and a fix compared at its arrival time was metres off.
+    # On the session clock, as the trajectory's fixes: each position message at the first
+    # row that holds it.
     boot_ms = np.array([float(r["local_position.time_boot_ms"]) for r in rows])
     first = np.flatnonzero(np.r_[True, np.diff(boot_ms) != 0])
-    t_rows = on_vehicle_clock([float(rows[i]["t_s"]) for i in first], boot_ms[first] / 1e3)
+    t_rows = np.array([float(rows[i]["t_s"]) for i in first])
     enu_local = enu_local[first]
 
     t = np.asarray(traj["t_s"])

@@ -1,7 +1,11 @@
 // Replay of a recorded session: the whole path seen from above and its height against time,
 // a time slider (and play at 1x-8x) that moves the vehicle along it and shows the front and
 // bottom frames of that instant, and a second session overlaid in the paper's frame.
-// Data: GET /api/sessions/{id}/trajectory (ENU metres, times, frame files per time).
+// Data: GET /api/sessions/{id}/trajectory (ENU metres, times, every frame's capture time).
+// One time axis: the session clock, on which the recorder stamps rows and frames (seconds
+// since the session started). The slider's instant shows the last fix at or before it (the
+// fix the telemetry row of that instant holds) and the newest frame captured at or before
+// it; before the first fix there is no vehicle to show.
 // 3D: the station's replay viser server in an iframe, told what to show by
 // PUT /api/replay3d and the slider's instant by PUT /api/replay3d/time (<= 15 Hz). That
 // scene is shared by every viewer of the replay panel: the last page to move it wins.
@@ -104,37 +108,46 @@ function send3dTime() {
   api("/api/replay3d/time", { method: "PUT", body: { t_s: view.t } }).catch(() => { r3d.sentT = null; });
 }
 
-const duration = (tr) => tr.t_s.length ? tr.t_s[tr.t_s.length - 1] - tr.t_s[0] : 0;
+const duration = (tr) => tr.duration_s;
 
-// Index of the last fix at or before `t` seconds after the start of `tr`.
-function indexAt(tr, t) {
-  const target = tr.t_s[0] + t;
-  let lo = 0, hi = tr.t_s.length - 1;
-  if (target <= tr.t_s[0]) return 0;
+// Index of the last time in the sorted `times` at or before `t` (-1 before the first).
+function lastAtOrBefore(times, t) {
+  let lo = -1, hi = times.length - 1;
   while (lo < hi) {
     const mid = (lo + hi + 1) >> 1;
-    if (tr.t_s[mid] <= target) lo = mid; else hi = mid - 1;
+    if (times[mid] <= t) lo = mid; else hi = mid - 1;
   }
   return lo;
+}
+
+// The fix of `tr` shown at the instant `t` (session clock), -1 before its first fix.
+const indexAt = (tr, t) => lastAtOrBefore(tr.t_s, t);
+
+// The newest frame of `cam` captured at or before the instant `t`, or null.
+function frameAt(tr, cam, t) {
+  const index = tr.frame_index[cam];
+  const k = index ? lastAtOrBefore(index.t_s, t) : -1;
+  return k >= 0 ? index.file[k] : null;
 }
 
 function setTime(t) {
   view.t = Math.max(0, Math.min(t, view.a ? duration(view.a) : 0));
   $("replay-slider").value = String(Math.round(view.t * 10));
   $("replay-time").textContent = `${view.t.toFixed(1)} / ${view.a ? duration(view.a).toFixed(1) : "--"} s`;
-  if (view.a) showInstant(view.a, indexAt(view.a, view.t));
+  if (view.a) showInstant(view.a, view.t);
   draw();
   send3dTime();
 }
 
-function showInstant(tr, i) {
-  const fmt = (v, unit) => v == null ? "--" : `${v.toFixed(2)} ${unit}`;
+function showInstant(tr, t) {
+  const i = indexAt(tr, t);
+  const fmt = (v, unit) => v == null || i < 0 ? "--" : `${v.toFixed(2)} ${unit}`;
   $("r-x").textContent = fmt(tr.x_m[i], "m");
   $("r-y").textContent = fmt(tr.y_m[i], "m");
   $("r-z").textContent = fmt(tr.z_m[i], "m");
   $("r-speed").textContent = fmt(tr.speed_mps[i], "m/s");
   for (const cam of ["front", "bottom"]) {
-    const file = (tr.frames[cam] || [])[i];
+    const file = frameAt(tr, cam, t);
     const img = $(`replay-${cam}`);
     if (file && view.frames[cam] !== file) {
       view.frames[cam] = file;
@@ -197,6 +210,7 @@ function drawTop() {
   for (const [tr, color] of [[view.b, "#9640c8"], [view.a, "#e02020"]]) {
     if (!tr) continue;
     const i = indexAt(tr, view.t);
+    if (i < 0) continue; // no fix yet at this instant
     ctx.fillStyle = color; ctx.strokeStyle = "#fff"; ctx.lineWidth = 2 * dpr;
     ctx.beginPath(); ctx.arc(px(tr, i), py(tr, i), 7 * dpr, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
   }
@@ -211,7 +225,7 @@ function drawHeight() {
   for (const tr of trs) for (const z of tr.z_m) { z0 = Math.min(z0, z); z1 = Math.max(z1, z); }
   const m = 8 * dpr;
   const X = (t) => m + (t / T) * (w - 2 * m), Y = (z) => h - m - ((z - z0) / (z1 - z0)) * (h - 2 * m);
-  const px = (tr, i) => X(tr.t_s[i] - tr.t_s[0]), py = (tr, i) => Y(tr.z_m[i]);
+  const px = (tr, i) => X(tr.t_s[i]), py = (tr, i) => Y(tr.z_m[i]);
   if (view.b) strokePath(ctx, view.b, px, py, () => "rgba(150, 60, 200, 0.55)", 2 * dpr);
   strokePath(ctx, view.a, px, py, (i) => view.a.color[i], 2 * dpr);
   ctx.strokeStyle = "#e02020"; ctx.lineWidth = 1.5 * dpr;
@@ -252,6 +266,8 @@ function togglePlay(on) {
 
 async function main() {
   $("replay-align").checked = params.get("align") === "1";
+  $("replay-time").title = "session clock: seconds since the session started, as the " +
+    "recorded rows and frames";
   await init3d();
   try {
     const sessions = await loadSessions();

@@ -30,15 +30,18 @@ class Replay3DLoad(BaseModel):
 
 
 class Replay3DTime(BaseModel):
-    t_s: float  # seconds after the session's first fix
+    t_s: float = Field(
+        description="the instant on the session clock (telemetry.csv's and frames.csv's "
+        "t_s: seconds since the session started), as the replay page's slider"
+    )
 
 
 class Replay3DState(BaseModel):
     port: int
     session: str | None
     overlay: str | None
-    t_s: float
-    duration_s: float | None
+    t_s: float  # session clock
+    duration_s: float | None  # session clock of the session's last row, fix or frame
     segments: int  # path segments drawn for the session
 
 

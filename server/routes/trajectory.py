@@ -2,7 +2,9 @@
 
 Sessions are resolved only through the recorder's `SessionStore` (which refuses
 traversal and bad ids) and loaded through `analysis.track`, so the replay draws exactly
-what the analysis measures.
+what the analysis measures. Its one time axis is the session clock, on which the recorder
+stamps rows and frames: each fix is drawn at the first row that holds it (`row_t_s`), not
+at the vehicle's time of it, so the path, the rows and the frames of an instant agree.
 """
 
 from __future__ import annotations
@@ -68,7 +70,7 @@ def load_trajectory(
     try:
         return build_trajectory(
             session_id,
-            track.t_s,
+            track.row_t_s,
             track.lat_deg,
             track.lon_deg,
             track.alt_m,
@@ -80,9 +82,16 @@ def load_trajectory(
             align=align,
             reference_latlon=reference,
             height_range_m=viser.height_range_m,
+            session_end_s=_number(track.meta.get("duration_s")),
         )
     except ValueError as exc:
         raise BadRequest(f"Session '{session_id}': {exc}") from None
+
+
+def _number(value: object) -> float | None:
+    """A number from session.json, None when it holds something else."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    return float(value) if ok else None
 
 
 @router.get(

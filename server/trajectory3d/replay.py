@@ -36,21 +36,34 @@ class GeoPoint(BaseModel):
     alt_m: float | None = None
 
 
+class FrameIndex(BaseModel):
+    """One camera's frames in capture order: capture time (session clock) and name."""
+
+    t_s: list[float]
+    file: list[str]
+
+
 class TrajectoryReply(BaseModel):
-    """ENU metres about `origin` (x east, y north, z up), or the paper's aligned frame."""
+    """ENU metres about `origin` (x east, y north, z up), or the paper's aligned frame.
+
+    Every time is on the session clock (telemetry.csv's and frames.csv's `t_s`): a fix is
+    at the first row that holds it, so at any instant the path shows what the row shows,
+    and the frame of an instant is the newest one captured at or before it."""
 
     id: str
     origin: GeoPoint
     reference: GeoPoint | None  # the point put on +x when aligned
     align_rad: float  # rotation applied about the vertical (0 when not aligned)
-    t_s: list[float]  # session clock
+    t_s: list[float]  # session clock of each fix
+    duration_s: float  # session clock of the last row, fix or frame: the replay's span
     x_m: list[float]
     y_m: list[float]
     z_m: list[float]
     speed_mps: list[float | None]
     starts_run: list[bool]  # True where a gap (no fix, or silence > gap_s) ends
     color: list[str]  # "#rrggbb" per point: height on the 3D panels' ramp (pages draw it)
-    frames: dict[str, list[str | None]]  # camera -> file (relative to the session) per time
+    frames: dict[str, list[str | None]]  # camera -> file (relative to the session) per fix
+    frame_index: dict[str, FrameIndex]  # camera -> every frame, for instants between fixes
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,9 +117,11 @@ def build_trajectory(
     align: Align = "none",
     reference_latlon: tuple[float, float] | None = None,
     height_range_m: tuple[float, float] = _HEIGHT_RANGE_M,
+    session_end_s: float | None = None,
 ) -> TrajectoryReply:
     """The reply for one session's fixes (rows without a fix already dropped), in the
-    analysis' flight frame (`analysis.flight_frame`: same origin, same turn)."""
+    analysis' flight frame (`analysis.flight_frame`: same origin, same turn).
+    `session_end_s`: the session clock of its last row, when known."""
     t = np.asarray(t_s, float)
     lat, lon, alt = (np.asarray(a, float) for a in (lat_deg, lon_deg, alt_m))
     if t.size == 0:
@@ -128,19 +143,25 @@ def build_trajectory(
     starts = np.ones(t.size, bool)
     starts[1:] = (np.diff(t) > gap_s) | (np.diff(t) < 0)
     speed = np.full(t.size, np.nan) if speed_mps is None else np.asarray(speed_mps, float)
+    cameras = cameras or []
+    ends = [float(c.t_s[-1]) for c in cameras if c.t_s.size] + [float(t.max())]
+    if session_end_s is not None and math.isfinite(session_end_s):
+        ends.append(float(session_end_s))
     return TrajectoryReply(
         id=session_id,
         origin=GeoPoint(lat_deg=origin[0], lon_deg=origin[1], alt_m=origin[2]),
         reference=reference,
         align_rad=angle,
-        t_s=_rounded(t, 3),
+        t_s=_rounded(t, 6),
+        duration_s=round(max(ends), 6),
         x_m=_rounded(enu[:, 0], 3),
         y_m=_rounded(enu[:, 1], 3),
         z_m=_rounded(enu[:, 2], 3),
         speed_mps=[None if not math.isfinite(v) else round(v, 3) for v in speed.tolist()],
         starts_run=starts.tolist(),
         color=ramp_hex(enu[:, 2], *height_range_m),
-        frames={c.camera: frames_at(t, c) for c in (cameras or [])},
+        frames={c.camera: frames_at(t, c) for c in cameras},
+        frame_index={c.camera: FrameIndex(t_s=c.t_s.tolist(), file=c.relpath) for c in cameras},
     )
 
 

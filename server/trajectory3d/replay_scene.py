@@ -4,7 +4,8 @@ It reuses the live scene (scene.py: field, home, vehicle body, footprint, colour
 trail chunks) on its own port, so that the replay never disturbs the live panel. `load()`
 draws the whole path of a session (built by replay.py's `build_trajectory`, gaps as gaps)
 and an optional overlay session in one colour; `set_time()` moves the vehicle and the
-bottom camera's footprint to an instant. The scene is shared by every viewer of the
+bottom camera's footprint to an instant of the session clock (the rows' and frames'
+`t_s`, as the replay page's slider). The scene is shared by every viewer of the
 replay panel: whoever loads or scrubs last wins (a field station has few users).
 
 Attitude is not in the trajectory reply: the body is drawn level, its nose along the
@@ -34,32 +35,28 @@ _CHUNK_SEGMENTS = 500  # one scene handle per 500 segments: few messages, bounde
 
 
 class ReplayPath:
-    """One session as numpy arrays, relative times from its first fix."""
+    """One session as numpy arrays, its times on the session clock (as the rows and
+    frames: one time axis for every view of the session)."""
 
     def __init__(self, reply: TrajectoryReply) -> None:
         self.id = reply.id
-        t = np.asarray(reply.t_s, float)
-        self.t_rel_s = t - t[0]
+        self.t_s = np.asarray(reply.t_s, float)
         self.enu_m = np.column_stack([reply.x_m, reply.y_m, reply.z_m]).astype(float)
         self.speed_mps = np.array([np.nan if v is None else v for v in reply.speed_mps], float)
         self.starts_run = np.asarray(reply.starts_run, bool)
         self.origin = (reply.origin.lat_deg, reply.origin.lon_deg, reply.origin.alt_m or 0.0)
         self.align_rad = reply.align_rad
         self.yaw_enu_rad = _travel_heading_rad(self.enu_m)
+        self.duration_s = max(float(reply.duration_s), float(self.t_s[-1]))
 
-    @property
-    def duration_s(self) -> float:
-        return float(self.t_rel_s[-1])
-
-    def index_at(self, t_rel_s: float) -> int:
-        """The last fix at or before `t_rel_s` seconds after the start."""
-        i = int(np.searchsorted(self.t_rel_s, t_rel_s, side="right")) - 1
-        return min(max(i, 0), len(self.t_rel_s) - 1)
+    def index_at(self, t_s: float) -> int:
+        """The last fix at or before `t_s` (session clock); -1 before the first fix."""
+        return int(np.searchsorted(self.t_s, t_s, side="right")) - 1
 
     def chunks(self) -> list[TrailChunk]:
         """The path as trail chunks for LiveScene.sync_chunk; continuous across chunks."""
         out: list[TrailChunk] = []
-        n = len(self.t_rel_s)
+        n = len(self.t_s)
         for k, start in enumerate(range(0, max(n - 1, 1), _CHUNK_SEGMENTS)):
             stop = min(start + _CHUNK_SEGMENTS + 1, n)
             runs = self.starts_run[start:stop].tolist()
@@ -172,7 +169,7 @@ class Replay3D:
             if b is not None:
                 self._draw_overlay(b)
             self.primary, self.overlay = a, b
-            self._set_time(0.0)
+            self._set_time(0.0)  # the session's start, where the replay page starts
             if self._title is not None:
                 also = f" with **{b.id}**" if b is not None else ""
                 self._title.content = f"**{a.id}**{also}, {a.duration_s:.0f} s"
@@ -240,8 +237,8 @@ class Replay3D:
             self.server.scene.add_label("/overlay/vehicle/label", b.id, position=(0.0, 0.0, 0.7))
         )
 
-    def set_time(self, t_rel_s: float) -> float:
-        """Move the vehicle(s) to `t_rel_s` seconds after the primary's first fix (cheap:
+    def set_time(self, t_s: float) -> float:
+        """Move the vehicle(s) to the instant `t_s` of the primary's session clock (cheap:
         a few small messages). Returns the time applied (clamped to the session)."""
         # Never wait for a load in progress (this runs on the event loop): that load ends
         # by setting its own time, and the page sends the next instant soon after.
@@ -251,16 +248,33 @@ class Replay3D:
             if self.server is None or self.primary is None:
                 return 0.0
             with self.server.atomic():
-                return self._set_time(t_rel_s)
+                return self._set_time(t_s)
         finally:
             self._lock.release()
 
-    def _set_time(self, t_rel_s: float) -> float:
+    def _set_time(self, t_s: float) -> float:
         assert self.scene is not None and self.primary is not None
         a = self.primary
-        t = min(max(float(t_rel_s), 0.0), a.duration_s) if math.isfinite(t_rel_s) else 0.0
+        t = min(max(float(t_s), 0.0), a.duration_s) if math.isfinite(t_s) else 0.0
         self.t_s = t
         i = a.index_at(t)
+        vehicle = self.scene.vehicle
+        if vehicle.visible != (i >= 0):  # before the first fix nobody knew where it was
+            vehicle.visible = i >= 0
+        if i < 0:
+            self.scene.set_footprint(None)
+        else:
+            self._place_vehicle(a, i)
+        if self.overlay is not None and self.overlay_vehicle is not None:
+            b = self.overlay
+            j = b.index_at(t)
+            if self.overlay_vehicle.visible != (j >= 0):
+                self.overlay_vehicle.visible = j >= 0
+            self.overlay_vehicle.position = tuple(float(v) for v in b.enu_m[max(j, 0)])
+        return t
+
+    def _place_vehicle(self, a: ReplayPath, i: int) -> None:
+        assert self.scene is not None
         pos = a.enu_m[i]
         # The body's yaw in the (possibly aligned) frame: NED yaw = pi/2 - ENU heading.
         R = R_enu_flu_from_euler(0.0, 0.0, math.pi / 2 - float(a.yaw_enu_rad[i]))
@@ -278,7 +292,3 @@ class Replay3D:
                 ground_up_m=ground_up,
             )
         )
-        if self.overlay is not None and self.overlay_vehicle is not None:
-            b = self.overlay
-            self.overlay_vehicle.position = tuple(float(v) for v in b.enu_m[b.index_at(t)])
-        return t

@@ -1,0 +1,164 @@
+"""One clock in every view of a session: a real twin flight (a real station on the twin,
+real MAVLink over loopback, the twin's rendered cameras) is recorded, then read through
+every path that shows it: telemetry.csv's rows, the cameras' frames.csv, the trajectory
+route, the 3D replay scene (through its route) and the replay page in headless Chromium.
+At sampled instants of the session clock they must agree: the path's position is the
+row's, and the frame shown is the newest captured at or before the instant, no older
+than one frame period."""
+
+from __future__ import annotations
+
+import csv
+
+import httpx
+import numpy as np
+import pytest
+
+from companion.recording import layout
+from core.geodesy import geodetic_to_enu
+from tests.helpers import chromium, wait_until
+from tests.test_trajectory_browser import open_offline
+from tests.twin_flights import recorded_twin_flight
+
+INSTANTS = 80  # sampled instants of the session clock
+
+
+def read_rows(folder) -> dict[str, np.ndarray]:
+    with open(folder / layout.TELEMETRY_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    cols = ("t_s", "gps.fix_type", "gps.lat_deg", "gps.lon_deg", "gps.alt_m")
+    return {c: np.array([float(r[c]) if r[c] else np.nan for r in rows]) for c in cols} | {
+        f"{cam}.file": np.array([r[f"{cam}.file"] for r in rows]) for cam in layout.CAMERAS
+    }
+
+
+def read_frames(folder, camera: str) -> tuple[np.ndarray, list[str]]:
+    with open(folder / layout.frames_csv_relpath(camera), newline="") as f:
+        rows = list(csv.DictReader(f))
+    return np.array([float(r["t_s"]) for r in rows]), [r["file"] for r in rows]
+
+
+def last_at_or_before(times: np.ndarray, t: float) -> int:
+    return int(np.searchsorted(times, t, side="right")) - 1
+
+
+@pytest.mark.timeout(400)
+def test_path_rows_and_frames_agree_on_the_session_clock(tmp_path):
+    overrides = {"viser.enabled": True, "viser.port": 0, "recording.rate_hz": 20.0}
+    with recorded_twin_flight(tmp_path, 2, overrides) as flight:
+        base, sid, station = flight.base_url, flight.session_id, flight.station
+        rows, folder = read_rows(flight.folder), flight.folder
+        frames = {cam: read_frames(folder, cam) for cam in layout.CAMERAS}
+        reply = httpx.get(f"{base}/api/sessions/{sid}/trajectory", timeout=60)
+        assert reply.status_code == 200, reply.text
+        traj = reply.json()
+
+        # The instants: anywhere in the session, and right at and just after rows.
+        rng = np.random.default_rng(7)
+        t_rows = rows["t_s"]
+        instants = np.concatenate(
+            [
+                rng.uniform(0.0, t_rows[-1], INSTANTS),
+                rng.choice(t_rows, INSTANTS // 4),
+                rng.choice(t_rows, INSTANTS // 4) + 0.001,
+            ]
+        )
+        o = traj["origin"]
+        row_enu = geodetic_to_enu(
+            rows["gps.lat_deg"], rows["gps.lon_deg"], rows["gps.alt_m"],
+            o["lat_deg"], o["lon_deg"], o["alt_m"],
+        )  # fmt: skip
+        path_t = np.asarray(traj["t_s"])
+        path_enu = np.column_stack([traj["x_m"], traj["y_m"], traj["z_m"]])
+        has_fix = rows["gps.fix_type"] >= 3
+        assert has_fix.mean() > 0.9 and traj["duration_s"] >= t_rows[has_fix][-1]
+        # The path starts where the rows first hold a fix, not seconds away from it.
+        assert path_t[0] == pytest.approx(t_rows[np.argmax(has_fix)], abs=1e-6)
+
+        period = {cam: float(np.median(np.diff(frames[cam][0]))) for cam in layout.CAMERAS}
+        worst = {"path_m": 0.0}
+        worst |= {f"{cam}_{w}": 0 for cam in layout.CAMERAS for w in ("age_s", "row_frames")}
+        for t in instants:
+            k = last_at_or_before(t_rows, t)  # the row of the instant
+            i = last_at_or_before(path_t, t)  # the path's fix of the instant
+            if k >= 0 and has_fix[k]:
+                assert i >= 0, t
+                err = float(np.abs(path_enu[i] - row_enu[k]).max())
+                worst["path_m"] = max(worst["path_m"], err)
+                assert err < 0.002, (t, path_enu[i], row_enu[k])  # the reply's mm rounding
+            else:
+                assert i < 0, t
+            for cam in layout.CAMERAS:
+                times, files = frames[cam]
+                index = traj["frame_index"][cam]
+                j = last_at_or_before(np.asarray(index["t_s"]), t)
+                if j < 0:
+                    assert t < times[0]
+                    continue
+                # The frame shown: the newest captured at or before the instant...
+                assert index["file"][j] == files[last_at_or_before(times, t)]
+                # ...and the next one after it: within one frame period of the instant.
+                assert index["t_s"][j] <= t and (j + 1 == len(times) or times[j + 1] > t)
+                worst[f"{cam}_age_s"] = max(worst[f"{cam}_age_s"], t - index["t_s"][j])
+                # The row names the frame shown at the row's own instant, or one a frame
+                # period from it (the recorder samples the cameras at its own instants).
+                if k >= 0 and rows[f"{cam}.file"][k]:
+                    named = files.index(rows[f"{cam}.file"][k])
+                    j_row = last_at_or_before(times, t_rows[k])
+                    off = abs(named - j_row)
+                    worst[f"{cam}_row_frames"] = max(worst[f"{cam}_row_frames"], off)
+                    assert off <= 1, (cam, t_rows[k], files[named], files[j_row])
+                # The row of a fix names the frame the trajectory shows at that fix.
+                if i >= 0 and k >= 0:
+                    j_fix = last_at_or_before(times, path_t[i])
+                    assert traj["frames"][cam][i] == (files[j_fix] if j_fix >= 0 else None)
+        print(f"worst over {len(instants)} instants: {worst}, frame periods {period}")
+
+        # The 3D replay scene, moved through its route, puts the vehicle on the row's fix.
+        put = httpx.put(f"{base}/api/replay3d", json={"session": sid}, timeout=120)
+        assert put.status_code == 200, put.text
+        assert put.json()["duration_s"] == pytest.approx(traj["duration_s"])
+        scene = station.replay3d
+        for t in instants[:20]:
+            state = httpx.put(f"{base}/api/replay3d/time", json={"t_s": float(t)}, timeout=30)
+            assert state.json()["t_s"] == pytest.approx(t)
+            k = last_at_or_before(t_rows, t)
+            assert scene.scene.vehicle.visible == bool(k >= 0 and has_fix[k])
+            if k >= 0 and has_fix[k]:
+                np.testing.assert_allclose(scene.scene.vehicle.position, row_enu[k], atol=0.002)
+
+        # The replay page: its slider and clock read on the same axis, its readout and
+        # frames are the row's and the frame's of that instant, and it moves the 3D scene.
+        outside: list[str] = []
+        with chromium() as browser:
+            page = open_offline(browser, outside)
+            # Not the 3D panel's WebGL client (software rendering here): its scene is
+            # checked through station.replay3d, which the page moves through the route.
+            page.route(f"**:{scene.port}/**", lambda route: route.abort())
+            page.goto(f"{base}/replay.html?session={sid}")
+            page.wait_for_function(
+                "document.getElementById('replay-status').textContent.includes('fixes')",
+                timeout=60_000,
+            )
+            slider = page.locator("#replay-slider")
+            assert int(slider.get_attribute("max")) == round(traj["duration_s"] * 10)
+            for tenth in (0, 3, int(t_rows[-1] * 5), int(t_rows[-1] * 10) - 7):
+                t = tenth / 10
+                slider.evaluate(
+                    f"el => {{ el.value = {tenth}; el.dispatchEvent(new Event('input')); }}"
+                )
+                assert page.locator("#replay-time").text_content().startswith(f"{t:.1f} /")
+                k = last_at_or_before(t_rows, t)
+                assert has_fix[k]
+                height = page.locator("#r-z").text_content()
+                assert height == f"{row_enu[k][2]:.2f} m", (t, height, row_enu[k])
+                for cam in layout.CAMERAS:
+                    times, files = frames[cam]
+                    j = last_at_or_before(times, t)
+                    src = page.locator(f"#replay-{cam}").get_attribute("src")
+                    if j < 0:  # the session starts before a camera's first frame
+                        assert src is None, (t, cam, src)
+                    else:
+                        assert src is not None and src.endswith(files[j]), (t, cam, src)
+                assert wait_until(lambda t=t: abs(station.replay3d.t_s - t) < 1e-6, 15)
+        assert outside == [], outside[:5]
