@@ -264,7 +264,7 @@ def run_serve(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     check_link_settings(settings)
     srv = settings.server
-    token_from = "the --token given"
+    token_from = "server.token (--token)"
     if srv.control == "token" and not srv.token:
         from server.token_file import default_token_file, load_or_create_token
 
@@ -278,7 +278,7 @@ def run_serve(args: argparse.Namespace) -> int:
         # log (the journal under systemd, a file) must not hold the token.
         url += f"?token={srv.token}"
     elif srv.control == "token":
-        url += f" (add ?token= with the token in {token_from} once)"
+        url += f" (add ?token=TOKEN once, TOKEN from {token_from})"
     else:
         print("fpv-station: control is OPEN (server.control = 'open'): anyone can fly it")
     print(f"fpv-station: open {url}")

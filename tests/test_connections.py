@@ -14,8 +14,9 @@ import httpx
 import psutil
 from websockets.sync.client import connect
 
+from server.app import create_app
 from server.client_limits import BASELINE_FDS, CONTROL_CLIENTS, HTTP_ROOM, ClientLimits
-from tests.helpers import wait_until
+from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.station_process import serve_station
 
 
@@ -161,3 +162,34 @@ def _closed_by_peer(s: socket.socket) -> bool:
         return False
     except OSError:
         return True
+
+
+def test_a_silent_connection_and_an_idle_keep_alive_one_are_closed(tmp_path):
+    """A connection holds a descriptor: one that sends nothing, and one that keeps its
+    connection open after a response, are closed by the station (after its request
+    timeout; the wait here is a hang guard)."""
+    settings = station_settings("none", tmp_path)
+    with run_uvicorn(create_app(settings)) as base:
+        port = int(base.rsplit(":", 1)[1])
+        silent = socket.create_connection(("127.0.0.1", port), timeout=30)
+        kept = socket.create_connection(("127.0.0.1", port), timeout=30)
+        kept.sendall(b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        reply = kept.recv(65536)
+        assert reply.startswith(b"HTTP/1.1 200") and b"connection: close" not in reply.lower()
+        assert silent.recv(1) == b""  # closed by the station, not by the guard's timeout
+        assert kept.recv(1) == b""
+        silent.close()
+        kept.close()
+        # A client that keeps sending keeps nothing open either: a request must be whole
+        # within the timeout, however many bytes trickle in.
+        slow = socket.create_connection(("127.0.0.1", port), timeout=30)
+        closed = False
+        for ch in b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 100:
+            try:
+                slow.sendall(bytes([ch]))
+            except OSError:
+                closed = True
+                break
+            time.sleep(0.25)
+        assert closed or slow.recv(1) == b""
+        slow.close()

@@ -182,7 +182,7 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
         line = proc.stdout.readline()
         token = token_file.read_text().strip()
         # Not a terminal (a log, the journal): the URL without the token, and where it is.
-        assert line.startswith(f"fpv-station: open http://127.0.0.1:{port}/ (add ?token=")
+        assert line.startswith(f"fpv-station: open http://127.0.0.1:{port}/ (add ?token=TOKEN")
         assert str(token_file) in line and token not in line and len(token) >= 32
         assert token_file.stat().st_mode & 0o077 == 0
         start = f"http://127.0.0.1:{port}/api/recording/start"
