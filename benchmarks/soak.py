@@ -1,7 +1,13 @@
 """Soak: the station on the twin, recording, under 100 telemetry clients, 20 MJPEG viewers,
-5 stalled clients and connection churn, for N minutes.
+5 stalled clients, connection churn, 400 idle sockets and 30 slow-header clients, for N
+minutes.
 
     python benchmarks/soak.py [--minutes 10] [--telemetry 100] [--viewers 20]
+                              [--idle 400] [--slow 30]
+
+Idle sockets connect and send nothing; slow-header clients send a request's headers a
+byte a second and never finish. The station closes both (server/listen.py); each comes
+back at once, so the pressure on its connection table lasts the whole run.
 
 Runs `fpv-station serve --source sim` in a subprocess (both cameras on image folders, so
 the viewers cost what a USB camera's would), starts a recording, and holds the load from
@@ -18,6 +24,7 @@ import asyncio
 import json
 import os
 import platform
+import resource
 import socket
 import statistics
 import sys
@@ -43,6 +50,8 @@ class Counts:
         self.telemetry: list[int] = []  # messages per client, since the last snapshot
         self.churned = 0
         self.churn_refused = 0
+        self.idle_closed = 0  # idle sockets the station closed (each came back)
+        self.slow_closed = 0  # slow-header clients the station closed (each came back)
 
 
 async def telemetry_client(url: str, counts: Counts, i: int, stop: asyncio.Event) -> None:
@@ -75,6 +84,67 @@ async def stalled_clients(port: int, n: int, stop: asyncio.Event) -> None:
     await stop.wait()
     for s in socks:
         s.close()
+
+
+async def _open(port: int) -> socket.socket | None:
+    s = socket.socket()
+    s.setblocking(False)
+    try:
+        await asyncio.wait_for(asyncio.get_running_loop().sock_connect(s, ("127.0.0.1", port)), 5)
+    except (OSError, TimeoutError):
+        s.close()
+        return None
+    return s
+
+
+def _closed(s: socket.socket) -> bool:
+    try:
+        return s.recv(4096) == b""
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True
+
+
+async def idle_sockets(port: int, n: int, counts: Counts, stop: asyncio.Event) -> None:
+    """Connections that never send a byte; each one closed is opened again."""
+    socks: list[socket.socket | None] = [None] * n
+    while not stop.is_set():
+        for i, s in enumerate(socks):
+            if s is not None and _closed(s):
+                s.close()
+                socks[i] = s = None
+                counts.idle_closed += 1
+            if s is None:
+                socks[i] = await _open(port)
+        await asyncio.sleep(1.0)
+    for s in socks:
+        if s is not None:
+            s.close()
+
+
+async def slow_headers(port: int, n: int, counts: Counts, stop: asyncio.Event) -> None:
+    """Clients that send their headers a byte a second and never finish."""
+    head = b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 100_000
+    socks: list[socket.socket | None] = [None] * n
+    sent = [0] * n
+    while not stop.is_set():
+        for i, s in enumerate(socks):
+            if s is not None:
+                try:
+                    if _closed(s):
+                        raise ConnectionResetError
+                    s.send(head[sent[i] : sent[i] + 1])
+                    sent[i] += 1
+                    continue
+                except OSError:
+                    s.close()
+                    counts.slow_closed += 1
+            socks[i], sent[i] = await _open(port), 0
+        await asyncio.sleep(1.0)
+    for s in socks:
+        if s is not None:
+            s.close()
 
 
 async def churn(url: str, counts: Counts, stop: asyncio.Event) -> None:
@@ -126,6 +196,8 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
         transports.append(transport)
     tasks.append(asyncio.create_task(stalled_clients(port, args.stalled, stop)))
     tasks.append(asyncio.create_task(churn(ws_url, counts, stop)))
+    tasks.append(asyncio.create_task(idle_sockets(port, args.idle, counts, stop)))
+    tasks.append(asyncio.create_task(slow_headers(port, args.slow, counts, stop)))
     await asyncio.sleep(args.warmup)
 
     def snapshot(label: str, since: dict | None) -> dict:
@@ -146,7 +218,8 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
             f"{label}: RSS {fig['rss_mb']:.1f} MB, fds {fig['fds']}, tasks {fig['tasks']}, "
             f"health {fig['status']}, rows {fig['rows']}, frames {fig['frames']} "
             f"(dropped {fig['frames_dropped']}), churned {counts.churned} "
-            f"(refused {counts.churn_refused}), load {os.getloadavg()[0]:.2f}",
+            f"(refused {counts.churn_refused}), idle closed {counts.idle_closed}, slow "
+            f"closed {counts.slow_closed}, load {os.getloadavg()[0]:.2f}",
             flush=True,
         )
         return {**fig, "msgs": msgs, "parts": parts}
@@ -202,6 +275,10 @@ def print_session_accounting(meta: dict, rate_hz: float) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)  # this side's sockets
+    need = args.telemetry + args.viewers + args.stalled + args.idle + args.slow + 256
+    if soft < need:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (min(need, hard), hard))
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-soak-"))
     front, bottom = make_frames(tmp / "front", ".jpg"), make_frames(tmp / "bottom", ".jpg")
     cmd = ["--source", "sim", "--front", f"folder:{front}", "--bottom", f"folder:{bottom}"]
@@ -215,7 +292,8 @@ def run(args: argparse.Namespace) -> None:
         base, proc = station.base, station.process
         print(
             f"# fpv-station soak: {args.minutes:g} min, {args.telemetry} telemetry clients, "
-            f"{args.viewers} MJPEG viewers, {args.stalled} stalled, churn 10/s, recording "
+            f"{args.viewers} MJPEG viewers, {args.stalled} stalled, churn 10/s, {args.idle} "
+            f"idle sockets, {args.slow} slow-header clients, recording "
             f"at {args.rate_hz:g} Hz on the twin; machine {platform.machine()}, "
             f"{os.cpu_count()} cores, Python {platform.python_version()}"
         )
@@ -236,6 +314,8 @@ def main() -> None:
     ap.add_argument("--telemetry", type=int, default=100)
     ap.add_argument("--viewers", type=int, default=20)
     ap.add_argument("--stalled", type=int, default=5)
+    ap.add_argument("--idle", type=int, default=400, help="sockets that never send")
+    ap.add_argument("--slow", type=int, default=30, help="clients sending headers slowly")
     ap.add_argument("--rate-hz", type=float, default=50.0)
     ap.add_argument("--warmup", type=float, default=10.0)
     run(ap.parse_args())
