@@ -19,6 +19,7 @@ from companion.latest import Latest
 from companion.link import MavlinkLink
 from companion.recording.recorder import Recorder
 from companion.vehicle_state import VehicleState
+from server.analysis_worker import AnalysisWorker
 from server.client_limits import ClientCap, ClientLimits, raise_nofile_limit
 from server.pilot import Pilot
 from server.settings import Settings
@@ -67,6 +68,8 @@ class Station:
     # matplotlib, and the Pi's cores belong to flying first. Made in open_station: an
     # anyio limiter belongs to the running event loop.
     analysis_limiter: anyio.CapacityLimiter | None = None
+    # REST analyses and figures: a worker process, bounded and cached (analysis_worker.py).
+    analysis_worker: AnalysisWorker = field(default_factory=AnalysisWorker)
     trials: Trials | None = None  # the flight task chosen and its trials' scores
     # Caps on streaming clients, fitted under the descriptor limit (server/client_limits.py).
     client_limits: ClientLimits = field(
@@ -94,6 +97,7 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
     )
     async with contextlib.AsyncExitStack() as stack:
         stack.push_async_callback(station.tasks.aclose)
+        stack.callback(station.analysis_worker.close)
 
         # -- vehicle link ----------------------------------------------------------
         source = settings.link.source.strip()

@@ -7,18 +7,18 @@ one recorded session or a comparison of several.
     GET /api/analysis/{plot}.png?task=...&sessions=...
 
 Sessions are found only through the recorder's `SessionStore` (ids and file names are
-untrusted). Loading and plotting run in a worker thread (one analysis at a time, so the
-Pi's cores stay free for telemetry and video), never on the event loop; the
-last few analyses are cached, keyed on the files' size and modification time, so a page
-asking for the table and three figures loads the session once. The JSON is the CLI's
+untrusted). Loading and plotting run in the station's analysis worker process
+(`server.analysis_worker`: a few jobs at a time, more get 503 `AnalysisBusy`), never in
+the station's process, whose time belongs to the flight state. Answers are cached by the
+files' size and modification time and the parsed parameters (query junk changes
+nothing), and the worker keeps the last few analyses, so a page asking for the table and
+three figures loads the session once. The JSON is the CLI's
 `TABLE.json`, computed by the same `analysis.report.analyze_tracks`: one row per flight
 (`flight=N` for the N-th only), and `skipped` the flights without a trial of the task.
 """
 
 from __future__ import annotations
 
-import functools
-from dataclasses import replace
 from pathlib import Path
 from typing import Literal
 
@@ -28,13 +28,11 @@ from fastapi.responses import Response
 
 from analysis import errors as ae
 from analysis.errors import without_dirs
-from analysis.field_layout import load_field_layout
 from analysis.plots import PLOTS
-from analysis.report import Analysis, analyze_tracks
-from analysis.tasks import TaskParams
-from analysis.track import load_track, parse_meta
+from analysis.tasks import TaskParams, check_task
 from companion.recording import layout
 from companion.recording import store as st
+from server.analysis_worker import AnalysisJob, Stamp, run_job
 from server.errors import ApiError, BadRequest, NotFound
 from server.routes.recording import get_recorder
 from server.routes.trajectory import reference_param
@@ -103,54 +101,31 @@ def _session_files(store: st.SessionStore, session_id: str) -> tuple[Path, Path 
     return data, meta
 
 
-def _stamp(path: Path | None) -> tuple[str, int, int] | None:
+def _stamp(path: Path | None) -> Stamp | None:
     if path is None:
         return None
     s = path.stat()
     return (str(path), s.st_mtime_ns, s.st_size)
 
 
-@functools.lru_cache(maxsize=4)
-def _cached(
-    files: tuple[tuple[str, tuple, tuple | None], ...],
-    task: str,
-    reference: tuple[float, float] | None,
-    scene: str | None,
-    params: TaskParams,
-    flight: int | None = None,
-) -> Analysis:
-    tracks = []
-    for session_id, (data, _, _), meta in files:
-        track = load_track(Path(data), label=session_id)
-        m = parse_meta(Path(meta[0]).read_bytes()) if meta else {}
-        tracks.append(replace(track, meta=m, source=str(Path(data).parent)))
-    field = load_field_layout(scene)
-    return analyze_tracks(tracks, task, reference, field, params, flight)
-
-
-def _analyze(
+def _job(
     request: Request,
     session_ids: list[str],
     task: str,
-    reference: str | None,
+    reference: tuple[float, float] | None,
     params: TaskParams,
     flight: int | None,
-) -> Analysis:
-    """Runs in a worker thread: file access, parsing and numpy."""
-    settings = request.app.state.settings
+    plot: str | None,
+) -> AnalysisJob:
+    """Blocking (the store and stat): what decides the answer, files by their stamps."""
     store = get_recorder(request).store  # the station's one SessionStore
     files = []
     for sid in session_ids:
         data, meta = _session_files(store, sid)
         files.append((sid, _stamp(data), _stamp(meta)))
-    scene = settings.twin.scene
-    return _cached(
-        tuple(files),
-        task,
-        reference_param(reference),
-        str(scene) if scene else None,
-        params,
-        flight,
+    scene = request.app.state.settings.twin.scene
+    return AnalysisJob(
+        tuple(files), task, reference, str(scene) if scene else None, params, flight, plot
     )
 
 
@@ -162,23 +137,23 @@ async def _run(
     params: TaskParams,
     plot: str | None = None,
     flight: int | None = None,
-) -> Analysis | bytes:
+) -> dict | bytes:
     if not session_ids:
         raise BadRequest("Give at least one session (sessions=ID).")
     if len(session_ids) > MAX_SESSIONS:
         raise BadRequest(f"At most {MAX_SESSIONS} sessions in one comparison.")
     if plot is not None and plot not in PLOTS:
         raise NotFound(f"No plot '{plot}'; use one of: {', '.join(PLOTS)}.")
-
-    def work() -> Analysis | bytes:
-        try:
-            an = _analyze(request, session_ids, task, reference, params, flight)
-            return an if plot is None else an.plot(plot)
-        except ae.AnalysisError as exc:  # store errors: 400/404 by server.errors
-            raise _api_error(exc) from None
-
-    limiter = request.app.state.station.analysis_limiter  # one analysis at a time
-    return await anyio.to_thread.run_sync(work, limiter=limiter)
+    ref = reference_param(reference)
+    try:
+        check_task(task)
+        job = await anyio.to_thread.run_sync(
+            _job, request, session_ids, task, ref, params, flight, plot
+        )
+        # Off the station's process, bounded, cached (server/analysis_worker.py).
+        return await request.app.state.station.analysis_worker.run(job, run_job, job)
+    except ae.AnalysisError as exc:  # store errors: 400/404 by server.errors
+        raise _api_error(exc) from None
 
 
 _TASK = Query(..., description="hover, a-to-b, obstacle or figure8")
@@ -209,13 +184,11 @@ def _thresholds(
 _P = Depends(_thresholds)
 
 
-def _table(an: Analysis) -> dict:
+def _table(table: dict) -> dict:
     """The CLI's TABLE.json, with each row's source its session id (not its folder)."""
-    skipped = [{"label": label, "reason": without_dirs(why)} for label, why in an.skipped]
-    table = an.comparison.to_dict()
-    for row in table["results"]:
-        row["source"] = Path(row["source"]).name
-    return {**table, "skipped": skipped}
+    results = [{**row, "source": Path(row["source"]).name} for row in table["results"]]
+    skipped = [{**s, "reason": without_dirs(s["reason"])} for s in table["skipped"]]
+    return {**table, "results": results, "skipped": skipped}
 
 
 @router.get("/api/sessions/{session_id}/analysis", summary="Task metrics of one session")
@@ -227,8 +200,8 @@ async def session_analysis(
     params: TaskParams = _P,
     flight: int | None = _FLIGHT,
 ) -> dict:
-    an = await _run(request, [session_id], task, reference, params, flight=flight)
-    return {"sessions": [session_id], **_table(an)}
+    table = await _run(request, [session_id], task, reference, params, flight=flight)
+    return {"sessions": [session_id], **_table(table)}
 
 
 @router.get("/api/sessions/{session_id}/analysis/{plot}.png", summary="A figure of one session")
@@ -254,8 +227,8 @@ async def compare_sessions(
     params: TaskParams = _P,
     flight: int | None = _FLIGHT,
 ) -> dict:
-    an = await _run(request, sessions or [], task, reference, params, flight=flight)
-    return {"sessions": sessions or [], **_table(an)}
+    table = await _run(request, sessions or [], task, reference, params, flight=flight)
+    return {"sessions": sessions or [], **_table(table)}
 
 
 @router.get("/api/analysis/{plot}.png", summary="A figure overlaying sessions of one task")
