@@ -49,7 +49,13 @@ from companion.transports import (
 )
 from companion.vehicle_state import VehicleState
 from core.mavlink.framing import MavFramer, packet_version
-from core.mavlink.signing import SignatureCheck, Verdict, enable_signing
+from core.mavlink.signing import (
+    SignatureCheck,
+    Verdict,
+    enable_signing,
+    mavproxy_reads_differently,
+    read_passphrase,
+)
 from core.mavlink.tlog_records import TlogReader
 
 log = logging.getLogger(__name__)
@@ -83,6 +89,13 @@ class MavlinkLink:
         # Signing guards a live link; a replay's packets are what was recorded, as it was.
         key = settings.signing_key() if self.spec.kind != "replay" else None
         self._signing: SignatureCheck | None = enable_signing(self.mav, key) if key else None
+        # What the --forward ground stations send the vehicle: the same key and clock,
+        # its own streams and counts.
+        self._forward_signing = SignatureCheck(self.mav.signing) if key else None
+        if key and settings.signing_key_file is not None:
+            mismatch = mavproxy_reads_differently(read_passphrase(settings.signing_key_file))
+            if mismatch:
+                log.warning("%s: %s", settings.signing_key_file, mismatch)
         self._foreign = ForeignSenders()
         self._forward_foreign = ForeignSenders()
         self._next_foreign_log = 1  # log foreign senders at 1, 10, 100, ... datagrams
@@ -116,6 +129,7 @@ class MavlinkLink:
         self._next_gcs_hb = 0.0
         self._force_v1 = False
         self._listener_errors = 0
+        self._own_identity_packets = 0  # from the link in our sysid/compid
 
     # -- public interface ---------------------------------------------------------
 
@@ -189,6 +203,7 @@ class MavlinkLink:
         transport = self._transport
         peer = transport.peer if isinstance(transport, UdpTransport) else None
         counts = self._signing.counts if self._signing is not None else None
+        fwd = self._forward_signing.counts if self._forward_signing is not None else None
         return LinkSecurity(
             peer=format_addr(peer),
             udpin_lock=self.settings.udpin_lock,
@@ -201,6 +216,11 @@ class MavlinkLink:
             unsigned_refused=counts.unsigned if counts else 0,
             bad_signature_refused=counts.bad_signature if counts else 0,
             replay_refused=counts.replayed if counts else 0,
+            forward_signed=fwd.signed if fwd else 0,
+            forward_unsigned_refused=fwd.unsigned if fwd else 0,
+            forward_bad_signature_refused=fwd.bad_signature if fwd else 0,
+            forward_replay_refused=fwd.replayed if fwd else 0,
+            own_identity_packets=self._own_identity_packets,
         )
 
     @property
@@ -247,6 +267,7 @@ class MavlinkLink:
             self._transport = transport
             if isinstance(transport, UdpTransport):
                 transport.confirm_senders = self._signing is not None
+                transport.probation_after_s = self.settings.link_lost_s
             self._meter.connected = True
             self._framer.reset()
             self._meter.on_reconnect()
@@ -293,8 +314,7 @@ class MavlinkLink:
                     else:  # a forward peer (QGroundControl) talks back: pass it on
                         data = r.read()  # type: ignore[union-attr]
                         if data:
-                            transport.write(data)
-                            self._on_forwarded(r, data, now)  # type: ignore[arg-type]
+                            self._on_forwarded(r, data, now, transport)  # type: ignore[arg-type]
                 self._publish_state()
                 while self._outbox:
                     self._write(transport, self._outbox.popleft())
@@ -399,7 +419,13 @@ class MavlinkLink:
         t_wall = self.clock.wall()  # a replay's packets keep their log times
         tracker = self._tracker
         changed = False
+        # A replay holds what the station itself sent: its own identity is no clash there.
+        own = (self.mav.srcSystem, self.mav.srcComponent) if self.spec.kind != "replay" else None
         for msg in msgs:
+            if own is not None and (msg.get_srcSystem(), msg.get_srcComponent()) == own:
+                self._on_own_identity(msg)
+                if self._signing is not None:
+                    continue  # never ours to hear, nor a vehicle's: refused unchecked
             packet = bytes(msg.get_msgbuf())
             if self._signing is not None:
                 verdict = self._check_signature(packet, allow_unsigned=not probation)
@@ -460,17 +486,45 @@ class MavlinkLink:
                 if self._listener_errors in (1, 10, 100, 1000):
                     log.exception("packet listener %r failed (%d times)", cb, self._listener_errors)
 
-    def _on_forwarded(self, peer: UdpTransport, data: bytes, now: float) -> None:
-        """What a ground station we forward to sent the vehicle: recorded, and watched for
-        requests that change our rates."""
+    def _on_forwarded(
+        self, peer: UdpTransport, data: bytes, now: float, transport: Transport
+    ) -> None:
+        """What a ground station we forward to sent the vehicle: passed on, recorded, and
+        watched for requests that change our rates. With signing on, each packet's
+        signature is checked and counted first, as the link's are: a refused one is
+        neither passed on nor recorded (the vehicle would refuse it too, and a ground
+        station whose key differs shows in the counts instead of failing silently)."""
+        check = self._forward_signing
+        if check is None:
+            transport.write(data)  # as it came, in one write
         t_wall = time.time()
         for msg in self._forward_framers[peer].feed(data):
+            if check is not None:
+                packet = bytes(msg.get_msgbuf())
+                if check.check(packet) not in ("signed", "unsigned_allowed"):
+                    continue
+                transport.write(packet)
             mtype = msg.get_type()
             if mtype == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS:
                 self._on_gcs_heartbeat(msg)
             elif mtype in _RATE_REQUESTS:
                 self._check_rate_request(msg, now, "forward")
             self._notify(t_wall, bytes(msg.get_msgbuf()))
+
+    def _on_own_identity(self, msg: mavlink.MAVLink_message) -> None:
+        """A packet from the link in our own system and component id: another ground
+        station configured as we are, or our packets sent back to us. Either way what
+        the vehicle hears from "us" is not only ours: an identity clash."""
+        self._own_identity_packets += 1
+        if not self._meter.gcs_identity_clash:
+            log.warning(
+                "packets from the link carry our identity %d/%d (%s): set link.gcs_sysid%s",
+                msg.get_srcSystem(),
+                msg.get_srcComponent(),
+                msg.get_type(),
+                "; refused while signing is on" if self._signing is not None else "",
+            )
+        self._meter.gcs_identity_clash = True
 
     def _on_gcs_heartbeat(self, msg: mavlink.MAVLink_message) -> None:
         sysid, compid = msg.get_srcSystem(), msg.get_srcComponent()

@@ -54,13 +54,31 @@ class LinkSecurity:
     unsigned_refused: int = 0  # refused: no signature (MAVLink 1 included)
     bad_signature_refused: int = 0  # refused: wrong key or altered bytes
     replay_refused: int = 0  # refused: good signature but an old timestamp (a replay)
+    # What the --forward ground stations sent the vehicle, checked the same way: refused
+    # packets are neither passed on nor recorded (a MAVProxy whose key is another's
+    # shows here, as bad signatures).
+    forward_signed: int = 0
+    forward_unsigned_refused: int = 0
+    forward_bad_signature_refused: int = 0
+    forward_replay_refused: int = 0
+    # Packets from the link in the station's own system and component id (another
+    # ground station with our identity, or our own packets sent back): refused when
+    # signing is on, counted always.
+    own_identity_packets: int = 0
 
     @computed_field
     @property
     def refused(self) -> int:
         """Packets signing refused, all reasons (in the JSON of /api/status too: the
         pilot's OSD reads this one figure rather than adding the reasons up itself)."""
-        return self.unsigned_refused + self.bad_signature_refused + self.replay_refused
+        return (
+            self.unsigned_refused
+            + self.bad_signature_refused
+            + self.replay_refused
+            + self.forward_unsigned_refused
+            + self.forward_bad_signature_refused
+            + self.forward_replay_refused
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -130,9 +130,12 @@ class UdpTransport:
     answered, and the host the lock holds) only when its datagram held a packet signed
     with the key (`adopt_sender`), so that an unsigned datagram sent first cannot take
     the lock, nor one sent later take our answers. Until then the last sender is
-    answered. Once locked, another host's datagrams are not dropped but marked
-    `probation`: the link lets the lock follow only the followed autopilot's signed
-    packets there (the vehicle at a new address), and nothing unsigned from there.
+    answered. Once locked, another host's datagrams are dropped before they are parsed
+    while the peer's host is heard (checking a flood's signatures would cost the link
+    thread several times what dropping it does); after `probation_after_s` of its
+    silence they are marked `probation` instead: the link lets the lock follow only the
+    followed autopilot's signed packets there (the vehicle at a new address, after a
+    bridge's reboot), and nothing unsigned from there.
     """
 
     def __init__(
@@ -147,7 +150,9 @@ class UdpTransport:
         self._lock = lock
         self.foreign = foreign if foreign is not None else ForeignSenders()
         self.confirm_senders = False
+        self.probation_after_s = 2.0  # the peer's silence after which others are heard
         self.probation = False  # the last datagram came from another host than the peer's
+        self._peer_heard = 0.0  # time.monotonic() of the peer's host's last datagram
         self._sender: tuple[str, int] | None = None  # of the last datagram read
         try:
             if spec.kind == "udpin":
@@ -203,9 +208,15 @@ class UdpTransport:
         addr = addr[:2]
         if self._accepts(addr):
             self.probation = False
-        elif self.confirm_senders and not self._fixed_peer:
-            # Signing on: another host may be the vehicle at a new address (a DHCP lease,
-            # a bridge that rebooted). Its datagram is parsed and signing judges it.
+            self._peer_heard = time.monotonic()
+        elif (
+            self.confirm_senders
+            and not self._fixed_peer
+            and time.monotonic() - self._peer_heard > self.probation_after_s
+        ):
+            # Signing on and the peer silent: another host may be the vehicle at a new
+            # address (a DHCP lease, a bridge that rebooted). Its datagram is parsed and
+            # signing judges it.
             self.probation = True
         else:
             self.foreign.datagrams += 1

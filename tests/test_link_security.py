@@ -493,9 +493,10 @@ def test_udpin_reads_a_burst_at_one_wake_up_and_still_refuses_a_foreign_datagram
 def test_signing_lets_the_udpin_lock_follow_the_vehicle_to_a_new_address(tmp_path) -> None:
     """A vehicle behind a Wi-Fi bridge that rebooted comes back from another address (a
     new DHCP lease). Without signing the lock cannot tell it from an attacker and holds;
-    with signing its signed packets move the lock there. Another host's unsigned
-    datagrams (a radio's RADIO_STATUS too) are refused, and another holder of the key (a
-    signed ground station elsewhere, system 7) is heard but does not take the lock."""
+    with signing, once the old address has been silent `link.link_lost_s`, its signed
+    packets move the lock there. While the peer is heard, other hosts' datagrams are
+    dropped before they are parsed: unsigned ones, a radio's RADIO_STATUS, and another
+    holder of the key (a signed ground station elsewhere, system 7) alike."""
     port = free_port(socket.SOCK_DGRAM)
     overrides = {"link.signing_key_file": str(key_file(tmp_path))}
     with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
@@ -505,12 +506,14 @@ def test_signing_lets_the_udpin_lock_follow_the_vehicle_to_a_new_address(tmp_pat
         with MavVehicle(
             "udp", station_port=port, rates_hz=QUIET, signing_key=KEY, host="127.0.0.2"
         ) as moved:
-            sync(moved, app, 0.25)  # heard from the new address
-            assert wait_until(lambda: security(base)["peer"] == f"127.0.0.2:{moved.port}")
+            # Its heartbeats, heard once the old address has been silent long enough.
+            new_peer = f"127.0.0.2:{moved.port}"
+            assert wait_until(lambda: security(base)["peer"] == new_peer, timeout=15)
+            sync(moved, app, 0.25)
             before = len(moved.received)
             assert wait_until(lambda: len(moved.received) > before, timeout=5)  # answered
             assert all(moved.signed(m) for m in list(moved.received))
-            refused = security(base)["unsigned_refused"]
+            sec = security(base)
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
                 attacker.bind(("127.0.0.3", 0))
                 radio = mavlink.MAVLink(None, srcSystem=51, srcComponent=68)
@@ -519,7 +522,8 @@ def test_signing_lets_the_udpin_lock_follow_the_vehicle_to_a_new_address(tmp_pat
                     + radio.radio_status_encode(200, 190, 80, 10, 20, 0, 0).pack(radio),
                     ("127.0.0.1", port),
                 )
-                assert wait_until(lambda: security(base)["unsigned_refused"] == refused + 3)
+                foreign = sec["foreign_datagrams"] + 1
+                assert wait_until(lambda: security(base)["foreign_datagrams"] == foreign)
             with MavVehicle(
                 "udp",
                 station_port=port,
@@ -529,13 +533,161 @@ def test_signing_lets_the_udpin_lock_follow_the_vehicle_to_a_new_address(tmp_pat
                 sysid=7,
             ) as other_key_holder:
                 other_key_holder.send_now("HEARTBEAT")
-                assert wait_until(
-                    lambda: any(
-                        s["sysid"] == 7
-                        for s in httpx.get(f"{base}/api/status").json()["link"]["streams"]
-                    )
-                )
+                assert wait_until(lambda: security(base)["foreign_datagrams"] > foreign)
             sync(moved, app, 0.5)
             assert_position_real(app)
-            assert security(base)["peer"] == f"127.0.0.2:{moved.port}"
-            assert security(base)["unsigned_allowed"] == 0
+            after = security(base)
+            assert after["peer"] == new_peer
+            assert after["unsigned_allowed"] == 0
+            # Dropped unparsed: signing never saw them.
+            for count in ("unsigned_refused", "bad_signature_refused"):
+                assert after[count] == sec[count], count
+            streams = httpx.get(f"{base}/api/status").json()["link"]["streams"]
+            assert not any(s["sysid"] in (7, 51) for s in streams)
+
+
+# -- the station's own identity, other hosts, and the ground stations we forward to -------
+
+
+def signer(sysid: int, compid: int, key: bytes | None) -> mavlink.MAVLink:
+    """An encoder that signs with `key` from the wall clock on (None: unsigned)."""
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    if key is not None:
+        mav.signing.secret_key, mav.signing.sign_outgoing = key, True
+        mav.signing.timestamp = int((time.time() - 1420070400) * 1e5)
+    return mav
+
+
+@contextlib.contextmanager
+def link_on(source: str, **settings):
+    """A started MavlinkLink and the packets it hands its listeners (the recorder's)."""
+    from companion.link_settings import LinkSettings
+
+    link = MavlinkLink(LinkSettings(source=source, request_streams=False, **settings))
+    got: list[bytes] = []
+    link.add_packet_listener(lambda t, packet: got.append(packet))
+    link.start()
+    try:
+        yield link, got
+    finally:
+        link.stop()
+
+
+def link_state(link):
+    latest = link.state.get()
+    return latest.value if latest else None
+
+
+@pytest.mark.parametrize("signing", [True, False])
+def test_packets_in_the_stations_own_identity_are_a_clash_refused_when_signing(
+    tmp_path, signing
+) -> None:
+    """From the vehicle's own address (the lock passes it), signed with the key: a
+    ground station set up with our system and component id, or our own packets sent
+    back. It is an identity clash either way; with signing on it is refused (not
+    recorded, not forwarded), although its signature is good."""
+    port = free_port(socket.SOCK_DGRAM)
+    key = KEY if signing else None
+    extra = {"signing_key_file": key_file(tmp_path)} if signing else {}
+    with (
+        link_on(f"udpin:127.0.0.1:{port}", **extra) as (link, got),
+        MavVehicle("udp", station_port=port, rates_hz=QUIET, signing_key=key) as v,
+    ):
+        assert wait_until(lambda: link_state(link).heartbeat.sysid == 1, timeout=10)
+        assert link.health().security.own_identity_packets == 0
+        impostor = signer(254, 190, key)  # link.gcs_sysid / gcs_compid
+        arm = impostor.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(impostor)
+        v.inject(arm)
+        assert wait_until(lambda: link.health().security.own_identity_packets == 1)
+        health = link.health()
+        assert health.gcs_identity_clash
+        v.send_now("ATTITUDE")  # after it on the same socket: everything before is handled
+        assert wait_until(lambda: link_state(link).attitude.t_mono is not None)
+        assert (bytes(arm) in got) is not signing
+        if signing:  # refused before the signature check: no count of signing's moved
+            assert health.security.signed > 0 and health.security.bad_signature_refused == 0
+
+
+def test_with_signing_another_hosts_datagrams_are_dropped_unparsed(tmp_path) -> None:
+    """While the peer is heard, a flood from another host with the wrong key is dropped
+    at the socket and counted there (`foreign_datagrams`), never checked by signing:
+    checking every flooded signature cost the link thread several times as much."""
+    port = free_port(socket.SOCK_DGRAM)
+    with (
+        link_on(f"udpin:127.0.0.1:{port}", signing_key_file=key_file(tmp_path)) as (link, _),
+        MavVehicle("udp", station_port=port, rates_hz={"HEARTBEAT": 5.0}, signing_key=KEY) as v,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker,
+    ):
+        assert wait_until(lambda: link_state(link).heartbeat.sysid == 1, timeout=10)
+        attacker.bind(("127.0.0.2", 0))
+        wrong = signer(1, 1, WRONG_KEY)
+        for i in range(200):
+            attacker.sendto(
+                wrong.attitude_encode(i, 1.0, 0, 0, 0, 0, 0).pack(wrong), ("127.0.0.1", port)
+            )
+            if i % 20 == 0:
+                time.sleep(0.005)  # within the socket's buffer
+        v.roll_rad = 0.5
+        v.send_now("ATTITUDE")  # queued after the flood
+        assert wait_until(lambda: link_state(link).attitude.roll_rad == pytest.approx(0.5))
+        sec = link.health().security
+        assert sec.foreign_datagrams >= 150  # loopback may drop a few when the buffer fills
+        assert sec.bad_signature_refused == 0  # never parsed
+        assert sec.peer == f"127.0.0.1:{v.port}"
+
+
+def test_forwarded_ground_stations_packets_are_checked_and_counted(tmp_path) -> None:
+    """A ground station on --forward with the key is passed to the vehicle; one set up as
+    MAVProxy reads a passphrase of several words (its first word's key) and one without a
+    key are refused, counted, neither passed on nor recorded."""
+    port = free_port(socket.SOCK_DGRAM)
+    first_word_key = hashlib.sha256(PASSPHRASE.split()[0].encode()).digest()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs:
+        gcs.bind(("127.0.0.1", 0))
+        gcs.settimeout(5)
+        forward = [f"udpout:127.0.0.1:{gcs.getsockname()[1]}"]
+        with (
+            link_on(
+                f"udpin:127.0.0.1:{port}", signing_key_file=key_file(tmp_path), forward=forward
+            ) as (link, got),
+            MavVehicle("udp", station_port=port, rates_hz=QUIET, signing_key=KEY) as v,
+        ):
+            assert wait_until(lambda: link_state(link).heartbeat.sysid == 1, timeout=10)
+            _, station_addr = gcs.recvfrom(65535)  # the vehicle's packets reach it
+            sent = {}
+            for name, key, param in (
+                ("keyed", KEY, 1.0),
+                ("mavproxy", first_word_key, 2.0),
+                ("unsigned", None, 3.0),
+            ):
+                mav = signer(255, 190, key)
+                packet = mav.command_long_encode(1, 1, 31010, 0, param, 0, 0, 0, 0, 0, 0).pack(mav)
+                sent[name] = bytes(packet)
+                gcs.sendto(packet, station_addr)
+            sec = lambda: link.health().security  # noqa: E731
+            assert wait_until(lambda: sec().forward_unsigned_refused == 1)
+            assert wait_until(lambda: sec().forward_bad_signature_refused == 1)
+            assert wait_until(lambda: sec().forward_signed == 1)
+            params = lambda: [  # noqa: E731
+                m.param1 for m in list(v.received) if m.get_type() == "COMMAND_LONG"
+            ]
+            assert wait_until(lambda: 1.0 in params())
+            assert params() == [1.0]
+            assert sent["keyed"] in got
+            assert sent["mavproxy"] not in got and sent["unsigned"] not in got
+            assert sec().refused >= 2  # the OSD's one figure counts them
+
+
+def test_a_passphrase_of_several_words_warns_that_mavproxy_reads_it_differently(
+    tmp_path, caplog
+) -> None:
+    from companion.link_settings import LinkSettings
+
+    for passphrase, warned in ((PASSPHRASE, True), ("fieldday2026", False)):
+        caplog.clear()
+        path = write_key_file(tmp_path / f"{warned}.key", passphrase)
+        port = free_port(socket.SOCK_DGRAM)
+        link = MavlinkLink(LinkSettings(source=f"udpin:127.0.0.1:{port}", signing_key_file=path))
+        link.stop()
+        messages = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert any("hashes only the first" in m for m in messages) is warned, messages

@@ -6,7 +6,9 @@ makes it (`passphrase_to_key` in its signing module): the same passphrase gives 
 the same words. The key file holds that
 passphrase as UTF-8 text (surrounding whitespace, such as the newline `echo` adds, is not
 part of it); it must be a regular file that only its owner can read or write, as ssh
-insists for private keys.
+insists for private keys. MAVProxy's `signing setup` takes the passphrase as one
+command argument, so it hashes only the first word of several: a passphrase of several
+words gives MAVProxy another key (`mavproxy_reads_differently` says so at start).
 
 Outgoing packets are signed by pymavlink itself (`enable_signing` sets up a `MAVLink`'s
 `signing`). Incoming packets are checked here, not by pymavlink's `decode`: pymavlink
@@ -56,8 +58,30 @@ def key_from_passphrase(passphrase: str) -> bytes:
     return hashlib.sha256(passphrase.encode("utf-8")).digest()
 
 
+def mavproxy_reads_differently(passphrase: str) -> str | None:
+    """Why MAVProxy would not share this passphrase's key, or None: MAVProxy's
+    `signing setup PASSPHRASE` splits its command line on spaces and hashes only the
+    first word, so a vehicle or a MAVProxy set up with several words has another key
+    than ours, and each silently refuses the other's signed packets."""
+    words = passphrase.split()
+    if len(words) < 2:
+        return None
+    return (
+        f"the signing passphrase has {len(words)} words; MAVProxy's 'signing setup' "
+        "hashes only the first one, so a vehicle or MAVProxy set up with it there has "
+        "another key and refuses the station's signed packets (and the station theirs). "
+        "Use a passphrase of one word (no spaces)."
+    )
+
+
 def load_key_file(path: Path | str) -> bytes:
     """The signing key from a passphrase file; refuses a file others may read or change."""
+    return key_from_passphrase(read_passphrase(path))
+
+
+def read_passphrase(path: Path | str) -> str:
+    """The passphrase in a key file (surrounding whitespace stripped), checked as
+    `load_key_file` says."""
     path = Path(path).expanduser()
     try:
         st = path.stat()
@@ -84,7 +108,7 @@ def load_key_file(path: Path | str) -> bytes:
         raise SigningKeyError(f"Signing key file '{path}' cannot be read: {exc}") from None
     if not passphrase:
         raise SigningKeyError(f"Signing key file '{path}' is empty: write a passphrase in it.")
-    return key_from_passphrase(passphrase)
+    return passphrase
 
 
 def write_key_file(path: Path | str, passphrase: str) -> Path:
