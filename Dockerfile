@@ -27,8 +27,9 @@ USER fpv-station
 ENV HOME=/data FPV_RECORDING__SESSIONS_DIR=/data/sessions FPV_SERVER__TOKEN_FILE=/data/token
 VOLUME /data
 
-# 8000: web UI, REST, WebSocket, MJPEG; 8080: the live 3D panel; 8081: the replay's 3D panel
-EXPOSE 8000 8080 8081
+# 8000: web UI, REST, WebSocket, MJPEG and the 3D panels (/3d/live, /3d/replay: their viser
+# servers listen inside the container only, on loopback)
+EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=5s --start-period=30s --retries=3 CMD \
     python -c "import json,sys,urllib.request as u; \
 sys.exit(0 if json.load(u.urlopen('http://127.0.0.1:8000/api/health', timeout=4))['ok'] else 1)"

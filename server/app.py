@@ -54,6 +54,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.ws_frame_limits = {
         "/ws/telemetry": telemetry.MAX_FRAME_BYTES,
         "/ws/control": control.MAX_FRAME_BYTES,
+        **dict.fromkeys(viser_panel.VIEWER_PATHS, viser_panel.MAX_FRAME_BYTES),
     }
     install_error_handlers(app)
     # Host, Origin, content type and body size, before any route (server/guard.py).

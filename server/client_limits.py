@@ -2,22 +2,24 @@
 the recorder needs (issue 13: 1,050 telemetry sockets once made recording fail with
 EMFILE for good).
 
-Every client holds a socket, whichever server accepted it: the main server's plain HTTP
-connections, WebSockets and MJPEG viewers, and the 3D panels' viewers (their own viser
-servers, in the same process). At start one budget is fitted under the process's
-descriptor limit (RLIMIT_NOFILE, first raised to its hard limit) minus a reserve for the
-recorder, the link and the cameras, and shared out:
+Every client holds a socket: the main server's plain HTTP connections, WebSockets and
+MJPEG viewers, and the 3D panels' viewers (which come through the main server too and are
+relayed to the panels' viser servers over loopback, server/trajectory3d/gate.py). At
+start one budget is fitted under the process's descriptor limit (RLIMIT_NOFILE, first
+raised to its hard limit) minus a reserve for the recorder, the link and the cameras, and
+shared out:
 
     budget = nofile - BASELINE_FDS - reserve
-    ├── viewers3d    3D viewers (both viser panels together)
-    └── connections  every TCP connection of the main server, of which at most
+    ├── 2 x viewers3d  both ends of each 3D viewer's loopback connection to viser
+    └── connections    every TCP connection of the main server, of which at most
         ├── control      CONTROL_CLIENTS places of the pilot's own
         ├── websocket    /ws/telemetry
-        └── video        MJPEG viewers
+        ├── video        MJPEG viewers
+        └── viewers3d    3D viewers (both panels together)
         and at least HTTP_ROOM always free for plain requests (`/api/health`, pages).
 
 A streaming client beyond its cap is refused with 503 in the error shape, before it
-costs anything. The caps are thread-safe: viser accepts its viewers on its own thread.
+costs anything. The caps are thread-safe.
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ CONTROL_CLIENTS = 8
 # Main-server connections no streaming client may take: plain requests (health checks,
 # pages, the control API) always find a place, after idle ones are closed for them.
 HTTP_ROOM = 8
+# Descriptors a 3D viewer holds: its connection to the main server and both ends of its
+# relay's loopback connection to the panel's viser server.
+VIEWER3D_FDS = 3
 
 
 def raise_nofile_limit() -> int:
@@ -140,10 +145,10 @@ class ClientLimits:
         budget = max(nofile - BASELINE_FDS - reserve, HTTP_ROOM + CONTROL_CLIENTS + 3)
         ws, video, viewers3d = max_ws, max_video, max_3d
         room = budget - HTTP_ROOM - CONTROL_CLIENTS  # for ws, video and 3D viewers
-        if ws + video + viewers3d > room:
+        if ws + video + VIEWER3D_FDS * viewers3d > room:
             video = min(video, max(1, room // 5))
-            viewers3d = min(viewers3d, max(1, room // 5))
-            ws = max(1, room - video - viewers3d)
+            viewers3d = min(viewers3d, max(1, room // (5 * VIEWER3D_FDS)))
+            ws = max(1, room - video - VIEWER3D_FDS * viewers3d)
             log.warning(
                 "descriptor limit %d: serving at most %d WebSocket, %d video and %d 3D "
                 "clients (%d kept for the recorder)",
@@ -156,6 +161,8 @@ class ClientLimits:
         return cls(
             ClientCap("websocket", ws),
             ClientCap("video", video),
-            connections=ClientCap("connection", ws + video + CONTROL_CLIENTS + HTTP_ROOM),
+            connections=ClientCap(
+                "connection", ws + video + viewers3d + CONTROL_CLIENTS + HTTP_ROOM
+            ),
             viewers3d=ClientCap("3D viewer", viewers3d),
         )

@@ -63,11 +63,11 @@ class ServerSettings(Section):
 
 
 class ViserSettings(Section):
-    """The 3D trajectory panel (a viser server on its own port)."""
+    """The 3D trajectory panels: viser servers on loopback ports, reached by browsers
+    through the web server's /3d/live and /3d/replay (server/trajectory3d/gate.py)."""
 
     enabled: bool = True
-    host: str | None = None  # None = the same address as the web server
-    port: int = Field(8080, ge=0, le=65535)  # 0 = any free port (tests)
+    port: int = Field(8080, ge=0, le=65535)  # on 127.0.0.1; 0 = any free port (tests)
     update_hz: float = Field(15.0, ge=1.0, le=60.0)  # scene refresh cap
     chunk_segments: int = Field(50, ge=2, le=1000)  # trail segments per scene handle
     gap_s: float = Field(1.0, gt=0)  # a fix older than this breaks the trail

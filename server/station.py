@@ -198,7 +198,7 @@ def _open_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> No
     # the field being flown; a real flight without a scene file gets a plain ground grid.
     trials = station.trials
     field = trials.scene if trials is not None and trials.is_field else None
-    station.trajectory3d = Trajectory3D(s.viser, station.state, s.server.host, field)
+    station.trajectory3d = Trajectory3D(s.viser, station.state, field=field)
     stack.push_async_callback(_stop_3d_panels, station)
     # The task draws into the viser server: it ends before the server stops (the stack
     # unwinds last in, first out).
@@ -223,7 +223,7 @@ async def start_3d_panels(station: Station) -> None:
             from server.trajectory3d.replay_scene import Replay3D
 
             s = station.settings
-            replay = Replay3D(s.viser, host=s.server.host, field=live.field)
+            replay = Replay3D(s.viser, field=live.field)
             await asyncio.to_thread(replay.start)
             station.replay3d = replay
 

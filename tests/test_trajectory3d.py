@@ -459,11 +459,14 @@ def test_no_3d_flag():
     with run_uvicorn(create_app(settings)) as base:
         assert httpx.get(f"{base}/api/viser").json() == {
             "enabled": False,
+            "path": None,
+            "replay_path": None,
             "port": None,
             "points": 0,
             "chunks": 0,
             "replay_port": None,
         }
+        assert httpx.get(f"{base}/3d/live/").status_code == 404
 
 
 def test_field_comes_from_the_twin_scene():
@@ -518,6 +521,7 @@ def test_cli_serves_the_panel_on_its_port_and_stops_it(tmp_path):
         panel = httpx.get(f"{station.base}/api/viser", timeout=30).json()  # the first visit
         assert panel["port"] == viser_port
         assert httpx.get(f"http://127.0.0.1:{viser_port}/", timeout=5).status_code == 200
+        assert httpx.get(f"{station.base}{panel['path']}", timeout=5).status_code == 200
         station.popen.send_signal(signal.SIGINT)
         # uvicorn shuts down, then re-raises the SIGINT it caught: -2 is its clean exit
         assert station.popen.wait(timeout=20) in (0, -signal.SIGINT)

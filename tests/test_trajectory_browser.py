@@ -20,6 +20,7 @@ from tests.helpers import chromium, run_uvicorn, wait_until
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 
 ORIGIN = (43.0021, -78.7875, 180.0)
+TOKEN = "browser-test-token"
 
 
 def saturated(png: bytes) -> np.ndarray:
@@ -66,6 +67,7 @@ def station(sessions_dir):  # noqa: F811
         environ={},
         overrides={
             "link.source": "none",
+            "server.token": TOKEN,
             "viser.port": 0,
             "viser.update_hz": 60,
             "recording.sessions_dir": str(sessions_dir),
@@ -88,20 +90,22 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
     # The panel keeps the trail; nobody watches yet, so nothing is drawn (sent) so far.
     assert wait_until(lambda: httpx.get(f"{base}/api/viser").json()["points"] > 50, 5.0)
     assert httpx.get(f"{base}/api/viser").json()["chunks"] == 0
-    port = httpx.get(f"{base}/api/viser").json()["port"]
-
     outside: list[str] = []
     with chromium() as browser:
         page = open_offline(browser, outside)
-        page.goto(f"{base}/")
+        page.goto(f"{base}/?token={TOKEN}")  # as the station prints it: the pilot's page
         panel = page.locator("#panel-3d")
         assert panel.is_hidden()
         page.locator("#p3d-toggle").click()
         assert panel.is_visible()
         page.locator("#p3d-enlarge").click()  # the panel can be enlarged
         assert "p3d-large" in (panel.get_attribute("class") or "")
-        viser_url = f"http://127.0.0.1:{port}/"
-        assert page.locator("#p3d-frame").get_attribute("src") == viser_url
+        # viser's client through the station's own port, told to connect with the token.
+        viser_url = f"{base}/3d/live/"
+        ws = base.replace("http://", "ws://")
+        assert page.locator("#p3d-frame").get_attribute("src") == (
+            f"/3d/live/?websocket={ws}/3d/live?token={TOKEN}"
+        )
         # The viser client may add query parameters to its own URL once it runs. Poll with
         # Playwright's own wait: a plain sleep would not let it process frame events.
         for _ in range(600):
@@ -199,8 +203,8 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
         # The 3D replay panel: the station's replay viser server, showing both sessions and
         # following the slider (PUT /api/replay3d/time, throttled).
         replay3d = app.state.station.replay3d
-        viser_url = f"http://127.0.0.1:{replay3d.port}/"
-        assert page.locator("#replay-3d").get_attribute("src") == viser_url
+        viser_url = f"{base}/3d/replay/"  # through the station's own port
+        assert page.locator("#replay-3d").get_attribute("src") == "/3d/replay/"
         assert wait_until(
             lambda: (
                 replay3d.primary is not None

@@ -15,7 +15,7 @@ import { $, api } from "/lib.js";
 
 const params = new URLSearchParams(location.search);
 const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
-const r3d = { port: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null };
+const r3d = { path: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null };
 const R3D_PERIOD_MS = 1000 / 15;
 
 function status(text) { $("replay-status").textContent = text; }
@@ -66,18 +66,18 @@ async function load() {
 
 async function init3d() {
   try {
-    r3d.port = (await api("/api/viser")).replay_port; // null with --no-3d: the 2D view alone
+    r3d.path = (await api("/api/viser")).replay_path; // null with --no-3d: the 2D view alone
   } catch (err) {
     status(`No 3D panel: ${err.message}`);
   }
 }
 
 async function load3d(a, b) {
-  if (!r3d.port) return;
+  if (!r3d.path) return;
   const frame = $("replay-3d");
   if (!frame.getAttribute("src")) {
     frame.hidden = false;
-    frame.setAttribute("src", `${location.protocol}//${location.hostname}:${r3d.port}/`);
+    frame.setAttribute("src", r3d.path); // the station's own door (server/trajectory3d/gate.py)
     draw(); // the canvas just got narrower
   }
   r3d.ready = false;

@@ -1,35 +1,120 @@
-"""Where the browser finds the 3D panel: the viser server's port (it serves its own client)."""
+"""The 3D panels, through the station's own door: viser's client page, each viewer's
+WebSocket relayed to the panel's viser server on loopback (server/trajectory3d/gate.py),
+and where the pages find them.
+
+    GET /3d/live/, /3d/replay/       viser's client (it connects to the same path, ws://)
+    WS  /3d/live, /3d/replay         a viewer; `?token=` lets it change what all viewers see
+    GET /api/viser                   the panels' paths and the trail's size
+
+The WebSocket routes meet the guard (Origin, Host), the connection table and the frame
+limit (`MAX_FRAME_BYTES`) as every route does, then the 3D viewer cap
+(server/client_limits.py): beyond it a viewer is refused with 503 before its relay opens.
+"""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+import importlib.util
+from pathlib import Path
+from typing import Literal
+
+from fastapi import APIRouter, Request, WebSocket
+from fastapi.responses import FileResponse
 from pydantic import BaseModel
 
-from server.station import start_3d_panels
+from server.auth import require_control_token
+from server.errors import NotFound, Unauthorized, Unavailable, deny_websocket
+from server.station import Station, start_3d_panels
+from server.trajectory3d.gate import ViewerRules, relay
 
 router = APIRouter(tags=["trajectory"])
+
+Panel = Literal["live", "replay"]
+LIVE_PATH, REPLAY_PATH = "/3d/live/", "/3d/replay/"
+VIEWER_PATHS = (LIVE_PATH.rstrip("/"), REPLAY_PATH.rstrip("/"))  # the WebSockets
+# A viewer's frames: its camera (~250 bytes) and GUI changes; a larger one is refused as it
+# starts (1009, server/listen.py), before its payload is read.
+MAX_FRAME_BYTES = 4096
 
 
 class ViserPanel(BaseModel):
     enabled: bool
-    port: int | None  # the port actually bound (viser moves on when the asked one is taken)
+    path: str | None  # the live panel's page on this server (None with --no-3d)
+    replay_path: str | None = None  # the replay page's panel (PUT /api/replay3d)
+    # The viser servers' own ports, on loopback: reached through the paths above only.
+    port: int | None
+    replay_port: int | None = None
     points: int  # trail points drawn so far
     chunks: int  # trail chunks (scene handles) drawn so far (none until someone watches)
-    replay_port: int | None = None  # the replay page's own viser server (PUT /api/replay3d)
 
 
-@router.get("/api/viser", response_model=ViserPanel, summary="The 3D trajectory panel")
+@router.get("/api/viser", response_model=ViserPanel, summary="The 3D trajectory panels")
 async def get_viser_panel(request: Request) -> ViserPanel:
     station = request.app.state.station
     await start_3d_panels(station)  # the first visit starts the panels' viser servers
     service = station.trajectory3d
     if service is None or service.server is None:
-        return ViserPanel(enabled=False, port=None, points=0, chunks=0)
-    replay = request.app.state.station.replay3d
+        return ViserPanel(enabled=False, path=None, port=None, points=0, chunks=0)
+    replay = station.replay3d
+    replay_up = replay is not None and replay.server is not None
     return ViserPanel(
-        replay_port=replay.port if replay is not None and replay.server is not None else None,
         enabled=True,
+        path=LIVE_PATH,
+        replay_path=REPLAY_PATH if replay_up else None,
         port=service.port,
+        replay_port=replay.port if replay_up else None,
         points=service.trail.n_points,
         chunks=len(service.scene.chunk_handles) if service.scene else 0,
     )
+
+
+def _client_page() -> Path:
+    """viser's built client (one HTML file), found without importing viser."""
+    spec = importlib.util.find_spec("viser")
+    if spec is None or spec.origin is None:
+        raise NotFound("The 3D panel's client (viser) is not installed.")
+    return Path(spec.origin).parent / "client" / "build" / "index.html"
+
+
+@router.get(LIVE_PATH, include_in_schema=False)
+@router.get(REPLAY_PATH, include_in_schema=False)
+async def viser_client_page(request: Request) -> FileResponse:
+    if request.app.state.station.trajectory3d is None:
+        raise NotFound("The 3D panels are off (--no-3d).")
+    return FileResponse(_client_page(), media_type="text/html; charset=utf-8")
+
+
+@router.websocket(VIEWER_PATHS[0])
+async def live_viewer(ws: WebSocket) -> None:
+    await _serve_viewer(ws, "live")
+
+
+@router.websocket(VIEWER_PATHS[1])
+async def replay_viewer(ws: WebSocket) -> None:
+    await _serve_viewer(ws, "replay")
+
+
+async def _serve_viewer(ws: WebSocket, which: Panel) -> None:
+    station: Station = ws.app.state.station
+    try:
+        with station.client_limits.viewers3d.slot():
+            await start_3d_panels(station)
+            panel = station.trajectory3d if which == "live" else station.replay3d
+            if panel is None or panel.server is None:
+                await deny_websocket(ws, 404, "NotFound", "The 3D panels are off (--no-3d).")
+                return
+            rules = ViewerRules(panel.viewer_inputs(), authorized=_has_token(ws))
+            await relay(ws, panel.port, rules)
+    except Unavailable as exc:
+        await deny_websocket(ws, 503, "Unavailable", exc.message)
+    except OSError as exc:  # raised before the viewer was accepted
+        await deny_websocket(ws, 503, "Unavailable", str(exc))
+
+
+def _has_token(ws: WebSocket) -> bool:
+    """Whether the viewer may change what every viewer sees: it presented the control
+    token (`?token=`), or the station has none. A wrong or missing token still watches."""
+    try:
+        require_control_token(ws)
+    except Unauthorized:
+        return False
+    return True

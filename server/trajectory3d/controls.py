@@ -1,5 +1,7 @@
 """The GUI in the viser panel: follow the vehicle or fly a free camera, clear the trail,
-pick the colour-coding, show or hide the field.
+pick the colour-coding, show or hide the field. Every one of them changes what all
+viewers see, so the relay passes their changes only from a viewer with the control token
+(`inputs()`, server/trajectory3d/gate.py).
 
 viser runs GUI callbacks on its own worker threads. They never touch the scene's trail
 state; they record a request that the update loop applies on its next tick (at most one
@@ -14,6 +16,7 @@ from dataclasses import dataclass
 import viser
 
 from server.trajectory3d.colors import COLOR_BY_CHOICES, ColorBy
+from server.trajectory3d.gate import ViewerInput, gui_uuid
 
 
 @dataclass(slots=True)
@@ -54,6 +57,8 @@ class Controls:
 
         @self.color_by.on_update
         def _(_: viser.GuiEvent) -> None:
+            if self.color_by.value not in COLOR_BY_CHOICES:
+                return
             with self._lock:
                 self._requests.color_by = self.color_by.value  # type: ignore[assignment]
 
@@ -61,6 +66,15 @@ class Controls:
         def _(_: viser.GuiEvent) -> None:
             with self._lock:
                 self._requests.field_visible = bool(self.show_field.value)
+
+    def inputs(self) -> dict[str, ViewerInput]:
+        """The inputs, by uuid, and their values: all shared (they need the token)."""
+        return {
+            gui_uuid(self.follow): ViewerInput(bool),
+            gui_uuid(self.color_by): ViewerInput(str, choices=tuple(COLOR_BY_CHOICES)),
+            gui_uuid(self.show_field): ViewerInput(bool),
+            gui_uuid(self.clear): ViewerInput(bool),
+        }
 
     def take_requests(self) -> Requests:
         """The pending requests, reset to none."""

@@ -23,6 +23,7 @@ import viser
 
 from core.scene import Scene
 from server.settings import ViserSettings
+from server.trajectory3d.gate import LOOPBACK, ViewerInput, gui_uuid, open_viser
 from server.trajectory3d.live_scene import LiveScene
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.replay import TrajectoryReply
@@ -86,10 +87,10 @@ class Replay3D:
     """Owns the replay viser server and its scene; thread-safe load and set_time."""
 
     def __init__(
-        self, settings: ViserSettings, host: str = "0.0.0.0", field: Scene | None = None
+        self, settings: ViserSettings, host: str = LOOPBACK, field: Scene | None = None
     ) -> None:
         self.settings = settings
-        self.host = settings.host or host
+        self.host = host  # loopback: viewers come through the relay (gate.py)
         self.field = field
         self.server: viser.ViserServer | None = None
         self.scene: LiveScene | None = None
@@ -100,16 +101,12 @@ class Replay3D:
         self.t_s = 0.0
         self._framing: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # look, eye
         self._title: viser.GuiMarkdownHandle | None = None
+        self._inputs: dict[str, ViewerInput] = {}
         self._lock = threading.Lock()  # load runs in a worker thread, set_time on the loop
 
     def start(self) -> None:
         s = self.settings
-        self.server = viser.ViserServer(
-            host=self.host,
-            port=s.replay_port_resolved,
-            label="fpv-station replay 3D",
-            verbose=False,
-        )
+        self.server = open_viser(s.replay_port_resolved, "fpv-station replay 3D", self.host)
         self.server.scene.set_up_direction("+z")
         self.server.initial_camera.position = (-25.0, -30.0, 20.0)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
@@ -132,11 +129,17 @@ class Replay3D:
         gui.configure_theme(show_logo=False, show_share_button=False, control_width="small")
         self._title = gui.add_markdown("No session loaded")
         frame = gui.add_button("Frame the path", hint="Look at the whole path again")
+        # It moves the clicking viewer's camera only: anyone may use it.
+        self._inputs = {gui_uuid(frame): ViewerInput(bool, personal=True)}
 
         @frame.on_click
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None and self._framing is not None:
                 self._move_camera(event.client, *self._framing)
+
+    def viewer_inputs(self) -> dict[str, ViewerInput]:
+        """The GUI inputs viewers may change (server/trajectory3d/gate.py), by uuid."""
+        return self._inputs
 
     @property
     def port(self) -> int:

@@ -32,6 +32,7 @@ from companion.vehicle_state import VehicleState
 from core.geodesy import geodetic_to_enu
 from core.scene import Scene
 from server.settings import ViserSettings
+from server.trajectory3d.gate import LOOPBACK, ViewerInput, open_viser
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.trail import Origin, Trail, TrailSample
 
@@ -111,12 +112,12 @@ class Trajectory3D:
         self,
         settings: ViserSettings,
         state: Latest[VehicleState],
-        host: str = "0.0.0.0",
+        host: str = LOOPBACK,
         field: Scene | None = None,
     ) -> None:
         self.settings = settings
         self.state = state
-        self.host = settings.host or host
+        self.host = host  # loopback: viewers come through the relay (gate.py)
         self.field = field
         self.trail = Trail(settings.chunk_segments, settings.gap_s, settings.max_points)
         self.server: viser.ViserServer | None = None
@@ -141,15 +142,12 @@ class Trajectory3D:
     def start(self) -> None:
         """Start the viser server (its own thread and event loop). Blocks briefly; may run
         in a worker thread while `run()` steps: `server` is set last, once all is built."""
-        import viser
-
         from server.trajectory3d.controls import Controls
         from server.trajectory3d.live_scene import LiveScene
 
         s = self.settings
-        server = viser.ViserServer(
-            host=self.host, port=s.port, label="fpv-station 3D", verbose=False
-        )
+        server = open_viser(s.port, "fpv-station 3D", self.host)
+        server.gui.configure_theme(show_share_button=False)
         server.scene.set_up_direction("+z")
         server.initial_camera.position = (-25.0, -30.0, 20.0)
         server.initial_camera.look_at = (0.0, 0.0, 0.0)
@@ -179,6 +177,10 @@ class Trajectory3D:
         if self.server is not None:
             self.server.stop()
             self.server = None
+
+    def viewer_inputs(self) -> dict[str, ViewerInput]:
+        """The GUI inputs viewers may change (server/trajectory3d/gate.py), by uuid."""
+        return self.controls.inputs() if self.controls is not None else {}
 
     async def run(self) -> None:
         """Apply the states to the trail, `update_hz` of them a second, until the slot

@@ -1,0 +1,292 @@
+"""The 3D panels behind the station's door, attacked as a stranger on the field Wi-Fi
+would: real WebSockets through a real uvicorn to the panels' real viser servers, with real
+Origin headers, real malformed msgpack and a real share request."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+import time
+from collections.abc import Iterator
+
+import httpx
+import msgspec
+import pytest
+import viser
+import zstandard
+from viser._messages import ShareUrlRequest, ViewerCameraMessage
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import ClientConnection, connect
+
+from server.app import create_app
+from server.settings import load_settings
+from server.trajectory3d.gate import gui_uuid
+from tests.helpers import run_uvicorn, wait_until
+from tests.test_trajectory_browser import state_at
+
+TOKEN = "door-test-token"
+SUBPROTOCOL = f"viser-v{viser.__version__}"
+
+
+def camera(x: float = -25.0) -> bytes:
+    return msgspec.msgpack.encode(
+        ViewerCameraMessage(
+            wxyz=(1.0, 0.0, 0.0, 0.0),
+            position=(x, -30.0, 20.0),
+            fov=1.0,
+            near=0.01,
+            far=1000.0,
+            image_height=480,
+            image_width=640,
+            look_at=(0.0, 0.0, 0.0),
+            up_direction=(0.0, 0.0, 1.0),
+        ).as_serializable_dict()
+    )
+
+
+def gui_update(uuid: str, value: object) -> bytes:
+    return msgspec.msgpack.encode(
+        {"type": "GuiUpdateMessage", "uuid": uuid, "updates": {"value": value}}
+    )
+
+
+def messages_in(frame: bytes) -> list[dict]:
+    """The messages of one frame viser sends: sizes, zstd msgpack, then binary buffers."""
+    inner, compressed = (int.from_bytes(frame[i : i + 8], "little") for i in (0, 8))
+    body = zstandard.ZstdDecompressor().decompress(
+        frame[16 : 16 + compressed], max_output_size=inner
+    )
+    return list(msgspec.msgpack.decode(body)["messages"])
+
+
+class Viewer:
+    """One browser's viser client, at the protocol: it reports its camera and keeps every
+    message the panel sends it."""
+
+    def __init__(self, ws: ClientConnection) -> None:
+        self.ws = ws
+        self.received: list[dict] = []
+        self.closed = threading.Event()
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+        ws.send(camera())
+
+    def _read(self) -> None:
+        with contextlib.suppress(Exception):
+            for frame in self.ws:
+                if isinstance(frame, bytes):
+                    self.received.extend(messages_in(frame))
+        self.closed.set()
+
+    def types(self) -> set[str]:
+        return {m.get("type") for m in list(self.received)}
+
+    def close(self) -> None:
+        self.ws.close()
+        self._thread.join(5)
+
+
+def ws_url(base: str, path: str, token: str | None = None) -> str:
+    return base.replace("http://", "ws://") + path + (f"?token={token}" if token else "")
+
+
+@contextlib.contextmanager
+def viewer(base: str, path: str = "/3d/live", *, origin: str | None = None, token=None):
+    headers = {"Origin": origin} if origin else None
+    ws = connect(
+        ws_url(base, path, token),
+        subprotocols=[SUBPROTOCOL],
+        additional_headers=headers,
+        max_size=None,
+        open_timeout=30,
+        proxy=None,
+    )
+    v = Viewer(ws)
+    try:
+        yield v
+    finally:
+        v.close()
+
+
+@pytest.fixture
+def station(tmp_path) -> Iterator[tuple[str, object]]:
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "server.token": TOKEN,
+            "viser.port": 0,
+            "viser.update_hz": 60,
+            "server.max_3d_viewers": 3,
+            "recording.sessions_dir": str(tmp_path),
+            "recording.auto_record_on_arm": False,
+        },
+    )
+    app = create_app(settings)
+    with run_uvicorn(app) as base:
+        assert httpx.get(f"{base}/api/viser").json()["enabled"]  # starts the panels
+        yield base, app.state.station
+
+
+def listening_addresses(port: int) -> set[str]:
+    """The local addresses a TCP port listens on, from the kernel's own tables."""
+    found = set()
+    for table, width in (("/proc/net/tcp", 8), ("/proc/net/tcp6", 32)):
+        with contextlib.suppress(FileNotFoundError), open(table) as f:
+            for line in f.readlines()[1:]:
+                local, _, st = line.split()[1], None, line.split()[3]
+                addr, hexport = local.split(":")
+                if int(hexport, 16) == port and st == "0A" and len(addr) == width:
+                    found.add(addr)
+    return found
+
+
+def test_the_panels_viser_servers_listen_on_loopback_only(station):
+    base, st = station
+    for port in (st.trajectory3d.port, st.replay3d.port):
+        assert listening_addresses(port) == {"0100007F"}  # 127.0.0.1, nothing else
+    info = httpx.get(f"{base}/api/viser").json()
+    assert (info["path"], info["replay_path"]) == ("/3d/live/", "/3d/replay/")
+    page = httpx.get(f"{base}/3d/live/")
+    assert page.status_code == 200 and "<html" in page.text[:200].lower()
+
+
+def test_a_viewer_from_another_origin_is_refused_and_the_stations_own_watches(station):
+    base, st = station
+    for path in ("/3d/live", "/3d/replay"):
+        for origin in ("http://evil.example", "http://127.0.0.1:1", "null"):
+            with pytest.raises(InvalidStatus) as refused:
+                with viewer(base, path, origin=origin):
+                    pass
+            assert refused.value.response.status_code == 403
+        with viewer(base, path, origin=base) as v:
+            assert wait_until(lambda: "ThemeConfigurationMessage" in v.types(), 30)
+    assert st.client_limits.viewers3d.active == 0
+
+
+def test_the_viewer_cap_refuses_the_excess_with_503(station):
+    base, st = station
+    with contextlib.ExitStack() as stack:
+        viewers = [
+            stack.enter_context(viewer(base, p)) for p in ("/3d/live", "/3d/replay", "/3d/live")
+        ]
+        assert st.client_limits.viewers3d.active == 3
+        with pytest.raises(InvalidStatus) as refused:
+            with viewer(base):
+                pass
+        reply = refused.value.response
+        assert reply.status_code == 503 and b"at most 3 3D viewer clients" in reply.body
+        assert all(not v.closed.is_set() for v in viewers)
+    assert wait_until(lambda: st.client_limits.viewers3d.active == 0, 10)
+    with viewer(base) as v:  # a place is free again
+        assert wait_until(lambda: "ThemeConfigurationMessage" in v.types(), 30)
+
+
+def camera_x(service, x: float) -> bool:
+    return any(c.camera.position[0] == x for c in service.server.get_clients().values())
+
+
+def test_anonymous_viewers_watch_and_only_the_token_changes_what_all_see(station):
+    base, st = station
+    live = st.trajectory3d
+    for i in range(30):
+        st.state.publish(state_at(i * 0.1))
+    controls = live.controls
+    clear, color_by = gui_uuid(controls.clear), gui_uuid(controls.color_by)
+    follow, show_field = gui_uuid(controls.follow), gui_uuid(controls.show_field)
+    with viewer(base) as anonymous, viewer(base, token="wrong") as wrong:
+        assert wait_until(lambda: live.trail.n_points > 0, 30)
+        for v in (anonymous, wrong):
+            for frame in (
+                gui_update(clear, True),
+                gui_update(color_by, "speed"),
+                gui_update(follow, True),
+                gui_update(show_field, False),
+            ):
+                v.ws.send(frame)
+        # Each viewer's messages reach viser in order: once their last camera is there,
+        # the GUI changes before it were passed on, or dropped.
+        anonymous.ws.send(camera(-11.0))
+        wrong.ws.send(camera(-12.0))
+        assert wait_until(lambda: camera_x(live, -11.0) and camera_x(live, -12.0), 30)
+        time.sleep(0.2)  # the update loop applies GUI requests each tick
+        assert live.trail.n_points > 0
+        assert (controls.color_by.value, controls.follow.value) == ("height", False)
+        assert controls.show_field.value is True
+
+        with viewer(base, token=TOKEN) as pilot:
+            pilot.ws.send(gui_update(color_by, "speed"))
+            pilot.ws.send(gui_update(clear, True))
+            assert wait_until(lambda: controls.color_by.value == "speed", 30)
+            assert wait_until(lambda: live.trail.n_points == 0, 30)
+            # What the pilot changed, the others see.
+            assert wait_until(
+                lambda: any(
+                    m.get("type") == "GuiUpdateMessage" and m.get("updates") == {"value": "speed"}
+                    for m in list(anonymous.received)
+                ),
+                30,
+            )
+
+
+def test_no_request_makes_a_panel_open_a_share_tunnel_nor_shows_share(station, monkeypatch):
+    base, st = station
+    tunnels: list[tuple] = []
+
+    class NoInternet:  # the Pi has no internet here; record who would have dialled out
+        def __init__(self, *args, **kwargs) -> None:
+            tunnels.append(args)
+            raise OSError("no route to share.viser.studio")
+
+    monkeypatch.setattr(viser._viser, "ViserTunnel", NoInternet)
+    share = msgspec.msgpack.encode(ShareUrlRequest().as_serializable_dict())
+    for path, panel in (("/3d/live", st.trajectory3d), ("/3d/replay", st.replay3d)):
+        with viewer(base, path, token=TOKEN) as pilot:
+            pilot.ws.send(share)
+            pilot.ws.send(camera(-13.0))
+            assert wait_until(lambda p=panel: camera_x(p, -13.0), 30)
+            themes = [m for m in pilot.received if m.get("type") == "ThemeConfigurationMessage"]
+            assert themes and all(m["show_share_button"] is False for m in themes)
+        # A process on the station itself reaches viser's loopback port directly.
+        with connect(f"ws://127.0.0.1:{panel.port}", subprotocols=[SUBPROTOCOL], proxy=None) as ws:
+            ws.send(camera(-14.0))
+            ws.send(share)
+            ws.send(camera(-15.0))
+            assert wait_until(lambda p=panel: camera_x(p, -15.0), 30)
+    time.sleep(0.5)  # viser hands the share request to a worker thread
+    assert tunnels == []
+    assert st.trajectory3d.server._share_tunnel is None
+
+
+def test_malformed_messages_are_dropped_without_a_traceback(station, capfd, caplog):
+    base, st = station
+    live = st.trajectory3d
+    clear = gui_uuid(live.controls.clear)
+    junk = [
+        os.urandom(64),
+        b"\xc1",  # a msgpack byte that is never valid
+        msgspec.msgpack.encode([1, 2, 3]),
+        msgspec.msgpack.encode({"type": "NoSuchMessage"}),
+        msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": "abcd"}),
+        msgspec.msgpack.encode({"type": "ViewerCameraMessage", "position": [float("nan")] * 3}),
+        msgspec.msgpack.encode(
+            {"type": "GuiUpdateMessage", "uuid": clear, "updates": {"bogus": 1}}
+        ),
+        msgspec.msgpack.encode(
+            {"type": "GuiUpdateMessage", "uuid": "nope", "updates": {"value": 1}}
+        ),
+        msgspec.msgpack.encode({"type": "FileTransferStartUpload", "transfer_uuid": "x"}),
+        b"\x91" * 10_000 + b"\x90",  # lists nested ten thousand deep
+    ]
+    with viewer(base, token=TOKEN) as pilot:
+        for frame in junk:
+            pilot.ws.send(frame)
+        pilot.ws.send("a text frame")
+        pilot.ws.send(camera(-16.0))
+        assert wait_until(lambda: camera_x(live, -16.0), 30)
+        assert not pilot.closed.is_set()
+        time.sleep(0.3)
+    out, err = capfd.readouterr()
+    assert "Traceback" not in out + err
+    assert not [r for r in caplog.records if r.exc_info or r.levelname in ("ERROR", "CRITICAL")]
