@@ -4,8 +4,10 @@ Origin headers, real malformed msgpack and a real share request."""
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import os
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -162,7 +164,7 @@ def test_a_viewer_from_another_origin_is_refused_and_the_stations_own_watches(st
             assert refused.value.response.status_code == 403
         with viewer(base, path, origin=base) as v:
             assert wait_until(lambda: "ThemeConfigurationMessage" in v.types(), 30)
-    assert st.client_limits.viewers3d.active == 0
+    assert wait_until(lambda: st.client_limits.viewers3d.active == 0, 10)
 
 
 def test_the_viewer_cap_refuses_the_excess_with_503(station):
@@ -277,7 +279,7 @@ def test_malformed_messages_are_dropped_without_a_traceback(station, capfd, capl
             {"type": "GuiUpdateMessage", "uuid": "nope", "updates": {"value": 1}}
         ),
         msgspec.msgpack.encode({"type": "FileTransferStartUpload", "transfer_uuid": "x"}),
-        b"\x91" * 10_000 + b"\x90",  # lists nested ten thousand deep
+        b"\x91" * 4000 + b"\x90",  # lists nested four thousand deep
     ]
     with viewer(base, token=TOKEN) as pilot:
         for frame in junk:
@@ -290,3 +292,72 @@ def test_malformed_messages_are_dropped_without_a_traceback(station, capfd, capl
     out, err = capfd.readouterr()
     assert "Traceback" not in out + err
     assert not [r for r in caplog.records if r.exc_info or r.levelname in ("ERROR", "CRITICAL")]
+
+
+def raw_viewer(
+    port: int, path: str = "/3d/live", timeout: float = 30.0
+) -> tuple[socket.socket, bytes]:
+    """A viewer's upgrade on a bare socket: (the socket, the status line it was answered)."""
+    sock = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall(
+        f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+        f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n\r\n".encode()
+    )
+    head = b""
+    while b"\r\n\r\n" not in head:
+        chunk = sock.recv(1)  # byte by byte: leave the frames in the socket
+        if not chunk:
+            break
+        head += chunk
+    return sock, head.split(b"\r\n")[0]
+
+
+def big_frame(sock: socket.socket, size: int, send: int | None = None) -> None:
+    """Start one masked binary frame of `size` bytes and send `send` bytes of it (all by
+    default), as far as the server takes them."""
+    sock.sendall(b"\x82\xff" + size.to_bytes(8, "big") + os.urandom(4))
+    chunk = bytes(1 << 20)
+    left = size if send is None else send
+    with contextlib.suppress(OSError):
+        while left > 0:
+            sock.sendall(chunk[: min(left, len(chunk))])
+            left -= len(chunk)
+
+
+def close_code(sock: socket.socket) -> int | None:
+    """Read the server's frames (viser's scene first) up to its close: its code."""
+    buf = b""
+
+    def need(n: int) -> bytes:
+        nonlocal buf
+        while len(buf) < n:
+            more = sock.recv(1 << 16)
+            if not more:
+                raise ConnectionError("closed without a close frame")
+            buf += more
+        out, buf = buf[:n], buf[n:]
+        return out
+
+    while True:
+        b0, b1 = need(2)
+        length = b1 & 0x7F
+        if length == 126:
+            length = int.from_bytes(need(2), "big")
+        elif length == 127:
+            length = int.from_bytes(need(8), "big")
+        payload = need(length)
+        if b0 & 0x0F == 0x8:
+            return int.from_bytes(payload[:2], "big") if len(payload) >= 2 else None
+
+
+def test_a_frame_over_the_limit_closes_the_viewer_with_1009_as_it_starts(station):
+    base, st = station
+    port = int(base.rsplit(":", 1)[1])
+    sock, status = raw_viewer(port)
+    with sock:
+        assert b" 101 " in status
+        big_frame(sock, 16 << 20, send=1024)  # 16 MiB announced, 1 KiB sent
+        assert close_code(sock) == 1009
+    assert wait_until(lambda: st.client_limits.viewers3d.active == 0, 10)
