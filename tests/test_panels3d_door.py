@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import contextlib
 import os
+import resource
 import socket
 import threading
 import time
@@ -14,6 +15,7 @@ from collections.abc import Iterator
 
 import httpx
 import msgspec
+import psutil
 import pytest
 import viser
 import zstandard
@@ -25,6 +27,8 @@ from server.app import create_app
 from server.settings import load_settings
 from server.trajectory3d.gate import gui_uuid
 from tests.helpers import run_uvicorn, wait_until
+from tests.station_process import serve_station
+from tests.test_connections import LOW_LIMIT
 from tests.test_trajectory_browser import state_at
 
 TOKEN = "door-test-token"
@@ -361,3 +365,105 @@ def test_a_frame_over_the_limit_closes_the_viewer_with_1009_as_it_starts(station
         big_frame(sock, 16 << 20, send=1024)  # 16 MiB announced, 1 KiB sent
         assert close_code(sock) == 1009
     assert wait_until(lambda: st.client_limits.viewers3d.active == 0, 10)
+
+
+def rss_mb(process: psutil.Process) -> float:
+    return process.memory_info().rss / 2**20
+
+
+@pytest.mark.timeout(300)
+def test_big_frames_from_30_viewers_leave_the_stations_memory_flat(tmp_path):
+    """30 viewers x 2 frames of 16 MiB at the 3D panels (the viser servers took 50 MiB
+    frames: 238 to 637 MB): each is refused as it starts, so RSS stays within +20 MB."""
+    args = ["--source", "none", "--open", "--viser-port", "0", "--sessions-dir", str(tmp_path)]
+    env = {"FPV_SERVER__MAX_3D_VIEWERS": "30"}
+    with serve_station(args, env) as station:
+        proc = station.process
+
+        def attack(frames: int, size: int) -> list[bytes]:
+            statuses: list[bytes] = []
+
+            def one(path: str) -> None:
+                for _ in range(frames):
+                    sock, status = raw_viewer(station.port, path)
+                    with sock:
+                        statuses.append(status)
+                        if size:
+                            big_frame(sock, size)
+                        else:
+                            sock.sendall(b"\x88\x82" + os.urandom(4) + b"\x03\xe8")  # close
+
+            threads = [
+                threading.Thread(target=one, args=(("/3d/live", "/3d/replay")[i % 2],))
+                for i in range(30)
+            ]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(120)
+            return statuses
+
+        attack(2, 0)  # 30 viewers come and go: the panels start and warm up
+        time.sleep(1.0)
+        before = rss_mb(proc)
+        statuses = attack(2, 16 << 20)
+        assert sum(b" 101 " in s for s in statuses) >= 30, statuses  # the relay took them
+        assert wait_until(lambda: httpx.get(f"{station.base}/api/health").json()["ok"], 30)
+        time.sleep(1.0)
+        after = rss_mb(proc)
+        assert after - before < 20, (before, after)
+        log = station.log_path.read_text()
+        assert "Traceback" not in log, log[-3000:]
+
+
+@pytest.mark.timeout(300)
+def test_300_3d_viewers_under_256_descriptors_leave_health_answering(tmp_path):
+    """Under `prlimit --nofile=256`, 228 viser viewers once filled the descriptor table.
+    The 3D viewers' cap is fitted under the budget (three descriptors each): the excess is
+    refused with 503, the recorder's room is kept and `/api/health` answers throughout."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, min(hard, 4096)), hard))
+    args = ["--source", "none", "--open", "--viser-port", "0", "--sessions-dir", str(tmp_path)]
+    held: list[socket.socket] = []
+    statuses: list[bytes] = []
+    lock = threading.Lock()
+    try:
+        with serve_station(args, launcher=LOW_LIMIT) as station:
+            assert station.process.rlimit(psutil.RLIMIT_NOFILE) == (256, 256)
+
+            def crowd(path: str, count: int) -> None:
+                for _ in range(count):
+                    try:
+                        sock, status = raw_viewer(station.port, path, timeout=20)
+                    except OSError as exc:
+                        status, sock = f"error {exc}".encode(), None
+                    with lock:
+                        statuses.append(status)
+                        if sock is not None:
+                            held.append(sock)  # accepted or not: kept open, idle
+
+            threads = [
+                threading.Thread(target=crowd, args=(("/3d/live", "/3d/replay")[i % 2], 30))
+                for i in range(10)
+            ]
+            for t in threads:
+                t.start()
+            with httpx.Client(timeout=10) as client:
+                while any(t.is_alive() for t in threads):
+                    assert client.get(f"{station.base}/api/health").status_code == 200
+                    time.sleep(0.2)
+                for t in threads:
+                    t.join()
+                assert len(statuses) == 300
+                accepted = sum(b" 101 " in s for s in statuses)
+                refused = sum(b" 503 " in s for s in statuses)
+                assert 1 <= accepted <= 3, accepted
+                assert refused >= 250, statuses[:20]
+                assert station.process.num_fds() < 256 - 64  # the recorder's room is kept
+                for _ in range(5):
+                    assert client.get(f"{station.base}/api/health").status_code == 200
+            log = station.log_path.read_text()
+            assert "Too many open files" not in log and "Traceback" not in log, log[-3000:]
+    finally:
+        for s in held:
+            s.close()
