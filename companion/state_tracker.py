@@ -60,6 +60,12 @@ _FRESH_GPS_S = 2.0
 # and the flight's altitude is `relative_alt`'s.
 _GROUND_WANDER_M = 1.0
 _GROUND_WINDOW_S = 30.0
+# ArduPilot, PX4 and INAV set their home where the vehicle arms, so `alt - relative_alt`
+# just after arming is the altitude at arming in the autopilot's own frame, with what the
+# arming itself moved (ArduPilot re-zeroes its barometer and height there). Taken as the
+# zero when within this of the ground altitude a heartbeat earlier (a home elsewhere, set
+# at power-on or by hand, is not the arming point).
+_HOME_AT_ARMING_M = 1.0
 # A `relative_alt` that has not moved from its value at arming while `alt` has moved
 # this much is not filled in (a minimal autopilot's 0): back to `alt`.
 _RELATIVE_FROZEN_M = 5.0
@@ -157,6 +163,7 @@ class StateTracker:
         self._ground_offsets: deque[tuple[float, float, float]] = deque(maxlen=512)
         self._relative_reference_m: float | None = None  # relative_alt at the reference
         self._relative_moved = False  # relative_alt moved from it since
+        self._home_check = False  # armed: the next position may give the home at arming
         self._origin_note_t: float | None = None  # when the autopilot said "origin set"
         # fused - GPS altitude when they began to disagree (a frame not anchored to GPS)
         self._frame_offset_m: float | None = None
@@ -321,6 +328,9 @@ class StateTracker:
                 )
         else:
             self._check_altitude_frame(old_gp, gp, t)
+        if self._home_check and self._draft.heartbeat.armed:
+            self._home_check = False
+            self._take_home_at_arming(gp)
         if not self._draft.heartbeat.armed and gp.alt_m is not None:
             offsets = self._ground_offsets
             offsets.append((t, gp.alt_m - gp.relative_alt_m, gp.relative_alt_m))
@@ -487,6 +497,7 @@ class StateTracker:
             source = self._altitude_source(at.t_mono if at is not None else t)
         self._relative_reference_m = rel if source == "relative_alt" else None
         self._relative_moved = False
+        self._home_check = reference == "arming"
         if alt is None:
             # Armed before any altitude: take the reference at the first altitude.
             self._draft.altitude = quick_replace(
@@ -505,6 +516,21 @@ class StateTracker:
             home_lon_deg=lon,
         )
         self._altitude_changed(t)
+
+    def _take_home_at_arming(self, gp: GlobalPosition) -> None:
+        """The zero becomes the autopilot's home (`alt - relative_alt`, in the frame now)
+        where that is the arming point: see _HOME_AT_ARMING_M."""
+        pilot = self._draft.altitude
+        if (
+            pilot.source != "alt"
+            or pilot.reference_alt_m is None
+            or gp.alt_m is None
+            or gp.relative_alt_m is None
+        ):
+            return
+        home = gp.alt_m - gp.relative_alt_m
+        if abs(home - pilot.reference_alt_m) <= _HOME_AT_ARMING_M:
+            self._draft.altitude = quick_replace(pilot, reference_alt_m=home)
 
     def _altitude_source(self, until: float) -> str:
         """What measures the flight: "relative_alt" when `alt` and `relative_alt`

@@ -162,7 +162,10 @@ class PilotAltitude:
     """The altitude the pilot sees: altitude now minus the altitude at arming.
 
     Reset at each arming; before the first arming it is relative to the first GPS fix
-    (`reference` says which). The paper's definition, not the autopilot's relative_alt,
+    (`reference` says which). The altitude at arming is where the vehicle stood at the
+    last disarmed heartbeat, or, within a metre of it, the autopilot's home just after
+    arming (`alt - relative_alt`: ArduPilot, PX4 and INAV set it there, after what arming
+    itself moves, such as ArduPilot's barometer re-zero). The paper's definition, not the autopilot's relative_alt,
     which drifts with the power-on position. When the autopilot's altitude frame moves
     under it (ArduPilot setting its EKF origin: a jump of tens or hundreds of metres), the
     reference is re-taken by the frame's step (the step of `alt` less that of the

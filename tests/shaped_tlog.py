@@ -237,6 +237,7 @@ def vehicle_flight(
     position_hz: int = 10,
     alt_error_m: np.ndarray | None = None,
     mavlink1: bool = False,
+    rezero_m: float = 0.0,
 ) -> Shaper:
     """A dense flight (`tests/synthetic.Flight`: positions and the armed state) as its
     autopilot sends it at a real log's rates: ATTITUDE 50 Hz, GLOBAL_POSITION_INT and
@@ -256,6 +257,10 @@ def vehicle_flight(
       in GLOBAL_POSITION_INT `alt`, where 2013 ArduCopter put its GPS altitude (metres of
       wander) while `relative_alt` came from the barometer.
     - `mavlink1`: the autopilot speaks MAVLink 1 (old firmware).
+    - `rezero_m`: the estimator's height drifted this much on the ground before the first
+      arming, and ArduPilot re-zeroes it at arming (its barometer and height datum, and
+      its home set there): until then `relative_alt` reads it, and so does `alt` before
+      the origin is set (after it, the origin's height keeps `alt` continuous).
     """
     log = Shaper(t0=t0)
     ap = log.sender(1, 1, mavlink1=mavlink1)
@@ -278,12 +283,13 @@ def vehicle_flight(
             out.append(mav.statustext_encode(6, b"EKF3 IMU0 Origin set to GPS"))
         if tick % (50 // position_hz) == 0:
             origin_set = origin_set_s is None or now >= origin_set_s
-            fused = home_alt + up if origin_set else up + 0.3  # the EKF's frame
+            drift = rezero_m if not flight.armed[: i + 1].any() else 0.0
+            fused = home_alt + up if origin_set else up + 0.3 + drift  # the EKF's frame
             if alt_error_m is not None:
                 fused += float(alt_error_m[i])
             out.append(
                 mav.global_position_int_encode(
-                    t_ms, lat, lon, int(round(fused * 1000)), int(round(up * 1000)),
+                    t_ms, lat, lon, int(round(fused * 1000)), int(round((up + drift) * 1000)),
                     int(round(vn * 100)), int(round(ve * 100)), int(round(-vu * 100)), 9000,
                 )
             )  # fmt: skip

@@ -130,9 +130,11 @@ def test_replayed_session_records_the_hop_not_the_jump(tmp_path):
 
 
 # A real ArduCopter log's first sortie: a 1.26 m hop, positions at 1 Hz over the radio,
-# and the EKF origin set while it climbs, so that the frame's step and a climb of most of
-# a metre fall between two positions. `relative_alt` is continuous across it.
+# the height re-zeroed at arming (0.45 m of drift on the ground before), and the EKF
+# origin set while it climbs, so that the frame's step and a climb of most of a metre
+# fall between two positions. `relative_alt` is continuous across the origin.
 HOP_1HZ_M = 1.26
+REZERO_M = 0.45
 
 
 def fast_hop() -> syn.Flight:
@@ -145,9 +147,13 @@ def fast_hop() -> syn.Flight:
 
 def test_a_hop_whose_climb_falls_in_the_frames_step_is_still_a_hop(tmp_path):
     """The step between two positions is the frame's shift plus the climb; the shift is
-    the step of `alt` less the step of `relative_alt`. Taking the whole step as the shift
-    read 0.46 m, and the analysis said "never flew"."""
-    log = shaped_tlog.vehicle_flight(fast_hop(), ARDUPILOT, origin_set_s=10.5, position_hz=1)
+    the step of `alt` less the step of `relative_alt`. And the zero is the altitude at
+    arming after the re-zero: the autopilot's home, set there (`alt - relative_alt`),
+    not the drifted height one heartbeat earlier. Taking the whole step as the shift and
+    the drifted height as the zero read 0.01 m, and the analysis said "never flew"."""
+    log = shaped_tlog.vehicle_flight(
+        fast_hop(), ARDUPILOT, origin_set_s=10.5, position_hz=1, rezero_m=REZERO_M
+    )
     path = log.write(tmp_path / "hop.tlog")
     alts, refs = pilot_altitudes(path)
     assert "arming_retaken" in refs
@@ -159,7 +165,9 @@ def test_the_missed_hops_session_holds_a_flight(tmp_path):
     """Replayed into a real station recording on arming: the session's pilot altitude
     holds one flight of the hop's height, and the analysis finds it (the hop is too low
     for a hover trial, which it says, but not that the vehicle never flew)."""
-    log = shaped_tlog.vehicle_flight(fast_hop(), ARDUPILOT, origin_set_s=10.5, position_hz=1)
+    log = shaped_tlog.vehicle_flight(
+        fast_hop(), ARDUPILOT, origin_set_s=10.5, position_hz=1, rezero_m=REZERO_M
+    )
     path = log.write(tmp_path / "hop.tlog")
     settings = station_settings(
         f"replay:{path}?speed=max", tmp_path / "sessions", **{"recording.auto_record_on_arm": True}
