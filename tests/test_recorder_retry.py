@@ -82,6 +82,8 @@ def test_a_session_that_cannot_open_its_files_leaves_nothing_behind(tmp_path, fr
     del failed  # its traceback holds the half-built session; the files must not need it
     assert open_under(tmp_path) == []
     assert list(tmp_path.iterdir()) == []
+    # Nor a listener on the slots: one more at each retry, each state and frame a call.
+    assert state._listeners == () and all(c._listeners == () for c in cams.values())
 
 
 def test_a_cause_that_has_not_passed_is_retried_ever_more_slowly(tmp_path):

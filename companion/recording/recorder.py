@@ -118,6 +118,8 @@ class Recorder:
         # flag of each state and wakes `_watch_arming` only when it changes.
         self._armed_seen: bool | None = None
         self._armed_changed = Wakeup()
+        # One bound method, added and removed (the slot removes a listener by identity).
+        self._armed_listener: Callable[[VehicleState], None] = self._note_armed
         self._tail_due: float | None = None  # end of the tail, source clock
 
     # -- service lifecycle ---------------------------------------------------------------
@@ -130,13 +132,13 @@ class Recorder:
         if self.clock.own:
             self.clock.add_listener(self._on_source_time)
         elif self.options.auto_record_on_arm:
-            self.state.add_listener(self._note_armed)
+            self.state.add_listener(self._armed_listener)
             self._spawn("recorder-arm-watch", self._watch_arming())
         return marked
 
     async def aclose(self) -> None:
         self._closed = True
-        self.state.remove_listener(self._note_armed)
+        self.state.remove_listener(self._armed_listener)
         self._armed_changed.wake()  # the arm watcher ends
         await self.stop("shutdown")
 

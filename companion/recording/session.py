@@ -9,12 +9,18 @@ counted as missed frames.
 
 Telemetry rows sit on a fixed grid (`rate_hz` from the session's start), each with the
 state and the frames that were newest at its instant. A live session keeps what each
-slot held and since when (its listeners note each state and each accepted frame with the
-time it was published), and the writer thread, at each of its batches, turns the
-instants up to now into rows (`_sample_due`): the same rows a thread waking at every
-instant took, without its 30 wake-ups a second (docs/PERFORMANCE.md, round 6), and each
-at its exact instant. A source on its own clock (a replay) is sampled from its thread
-instead (`advance`).
+slot held and since when: its state listener notes each state with the time it was
+published, and each accepted frame carries its capture time (`Frame.t_mono`, the
+station's monotonic clock, the session's). The writer thread, at each of its batches,
+turns the instants up to now into rows (`_sample_due`): the same rows a thread waking at
+every instant took, without its 30 wake-ups a second (docs/PERFORMANCE.md, round 6), and
+each at its exact instant. A row names the newest frame captured at or before its
+instant, never one captured after it, however late the threads run: frames are chosen by
+their capture time, not by when they reached the session, and a row waits until every
+camera has published a frame captured after its instant (or `FRAME_SETTLE_S` has passed:
+a stalled camera does not hold the rows), so a frame still being encoded is not skipped.
+What the slots held when the session's clock started is what its first rows name. A
+source on its own clock (a replay) is sampled from its thread instead (`advance`).
 """
 
 from __future__ import annotations
@@ -76,6 +82,11 @@ class SessionConfig:
 # The frames the writer accepted, per camera, that a live session keeps between the
 # writer's batches (the writer's queue holds 90, so this is never reached).
 FRAME_HISTORY = 1024
+# How long a row waits for each camera to publish a frame captured after its instant
+# (a camera publishes its frames in capture order, each after its encode), before it takes
+# the newest frame there is: longer than an encode on a loaded Pi, short beside the
+# writer's state history.
+FRAME_SETTLE_S = 1.0
 
 
 class _CameraTrack:
@@ -88,10 +99,19 @@ class _CameraTrack:
         self.ref: FrameRef | None = None  # newest frame accepted by the writer
         self.missed = 0
         self.skew = SkewStats()
-        # Live sessions: each accepted frame with when it was published, until a row's
-        # instant passes it (`row_ref`: the newest one at the last row's instant).
-        self.published: deque[tuple[float, FrameRef]] = deque(maxlen=FRAME_HISTORY)
+        # Frames accepted before the writer runs (the session's first moments), and
+        # how many more it refused then, as its full queue would have.
+        self.early: list[Frame] | None = []
+        self.early_refused = 0
+        # Live sessions: each accepted frame, in capture order, until a row's instant
+        # passes its capture time (`row_ref`: the newest one at the last row's instant),
+        # and the capture time of the newest frame the camera published while it delivers
+        # frames (frames the writer refused included): no frame captured before it is to
+        # come. None before its first frame and while it shows NO SIGNAL: rows do not
+        # wait for it.
+        self.published: deque[FrameRef] = deque(maxlen=FRAME_HISTORY)
         self.row_ref: FrameRef | None = None
+        self.seen_mono: float | None = None
 
 
 class RecordingSession:
@@ -115,23 +135,45 @@ class RecordingSession:
         # A source on its own clock (a replay) is sampled in its time, by `advance` from
         # its thread; any other by the sampler thread on the station's clock.
         self.clock = clock or SourceClock()
-        self.t0_wall = self.clock.wall()
-        self.t0_mono = self.clock.mono()
-        self._next_sample = self.t0_mono
+        live = not self.clock.own
+        self._tracks = {c: _CameraTrack() for c in self.cameras}
+        self._stop_mono: float | None = None  # the last row's instant, once stopping
+        self._frame_listeners: dict[str, Callable[[Frame], None]] = {}
         # Live sessions: each state published since the last row's instant, with when
         # (the slot listener `_note_state`, the link's thread), and the state at that
         # instant; `_states_lost_until`: the newest time a full history let go of.
         self._states: deque[tuple[float, VehicleState]] = deque(maxlen=config.state_history)
-        self._row_state: VehicleState | None = None
         self._states_lost_until: float | None = None
-        self._stop_mono: float | None = None  # the last row's instant, once stopping
+        # The listeners take every state and frame from before the clock starts: what
+        # the slots hold then is what the first rows name (none of it from their future),
+        # and nothing published while the files open is lost.
+        # One bound method, added and removed: the slot removes a listener by identity,
+        # and each `self._note_state` is a new object.
+        self._state_listener: Callable[[VehicleState], None] = self._note_state
+        if live:
+            self._state.add_listener(self._state_listener)
+        for cam, slot in self._camera_slots.items():
+            listener = functools.partial(self._take_frame, cam)
+            self._frame_listeners[cam] = listener
+            slot.add_listener(listener)
+            held_frame = slot.get()
+            if held_frame is not None:
+                self._offer_frame(cam, held_frame.value)
+        held = self._state.get()
+        self._row_state: VehicleState | None = held.value if live and held is not None else None
+        self.t0_wall = self.clock.wall()
+        self.t0_mono = self.clock.mono()
+        self._next_sample = self.t0_mono
         self._station_synced = None if self.clock.own else clock_synchronised()
         naming = self._choose_clock()
-        self.id, self.folder = create_session_dir(
-            root, self.t0_wall + naming.offset_s, config.source
-        )
+        try:
+            self.id, self.folder = create_session_dir(
+                root, self.t0_wall + naming.offset_s, config.source
+            )
+        except BaseException:  # EMFILE, a full disk: the listeners go with the start
+            self._drop_listeners()
+            raise
         self._named_by = naming.used
-        self._tracks = {c: _CameraTrack() for c in self.cameras}
         self._links = LinkLossTracker(self.t0_mono, config.link_lost_s)
         self._gaps = LinkLossTracker(self.t0_mono, QUALITY_THRESHOLDS.telemetry_gap_s)
         self._arming: Arming | None = None
@@ -142,7 +184,6 @@ class RecordingSession:
         self._on_failure = on_failure
         self._meta_lock = threading.Lock()
         self._next_meta_mono = 0.0
-        self._frame_listeners: dict[str, Callable[[Frame], None]] = {}
         formatter = RowFormatter(self.cameras, self.t0_mono)
         try:
             self.writer = SessionWriter(
@@ -153,9 +194,10 @@ class RecordingSession:
                 on_failure=self._writer_failed,
                 before_batch=None if self.clock.own else self._sample_due,
             )
-        except OSError:
+        except BaseException:
             # Nothing was recorded (EMFILE, a full disk): no empty folder may stay behind
             # as an "unreadable" session, one more at each of the recorder's retries.
+            self._drop_listeners()
             discard_session_dir(self.folder, self.cameras)
             raise
         self._write_meta(layout.STATUS_RECORDING)
@@ -163,21 +205,14 @@ class RecordingSession:
     # -- lifecycle -----------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the writer and take every state and frame the slots publish from now on.
-        What they hold now is what the pilot saw at the start: the first row's."""
-        live = not self.clock.own
-        if live:
-            self._state.add_listener(self._note_state)
-            current_state = self._state.get()
-            self._row_state = current_state.value if current_state is not None else None
+        """Start the writer, with the frames taken since before the clock started."""
         self.writer.start()
-        for cam, slot in self._camera_slots.items():
-            listener = functools.partial(self._take_frame, cam)
-            self._frame_listeners[cam] = listener
-            slot.add_listener(listener)
-            current = slot.get()
-            if current is not None:
-                self._offer_frame(cam, current.value, self.t0_mono)
+        for cam, track in self._tracks.items():
+            with track.lock:
+                early, track.early = track.early or [], None
+                for frame in early:
+                    self.writer.put_frame(cam, frame)  # an empty queue: room for each
+                self.writer.stats.frames_dropped_queue[cam] += track.early_refused
 
     async def stop(self, reason: str) -> SessionMeta:
         """Stop sampling, write what is buffered, close the files, finalize session.json."""
@@ -224,25 +259,34 @@ class RecordingSession:
         """The link's packet listener (link thread): never blocks."""
         self.writer.put_packet(t_wall, packet)
 
-    def _offer_frame(
-        self, cam: str, frame: Frame, published_mono: float | None = None
-    ) -> FrameRef | None:
+    def _offer_frame(self, cam: str, frame: Frame) -> FrameRef | None:
         """Queue `frame` if it is new; returns the camera's newest accepted frame. A live
-        session notes an accepted frame with when it was published (default: now)."""
+        session keeps an accepted frame for the rows of the instants from its capture."""
         track = self._tracks[cam]
         with track.lock:
-            if not frame.signal or (track.last_seq is not None and frame.seq <= track.last_seq):
-                return track.ref  # a placeholder, or a frame already offered
+            if track.last_seq is not None and frame.seq <= track.last_seq:
+                return track.ref  # a frame already offered
+            track.seen_mono = frame.t_mono if frame.signal else None
+            if not frame.signal:
+                return track.ref  # a placeholder: the camera has nothing newer
             if track.last_seq is not None:
                 track.missed += frame.seq - track.last_seq - 1
             else:
                 track.first_seq = frame.seq
             track.last_seq = frame.seq
-            if self.writer.put_frame(cam, frame):
+            early = track.early
+            if early is None:
+                accepted = self.writer.put_frame(cam, frame)
+            else:  # the writer is not running yet: held for it, within its queue's bound
+                accepted = len(early) < self.config.limits.frame_queue
+                if accepted:
+                    early.append(frame)
+                else:
+                    track.early_refused += 1
+            if accepted:
                 track.ref = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
                 if not self.clock.own:
-                    at = time.monotonic() if published_mono is None else published_mono
-                    track.published.append((at, track.ref))
+                    track.published.append(track.ref)
             return track.ref
 
     def _take_frame(self, cam: str, frame: Frame) -> None:
@@ -266,7 +310,7 @@ class RecordingSession:
         states.append((time.monotonic(), state))
 
     def _drop_listeners(self) -> None:
-        self._state.remove_listener(self._note_state)
+        self._state.remove_listener(self._state_listener)
         for cam, listener in self._frame_listeners.items():
             self._camera_slots[cam].remove_listener(listener)
         self._frame_listeners.clear()
@@ -274,13 +318,14 @@ class RecordingSession:
     # -- rows ----------------------------------------------------------------------------
 
     def _sample_due(self) -> None:
-        """A live session's rows for every grid instant up to now (up to the stop, once
-        stopping), each with the state and frames that were newest at its instant. Called
-        by the writer thread before each batch, so the rows are written with the frames
-        they name."""
+        """A live session's rows for every grid instant up to now whose frames are all
+        known (up to the stop, once stopping), each with the state and frames that were
+        newest at its instant. Called by the writer thread before each batch, so the rows
+        are written with the frames they name."""
         period = 1.0 / self.config.rate_hz
-        end = self._stop_mono if self._stop_mono is not None else time.monotonic()
-        wall_offset = time.time() - time.monotonic()
+        now = time.monotonic()
+        end = self._stop_mono if self._stop_mono is not None else self._settled_until(now)
+        wall_offset = time.time() - now
         while self._next_sample <= end:
             t = self._next_sample
             self._next_sample += period
@@ -292,6 +337,17 @@ class RecordingSession:
                 self._row(t, t + wall_offset, self._state_at(t), refs)
             except Exception:  # one bad sample must not end the recording
                 log.exception("telemetry sample failed")
+
+    def _settled_until(self, now: float) -> float:
+        """The newest instant whose frames are all known: every camera delivering frames
+        has published one captured at or after it (one captured before it cannot come
+        any more), or it is `FRAME_SETTLE_S` old."""
+        settled = now
+        for track in self._tracks.values():
+            seen = track.seen_mono
+            if seen is not None:
+                settled = min(settled, max(seen, now - FRAME_SETTLE_S))
+        return settled
 
     def _state_lost_at(self, t: float) -> bool:
         """The history let go of what may have held at `t` (the writer was stalled)."""
@@ -310,11 +366,11 @@ class RecordingSession:
         return self._row_state
 
     def _frame_at(self, cam: str, t: float) -> FrameRef | None:
-        """The newest accepted frame of `cam` published at or before `t`."""
+        """The newest accepted frame of `cam` captured at or before `t`."""
         track = self._tracks[cam]
         published = track.published
-        while published and published[0][0] <= t:
-            track.row_ref = published.popleft()[1]
+        while published and published[0].t_mono <= t:
+            track.row_ref = published.popleft()
         return track.row_ref
 
     def advance(self, t: float) -> None:
