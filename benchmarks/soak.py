@@ -106,8 +106,11 @@ def _closed(s: socket.socket) -> bool:
         return True
 
 
-async def idle_sockets(port: int, n: int, counts: Counts, stop: asyncio.Event) -> None:
-    """Connections that never send a byte; each one closed is opened again."""
+async def idle_sockets(
+    port: int, n: int, counts: Counts, stop: asyncio.Event, ready: asyncio.Event
+) -> None:
+    """Connections that never send a byte; each one closed is opened again. `ready` is
+    set once all have been opened (the figures start from there)."""
     socks: list[socket.socket | None] = [None] * n
     while not stop.is_set():
         for i, s in enumerate(socks):
@@ -117,6 +120,7 @@ async def idle_sockets(port: int, n: int, counts: Counts, stop: asyncio.Event) -
                 counts.idle_closed += 1
             if s is None:
                 socks[i] = await _open(port)
+        ready.set()
         await asyncio.sleep(1.0)
     for s in socks:
         if s is not None:
@@ -196,8 +200,10 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
         transports.append(transport)
     tasks.append(asyncio.create_task(stalled_clients(port, args.stalled, stop)))
     tasks.append(asyncio.create_task(churn(ws_url, counts, stop)))
-    tasks.append(asyncio.create_task(idle_sockets(port, args.idle, counts, stop)))
+    flood_ready = asyncio.Event()
+    tasks.append(asyncio.create_task(idle_sockets(port, args.idle, counts, stop, flood_ready)))
     tasks.append(asyncio.create_task(slow_headers(port, args.slow, counts, stop)))
+    await flood_ready.wait()
     await asyncio.sleep(args.warmup)
 
     def snapshot(label: str, since: dict | None) -> dict:
