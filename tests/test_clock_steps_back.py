@@ -12,10 +12,9 @@ import numpy as np
 import pytest
 
 from core.mavlink.tlog_records import STEP_BACK_MIN_S, TlogReader, encode_record
-from server.app import create_app
 from tests import shaped_tlog
 from tests import synthetic as syn
-from tests.helpers import run_uvicorn, station_settings, wait_until
+from tests.replayed import replayed_station
 
 T0 = 1_700_000_000.0
 STEPS_BACK_S = (523.0, 488.0)
@@ -86,19 +85,12 @@ def test_replay_records_one_session_per_recording_each_ended_by_its_disarming(
     joined, speed, tmp_path
 ):
     path, _ = joined
-    settings = station_settings(
-        f"replay:{path}?speed={speed}",
-        tmp_path / "sessions",
-        **{"recording.auto_record_on_arm": True},
-    )
-    with run_uvicorn(create_app(settings)) as base:
-        get = lambda url: httpx.get(f"{base}{url}", timeout=30).json()  # noqa: E731
-        assert wait_until(lambda: get("/api/status")["link"]["replay_done"], timeout=200)
-        assert wait_until(lambda: not get("/api/recording")["recording"], timeout=10)
-        sessions = sorted(get("/api/sessions"), key=lambda s: s["start_wall"])
+    with replayed_station(path, tmp_path / "sessions", speed, timeout=200) as base:
+        sessions = httpx.get(f"{base}/api/sessions", timeout=30).json()
+        sessions.sort(key=lambda s: s["start_wall"])
     # Before: one session, started at the first arming, never stopped by a disarming.
     assert [s["stop_reason"] for s in sessions] == ["disarmed"] * 3
-    for s, t0 in zip(sorted(sessions, key=lambda s: s["start_wall"]), sorted(starts())):
+    for s, t0 in zip(sessions, sorted(starts())):
         # In its own recording's time: from its arming to 5 s after its disarming.
         assert s["start_wall"] - t0 == pytest.approx(ARMED_S[0], abs=1.1)
         assert s["end_wall"] - t0 == pytest.approx(ARMED_S[1] + 5.0, abs=1.1)

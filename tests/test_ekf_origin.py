@@ -25,6 +25,7 @@ from server.app import create_app
 from tests import shaped_tlog
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, station_settings, wait_until
+from tests.replayed import replayed_station
 
 HOP_M = 1.3
 ARDUPILOT = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
@@ -169,15 +170,9 @@ def test_the_missed_hops_session_holds_a_flight(tmp_path):
         fast_hop(), ARDUPILOT, origin_set_s=10.5, position_hz=1, rezero_m=REZERO_M
     )
     path = log.write(tmp_path / "hop.tlog")
-    settings = station_settings(
-        f"replay:{path}?speed=max", tmp_path / "sessions", **{"recording.auto_record_on_arm": True}
-    )
-    with run_uvicorn(create_app(settings)) as base:
-        get = lambda url: httpx.get(f"{base}{url}", timeout=30)  # noqa: E731
-        assert wait_until(lambda: get("/api/status").json()["link"]["replay_done"], timeout=60)
-        assert wait_until(lambda: not get("/api/recording").json()["recording"], timeout=10)
-        (session,) = get("/api/sessions").json()
-        reply = get(f"/api/sessions/{session['id']}/analysis?task=hover")
+    with replayed_station(path, tmp_path / "sessions") as base:
+        (session,) = httpx.get(f"{base}/api/sessions").json()
+        reply = httpx.get(f"{base}/api/sessions/{session['id']}/analysis?task=hover", timeout=30)
     assert "never flew" not in reply.text  # before: "the vehicle never flew"
     with open(tmp_path / "sessions" / session["id"] / layout.TELEMETRY_CSV) as f:
         rows = list(csv.DictReader(f))

@@ -18,10 +18,9 @@ from companion.recording import layout
 from companion.state_tracker import StateTracker
 from core.mavlink.framing import MavFramer
 from core.mavlink.tlog_records import TlogReader
-from server.app import create_app
 from tests import shaped_tlog
 from tests import synthetic as syn
-from tests.helpers import run_uvicorn, station_settings, wait_until
+from tests.replayed import replayed_station
 
 ARDUPILOT = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
 ARM_S, LAND_S, END_S = 20.0, 44.0, 55.0
@@ -84,15 +83,10 @@ def test_the_session_records_which_altitude_measured_the_flight(tmp_path):
     f = flight()
     log = shaped_tlog.vehicle_flight(f, ARDUPILOT, alt_error_m=gps_wander(f.t_s), mavlink1=True)
     path = log.write(tmp_path / "old.tlog")
-    settings = station_settings(
-        f"replay:{path}?speed=max", tmp_path / "sessions", **{"recording.auto_record_on_arm": True}
-    )
-    with run_uvicorn(create_app(settings)) as base:
-        get = lambda url: httpx.get(f"{base}{url}", timeout=30)  # noqa: E731
-        assert wait_until(lambda: get("/api/status").json()["link"]["replay_done"], timeout=60)
-        assert get("/api/status").json()["state"]["altitude"]["source"] == "relative_alt"
-        assert wait_until(lambda: not get("/api/recording").json()["recording"], timeout=10)
-        (session,) = get("/api/sessions").json()
+    with replayed_station(path, tmp_path / "sessions") as base:
+        status = httpx.get(f"{base}/api/status").json()
+        assert status["state"]["altitude"]["source"] == "relative_alt"
+        (session,) = httpx.get(f"{base}/api/sessions").json()
     with open(tmp_path / "sessions" / session["id"] / layout.TELEMETRY_CSV) as fh:
         rows = [r for r in csv.DictReader(fh) if r["heartbeat.armed"] == "1"]
     assert {r["altitude.source"] for r in rows} == {"relative_alt"}
