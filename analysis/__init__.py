@@ -1,10 +1,11 @@
 """Flight analysis: the paper's task metrics, plots and comparisons (geodesy and the
 scene model are the base layer's: core.geodesy, core.scene).
 
-track      Track (typed numpy columns, one sample per GPS message) and its loaders:
+recording  open_recording: the one reader of a session folder, zip or .tlog (a tlog
+           replayed through the link's StateTracker into telemetry.csv's rows)
+track      Track (typed numpy columns, one sample per GPS message) and its loader:
            load_track(path) for a session folder, zip, telemetry.csv or .tlog
 csvcols    fast column cutting of the recorder's telemetry.csv
-tlog       Track from a bare .tlog (pymavlink decodes only what analysis reads)
 flight_frame  align_track: ENU about the arming point, +x towards the reference; the
            origin and turn the replay view uses too
 flights    split_flights / track_flights: a track's flights (armed periods with a

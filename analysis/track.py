@@ -16,9 +16,6 @@ Rows without a fix (`gps.fix_type` < `min_fix_type`, or no coordinates) are drop
 
 from __future__ import annotations
 
-import json
-import tempfile
-import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
@@ -28,7 +25,7 @@ from numpy.typing import NDArray
 
 from analysis.csvcols import CsvColumns, to_bool, to_float
 from analysis.errors import NoGpsFixError, TrackLoadError
-from analysis.tlog_samples import read_tlog_samples
+from analysis.recording import open_recording
 from analysis.vehicle_clock import on_vehicle_clock
 from companion.recording import layout
 
@@ -36,7 +33,6 @@ Array = NDArray[np.float64]
 PositionSource = Literal["gps", "global_position"]
 
 TELEMETRY_CSV = layout.TELEMETRY_CSV
-META_FILES = (layout.SESSION_JSON, "meta.json", "metadata.json")
 MIN_FIX_3D = 3
 
 
@@ -102,20 +98,20 @@ def load_track(
     position: PositionSource = "gps",
     min_fix_type: int = MIN_FIX_3D,
 ) -> Track:
-    """Load a session folder, a session zip, a `telemetry.csv` or a `.tlog`."""
+    """Load a session folder, a session zip, a `.tlog` (all through
+    `analysis.recording.open_recording`) or a bare `telemetry.csv`."""
     p = Path(path)
-    if not p.exists():
-        raise TrackLoadError(f"'{p}' does not exist; give a session folder, zip or .tlog.")
-    if p.is_dir():
-        return load_session_dir(p, label, position, min_fix_type)
-    if p.suffix.lower() == ".zip":
-        return load_session_zip(p, label, position, min_fix_type)
-    if p.suffix.lower() == ".tlog":
-        return load_tlog(p, label, min_fix_type)
-    if p.suffix.lower() == ".csv":
+    if p.suffix.lower() == ".csv" and p.is_file():
         name = label or p.parent.name
         return load_telemetry_csv(p.read_bytes(), name, str(p), position, min_fix_type)
-    raise TrackLoadError(f"'{p}' is not a session folder, .zip, .csv or .tlog.")
+    try:
+        with open_recording(p, frames=False) as rec:
+            name = label or str(rec.meta.get("label") or rec.name)
+            raw = rec.telemetry_csv.read_bytes()
+            track = load_telemetry_csv(raw, name, rec.source, position, min_fix_type)
+            return replace(track, meta=rec.meta)
+    except OSError as exc:
+        raise TrackLoadError(f"'{p}' cannot be read: {exc}") from None
 
 
 def load_session_dir(
@@ -124,66 +120,7 @@ def load_session_dir(
     position: PositionSource = "gps",
     min_fix_type: int = MIN_FIX_3D,
 ) -> Track:
-    meta = _read_meta_dir(folder)
-    name = label or str(meta.get("label") or folder.name)
-    csv_path = folder / TELEMETRY_CSV
-    if csv_path.is_file():
-        track = load_telemetry_csv(csv_path.read_bytes(), name, str(folder), position, min_fix_type)
-    else:
-        tlogs = sorted(folder.glob("*.tlog"))
-        if not tlogs:
-            raise TrackLoadError(f"Session '{folder}' has neither {TELEMETRY_CSV} nor a .tlog.")
-        track = load_tlog(tlogs[0], name, min_fix_type)
-    return replace(track, meta=meta, source=str(folder))
-
-
-def load_session_zip(
-    zip_path: Path,
-    label: str | None = None,
-    position: PositionSource = "gps",
-    min_fix_type: int = MIN_FIX_3D,
-) -> Track:
-    try:
-        zf = zipfile.ZipFile(zip_path)
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise TrackLoadError(f"'{zip_path}' is not a readable zip: {exc}") from None
-    with zf:
-        names = zf.namelist()
-        meta: dict = {}
-        for m in sorted((n for n in names if n.rsplit("/", 1)[-1] in META_FILES), key=len):
-            meta = parse_meta(zf.read(m))
-            break
-        name = label or str(meta.get("label") or zip_path.stem)
-        csvs = sorted((n for n in names if n.rsplit("/", 1)[-1] == TELEMETRY_CSV), key=len)
-        if csvs:
-            raw = zf.read(csvs[0])
-            track = load_telemetry_csv(raw, name, str(zip_path), position, min_fix_type)
-            return replace(track, meta=meta)
-        tlogs = sorted((n for n in names if n.lower().endswith(".tlog")), key=len)
-        if not tlogs:
-            raise TrackLoadError(f"Zip '{zip_path}' holds neither {TELEMETRY_CSV} nor a .tlog.")
-        # pymavlink reads from a path, so the tlog goes through a temporary file.
-        with tempfile.NamedTemporaryFile(suffix=".tlog") as tmp:
-            tmp.write(zf.read(tlogs[0]))
-            tmp.flush()
-            track = load_tlog(Path(tmp.name), name, min_fix_type)
-        return replace(track, meta=meta, source=str(zip_path))
-
-
-def _read_meta_dir(folder: Path) -> dict:
-    for name in META_FILES:
-        f = folder / name
-        if f.is_file():
-            return parse_meta(f.read_bytes())
-    return {}
-
-
-def parse_meta(raw: bytes) -> dict:
-    try:
-        meta = json.loads(raw)
-    except (ValueError, UnicodeDecodeError):
-        return {}  # metadata is a nicety; a broken file must not stop the analysis
-    return meta if isinstance(meta, dict) else {}
+    return load_track(folder, label, position, min_fix_type)
 
 
 # ---------------------------------------------------------------- telemetry.csv
@@ -201,11 +138,21 @@ def load_telemetry_csv(
     header_line, _, body = raw.partition(b"\n")
     header = [h.strip().strip('"') for h in header_line.decode("utf-8", "replace").split(",")]
     index = {name: i for i, name in enumerate(header)}
+    if "t_s" not in index:
+        raise TrackLoadError(
+            f"'{source}' is not a telemetry CSV: it needs columns t_s and "
+            f"{position}.lat_deg/lon_deg/alt_m."
+        )
+    table = CsvColumns(body, len(header))
+    if table.rows == 0:
+        raise NoGpsFixError(f"'{source}' has a header but no telemetry rows.")
     pos = position
-    if f"{pos}.lat_deg" not in index:
-        pos = "global_position" if pos == "gps" else "gps"  # fall back to the other source
+    if not _has_values(table, index, f"{pos}.lat_deg"):
+        other: PositionSource = "global_position" if pos == "gps" else "gps"
+        if _has_values(table, index, f"{other}.lat_deg"):  # fall back to the other source
+            pos = other
     need = [f"{pos}.lat_deg", f"{pos}.lon_deg", f"{pos}.alt_m"]
-    if "t_s" not in index or any(n not in index for n in need):
+    if any(n not in index for n in need):
         raise TrackLoadError(
             f"'{source}' is not a telemetry CSV: it needs columns t_s and "
             f"{pos}.lat_deg/lon_deg/alt_m."
@@ -216,7 +163,8 @@ def load_telemetry_csv(
         "lat": [f"{pos}.lat_deg"],
         "lon": [f"{pos}.lon_deg"],
         "alt": [f"{pos}.alt_m"],
-        "fix": ["gps.fix_type"],
+        # A log without GPS_RAW_INT has no fix type: the fused position stands alone.
+        "fix": ["gps.fix_type"] if _has_values(table, index, "gps.lat_deg") else [],
         "key": [f"{pos}.t_mono", f"{pos}.time_usec", f"{pos}.time_boot_ms"],
         "armed": ["heartbeat.armed"],
         "rel": ["altitude.relative_alt_m", "global_position.relative_alt_m"],
@@ -225,9 +173,6 @@ def load_telemetry_csv(
         "vehicle_t": [f"{pos}.time_usec", f"{pos}.time_boot_ms"],
     }
     chosen = {k: next((c for c in cands if c in index), None) for k, cands in wanted.items()}
-    table = CsvColumns(body, len(header))
-    if table.rows == 0:
-        raise NoGpsFixError(f"'{source}' has a header but no telemetry rows.")
     first = _first_of_each_message(
         table, [index[chosen["key"]]] if chosen["key"] else [index[n] for n in need]
     )
@@ -278,6 +223,15 @@ def load_telemetry_csv(
     )
 
 
+def _has_values(table: CsvColumns, index: dict[str, int], name: str) -> bool:
+    """Whether the column exists and holds a value in some row (a recorder writes every
+    column, empty while its message never came)."""
+    if name not in index:
+        return False
+    v = np.char.strip(table.column(index[name]))
+    return bool(np.any((v != b"") & (v != b"None") & (v != b"null")))
+
+
 def _first_of_each_message(table: CsvColumns, key_cols: list[int]) -> NDArray[np.intp]:
     """Row indices where the GPS message changes: its t_mono (or time) column, or else
     its coordinates. Compared as the raw text, before any number parsing."""
@@ -287,13 +241,3 @@ def _first_of_each_message(table: CsvColumns, key_cols: list[int]) -> NDArray[np
         v = table.column(k)
         new[1:] |= v[1:] != v[:-1]
     return np.flatnonzero(new)
-
-
-# ---------------------------------------------------------------- .tlog
-
-
-def load_tlog(path: Path, label: str | None = None, min_fix_type: int = MIN_FIX_3D) -> Track:
-    """A bare MAVLink telemetry log; see `analysis.tlog_samples`."""
-    path = Path(path)
-    samples = read_tlog_samples(path, min_fix_type)
-    return Track(label=label or path.stem, source=str(path), **samples)

@@ -1,7 +1,7 @@
 """Learning from flights (the `learn` extra, not needed on the Pi).
 
-recording_reader  a session folder, zip or bare tlog opened for export (columns, frames, tlog)
-episodes       one episode per flight: the twin env's state, the pilot's sticks, frames
+episodes       one episode per flight (recordings opened by analysis.recording): the twin
+               env's state, the pilot's sticks, frames; the telemetry COLUMNS they read
 export         `fpv-station export`: recordings streamed into a format's writer
 lerobot        LeRobot v3.0 datasets (pyarrow + PyAV)
 minari_export  Minari datasets whose env is the twin's TwinEnv

@@ -49,10 +49,10 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from analysis.recording import RecordingError
     from core.scene import SceneError
     from learn.episodes import ChannelMap
     from learn.export import ExportOptions, export_recordings, tqdm_progress
-    from learn.recording_reader import RecordingError
 
     try:
         cmap = ChannelMap.parse(args.channel_map)

@@ -31,10 +31,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from analysis.flights import Flight, split_flights
+from analysis.recording import Recording
 from analysis.report import SCENE_RADIUS_M
 from core.geodesy import geodetic_to_enu
 from core.scene import Scene
-from learn.recording_reader import RC_CHANNELS, Recording
 from twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 Array = NDArray[np.float64]
@@ -43,6 +43,34 @@ Array = NDArray[np.float64]
 ANCHOR_RADIUS_M = SCENE_RADIUS_M
 ON_GROUND_M = 0.2
 PWM_UNUSED = (0, 65535)
+RC_CHANNELS = 18
+
+# The telemetry columns episodes and exporters read (telemetry.csv names; missing ones
+# are NaN): what `open_recording(path, COLUMNS)` loads.
+COLUMNS: tuple[str, ...] = (
+    "heartbeat.armed",
+    "gps.lat_deg",
+    "gps.lon_deg",
+    "gps.alt_m",
+    "gps.fix_type",
+    "global_position.lat_deg",
+    "global_position.lon_deg",
+    "global_position.alt_m",
+    "global_position.relative_alt_m",
+    "global_position.vx_mps",
+    "global_position.vy_mps",
+    "global_position.vz_mps",
+    "altitude.relative_alt_m",
+    "attitude.roll_rad",
+    "attitude.pitch_rad",
+    "attitude.yaw_rad",
+    "attitude.rollspeed_rad_s",
+    "attitude.pitchspeed_rad_s",
+    "attitude.yawspeed_rad_s",
+    "battery.remaining_pct",
+    "vfr_hud.climb_mps",
+    *(f"rc.pwm_us.{i}" for i in range(RC_CHANNELS)),
+)
 
 
 @dataclass(frozen=True)

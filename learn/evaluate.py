@@ -26,13 +26,14 @@ import numpy as np
 
 from analysis.errors import AnalysisError
 from analysis.field_layout import load_field_layout as load_field
+from analysis.recording import open_recording
 from analysis.report import analyze_tracks
 from analysis.tasks import TaskParams, TaskResult
 from analysis.track import Track, load_track
 from core.geodesy import enu_to_geodetic
 from core.scene import Scene, load_scene
+from learn.episodes import COLUMNS
 from learn.episodes import episodes as recording_episodes
-from learn.recording_reader import open_recording
 from twin.gym_env import TwinEnv
 from twin.pilot import Observation, Pilot, task_plan
 
@@ -171,7 +172,7 @@ def demonstrations(paths: Sequence[Path], task_id: int) -> Row:
     scene = load_scene()
     outcomes = []
     for path in paths:
-        with open_recording(path) as rec:
+        with open_recording(path, COLUMNS) as rec:
             eps = list(recording_episodes(rec, scene, task_id, 10.0))
             crashed = str(rec.meta.get("stop_reason", "")).startswith("crash")
         track = load_track(path)

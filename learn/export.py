@@ -2,7 +2,7 @@
 
     export_recordings(paths, "lerobot", out_dir, ExportOptions(task_id=1))
 
-Recordings are opened one at a time (`learn.recording_reader.open_recording`) and their episodes
+Recordings are opened one at a time (`analysis.recording.open_recording`) and their episodes
 streamed into the format's writer, so memory stays flat in the number of sessions. The
 formats: `lerobot` (`learn.lerobot`), `minari` (`learn.minari_export`), `mcap`
 (`learn.mcap_export`).
@@ -15,10 +15,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from analysis.recording import Recording, RecordingError, open_recording, recording_meta
 from core.scene import Scene, load_scene
-from learn.episodes import ChannelMap, episodes
+from learn.episodes import COLUMNS, ChannelMap, episodes
 from learn.formats import DEFAULT_FPS, FORMATS
-from learn.recording_reader import Recording, RecordingError, open_recording, recording_meta
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def export_recordings(
     writer = None
     cameras = options.cameras
     for k, path in enumerate(paths):
-        with open_recording(path) as rec:
+        with open_recording(path, COLUMNS) as rec:
             if cameras is None:
                 cameras = tuple(rec.cameras)
             missing = [c for c in cameras if c not in rec.cameras]

@@ -43,9 +43,9 @@ from foxglove.messages import (
     Vector3,
 )
 
+from analysis.recording import Recording
 from core.mavlink.tlog_records import TlogReader
-from learn.episodes import Episode, carry_forward, scene_xyz
-from learn.recording_reader import COLUMNS, Recording
+from learn.episodes import COLUMNS, Episode, carry_forward, scene_xyz
 
 WORLD_FRAME = "field"
 BODY_FRAME = "base_link"

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.recording import Recording
 from learn.episodes import Episode, target_m
-from learn.recording_reader import Recording
 from twin.gym_env import ENV_ID, TaskReward
 
 DATA_FORMAT = "arrow"

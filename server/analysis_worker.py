@@ -189,8 +189,9 @@ def run_job(job: AnalysisJob) -> dict | bytes:
 def _analysis(job: AnalysisJob):  # -> analysis.report.Analysis
     # The figures of one table come one request each: their analysis is made once.
     from analysis.field_layout import load_field_layout
+    from analysis.recording import parse_meta
     from analysis.report import analyze_tracks
-    from analysis.track import load_track, parse_meta
+    from analysis.track import load_track
 
     tracks = []
     for session_id, (data, _, _), meta in job.files:

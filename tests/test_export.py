@@ -305,11 +305,12 @@ def test_cli_export_and_its_errors(session, tmp_path, capsys):
 
 
 def test_telemetry_read_in_small_blocks_is_the_same(session, monkeypatch):
-    from learn import recording_reader
+    from analysis import recording
+    from learn.episodes import COLUMNS
 
-    with recording_reader.open_recording(session) as whole:
-        monkeypatch.setattr(recording_reader, "CSV_BLOCK_BYTES", 1000)  # rows cut across blocks
-        with recording_reader.open_recording(session) as blocks:
+    with recording.open_recording(session, COLUMNS) as whole:
+        monkeypatch.setattr(recording, "CSV_BLOCK_BYTES", 1000)  # rows cut across blocks
+        with recording.open_recording(session, COLUMNS) as blocks:
             assert np.array_equal(whole.t_s, blocks.t_s)
             for name, col in whole.columns.items():
                 assert np.array_equal(col, blocks.columns[name], equal_nan=True), name
@@ -422,7 +423,7 @@ def test_an_episode_carries_the_task_its_session_was_flown_for(session, tmp_path
     labels the episode with it; sessions of two tasks are refused together."""
     import shutil
 
-    from learn.recording_reader import RecordingError
+    from analysis.recording import RecordingError
 
     def flown_for(task_id: int, name: str) -> Path:
         copy = tmp_path / f"{session.name[:-4]}_t{task_id}"

@@ -1,0 +1,88 @@
+"""One reader of a flight: a session analyses the same from its telemetry.csv and from its
+mavlink.tlog, for a twin flight of each of the paper's tasks, through `fpv-station
+analyze`. The tlog is replayed through the link's `StateTracker` into the recorder's rows
+(`analysis.recording`), so the two can differ only by what the link did not see.
+
+The flights are the twin's demonstrations (`learn.demos`: the twin flown faster than real
+time, its MAVLink read by the link's framer and tracker and written by the recorder's
+writer). Their tlogs also carry a second vehicle on the same channel (another autopilot,
+disarmed, heard from the twin's first second on), as a shared radio channel or a ground
+station forwarding another vehicle puts it there; the tracker follows the first autopilot
+it heard, so the telemetry.csv recorded without those packets is what the link would have
+recorded with them.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from core.mavlink.tlog_records import TlogReader, encode_record
+from learn.demos import DemoConfig, fly_demo
+from server.cli import main as cli_main
+
+TASKS = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
+
+
+def add_second_vehicle(tlog: Path) -> int:
+    """Interleave 1 Hz HEARTBEATs of a disarmed ArduCopter (system 2) from the twin's
+    first HEARTBEAT on; returns how many."""
+    other = mav.MAVLink(None, srcSystem=2, srcComponent=1)
+    out = bytearray()
+    next_hb: float | None = None
+    added = 0
+    for t, packet in TlogReader(tlog):
+        if next_hb is None and packet[7 if packet[0] == 0xFD else 5] == 0:  # HEARTBEAT
+            next_hb = t + 0.5
+        while next_hb is not None and t >= next_hb:
+            hb = other.heartbeat_encode(
+                mav.MAV_TYPE_QUADROTOR,
+                mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                0,
+                mav.MAV_STATE_STANDBY,
+            )
+            out += encode_record(next_hb, hb.pack(other))
+            next_hb += 1.0
+            added += 1
+        out += encode_record(t, packet)
+    tlog.write_bytes(bytes(out))
+    return added
+
+
+def twin_flight(root: Path, task_id: int) -> Path:
+    folder = fly_demo(root, seed=task_id, config=DemoConfig(task_id=task_id))
+    assert add_second_vehicle(folder / "mavlink.tlog") > 10
+    return folder
+
+
+def analyze(path: Path, task: str, out: Path) -> tuple[list[str], list[dict]]:
+    """The table's figures (its columns) and its rows, as `fpv-station analyze` wrote them."""
+    assert cli_main(["analyze", str(path), "--task", task, "--out", str(out)]) == 0
+    table = json.loads((out / f"{task}_table.json").read_text())
+    return [c["field"] for c in table["columns"]], table["results"]
+
+
+@pytest.mark.timeout(300)  # a figure 8 flown and analysed twice: ~10 s of CPU, more at load 8
+@pytest.mark.parametrize("task_id", sorted(TASKS))
+def test_a_session_analyses_the_same_from_its_csv_and_its_tlog(task_id, tmp_path):
+    task = TASKS[task_id]
+    folder = twin_flight(tmp_path / "sessions", task_id)
+    figures, from_csv = analyze(folder, task, tmp_path / "csv")
+    _, from_tlog = analyze(folder / "mavlink.tlog", task, tmp_path / "tlog")
+    assert len(from_csv) == len(from_tlog) == 1  # one flight, however it is read
+    csv, tlog = from_csv[0], from_tlog[0]
+    assert csv["source"] == str(folder) and tlog["source"] == str(folder / "mavlink.tlog")
+    assert csv["platform"] == tlog["platform"] == "twin"  # the session's own tlog: its meta
+    assert {"trial_time_s", "path_length_m", "height_deviation_m", "obstacle_contacts"} <= set(
+        figures
+    )
+    for k in figures:
+        assert isinstance(csv[k], (int, float)), k
+        assert tlog[k] == pytest.approx(csv[k], rel=0.01, abs=1e-6), k
+    # Where the flight is placed: the same arming point, to a few centimetres.
+    for k in ("origin_lat_deg", "origin_lon_deg"):
+        assert tlog[k] == pytest.approx(csv[k], abs=1e-6), k
