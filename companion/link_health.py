@@ -101,6 +101,9 @@ class LinkHealth:
     bad_crc: int = 0
     unknown_ids: int = 0
     truncated_records: int = 0  # replay: a last record cut short
+    # replay: times the log's clock stepped back (core.mavlink.tlog_records), each the
+    # start of another recording, played on its own clock
+    clock_steps_back: int = 0
     reconnects: int = 0
     last_error: str | None = None
     replay_done: bool = False
@@ -122,6 +125,7 @@ class HealthMeter:
         self.bytes_total = 0
         self.loss = StreamLossCounter()
         self.truncated_records = 0
+        self.clock_steps_back = 0
         self.reconnects = 0
         self.connected = False
         self.last_error: str | None = None
@@ -150,6 +154,7 @@ class HealthMeter:
     def on_clock_step_back(self) -> None:
         """The source's clock started over, earlier (another recording in a replayed log):
         new sequences, and rates measured from its own times on."""
+        self.clock_steps_back += 1
         self.loss.restart()
         self._snapshots.clear()
 
@@ -205,6 +210,7 @@ class HealthMeter:
             bad_crc=framer.bad_crc,
             unknown_ids=framer.unknown_ids,
             truncated_records=self.truncated_records,
+            clock_steps_back=self.clock_steps_back,
             reconnects=self.reconnects,
             last_error=self.last_error,
             replay_done=self.replay_done,

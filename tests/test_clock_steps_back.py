@@ -88,6 +88,8 @@ def test_replay_records_one_session_per_recording_each_ended_by_its_disarming(
     with replayed_station(path, tmp_path / "sessions", speed, timeout=200) as base:
         sessions = httpx.get(f"{base}/api/sessions", timeout=30).json()
         sessions.sort(key=lambda s: s["start_wall"])
+        link = httpx.get(f"{base}/api/status", timeout=30).json()["link"]
+    assert link["clock_steps_back"] == 2
     # Before: one session, started at the first arming, never stopped by a disarming.
     assert [s["stop_reason"] for s in sessions] == ["disarmed"] * 3
     for s, t0 in zip(sessions, sorted(starts())):
