@@ -1,13 +1,16 @@
 """Soak: the station on the twin, recording, under 100 telemetry clients, 20 MJPEG viewers,
-5 stalled clients, connection churn, 400 idle sockets and 30 slow-header clients, for N
-minutes.
+5 stalled clients, connection churn, 400 idle sockets, 30 slow-header clients and 10 3D
+panel viewers, for N minutes.
 
     python benchmarks/soak.py [--minutes 10] [--telemetry 100] [--viewers 20]
-                              [--idle 400] [--slow 30]
+                              [--idle 400] [--slow 30] [--viewers-3d 10]
 
 Idle sockets connect and send nothing; slow-header clients send a request's headers a
 byte a second and never finish. The station closes both (server/listen.py); each comes
-back at once, so the pressure on its connection table lasts the whole run.
+back at once, so the pressure on its connection table lasts the whole run. 3D viewers
+come through the station's door (/3d/live and /3d/replay, relayed to the panels' viser
+servers), report their camera once a second as a browser's client does while moved, and
+read every frame of the scene.
 
 Runs `fpv-station serve --source sim` in a subprocess (both cameras on image folders, so
 the viewers cost what a USB camera's would), starts a recording, and holds the load from
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
 import platform
@@ -52,6 +56,9 @@ class Counts:
         self.churn_refused = 0
         self.idle_closed = 0  # idle sockets the station closed (each came back)
         self.slow_closed = 0  # slow-header clients the station closed (each came back)
+        self.frames_3d: list[int] = []  # viser frames per 3D viewer, since the start
+        self.viewers_3d = 0  # 3D viewers connected
+        self.all_3d_in = asyncio.Event()  # every 3D viewer connected
 
 
 async def telemetry_client(url: str, counts: Counts, i: int, stop: asyncio.Event) -> None:
@@ -62,6 +69,47 @@ async def telemetry_client(url: str, counts: Counts, i: int, stop: asyncio.Event
             except TimeoutError:
                 continue
             counts.telemetry[i] += 1
+
+
+def viewer_camera() -> bytes:
+    """A viewer's camera report, as viser's client sends it."""
+    import msgspec
+    from viser._messages import ViewerCameraMessage
+
+    message = ViewerCameraMessage(
+        wxyz=(1.0, 0.0, 0.0, 0.0),
+        position=(-25.0, -30.0, 20.0),
+        fov=1.0,
+        near=0.01,
+        far=1000.0,
+        image_height=480,
+        image_width=640,
+        look_at=(0.0, 0.0, 0.0),
+        up_direction=(0.0, 0.0, 1.0),
+    )
+    return msgspec.msgpack.encode(message.as_serializable_dict())
+
+
+async def viewer_3d(url: str, counts: Counts, i: int, stop: asyncio.Event) -> None:
+    """A 3D panel's viewer: its camera once a second, every frame of the scene read."""
+    import viser
+
+    camera = viewer_camera()
+    async with connect(url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:
+        counts.viewers_3d += 1
+        if counts.viewers_3d == len(counts.frames_3d):
+            counts.all_3d_in.set()
+
+        async def read() -> None:
+            async for _ in ws:
+                counts.frames_3d[i] += 1
+
+        reader = asyncio.create_task(read())
+        while not stop.is_set():
+            await ws.send(camera)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), 1.0)
+        reader.cancel()
 
 
 async def stalled_clients(port: int, n: int, stop: asyncio.Event) -> None:
@@ -182,6 +230,7 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
     ws_url = f"ws://127.0.0.1:{port}/ws/telemetry"
     counts = Counts()
     counts.telemetry = [0] * args.telemetry
+    counts.frames_3d = [0] * args.viewers_3d
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     tasks = [
@@ -198,6 +247,11 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
         transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
         viewers.append(viewer)
         transports.append(transport)
+    for i in range(args.viewers_3d):
+        url = f"ws://127.0.0.1:{port}/3d/{('live', 'replay')[i % 2]}"
+        tasks.append(asyncio.create_task(viewer_3d(url, counts, i, stop)))
+    if args.viewers_3d:  # in before the idle crowd: a full table would refuse them
+        await asyncio.wait_for(counts.all_3d_in.wait(), 30)
     tasks.append(asyncio.create_task(stalled_clients(port, args.stalled, stop)))
     tasks.append(asyncio.create_task(churn(ws_url, counts, stop)))
     flood_ready = asyncio.Event()
@@ -209,6 +263,7 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
     def snapshot(label: str, since: dict | None) -> dict:
         fig = server_figures(base, proc)
         msgs, parts = list(counts.telemetry), [len(v.parts) for v in viewers]
+        frames_3d = list(counts.frames_3d)
         if since is not None:
             dt = fig["t"] - since["t"]
             msg_rates = [(m - m0) / dt for m, m0 in zip(msgs, since["msgs"], strict=True)]
@@ -220,6 +275,14 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
                 f"median {statistics.median(fps):.1f}; session rows/s {rows_rate:.1f} "
                 f"(rate {args.rate_hz:g} Hz)"
             )
+            # The live panel's viewers (even ones): the replay's scene stands still.
+            live = [(f - f0) / dt for f, f0 in zip(frames_3d, since["frames_3d"], strict=True)]
+            if live[::2]:
+                print(
+                    f"  live 3D viewer frames/s: min {min(live[::2]):.1f}, median "
+                    f"{statistics.median(live[::2]):.1f} ({len(frames_3d)} 3D viewers, "
+                    f"{sum(frames_3d[1::2])} frames to the replay's)"
+                )
         print(
             f"{label}: RSS {fig['rss_mb']:.1f} MB, fds {fig['fds']}, tasks {fig['tasks']}, "
             f"health {fig['status']}, rows {fig['rows']}, frames {fig['frames']} "
@@ -228,7 +291,7 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
             f"closed {counts.slow_closed}, load {os.getloadavg()[0]:.2f}",
             flush=True,
         )
-        return {**fig, "msgs": msgs, "parts": parts}
+        return {**fig, "msgs": msgs, "parts": parts, "frames_3d": frames_3d}
 
     start = snapshot("start", None)
     end_at = time.monotonic() + args.minutes * 60
@@ -283,6 +346,7 @@ def print_session_accounting(meta: dict, rate_hz: float) -> None:
 def run(args: argparse.Namespace) -> None:
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)  # this side's sockets
     need = args.telemetry + args.viewers + args.stalled + args.idle + args.slow + 256
+    need += args.viewers_3d
     if soft < need:
         resource.setrlimit(resource.RLIMIT_NOFILE, (min(need, hard), hard))
     tmp = Path(tempfile.mkdtemp(prefix="fpv-bench-soak-"))
@@ -290,7 +354,8 @@ def run(args: argparse.Namespace) -> None:
     cmd = ["--source", "sim", "--front", f"folder:{front}", "--bottom", f"folder:{bottom}"]
     env = {
         "FPV_SERVER__TOKEN": json.dumps(TOKEN),
-        "FPV_VISER__ENABLED": "false",
+        "FPV_VISER__ENABLED": json.dumps(args.viewers_3d > 0),
+        "FPV_VISER__PORT": "0",
         "FPV_RECORDING__SESSIONS_DIR": json.dumps(str(tmp / "sessions")),
         "FPV_RECORDING__RATE_HZ": str(args.rate_hz),
     }
@@ -299,7 +364,8 @@ def run(args: argparse.Namespace) -> None:
         print(
             f"# fpv-station soak: {args.minutes:g} min, {args.telemetry} telemetry clients, "
             f"{args.viewers} MJPEG viewers, {args.stalled} stalled, churn 10/s, {args.idle} "
-            f"idle sockets, {args.slow} slow-header clients, recording "
+            f"idle sockets, {args.slow} slow-header clients, {args.viewers_3d} 3D viewers, "
+            f"recording "
             f"at {args.rate_hz:g} Hz on the twin; machine {platform.machine()}, "
             f"{os.cpu_count()} cores, Python {platform.python_version()}"
         )
@@ -322,6 +388,7 @@ def main() -> None:
     ap.add_argument("--stalled", type=int, default=5)
     ap.add_argument("--idle", type=int, default=400, help="sockets that never send")
     ap.add_argument("--slow", type=int, default=30, help="clients sending headers slowly")
+    ap.add_argument("--viewers-3d", type=int, default=10, help="3D panel viewers (0: no viser)")
     ap.add_argument("--rate-hz", type=float, default=50.0)
     ap.add_argument("--warmup", type=float, default=10.0)
     run(ap.parse_args())
