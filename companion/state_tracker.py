@@ -60,6 +60,7 @@ _FRESH_GPS_S = 2.0
 # and the flight's altitude is `relative_alt`'s.
 _GROUND_WANDER_M = 1.0
 _GROUND_WINDOW_S = 30.0
+_HOME_STEP_M = 0.5  # relative_alt stepping this much while alt holds: the home moved
 # ArduPilot, PX4 and INAV set their home where the vehicle arms, so `alt - relative_alt`
 # just after arming is the altitude at arming in the autopilot's own frame, with what the
 # arming itself moved (ArduPilot re-zeroes its barometer and height there). Taken as the
@@ -117,6 +118,18 @@ def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: in
     if autopilot == mavlink.MAV_AUTOPILOT_PX4:
         return px4_mode_name(*px4_main_sub(custom_mode)) or "UNKNOWN"
     return ardupilot_mode_name(vehicle_type, base_mode, custom_mode)
+
+
+def _home_moved(last: tuple[float, float, float], gp: GlobalPosition) -> bool:
+    """Between the ground sample `last` (t, alt - relative_alt, relative_alt) and `gp`,
+    the autopilot moved its home (set it at a GPS fix, or by hand): `relative_alt`
+    stepped while `alt` held."""
+    _, offset, rel = last
+    if gp.alt_m is None or gp.relative_alt_m is None:
+        return False
+    d_rel = gp.relative_alt_m - rel
+    d_alt = gp.alt_m - (offset + rel)
+    return abs(d_rel) > _HOME_STEP_M and abs(d_alt) < abs(d_rel) / 2
 
 
 class _GroundFix(NamedTuple):
@@ -333,6 +346,8 @@ class StateTracker:
             self._take_home_at_arming(gp)
         if not self._draft.heartbeat.armed and gp.alt_m is not None:
             offsets = self._ground_offsets
+            if offsets and _home_moved(offsets[-1], gp):
+                offsets.clear()  # one step of the home is no wander
             offsets.append((t, gp.alt_m - gp.relative_alt_m, gp.relative_alt_m))
             while offsets and t - offsets[0][0] > _GROUND_WINDOW_S:
                 offsets.popleft()

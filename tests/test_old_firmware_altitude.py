@@ -93,3 +93,22 @@ def test_the_session_records_which_altitude_measured_the_flight(tmp_path):
     heights = [float(r["altitude.relative_alt_m"]) for r in rows]
     assert max(heights) == pytest.approx(HEIGHT_M, abs=0.2)
     assert abs(heights[-1]) < 0.3  # on the ground at disarming, not -3.6 m
+
+
+def test_a_home_set_on_the_ground_is_no_disagreement(tmp_path):
+    """ArduPilot sets its home at the first GPS fix: `relative_alt` steps once (here by
+    3 m, 10 s before arming) while `alt` holds. One step is the home moving, not two
+    sensors wandering apart: the flight stays measured by `alt`."""
+    log = shaped_tlog.vehicle_flight(flight(), ARDUPILOT)
+    decoder = mavlink.MAVLink(None)
+    for k, (t, packet) in enumerate(log.records):
+        msg = decoder.decode(bytearray(packet))
+        if msg.get_type() == "GLOBAL_POSITION_INT" and t - log.t0 < ARM_S - 10.0:
+            msg.relative_alt += 3000  # relative to a home at power-on, 3 m lower
+            sender = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+            sender.seq = msg.get_seq()
+            log.records[k] = (t, bytes(msg.pack(sender)))
+    rows = replay_through_tracker(log.write(tmp_path / "home.tlog"))
+    assert {src for t, armed, _, src in rows if armed} == {"alt"}
+    flying = [a for t, armed, a, _ in rows if armed and a is not None]
+    assert max(flying) == pytest.approx(HEIGHT_M, abs=0.2)
