@@ -262,47 +262,65 @@ def replay_tlog(tlog: Path, out: Path, rate_hz: float, source: str | None = None
     A record that decodes to no packet (junk, a bad checksum) does not move the clock.
     Across a silence longer than `FILL_GAP_S` the grid restarts at the next packet
     rather than filling the silence with rows of the same state (a log paused for hours,
-    or a station clock set forward by NTP).
+    or a station clock set forward by its time service).
+
+    A log that holds several recordings (its clock steps back: `TlogReader.segments`)
+    is read as the link replays it: each recording by a new tracker that knows nothing
+    yet, on its own clock. Their rows follow one another: a later recording's session
+    time (`t_s`, and the state's times) continues `FILL_GAP_S` after the one before,
+    while `wall_time` stays the log's own; so no flight is interleaved with another.
     """
     source = source or str(tlog)
-    decoder, tracker = FastDecoder(), StateTracker()
+    decoder = FastDecoder()
     period_us = 1e6 / rate_hz
-    rows = 0
     formatter: RowFormatter | None = None
-    grid0 = n = last = 0  # µs: the grid's start, rows on it so far, the newest packet
+    tracker = StateTracker()
+    rows = n = 0
+    grid0 = last = 0  # µs on the session clock: the grid's start, the newest packet
+    shift = 0  # µs: session clock - the log's clock, in this recording
 
     def row(f, at_us: int) -> None:
         nonlocal rows, n
-        t = at_us * 1e-6
-        f.write(formatter.line(Sample(t, t, tracker.state, ())))
+        f.write(formatter.line(Sample(at_us * 1e-6, (at_us - shift) * 1e-6, tracker.state, ())))
         rows += 1
         n += 1
 
+    def rows_until(f, end_us: int, inclusive: bool) -> None:
+        while (at := grid0 + round(n * period_us)) < end_us or (inclusive and at == end_us):
+            row(f, at)
+
+    reader = TlogReader(tlog)
     try:
         with open(out, "w", newline="", buffering=1 << 16) as f:
-            for t, packet in TlogReader(tlog):
-                try:
-                    msg = decoder.decode(bytearray(packet))
-                except MAVError:
-                    continue
-                if msg is None or isinstance(msg, MAVLink_unknown):
-                    continue
-                t_us = round(t * 1e6)
-                if formatter is None:
-                    grid0 = last = t_us
-                    formatter = RowFormatter((), t_us * 1e-6)
-                    f.write(formatter.header_line())
-                if t_us - last > FILL_GAP_S * 1e6:
-                    while (at := grid0 + round(n * period_us)) <= last:
-                        row(f, at)
-                    grid0, n = t_us, 0
-                while (at := grid0 + round(n * period_us)) < t_us:
-                    row(f, at)
-                tracker.update(msg, t_us * 1e-6)
-                last = max(last, t_us)
+            for segment, records in reader.segments():
+                started = False
+                for t, packet in records:
+                    try:
+                        msg = decoder.decode(bytearray(packet))
+                    except MAVError:
+                        continue
+                    if msg is None or isinstance(msg, MAVLink_unknown):
+                        continue
+                    t_log = round(t * 1e6)
+                    if formatter is None:
+                        formatter = RowFormatter((), t_log * 1e-6)
+                        f.write(formatter.header_line())
+                        grid0 = last = t_log
+                    elif not started and segment > 0:  # the next recording: a new tracker
+                        rows_until(f, last, inclusive=True)
+                        tracker = StateTracker()
+                        shift = last + round(FILL_GAP_S * 1e6) - t_log
+                        grid0, n = t_log + shift, 0
+                    started = True
+                    t_us = t_log + shift
+                    if t_us - last > FILL_GAP_S * 1e6:
+                        rows_until(f, last, inclusive=True)
+                        grid0, n = t_us, 0
+                    rows_until(f, t_us, inclusive=False)
+                    tracker.update(msg, t_us * 1e-6)
+                    last = t_us
             if formatter is not None:  # the instants up to the last packet
-                while (at := grid0 + round(n * period_us)) <= last:
-                    row(f, at)
+                rows_until(f, last, inclusive=True)
     except OSError as exc:
         raise RecordingError(f"'{source}' cannot be read: {exc}") from None
     if not rows:

@@ -17,12 +17,17 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from analysis.flights import track_flights
+from analysis.track import load_track
 from core.mavlink.tlog_records import TlogReader, encode_record
 from learn.demos import DemoConfig, fly_demo
 from server.cli import main as cli_main
+from tests import shaped_tlog
+from tests import synthetic as syn
 
 TASKS = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
 
@@ -86,3 +91,34 @@ def test_a_session_analyses_the_same_from_its_csv_and_its_tlog(task_id, tmp_path
     # Where the flight is placed: the same arming point, to a few centimetres.
     for k in ("origin_lat_deg", "origin_lon_deg"):
         assert tlog[k] == pytest.approx(csv[k], abs=1e-6), k
+
+
+def test_a_tlog_of_joined_recordings_reads_each_on_its_own_clock(tmp_path):
+    """Three recordings in one file, the clock stepping back 523 s and 488 s between them
+    (a real tlog's shape): three flights, each its own 3 m hop, none interleaved with
+    another, each sample at its own recording's wall time."""
+    armed, end_s = (2.0, 14.0), 20.0
+    t = np.arange(0.0, end_s, 0.02)
+    up = np.clip(np.minimum(t - 4.0, 10.0 - t), 0.0, 3.0)
+    hop = syn.Flight(
+        t_s=t,
+        xyz_m=np.stack([np.zeros_like(t), np.zeros_like(t), up], 1),
+        armed=(t >= armed[0]) & (t < armed[1]),
+    )
+    starts = [1_700_000_000.0]
+    for back in (523.0, 488.0):
+        starts.append(starts[-1] + end_s - back)
+    logs = [shaped_tlog.vehicle_flight(hop, t0=t0) for t0 in starts]
+    path = shaped_tlog.write_joined(tmp_path / "joined.tlog", *logs)
+
+    track = load_track(path)
+    assert np.all(np.diff(track.t_s) > 0)  # one session clock, running forward
+    flights = track_flights(track)
+    assert len(flights) == 3
+    for f, t0 in zip(flights, starts):
+        part = track.select(f.samples)
+        assert part.wall_time[0] == pytest.approx(t0 + armed[0], abs=0.3)
+        assert part.wall_time[-1] == pytest.approx(t0 + armed[1], abs=0.3)
+        assert np.nanmax(part.relative_alt_m) == pytest.approx(3.0, abs=0.2)
+        step = np.hypot(np.diff(part.lat_deg), np.diff(part.lon_deg)) * 111e3
+        assert step.max() < 0.5  # a hop on the spot: no jump to another recording's fix
