@@ -25,7 +25,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from server.app import create_app
 from server.settings import load_settings
-from server.trajectory3d.gate import gui_uuid
+from server.trajectory3d.gate import MESSAGES_BURST, MESSAGES_PER_S, gui_uuid
 from tests.helpers import run_uvicorn, wait_until
 from tests.station_process import serve_station
 from tests.test_connections import LOW_LIMIT
@@ -158,9 +158,15 @@ def test_the_panels_viser_servers_listen_on_loopback_only(station):
     assert page.status_code == 200 and "<html" in page.text[:200].lower()
 
 
-def test_a_viewer_from_another_origin_is_refused_and_the_stations_own_watches(station):
+def test_a_viewer_from_another_origin_or_host_is_refused_and_the_stations_own_watches(station):
     base, st = station
+    port = int(base.rsplit(":", 1)[1])
     for path in ("/3d/live", "/3d/replay"):
+        # DNS rebinding: a page on evil.example whose name now points at the station.
+        sock, status = raw_viewer(port, path, host=f"evil.example:{port}")
+        sock.close()
+        assert b" 101 " not in status and status.startswith(b"HTTP/1.1 4"), status
+        assert httpx.get(f"{base}/3d/live/", headers={"Host": "evil.example"}).status_code == 421
         for origin in ("http://evil.example", "http://127.0.0.1:1", "null"):
             with pytest.raises(InvalidStatus) as refused:
                 with viewer(base, path, origin=origin):
@@ -299,13 +305,13 @@ def test_malformed_messages_are_dropped_without_a_traceback(station, capfd, capl
 
 
 def raw_viewer(
-    port: int, path: str = "/3d/live", timeout: float = 30.0
+    port: int, path: str = "/3d/live", timeout: float = 30.0, host: str | None = None
 ) -> tuple[socket.socket, bytes]:
     """A viewer's upgrade on a bare socket: (the socket, the status line it was answered)."""
     sock = socket.create_connection(("127.0.0.1", port), timeout=timeout)
     key = base64.b64encode(os.urandom(16)).decode()
     sock.sendall(
-        f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+        f"GET {path} HTTP/1.1\r\nHost: {host or f'127.0.0.1:{port}'}\r\nUpgrade: websocket\r\n"
         f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
         f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n\r\n".encode()
     )
@@ -467,3 +473,23 @@ def test_300_3d_viewers_under_256_descriptors_leave_health_answering(tmp_path):
     finally:
         for s in held:
             s.close()
+
+
+def test_a_flood_of_camera_messages_reaches_viser_at_a_bounded_rate(station):
+    base, st = station
+    live = st.trajectory3d
+    updates: list[float] = []  # when viser took each camera (its callbacks come later)
+    with viewer(base) as v:
+        assert wait_until(lambda: live.server.get_clients(), 30)
+        (client,) = live.server.get_clients().values()
+        client.camera.on_update(lambda cam: updates.append(time.monotonic()))
+        t0 = time.monotonic()
+        for i in range(3000):
+            v.ws.send(camera(float(i)))
+        time.sleep(1.0)
+        assert not v.closed.is_set()
+    assert updates
+    # At most the bucket's burst, plus its rate over the time the relay could have been
+    # passing them on (it passes each before viser's callback for it runs).
+    bound = MESSAGES_BURST + MESSAGES_PER_S * (updates[-1] - t0) + 1
+    assert len(updates) <= bound, (len(updates), bound)

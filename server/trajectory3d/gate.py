@@ -18,8 +18,10 @@ and the viewer may send them (`ViewerRules`):
   changes what every viewer sees (the trail, the colour-coding, the field).
 
 Everything else is dropped without a word: malformed frames, text frames, the share
-request (which would open a public tunnel to the station), uploads, clicks. What viser
-sends goes to the browser as it is (no per-viewer re-encoding).
+request (which would open a public tunnel to the station), uploads, clicks; and so is a
+viewer's message beyond `MESSAGES_PER_S` (viser's client sends its camera at most every
+20 ms, the newest last), so that a flood costs viser nothing. What viser sends goes to
+the browser as it is (no per-viewer re-encoding).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated
@@ -41,6 +44,10 @@ log = logging.getLogger(__name__)
 
 LOOPBACK = "127.0.0.1"  # where the panels' viser servers listen: the relay's side only
 UPSTREAM_OPEN_S = 5.0  # a viser server that does not answer on loopback within this is down
+# A viewer's messages passed on a second, and the burst: viser's client sends its camera at
+# most 50 times a second, a GUI change now and then.
+MESSAGES_PER_S = 60.0
+MESSAGES_BURST = 60.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +124,24 @@ class ViewerRules:
         return wanted.personal or self.authorized
 
 
+@dataclass(slots=True)
+class MessageBudget:
+    """A token bucket: `rate_per_s` messages a second, up to `burst` at once."""
+
+    rate_per_s: float = MESSAGES_PER_S
+    burst: float = MESSAGES_BURST
+    _tokens: float = MESSAGES_BURST
+    _at: float = 0.0
+
+    def take(self, now: float) -> bool:
+        self._tokens = min(self.burst, self._tokens + (now - self._at) * self.rate_per_s)
+        self._at = now
+        if self._tokens < 1.0:
+            return False
+        self._tokens -= 1.0
+        return True
+
+
 # -- the viser servers ------------------------------------------------------------------
 
 
@@ -161,6 +186,7 @@ async def relay(ws: WebSocket, port: int, rules: ViewerRules) -> None:
     except (OSError, TimeoutError, ConnectionClosed) as exc:
         raise OSError(f"the 3D panel's viser server did not answer: {exc}") from exc
     dropped = 0
+    budget = MessageBudget(_at=time.monotonic())
 
     async def to_viser() -> None:
         nonlocal dropped
@@ -169,7 +195,7 @@ async def relay(ws: WebSocket, port: int, rules: ViewerRules) -> None:
             if message["type"] == "websocket.disconnect":
                 return
             frame = message.get("bytes")
-            if frame is not None and rules.allows(frame):
+            if frame is not None and budget.take(time.monotonic()) and rules.allows(frame):
                 await upstream.send(frame)
             else:
                 dropped += 1
