@@ -19,6 +19,7 @@ its quality flags read them) make the flight they fall in invalid.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -27,7 +28,7 @@ import numpy as np
 
 from analysis import plots
 from analysis.compare import Comparison, compare
-from analysis.errors import AnalysisError, TaskWindowError
+from analysis.errors import AnalysisError, TaskWindowError, TrackLoadError
 from analysis.field_layout import FieldLayout, load_field_layout
 from analysis.flight_frame import AlignedTrack, align_track
 from analysis.flights import Flight, track_flights
@@ -58,6 +59,15 @@ class Analysis:
         by_source = {(a.track.source, a.label): a for a in self.aligned}
         return [by_source[(r.source, r.label)] for r in self.results]
 
+    def to_dict(self) -> dict:
+        """The comparison with the flights that have no trial: `skipped`, each with its
+        label and why (the CLI's TABLE.json, the REST reply)."""
+        skipped = [{"label": label, "reason": why} for label, why in self.skipped]
+        return {**self.comparison.to_dict(), "skipped": skipped}
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
     def write(self, out_dir: Path) -> list[Path]:
         """Table as Markdown, CSV and JSON, and the three figures; returns the paths."""
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -66,7 +76,7 @@ class Analysis:
         for ext, text in (
             ("md", self.comparison.to_markdown()),
             ("csv", self.comparison.to_csv()),
-            ("json", self.comparison.to_json()),
+            ("json", self.to_json()),
         ):
             path = out_dir / f"{prefix}_table.{ext}"
             path.write_text(text)
@@ -133,7 +143,7 @@ def analyze_tracks(
             try:
                 a, result = _analyze_one(track, task, reference_latlon, field, p, mine)
             except AnalysisError as exc:
-                if len(parts) == 1:
+                if len(parts) == 1 and len(tracks) == 1:
                     raise
                 skipped.append((track.label, str(exc)))
                 continue
@@ -201,7 +211,20 @@ def analyze_paths(
     check_task(task)
     field = None if scene is False else load_field_layout(None if scene is True else scene)
     names = list(labels or [])
-    tracks = [
-        load_track(path, names[i] if i < len(names) else None) for i, path in enumerate(paths)
-    ]
-    return analyze_tracks(tracks, task, reference_latlon, field, params, flight)
+    tracks, skipped = [], []
+    for i, path in enumerate(paths):
+        name = names[i] if i < len(names) else None
+        try:
+            tracks.append(load_track(path, name))
+        except TrackLoadError:
+            raise  # not a recording: the user named the wrong thing
+        except AnalysisError as exc:  # a recording without a measurable flight (no fix)
+            if len(paths) == 1:
+                raise
+            skipped.append((name or Path(path).name, str(exc)))
+    if not tracks:
+        raise TaskWindowError(
+            "No flight with a trial to analyse: " + "; ".join(f"{n}: {w}" for n, w in skipped)
+        )
+    analysis = analyze_tracks(tracks, task, reference_latlon, field, params, flight)
+    return replace(analysis, skipped=(*skipped, *analysis.skipped))

@@ -181,8 +181,7 @@ def run_job(job: AnalysisJob) -> dict | bytes:
     an = _analysis(replace(job, plot=None))
     if job.plot is not None:
         return an.plot(job.plot)
-    skipped = [{"label": label, "reason": why} for label, why in an.skipped]
-    return {**an.comparison.to_dict(), "skipped": skipped}
+    return an.to_dict()
 
 
 @functools.lru_cache(maxsize=4)
