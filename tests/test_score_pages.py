@@ -14,6 +14,7 @@ from server.app import create_app
 from server.settings import load_settings
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn
+from tests.twin_flights import twin_station_settings
 from twin.pilot import Leg, Pilot, fly_twin
 
 HELD = 3  # "Held 10 s" in task 1's steps: Armed, Took off, Reached 4 m, Held 10 s, ...
@@ -21,20 +22,8 @@ HELD = 3  # "Held 10 s" in task 1's steps: Armed, Took off, Reached 4 m, Held 10
 
 @pytest.mark.timeout(300)
 def test_held_lights_only_while_the_height_is_held_and_the_score_says_valid(tmp_path, browser):
-    settings = load_settings(
-        None,
-        {
-            "link.source": "sim",
-            "viser.enabled": False,
-            "cameras.front.spec": "none",
-            "cameras.bottom.spec": "none",
-            "recording.sessions_dir": str(tmp_path),
-            "recording.post_disarm_tail_s": 1.0,
-            "recording.min_free_mb": 0,
-        },
-        environ={},
-    )
-    app = create_app(settings)
+    no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    app = create_app(twin_station_settings(tmp_path, no_cameras))
     with run_uvicorn(app) as base:
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         page.goto(f"{base}/")

@@ -16,8 +16,8 @@ from playwright.sync_api import expect
 from websockets.sync.client import connect
 
 from server.app import create_app
-from server.settings import load_settings
 from tests.helpers import chromium, run_uvicorn
+from tests.twin_flights import twin_station_settings
 from twin.pilot import Leg, Observation, Pilot, task_plan
 
 
@@ -50,20 +50,8 @@ def fly_over_the_control_socket(ws_url: str, twin, pilot: Pilot, stop: threading
 
 @pytest.mark.timeout(240)
 def test_pilot_flies_task_1_with_procedure_map_and_score(tmp_path):
-    settings = load_settings(
-        None,
-        {
-            "link.source": "sim",
-            "viser.enabled": False,
-            "cameras.front.spec": "none",
-            "cameras.bottom.spec": "none",
-            "recording.sessions_dir": str(tmp_path),
-            "recording.post_disarm_tail_s": 1.0,
-            "recording.min_free_mb": 0,
-        },
-        environ={},
-    )
-    app = create_app(settings)
+    no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    app = create_app(twin_station_settings(tmp_path, no_cameras))
     with run_uvicorn(app) as base, chromium() as browser:
         station = app.state.station
         twin = station.twin

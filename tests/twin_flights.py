@@ -28,6 +28,22 @@ class RecordedFlight:
     folder: Path
 
 
+def twin_station_settings(sessions_dir: Path, overrides: dict[str, Any] | None = None):
+    """A `--source sim` station recording into `sessions_dir`, with a short tail."""
+    return load_settings(
+        None,
+        {
+            "link.source": "sim",
+            "viser.enabled": False,
+            "recording.sessions_dir": str(sessions_dir),
+            "recording.post_disarm_tail_s": 1.0,
+            "recording.min_free_mb": 0,
+            **(overrides or {}),
+        },
+        environ={},
+    )
+
+
 @contextlib.contextmanager
 def recorded_twin_flight(
     sessions_dir: Path,
@@ -41,19 +57,7 @@ def recorded_twin_flight(
     """`before_flight(base_url)` runs once the station is up; `legs` replace the task's
     scripted plan (an aborted trial, say); `crash`: the plan must end in a crash (the
     twin then disarms in the air) instead of being flown to its end."""
-    settings = load_settings(
-        None,
-        {
-            "link.source": "sim",
-            "viser.enabled": False,
-            "recording.sessions_dir": str(sessions_dir),
-            "recording.post_disarm_tail_s": 1.0,
-            "recording.min_free_mb": 0,
-            **(overrides or {}),
-        },
-        environ={},
-    )
-    app = create_app(settings)
+    app = create_app(twin_station_settings(sessions_dir, overrides))
     with run_uvicorn(app) as base:
         station = app.state.station
         state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
