@@ -13,7 +13,8 @@ another process so that they do not delay the reader:
     busted     GET .../birdseye.png?task=a-to-b&_=RANDOM   (the same figure, junk query)
     distinct   GET .../birdseye.png?task=a-to-b&margin_m=RANDOM   (a new figure each)
 
-Printed per phase: telemetry msg/s, p99 and longest gap, and the figure answers by status.
+Printed per phase: telemetry msg/s, p99 and longest gap, the station process's own CPU
+(% of one core; a worker process's is not in it) and the figure answers by status.
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ async def read_telemetry(url: str, seconds: float) -> dict:
 
     arrivals = []
     async with websockets.connect(url, max_size=None, compression=None) as ws:
+        await ws.recv()  # the window opens at the first message, not at the connection
         t_end = time.monotonic() + seconds
         while (left := t_end - time.monotonic()) > 0:
             try:
@@ -95,7 +97,8 @@ async def read_telemetry(url: str, seconds: float) -> dict:
     }
 
 
-def phase(base: str, kind: str | None, clients: int, seconds: float) -> dict:
+def phase(station, kind: str | None, clients: int, seconds: float) -> dict:
+    base = station.base
     ws_url = base.replace("http", "ws") + "/ws/telemetry"
     loader = None
     if kind is not None:
@@ -105,7 +108,12 @@ def phase(base: str, kind: str | None, clients: int, seconds: float) -> dict:
             text=True,
         )
         time.sleep(1.0)  # the clients are running when the window opens
+    cpu0 = sum(station.process.cpu_times()[:2])
     figures = asyncio.run(read_telemetry(ws_url, seconds))
+    # The station process's own CPU in the window (a worker process's is not in it).
+    figures["station_cpu_pct"] = round(
+        100 * (sum(station.process.cpu_times()[:2]) - cpu0) / seconds
+    )
     if loader is not None:
         out, _ = loader.communicate(timeout=seconds + 120)
         figures["figures"] = json.loads(out.strip().splitlines()[-1])
@@ -138,7 +146,7 @@ def main() -> None:
                 time.sleep(2.0)
                 print(f"station: {args.root}, {os.cpu_count()} cores, {args.clients} clients")
                 for kind in (None, "busted", "distinct"):
-                    got = phase(station.base, kind, args.clients, args.seconds)
+                    got = phase(station, kind, args.clients, args.seconds)
                     print(f"{kind or 'no load':9s} {json.dumps(got)}", flush=True)
             finally:
                 sender.kill()

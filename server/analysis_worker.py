@@ -5,9 +5,9 @@ Rendering a figure is seconds of pure-Python matplotlib holding the interpreter'
 in a thread of the station it delays the event loop, and with it the flight state sent
 to the pilot. In a separate process it costs a core at most, never the loop's time.
 
-- The worker is a spawned process (a fork of a threaded server is unsafe), started by
-  the first request and stopped after `idle_s` without one, so an idle Pi keeps its
-  memory. A worker that died (out of memory) is replaced by the next request.
+- The worker is a spawned process (a fork of a threaded server is unsafe) at a lower
+  scheduling priority (nice 10), started by the first request and stopped after
+  `idle_s` without one, so an idle Pi keeps its memory. A worker that died (out of memory) is replaced by the next request.
 - At most `max_pending` jobs are accepted at a time (running or queued, over every
   client); one more is refused with `AnalysisBusy` (503) at once, not queued.
 - Answers are cached by what decides them (`key`): the files' size and modification
@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
+import os
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field, replace
@@ -133,7 +134,9 @@ class AnalysisWorker:
 
         if self._pool is None:
             ctx = multiprocessing.get_context("spawn")
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+            self._pool = ProcessPoolExecutor(
+                max_workers=1, mp_context=ctx, initializer=_lower_priority
+            )
             self.stats.processes += 1
         self.stats.jobs += 1
         try:
@@ -159,6 +162,15 @@ class AnalysisWorker:
 
 
 # ---------------------------------------------------------------- in the worker process
+
+WORKER_NICE = 10
+
+
+def _lower_priority() -> None:
+    """The worker yields the cores to the station: on a busy Pi the scheduler gives the
+    flight state's process the time first, and the figures wait."""
+    os.nice(WORKER_NICE)
+
 
 Stamp = tuple[str, int, int]  # path, mtime_ns, size
 
