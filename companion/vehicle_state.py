@@ -348,8 +348,34 @@ def freeze_draft(draft: Any, cls: type[T]) -> T:
 
 def quick_replace(obj: T, **changes: Any) -> T:
     """`dataclasses.replace(obj, **changes)` for a frozen slots dataclass of this module,
-    built the quick way; an unknown name is an AttributeError (the twin has slots only)."""
-    return _copy_as(obj, type(obj), changes)
+    built the quick way; an unknown name is an AttributeError. For each class and set of
+    names changed (a message handler's: the same every time), one function is made that
+    calls the twin's constructor with every field in order, the changed ones from
+    `changes` and the others from `obj`: as fast as the quick constructor."""
+    key = (type(obj), tuple(changes))
+    replace = _REPLACERS.get(key)
+    if replace is None:
+        replace = _REPLACERS[key] = _replacer(*key)
+    return replace(obj, changes)  # type: ignore[no-any-return]
+
+
+_REPLACERS: dict[tuple[type, tuple[str, ...]], Callable[[Any, dict[str, Any]], Any]] = {}
+
+
+def _replacer(cls: type, names: tuple[str, ...]) -> Callable[[Any, dict[str, Any]], Any]:
+    """The function `quick_replace` calls for `names` of `cls` (made once, as dataclasses
+    makes its __init__)."""
+    all_names = [f.name for f in fields(cls)]
+    unknown = set(names) - set(all_names)
+    if unknown:
+        raise AttributeError(f"{cls.__name__} has no field {', '.join(sorted(unknown))}")
+    args = ", ".join(f"c[{n!r}]" if n in names else f"o.{n}" for n in all_names)
+    scope: dict[str, Any] = {"twin": _twin(cls)[0], "cls": cls}
+    exec(
+        f"def replace(o, c):\n    new = twin({args})\n    new.__class__ = cls\n    return new",
+        scope,
+    )
+    return scope["replace"]  # type: ignore[no-any-return]
 
 
 def _copy_as(source: Any, cls: type[T], changes: dict[str, Any]) -> T:
