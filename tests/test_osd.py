@@ -7,6 +7,7 @@ import math
 import re
 import time
 
+import httpx
 import pytest
 from playwright.sync_api import expect
 
@@ -354,3 +355,38 @@ def test_pilot_page_has_no_horizontal_scroll_on_a_phone(station, browser, size):
     assert page.evaluate(OVERLAPS, "#front-view") == []
     page.locator("#bottom-view").scroll_into_view_if_needed()
     expect(page.locator("#bottom-view img")).to_be_in_viewport()
+
+
+def test_not_recording_shows_while_armed_without_a_recording(tmp_path, browser):
+    """The station cannot create its sessions folder when the vehicle arms (a file is in
+    its way): the arming's start is refused, and while the vehicle is armed the OSD shows
+    a red NOT RECORDING. Once the folder can be made the retry records the flight and
+    the badge goes; disarmed, nothing is missing."""
+    blocked = tmp_path / "sessions"
+    blocked.write_text("not a folder")
+    with MavVehicle("udp") as vehicle:
+        settings = station_settings(
+            vehicle.station_source, blocked, **{"recording.auto_record_on_arm": True}
+        )
+        with run_uvicorn(create_app(settings)) as base:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(base + "/")
+            badge = page.locator("[data-osd=recording]")
+            expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=30_000)
+            expect(badge).to_have_text("")
+            vehicle.arm()
+            expect(badge).to_have_text("NOT RECORDING", timeout=15_000)
+            expect(badge).to_have_class(re.compile(r"\bosd-bad\b"))
+            assert page.evaluate(OVERLAPS, "#front-view") == []
+            recording = httpx.get(f"{base}/api/recording").json()
+            assert not recording["recording"] and "Cannot record in" in recording["last_error"]
+            assert recording["not_recording"] and recording["armed_unrecorded_s"] >= 1.0
+
+            blocked.unlink()
+            expect(badge).to_have_text("", timeout=15_000)
+            expect(badge).not_to_have_class(re.compile(r"\bosd-bad\b"))
+            recording = httpx.get(f"{base}/api/recording").json()
+            assert recording["recording"] and recording["trigger"] == "retry", recording
+            vehicle.disarm()
+            expect(page.locator("[data-osd=armed]")).to_have_text("DISARMED", timeout=15_000)
+            expect(badge).to_have_text("")

@@ -103,3 +103,40 @@ def test_a_cause_that_has_not_passed_is_retried_ever_more_slowly(tmp_path):
     for folder in tmp_path.iterdir():  # each one failed at once, and says so
         meta = json.loads((folder / "session.json").read_text())
         assert meta["status"] == "cut_short" and "too large" in meta["stop_reason"], meta
+
+
+def test_a_start_refused_on_arming_is_retried_while_armed(tmp_path):
+    """A real station with no descriptor left when the vehicle arms: the arming's start is
+    refused (EMFILE). While armed, health is degraded with the reason and /api/status says
+    NOT RECORDING; the start is tried again, so once descriptors are back the flight is
+    recorded, and its session says how much of the flight came before it. Before, a
+    refused start was never retried: the flight went unrecorded to its end."""
+    proc = spawn(["-m", "tests.record_through_refused_start", str(tmp_path)])
+    try:
+        refused = read_line(proc, "REFUSED ", timeout=120)
+        health, not_recording, reasons = refused.split(" ", 2)
+        assert health == "health=degraded" and not_recording == "not_recording=True", refused
+        reasons = json.loads(reasons.removeprefix("reasons="))
+        assert any("Too many open files" in r for r in reasons), reasons
+        assert any("armed" in r and "without a recording" in r for r in reasons), reasons
+        started = read_line(proc, "STARTED ", timeout=30)
+        assert read_line(proc, "HEALTH ", timeout=30) == "ok"
+        assert read_line(proc, "STOPPED ", timeout=30) == "disarmed"
+        read_line(proc, "DONE", timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+    sid, trigger = started.split()
+    assert trigger == "trigger=retry"
+    # The refused starts left no folder behind: one session, the flight's.
+    assert [p.name for p in tmp_path.iterdir()] == [sid]
+    meta = json.loads((tmp_path / sid / "session.json").read_text())
+    assert meta["status"] == "complete" and meta["stop_reason"] == "disarmed"
+    missed = meta["missed"]
+    # Armed for the whole refusal (the script holds the descriptors 3 s) before it began,
+    # and no session recorded any of it.
+    assert missed["armed_before_start_s"] >= 3.0, missed
+    assert missed["unrecorded_s"] == missed["armed_before_start_s"]
+    assert "Too many open files" in missed["reason"]
+    assert meta["arming"] is not None  # the rows after the start still know the arming

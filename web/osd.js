@@ -47,6 +47,7 @@ const ELEMENTS = {
   mode: "heartbeat",
   armed: "heartbeat",
   timer: null,
+  recording: null,
   home: "position",
   link: null,
   age: null,
@@ -221,6 +222,12 @@ export function mountOsd(view, { menu = true } = {}) {
     const timerS = s.heartbeat.armed ? armedFor + (groupAge("heartbeat") ?? 0) : armedFor;
     const mm = Math.floor(timerS / 60), ss = Math.floor(timerS % 60);
     setText(nodes.timer, `${String(mm).padStart(2, "0")}:${String(ss).padStart(2, "0")}`);
+    // Armed and no session recording the flight (the station says so: a start refused and
+    // being retried, a session cut short, recording off); disarming clears it at once.
+    const unrecorded = s.heartbeat.armed && station.notRecording;
+    setText(nodes.recording, unrecorded ? "NOT RECORDING" : "");
+    const recCls = `osd-item osd-recording${unrecorded ? " osd-bad" : ""}`;
+    if (nodes.recording.className !== recCls) nodes.recording.className = recCls;
 
     // Home: distance and an arrow relative to the nose.
     const posR = reading("position"), pos = posR.value;
@@ -315,8 +322,11 @@ function setHidden(name, off) {
 // from hosts other than the link's peer, packets failing signing): someone may be
 // injecting; `refusedAt` is when the count last grew.
 const link = { loss: null, refusedTotal: null, refusedAt: null };
+// Whether the vehicle is armed and no session records it (GET /api/status, recording).
+const station = { notRecording: false };
 window.addEventListener("fpv:status", (e) => {
   const st = e.detail;
+  station.notRecording = Boolean(st && st.recording && st.recording.not_recording);
   link.loss = st && st.link ? st.link.loss_ratio : null;
   const sec = st && st.link && st.link.security;
   if (sec) {

@@ -74,6 +74,20 @@ class Arming(_Model):
     home_lon_deg: float | None = None
 
 
+class Missed(_Model):
+    """The part of the flight before the session: it started with the vehicle already
+    armed (its start refused and retried, the flight's earlier session cut short, a
+    station started mid-flight, or started by hand)."""
+
+    # Seconds the vehicle had been armed when the session started (from its first
+    # HEARTBEAT saying armed; a session started on arming: that start's own latency).
+    armed_before_start_s: float
+    # Of those, the seconds no session recorded: since arming, or since the end of the
+    # station's previous session when that was later (the flight's earlier session).
+    unrecorded_s: float
+    reason: str | None = None  # why: the refused start's error, or the failed write's
+
+
 class Recovery(_Model):
     """What the station found in the files of a session whose writer was cut off (kill -9,
     power loss, a failed write) and what it repaired (companion.recording.ondisk); the
@@ -154,6 +168,7 @@ class SessionMeta(_Model):
     settings: dict[str, Any] = Field(default_factory=dict)
     trigger: str | None = None  # "rest", "arm", "api", ...
     arming: Arming | None = None
+    missed: Missed | None = None  # None: the vehicle was not armed when the session started
     quality: Quality = Field(default_factory=Quality)
     task: SessionTask | None = None
     score: TrialScore | None = None

@@ -8,6 +8,9 @@
 
 One session at a time. A session stopped by the writer (disk full, write error) is
 finalized here with the writer's reason, which stays visible in `status().last_stop`.
+While the vehicle is armed, a session that failed is started again, and so is one whose
+start was refused (no descriptor, a full disk), for as long as the vehicle stays armed;
+the session that starts late says how much of the flight it missed (`SessionMeta.missed`).
 
 A source on its own clock (a replay, `companion.source_clock`) drives the recorder from
 its thread: rows at each instant of its time, arming and the post-disarm tail in its
@@ -67,9 +70,18 @@ class RecordingStatus:
     stopping_at_wall: float | None = None  # end of the post-disarm tail, when pending
     last_stop: LastStop | None = None
     last_error: str | None = None  # why the last start failed, if it did
+    # Seconds the vehicle has been armed with no session recording (None: disarmed, or
+    # recording), and whether that is longer than a start takes: the flight is not being
+    # recorded, and the pages say NOT RECORDING.
+    armed_unrecorded_s: float | None = None
+    not_recording: bool = False
 
 
+RETRY_MIN_S = 1.0  # the retry's first wait, and its wait after a refused start
 RETRY_MAX_S = 30.0
+# Armed this long with no session is a flight not being recorded: a start takes tens of
+# milliseconds, so an arming's own start never shows as one.
+NOT_RECORDING_AFTER_S = 1.0
 # Sessions the recorder started by itself for a flight (arming, or again after a failed
 # write while armed): disarming ends them. One started by hand is stopped by hand.
 FLIGHT_TRIGGERS = ("arm", "retry")
@@ -112,7 +124,8 @@ class Recorder:
         # until a new session starts; the station's health reports it (degraded).
         self.failure: str | None = None
         self._retrying = False
-        self._retry_delay = 1.0  # the retry's first wait (_failed, _retry)
+        self._retry_delay = RETRY_MIN_S  # the retry's first wait (_failed, _retry)
+        self._stopped_mono: float | None = None  # when the last session stopped (source clock)
         self._was_armed: bool | None = None  # source-clock arm watching (its thread)
         # Live arm watching: the state slot's listener (the link's thread) notes the armed
         # flag of each state and wakes `_watch_arming` only when it changes.
@@ -158,8 +171,9 @@ class Recorder:
                 try:
                     session = await asyncio.to_thread(self._new_session, trigger)
                 except (OSError, RecorderError) as exc:
+                    if str(exc) != self.last_error:  # not once a second while retried
+                        log.error("recording did not start: %s", exc)
                     self.last_error = str(exc)
-                    log.error("recording did not start: %s", exc)
                     raise RecorderError(str(exc)) from None
                 session.start()
                 self.session = session
@@ -193,6 +207,9 @@ class Recorder:
                 self._on_writer_failure,
                 self.clock,
                 task=self.task,
+                recorded_until_wall=self.last_stop.end_wall if self.last_stop else None,
+                # why the flight went unrecorded until this retry (a stale one otherwise)
+                missed_reason=(self.last_error or self.failure) if trigger == "retry" else None,
             )
         except OSError as exc:
             raise RecorderError(
@@ -218,6 +235,7 @@ class Recorder:
                 self.last_stop = LastStop(
                     session.id, meta.stop_reason or reason, meta.end_wall or time.time()
                 )
+                self._stopped_mono = self.clock.mono()
                 log.info("recording session %s stopped: %s", session.id, meta.stop_reason)
                 for hook in self.session_end_hooks:
                     try:
@@ -232,14 +250,33 @@ class Recorder:
         if session is not None:
             session.on_packet(t_wall, packet)
 
+    def armed_unrecorded_s(self) -> float | None:
+        """Seconds the vehicle has been armed with no session recording: since its first
+        HEARTBEAT saying armed, or since the last session stopped if later. None while
+        disarmed or recording."""
+        if self.session is not None:
+            return None
+        got = self.state.get()
+        heartbeat = got.value.heartbeat if got is not None else None
+        if heartbeat is None or not heartbeat.armed:
+            return None
+        now = self.clock.mono()
+        since = heartbeat.armed_since_mono if heartbeat.armed_since_mono is not None else now
+        if self._stopped_mono is not None:
+            since = max(since, self._stopped_mono)
+        return round(max(0.0, now - since), 3)
+
     def status(self) -> RecordingStatus:
         s = self.session
         if s is None:
+            unrecorded = self.armed_unrecorded_s()
             return RecordingStatus(
                 recording=False,
                 auto_record_on_arm=self.options.auto_record_on_arm,
                 last_stop=self.last_stop,
                 last_error=self.last_error,
+                armed_unrecorded_s=unrecorded,
+                not_recording=unrecorded is not None and unrecorded >= NOT_RECORDING_AFTER_S,
             )
         stats = s.writer.stats
         return RecordingStatus(
@@ -280,8 +317,8 @@ class Recorder:
             if armed and was_armed is not True:
                 try:
                     await self.start("arm")
-                except RecorderError:
-                    pass  # logged, and shown in status().last_error
+                except RecorderError:  # logged, and shown in status().last_error
+                    self._keep_trying(refused=True)
             elif not armed and was_armed is True:
                 self._schedule_tail()
             was_armed = armed
@@ -304,7 +341,8 @@ class Recorder:
         armed = bool(got.value.heartbeat.armed) if got is not None else False
         if armed and self._was_armed is not True:
             self._tail_due = None
-            self._wait_for(self.start("arm"))
+            if not self._wait_for(self.start("arm")):
+                self._loop.call_soon_threadsafe(self._keep_trying, True)
         elif not armed and self._was_armed is True:
             if session is not None and session.trigger in FLIGHT_TRIGGERS:
                 self._tail_due = t + self.options.post_disarm_tail_s
@@ -314,15 +352,18 @@ class Recorder:
             self._tail_due = self._tail_deadline_wall = None
             self._wait_for(self.stop("disarmed", only_id=self.session.id))
 
-    def _wait_for(self, coro: Coroutine[Any, Any, Any]) -> None:
-        """Run `coro` on the event loop and wait for it (from the source's thread)."""
+    def _wait_for(self, coro: Coroutine[Any, Any, Any]) -> bool:
+        """Run `coro` on the event loop and wait for it (from the source's thread); False
+        if it failed."""
         assert self._loop is not None
         try:
             asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout=30.0)
         except RecorderError:
-            pass  # logged, and shown in status().last_error
+            return False  # logged, and shown in status().last_error
         except Exception:
             log.exception("recording start/stop on the source's clock failed")
+            return False
+        return True
 
     def _schedule_tail(self) -> None:
         session = self.session
@@ -370,31 +411,45 @@ class Recorder:
         # A session the retry started that failed again soon: the cause has not passed,
         # and the wait goes on growing (not a new session folder every second of a flight).
         if not again:
-            self._retry_delay = 1.0  # a new failure: its cause may pass soon
+            self._retry_delay = RETRY_MIN_S  # a new failure: its cause may pass soon
         self._spawn_stop(reason, session_id)
-        if not self._retrying and self._spawn is not None:
+        self._keep_trying()
+
+    def _keep_trying(self, refused: bool = False) -> None:
+        """A session failed, or (`refused`) the arming's start was: retry while armed (on
+        the event loop). A refused arming is a new cause: the first wait is the shortest."""
+        if refused:
+            self._retry_delay = RETRY_MIN_S
+        if not self._retrying and self._spawn is not None and not self._closed:
             self._retrying = True
-            self._spawn(f"recorder-retry-{session_id}", self._retry())
+            self._spawn("recorder-retry", self._retry())
 
     async def _retry(self) -> None:
-        """While the vehicle flies and no session runs, start one again: after 1 s, then
-        doubling to 30 s, also across sessions that fail again within 30 s of their start.
-        A stopped vehicle needs no recording; the failure stays shown."""
+        """While the vehicle is armed and no session runs, start one again. A refused start
+        (no descriptor, a full disk) leaves nothing behind and is tried again every
+        `RETRY_MIN_S`: each second armed unrecorded is a second of flight lost. A session
+        that started and failed is retried after 1 s, then doubling to 30 s across
+        sessions that fail again within 30 s of their start (not a new session folder
+        every second of a flight). Once disarmed the next arming starts a session itself;
+        the failure stays shown."""
         delay = self._retry_delay
+        wait = delay
         try:
-            while not self._closed and self.failure is not None:
-                await asyncio.sleep(delay)
-                delay = min(delay * 2, RETRY_MAX_S)
+            while not self._closed and (self.failure is not None or self.last_error is not None):
+                await asyncio.sleep(wait)
                 got = self.state.get()
                 armed = got is not None and bool(got.value.heartbeat.armed)
                 if self.session is not None or not armed or not self.options.auto_record_on_arm:
-                    continue
-                failure = self.failure  # a start that works clears it
+                    return
+                cause = self.failure or self.last_error  # a start that works clears both
                 try:
                     await self.start("retry")
                 except RecorderError:
-                    continue  # logged and in last_error; the failure stays until it works
-                self._retry_delay = delay  # where the next wait starts if this one fails soon
-                log.info("recording resumed after: %s", failure)
+                    wait = RETRY_MIN_S  # logged and in last_error until a start works
+                    continue
+                # Where the next wait starts if this session fails again soon.
+                self._retry_delay = min(delay * 2, RETRY_MAX_S)
+                log.info("recording resumed after: %s", cause)
+                return
         finally:
             self._retrying = False

@@ -36,12 +36,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.latest import Latest
+from companion.latest import Latest, Versioned
 from companion.recording import layout
 from companion.recording.flags import QUALITY_THRESHOLDS
 from companion.recording.meta import (
     Arming,
     CameraQuality,
+    Missed,
     Quality,
     SessionClock,
     SessionMeta,
@@ -125,7 +126,12 @@ class RecordingSession:
         on_failure: Callable[[str, str], None] | None = None,
         clock: SourceClock | None = None,
         task: SessionTask | None = None,
+        recorded_until_wall: float | None = None,
+        missed_reason: str | None = None,
     ) -> None:
+        """`recorded_until_wall`: the end of the station's previous session, and
+        `missed_reason` why none recorded since, for a session that starts in mid-flight
+        (`SessionMeta.missed`)."""
         self.config = config
         self.trigger = trigger
         self.task = task  # the flight task chosen when the session started
@@ -164,6 +170,7 @@ class RecordingSession:
         self.t0_wall = self.clock.wall()
         self.t0_mono = self.clock.mono()
         self._next_sample = self.t0_mono
+        self._missed = _missed(held, self.t0_mono, self.t0_wall, recorded_until_wall, missed_reason)
         self._station_synced = None if self.clock.own else clock_synchronised()
         naming = self._choose_clock()
         try:
@@ -537,10 +544,33 @@ class RecordingSession:
             settings=dict(self.config.settings),
             trigger=self.trigger,
             arming=self._arming,
+            missed=self._missed,
             quality=quality,
             task=self.task,
             clock=utc,
         )
+
+
+def _missed(
+    held: Versioned[VehicleState] | None,
+    t0_mono: float,
+    t0_wall: float,
+    recorded_until_wall: float | None,
+    reason: str | None,
+) -> Missed | None:
+    """What the flight had before a session that starts with the vehicle armed."""
+    heartbeat = held.value.heartbeat if held is not None else None
+    if heartbeat is None or not heartbeat.armed or heartbeat.armed_since_mono is None:
+        return None
+    armed_s = max(0.0, t0_mono - heartbeat.armed_since_mono)
+    unrecorded_s = armed_s
+    if recorded_until_wall is not None:
+        unrecorded_s = min(armed_s, max(0.0, t0_wall - recorded_until_wall))
+    return Missed(
+        armed_before_start_s=round(armed_s, 3),
+        unrecorded_s=round(unrecorded_s, 3),
+        reason=reason,
+    )
 
 
 def _round(v: float | None, nd: int = 6) -> float | None:

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Literal
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
+from companion.recording.recorder import NOT_RECORDING_AFTER_S
 from companion.recording.session_clock import choose_session_clock
 from companion.system_clock import clock_synchronised
 from server import __version__
@@ -48,6 +49,11 @@ async def get_health(request: Request) -> Health:
         reasons.append(f"recording failed: {recorder.failure}")
     if recorder is not None and recorder.last_error is not None:
         reasons.append(f"recording cannot start: {recorder.last_error}")
+    # A flight the station should be recording (recording on arming) and is not.
+    auto = recorder is not None and recorder.options.auto_record_on_arm
+    unrecorded = recorder.armed_unrecorded_s() if auto else None
+    if unrecorded is not None and unrecorded >= NOT_RECORDING_AFTER_S:
+        reasons.append(f"the vehicle has been armed for {unrecorded:.0f} s without a recording")
     return Health(
         ok=not reasons,
         status="degraded" if reasons else "ok",

@@ -33,6 +33,10 @@ class RecordingStatusModel(BaseModel):
     stopping_at_wall: float | None = None  # end of the post-disarm tail, when pending
     last_stop: LastStopModel | None = None  # the previous session and why it stopped
     last_error: str | None = None  # why the last start failed, if it did
+    # Seconds armed with no session recording (None: disarmed or recording), and whether
+    # that is a flight not being recorded (longer than a start takes): NOT RECORDING.
+    armed_unrecorded_s: float | None = None
+    not_recording: bool = False
 
 
 def get_recorder(request: Request) -> Recorder:

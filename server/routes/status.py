@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import platform
 
 from fastapi import APIRouter, Request
@@ -21,14 +22,23 @@ class Versions(BaseModel):
     fastapi: str
 
 
+class RecordingNow(BaseModel):
+    recording: bool  # a session is being recorded
+    # The vehicle is armed and no session records it (a refused start being retried, a
+    # session cut short, or recording off): the pages show NOT RECORDING.
+    not_recording: bool
+
+
 class StatusReply(BaseModel):
     source: str  # the configured MAVLink source (connection string, "sim" or "none")
     link: LinkHealth | None  # None when there is no vehicle link (source "none")
+    recording: RecordingNow | None = None  # None: the station has no recorder
     state_version: int  # grows by one per state change; 0 before the first
     state: VehicleState | None  # None before the first state
     versions: Versions
 
 
+@functools.cache  # read once: each read opens package metadata files (none under EMFILE)
 def _versions() -> Versions:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -50,9 +60,14 @@ def _versions() -> Versions:
 async def get_status(request: Request) -> StatusReply:
     station = request.app.state.station
     current = station.state.get()
+    recorder = station.recorder
+    rec = recorder.status() if recorder is not None else None
     return StatusReply(
         source=station.settings.link.source,
         link=station.link.health() if station.link is not None else None,
+        recording=None
+        if rec is None
+        else RecordingNow(recording=rec.recording, not_recording=rec.not_recording),
         state_version=current.version if current is not None else 0,
         state=current.value if current is not None else None,
         versions=_versions(),
