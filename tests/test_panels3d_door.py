@@ -26,7 +26,7 @@ from websockets.sync.client import ClientConnection, connect
 from server.app import create_app
 from server.settings import load_settings
 from server.trajectory3d.gate import MESSAGES_BURST, MESSAGES_PER_S, gui_uuid
-from tests.helpers import run_uvicorn, wait_until
+from tests.helpers import free_port, run_uvicorn, wait_until
 from tests.station_process import serve_station
 from tests.test_connections import LOW_LIMIT
 from tests.test_trajectory_browser import state_at
@@ -493,3 +493,30 @@ def test_a_flood_of_camera_messages_reaches_viser_at_a_bounded_rate(station):
     # passing them on (it passes each before viser's callback for it runs).
     bound = MESSAGES_BURST + MESSAGES_PER_S * (updates[-1] - t0) + 1
     assert len(updates) <= bound, (len(updates), bound)
+
+
+TRY_SOCKET = """(url) => new Promise((resolve) => {
+  document.addEventListener("securitypolicyviolation", (e) => {
+    if (e.blockedURI.startsWith(url.slice(0, 20))) resolve(`blocked by ${e.violatedDirective}`);
+  });
+  const ws = new WebSocket(url);
+  ws.onopen = () => { ws.close(); resolve("opened"); };
+  ws.onerror = () => setTimeout(() => resolve("failed"), 1000);  // a violation comes first
+})"""
+
+
+def test_the_panel_page_connects_to_this_station_only(station, browser):
+    """viser's client shares the pilot page's origin (and its token): a crafted link
+    whose ?websocket= names another server (which could send viser's RunJavascriptMessage)
+    is refused, and the page's CSP lets its scripts connect to this station only."""
+    base, st = station
+    evil = f"ws://127.0.0.1:{free_port()}/3d/live"
+    for url in (evil, "ws://evil.example/3d/live", f"{base.replace('http', 'ws')}/api/x"):
+        reply = httpx.get(f"{base}/3d/live/", params={"websocket": url})
+        assert reply.status_code == 400 and reply.json()["error"] == "BadRequest", url
+    own = f"{base.replace('http', 'ws')}/3d/live"
+    assert httpx.get(f"{base}/3d/live/", params={"websocket": own}).status_code == 200
+    page = browser.new_page()
+    page.goto(f"{base}/3d/live/", wait_until="domcontentloaded")
+    assert page.evaluate(TRY_SOCKET, evil) == "blocked by connect-src"  # the page's CSP
+    assert page.evaluate(TRY_SOCKET, own) == "opened"

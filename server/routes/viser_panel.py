@@ -6,6 +6,12 @@ and where the pages find them.
     WS  /3d/live, /3d/replay         a viewer; `?token=` lets it change what all viewers see
     GET /api/viser                   the panels' paths and the trail's size
 
+viser's client is served from the station's own origin, beside the pilot page and its
+token: told by its `?websocket=` where to connect, a crafted link could make it load a
+scene, and viser's RunJavascriptMessage, from another server. So the page is refused
+unless its `?websocket=` names this station's own panel, and it carries a
+Content-Security-Policy whose `connect-src` allows this station only.
+
 The WebSocket routes meet the guard (Origin, Host), the connection table and the frame
 limit (`MAX_FRAME_BYTES`) as every route does, then the 3D viewer cap
 (server/client_limits.py): beyond it a viewer is refused with 503 before its relay opens.
@@ -16,13 +22,14 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 from typing import Literal
+from urllib.parse import urlsplit
 
 from fastapi import APIRouter, Request, WebSocket
 from fastapi.responses import FileResponse
 from pydantic import BaseModel
 
 from server.auth import require_control_token
-from server.errors import NotFound, Unauthorized, Unavailable, deny_websocket
+from server.errors import BadRequest, NotFound, Unauthorized, Unavailable, deny_websocket
 from server.station import Station, start_3d_panels
 from server.trajectory3d.gate import ViewerRules, relay
 
@@ -80,7 +87,18 @@ def _client_page() -> Path:
 async def viser_client_page(request: Request) -> FileResponse:
     if request.app.state.station.trajectory3d is None:
         raise NotFound("The 3D panels are off (--no-3d).")
-    return FileResponse(_client_page(), media_type="text/html; charset=utf-8")
+    host = request.headers.get("host", "")
+    own = request.url.path.rstrip("/")
+    for url in request.query_params.getlist("websocket"):
+        parts = urlsplit(url)
+        if parts.scheme not in ("ws", "wss") or parts.netloc != host or parts.path != own:
+            raise BadRequest(f"The 3D panel connects to this station's {own} only.")
+    policy = f"connect-src 'self' ws://{host} wss://{host} data: blob:; frame-ancestors 'self'"
+    return FileResponse(
+        _client_page(),
+        media_type="text/html; charset=utf-8",
+        headers={"Content-Security-Policy": policy},
+    )
 
 
 @router.websocket(VIEWER_PATHS[0])
