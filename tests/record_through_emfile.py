@@ -17,7 +17,7 @@ import resource
 import sys
 from pathlib import Path
 
-from tests.recording_fakes import FakeRig, recorder_options
+from tests.recording_fakes import FakeRig, recorder_options, starve
 
 
 async def until(predicate, within_s: float) -> bool:
@@ -42,21 +42,12 @@ async def main(root: Path) -> None:
     await asyncio.sleep(0.5)
     hog: list[int] = []
 
-    def starve() -> None:
-        # Take every free descriptor, again on each poll: one something closes would
-        # otherwise be free for its next open.
-        try:
-            while True:
-                hog.append(os.open(os.devnull, os.O_RDONLY))
-        except OSError:
-            pass
-
     def written() -> int:
         return sum(rec.session.writer.stats.frames_written.values()) if rec.session else 0
 
-    starve()
+    starve(hog)
     before = written()
-    await until(lambda: starve() or written() >= before + 30 or rec.failure is not None, 30)
+    await until(lambda: starve(hog) or written() >= before + 30 or rec.failure is not None, 30)
     sid = rec.session.id if rec.session else None
     print(f"STARVED frames={written() - before} failure={rec.failure} session={sid}", flush=True)
     for fd in hog:

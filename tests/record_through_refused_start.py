@@ -25,6 +25,7 @@ import httpx
 from server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
+from tests.recording_fakes import starve
 
 REFUSED_S = 3.0  # armed and starved this long: the retry is refused a few times
 
@@ -32,16 +33,6 @@ REFUSED_S = 3.0  # armed and starved this long: the retry is refused a few times
 def main(root: Path) -> None:
     resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256))  # the station may not raise it
     hog: list[int] = []
-
-    def starve() -> None:
-        # Every free descriptor, again at each poll: one something closes (a failed
-        # start's files) would otherwise be free for the next start.
-        try:
-            while True:
-                hog.append(os.open(os.devnull, os.O_RDONLY))
-        except OSError:
-            pass
-
     with MavVehicle("udp") as vehicle:
         settings = station_settings(
             vehicle.station_source,
@@ -54,13 +45,13 @@ def main(root: Path) -> None:
             got = lambda: client.get("/api/status").json()  # noqa: E731
             # The connection the starved station is read over: opened now, kept alive.
             assert wait_until(lambda: got()["state"] is not None, 20), "no vehicle state"
-            starve()
+            starve(hog)
             vehicle.arm()
             deadline = time.monotonic() + REFUSED_S
             health: dict = {}
             status: dict = {}
             while time.monotonic() < deadline:
-                starve()
+                starve(hog)
                 health = client.get("/api/health").json()
                 status = got()
                 time.sleep(0.3)  # well inside the keep-alive timeout

@@ -8,6 +8,7 @@ as the station does.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from pathlib import Path
@@ -23,6 +24,16 @@ from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.vehicle_state import Heartbeat, PilotAltitude, RcChannels, VehicleState
 from companion.video_frame import Frame
+
+
+def starve(hog: list[int]) -> None:
+    """Take every free descriptor of this process into `hog` (until EMFILE). Call it again
+    at each poll: one something closes would otherwise be free for its next open."""
+    try:
+        while True:
+            hog.append(os.open(os.devnull, os.O_RDONLY))
+    except OSError:
+        pass
 
 
 def make_jpegs(n: int = 8, width: int = 320, height: int = 240) -> list[bytes]:

@@ -17,6 +17,7 @@ from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
+from tests.recording_fakes import starve
 from tests.test_recording_kill import read_line, spawn
 
 
@@ -46,9 +47,7 @@ def descriptors_left(n: int):
     """Every descriptor of this process taken but `n` (opening /dev/null until EMFILE)."""
     hog: list[int] = []
     try:
-        with contextlib.suppress(OSError):
-            while True:
-                hog.append(os.open(os.devnull, os.O_RDONLY))
+        starve(hog)
         for _ in range(min(n, len(hog))):
             os.close(hog.pop())
         yield
