@@ -72,6 +72,19 @@ def score_session(folder: Path, task: SessionTask) -> TrialScore:
     return TrialScore(task=task.analysis, ok=True, scored_utc=now, result=result)
 
 
+def public_score(score: TrialScore | None) -> TrialScore | None:
+    """A stored score as a client may read it: a session scored by an older station may
+    hold the server's folders in its reason or its result's source."""
+    if score is None:
+        return None
+    update: dict[str, Any] = {}
+    if score.reason is not None:
+        update["reason"] = without_dirs(score.reason)
+    if score.result is not None and isinstance(score.result.get("source"), str):
+        update["result"] = {**score.result, "source": Path(score.result["source"]).name}
+    return score.model_copy(update=update) if update else score
+
+
 class Trials:
     """The chosen task, and the scores of the trials flown with it."""
 
@@ -143,7 +156,7 @@ class Trials:
                 or dt.datetime.fromtimestamp(s.start_wall, dt.UTC).date() != today
             ):
                 continue
-            out.append({"session": s.id, "start_utc": m.start_utc, "score": m.score})
+            out.append({"session": s.id, "start_utc": m.start_utc, "score": public_score(m.score)})
             if len(out) >= MAX_ATTEMPTS_SHOWN:
                 break
         return out

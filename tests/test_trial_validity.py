@@ -5,6 +5,8 @@ names the server's folders."""
 
 from __future__ import annotations
 
+import json
+
 import httpx
 import pytest
 
@@ -88,6 +90,18 @@ def test_no_message_names_a_server_folder(tmp_path):
     nofix = "20261122T041000Z_udp"
     syn.write_session(syn.hover_flight(height_m=2.0), root / low, meta={"id": low})
     syn.write_session(syn.hover_flight(), root / nofix, fix_type=0)
+    # Scored by an older station, which kept its folders in the score's texts.
+    old = "20261122T042000Z_sim"
+    folder = str(root / old)
+    score = {
+        "task": "hover",
+        "ok": True,
+        "scored_utc": "2026-11-22T04:21:00+00:00",
+        "reason": f"'{folder}': noted",
+        "result": {"source": folder, "valid": True},
+    }
+    meta = {"id": old, "start_wall": 1.7e9, "start_utc": "2026-11-22T04:20:00Z", "score": score}
+    syn.write_session(syn.hover_flight(), root / old, meta=meta)
     overrides = {
         "link.source": "none",
         "recording.sessions_dir": str(root),
@@ -102,6 +116,10 @@ def test_no_message_names_a_server_folder(tmp_path):
             texts.append(r.json()["error_msg"])
         r = httpx.get(f"{base}/api/sessions/{low}/analysis/birdseye.png?task=hover", timeout=60)
         texts.append(r.json()["error_msg"])
+        listed = httpx.get(f"{base}/api/sessions", timeout=30)
+        detail = httpx.get(f"{base}/api/sessions/{old}", timeout=30)
+        texts += [listed.text, json.dumps(detail.json()["meta"]["score"])]
+        assert old in listed.text and detail.json()["meta"]["score"]["result"]["source"] == old
     assert "never reached 4 m" in texts[0] and low in texts[0]
     task = SessionTask(id=1, name="hover", analysis="hover", scene="s", start_pad="start",
                        end_pad="start", altitude_m=4.0, hold_s=10.0)  # fmt: skip

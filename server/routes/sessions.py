@@ -21,6 +21,7 @@ from companion.recording.store import SessionSummary, is_frame_file
 from server.auth import require_control_token
 from server.errors import Conflict
 from server.routes.recording import get_recorder
+from server.trials import public_score
 from server.zipstream import stream_zip
 
 router = APIRouter(tags=["sessions"])
@@ -74,7 +75,7 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
     cams = s.meta.quality.cameras if s.meta is not None else {}
     data["skew_p99_s"] = {c: q.skew_p99_s for c, q in cams.items()}
     if s.meta is not None:
-        data["task"], data["score"] = s.meta.task, s.meta.score
+        data["task"], data["score"] = s.meta.task, public_score(s.meta.score)
         data["recovered"] = s.meta.recovery is not None
     data["flags"] = [dataclasses.asdict(f) for f in s.flags]
     return SessionSummaryModel.model_validate(data)
@@ -101,7 +102,11 @@ async def get_session(
         every = [rel for rel, _ in recorder.store.files(session_id)]
         return SessionDetailModel(
             summary=_summary_model(summary, recorder.recording_id),
-            meta=summary.meta,
+            meta=(
+                summary.meta.model_copy(update={"score": public_score(summary.meta.score)})
+                if summary.meta is not None
+                else None
+            ),
             files=[rel for rel in every if not is_frame_file(rel)],
             frame_files=recorder.store.frame_counts(session_id, every),
         )
