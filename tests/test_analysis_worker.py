@@ -11,6 +11,7 @@ import json
 import threading
 
 import httpx
+import psutil
 import pytest
 from websockets.sync.client import connect
 
@@ -102,3 +103,20 @@ def test_plot_load_is_bounded_cached_and_leaves_telemetry_flowing(tmp_path):
             same = httpx.get(f"{base}/api/sessions/{SID}/analysis?task=a-to-b&_=2", timeout=60)
             assert table.status_code == 200 and same.json() == table.json()
             assert worker.stats.jobs == jobs
+
+            # A worker killed mid-life (the OOM killer) costs one 503; the next request
+            # gets a new worker.
+            (proc,) = [
+                p
+                for p in psutil.Process().children()
+                if any("spawn_main" in part for part in p.cmdline())
+            ]
+            proc.kill()
+            proc.wait(10)
+            fresh = [f"{plot}&margin_m={3 + i / 100}" for i in range(2)]
+            first = httpx.get(f"{base}{fresh[0]}", timeout=120)
+            assert first.status_code in (200, 503), first.text
+            if first.status_code == 503:
+                assert first.json()["error"] == "AnalysisBusy"
+            assert httpx.get(f"{base}{fresh[1]}", timeout=120).status_code == 200
+            assert worker.stats.processes == 2
