@@ -64,9 +64,9 @@ class Station:
     video_fanouts: dict[str, FrameFanout] = field(default_factory=dict)
     twin: Twin | None = None  # the digital twin when link.source is "sim"
     pilot: Pilot | None = None  # who has the twin's sticks (/ws/control), one at a time
-    # One analysis at a time (REST analysis and trial scoring): each is CPU-bound numpy and
-    # matplotlib, and the Pi's cores belong to flying first. Made in open_station: an
-    # anyio limiter belongs to the running event loop.
+    # One trial scoring at a time (numpy, in a thread: a score is never refused, unlike
+    # a REST request to the busy worker below). Made in open_station: an anyio limiter
+    # belongs to the running event loop.
     analysis_limiter: anyio.CapacityLimiter | None = None
     # REST analyses and figures: a worker process, bounded and cached (analysis_worker.py).
     analysis_worker: AnalysisWorker = field(default_factory=AnalysisWorker)
