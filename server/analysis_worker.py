@@ -7,7 +7,8 @@ to the pilot. In a separate process it costs a core at most, never the loop's ti
 
 - The worker is a spawned process (a fork of a threaded server is unsafe) at a lower
   scheduling priority (nice 10), started by the first request and stopped after
-  `idle_s` without one, so an idle Pi keeps its memory. A worker that died (out of memory) is replaced by the next request.
+  `idle_s` without one, so an idle Pi keeps its memory; it ends itself when the station
+  is gone. A worker that died (out of memory) is replaced by the next request.
 - At most `max_pending` jobs are accepted at a time (running or queued, over every
   client); one more is refused with `AnalysisBusy` (503) at once, not queued.
 - Answers are cached by what decides them (`key`): the files' size and modification
@@ -22,6 +23,8 @@ import asyncio
 import functools
 import logging
 import os
+import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field, replace
@@ -135,7 +138,7 @@ class AnalysisWorker:
         if self._pool is None:
             ctx = multiprocessing.get_context("spawn")
             self._pool = ProcessPoolExecutor(
-                max_workers=1, mp_context=ctx, initializer=_lower_priority
+                max_workers=1, mp_context=ctx, initializer=_worker_init
             )
             self.stats.processes += 1
         self.stats.jobs += 1
@@ -164,12 +167,23 @@ class AnalysisWorker:
 # ---------------------------------------------------------------- in the worker process
 
 WORKER_NICE = 10
+PARENT_CHECK_S = 2.0
 
 
-def _lower_priority() -> None:
-    """The worker yields the cores to the station: on a busy Pi the scheduler gives the
-    flight state's process the time first, and the figures wait."""
+def _worker_init() -> None:
+    """The worker yields the cores to the station (on a busy Pi the scheduler gives the
+    flight state's process the time first, and the figures wait), and ends with it: a
+    station killed outright (SIGKILL, the OOM killer) cannot stop its pool, and an
+    orphaned worker would hold its memory for good."""
     os.nice(WORKER_NICE)
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_CHECK_S)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="parent watch", daemon=True).start()
 
 
 Stamp = tuple[str, int, int]  # path, mtime_ns, size

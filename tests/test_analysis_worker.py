@@ -20,6 +20,7 @@ from server.app import create_app
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
+from tests.station_process import serve_station
 
 SID = "20261122T040000Z_udp"
 
@@ -120,3 +121,28 @@ def test_plot_load_is_bounded_cached_and_leaves_telemetry_flowing(tmp_path):
                 assert first.json()["error"] == "AnalysisBusy"
             assert httpx.get(f"{base}{fresh[1]}", timeout=120).status_code == 200
             assert worker.stats.processes == 2
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("stop", ["terminate", "kill"])
+def test_the_worker_ends_with_its_station(tmp_path, stop):
+    """Stopped (SIGTERM) or killed outright (SIGKILL: no chance to stop its pool), a
+    station leaves no analysis worker behind."""
+    syn.write_session(syn.a_to_b_flight(), tmp_path / SID, meta={"id": SID})
+    env = {"FPV_RECORDING__SESSIONS_DIR": str(tmp_path), "FPV_VISER__ENABLED": "false"}
+    with serve_station(["--source", "none"], env) as station:
+        plot = f"/api/sessions/{SID}/analysis/birdseye.png?task=a-to-b"
+        assert httpx.get(f"{station.base}{plot}", timeout=120).status_code == 200
+        (worker,) = [
+            p
+            for p in station.process.children()
+            if any("spawn_main" in part for part in p.cmdline())
+        ]
+        try:
+            getattr(station.popen, stop)()
+            station.popen.wait(60)
+            gone = lambda: not worker.is_running() or worker.status() == "zombie"  # noqa: E731
+            assert wait_until(gone, 30)
+        finally:
+            if worker.is_running():  # the test failed: leave no process behind
+                worker.kill()
