@@ -130,10 +130,7 @@ class RequestGuard:
                 f"Host '{headers.get('host', '')[:100]}' is not this station: reach it by its "
                 "address or a name in server.allowed_hosts."
             )
-            if kind == "websocket":
-                await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
-            else:
-                await _reply(send, 421, "MisdirectedRequest", why)
+            await _refuse(kind, send, 421, "MisdirectedRequest", why)
             return
         changes = kind == "websocket" or scope["method"] not in _SAFE_METHODS
         if changes and not self._origin_ok(headers, scope):
@@ -141,10 +138,7 @@ class RequestGuard:
                 f"Origin '{headers.get('origin', '')[:100]}' may not control this station; "
                 "open the station's own page (or add the origin to server.allowed_origins)."
             )
-            if kind == "websocket":
-                await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
-            else:
-                await _reply(send, 403, "Forbidden", why)
+            await _refuse(kind, send, 403, "Forbidden", why)
             return
         if kind == "websocket":
             await self.app(scope, receive, send)
@@ -239,6 +233,15 @@ def loads_message(text: str, max_depth: int = MAX_JSON_DEPTH) -> Any:
         elif ch in "]}":
             depth -= 1
     return json.loads(text)
+
+
+async def _refuse(kind: str, send: Send, status: int, name: str, why: str) -> None:
+    """An HTTP request gets `status` in the error shape; a WebSocket upgrade is closed
+    with 1008 before it is accepted (the client sees 403)."""
+    if kind == "websocket":
+        await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
+    else:
+        await _reply(send, status, name, why)
 
 
 def _with_framing_headers(send: Send) -> Send:
