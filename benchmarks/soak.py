@@ -43,6 +43,7 @@ from websockets.asyncio.client import connect
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
+from tests.helpers import viser_camera  # noqa: E402
 from tests.station_process import serve_station  # noqa: E402
 
 TOKEN = "soak-benchmark-token"
@@ -71,30 +72,11 @@ async def telemetry_client(url: str, counts: Counts, i: int, stop: asyncio.Event
             counts.telemetry[i] += 1
 
 
-def viewer_camera() -> bytes:
-    """A viewer's camera report, as viser's client sends it."""
-    import msgspec
-    from viser._messages import ViewerCameraMessage
-
-    message = ViewerCameraMessage(
-        wxyz=(1.0, 0.0, 0.0, 0.0),
-        position=(-25.0, -30.0, 20.0),
-        fov=1.0,
-        near=0.01,
-        far=1000.0,
-        image_height=480,
-        image_width=640,
-        look_at=(0.0, 0.0, 0.0),
-        up_direction=(0.0, 0.0, 1.0),
-    )
-    return msgspec.msgpack.encode(message.as_serializable_dict())
-
-
 async def viewer_3d(url: str, counts: Counts, i: int, stop: asyncio.Event) -> None:
     """A 3D panel's viewer: its camera once a second, every frame of the scene read."""
     import viser
 
-    camera = viewer_camera()
+    camera = viser_camera()
     async with connect(url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:
         counts.viewers_3d += 1
         if counts.viewers_3d == len(counts.frames_3d):

@@ -76,20 +76,14 @@ def run_uvicorn(app, port: int | None = None, timeout: float = 15.0) -> Iterator
         sock.close()
 
 
-@contextlib.contextmanager
-def viser_viewer(port: int) -> Iterator[None]:
-    """A viewer of the panel at viser's protocol: a WebSocket with viser's subprotocol that
-    reports its camera (viser counts a client from its first camera message) and reads
-    (and drops) what the server sends, as the browser's client does."""
+def viser_camera(x: float = -25.0) -> bytes:
+    """A 3D panel viewer's camera report, as viser's client sends it (`x` east)."""
     import msgspec
-    import viser
     from viser._messages import ViewerCameraMessage
-    from websockets.sync.client import connect
 
-    ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"])
-    camera = ViewerCameraMessage(
+    message = ViewerCameraMessage(
         wxyz=(1.0, 0.0, 0.0, 0.0),
-        position=(-25.0, -30.0, 20.0),
+        position=(x, -30.0, 20.0),
         fov=1.0,
         near=0.01,
         far=1000.0,
@@ -98,7 +92,19 @@ def viser_viewer(port: int) -> Iterator[None]:
         look_at=(0.0, 0.0, 0.0),
         up_direction=(0.0, 0.0, 1.0),
     )
-    ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+    return msgspec.msgpack.encode(message.as_serializable_dict())
+
+
+@contextlib.contextmanager
+def viser_viewer(port: int) -> Iterator[None]:
+    """A viewer of the panel at viser's protocol: a WebSocket with viser's subprotocol that
+    reports its camera (viser counts a client from its first camera message) and reads
+    (and drops) what the server sends, as the browser's client does."""
+    import viser
+    from websockets.sync.client import connect
+
+    ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"])
+    ws.send(viser_camera())
 
     def drain() -> None:
         with contextlib.suppress(Exception):
