@@ -140,6 +140,38 @@ def test_osd_horizon_heading_values_messages_and_staleness(station, browser):
     expect(page.locator("#conn-status")).to_have_text("live", timeout=15_000)
 
 
+# Ink (opaque pixels) in the heading tape's label rows (its upper half): in the first and
+# last two columns, and anywhere.
+TAPE_LABEL_INK = """() => {
+  const c = document.querySelector('[data-osd=heading]');
+  const {width: W, height: H} = c;
+  const img = c.getContext('2d').getImageData(0, 0, W, Math.floor(H / 2)).data;
+  let edge = 0, all = 0;
+  for (let i = 3; i < img.length; i += 4) {
+    if (img[i] < 100) continue;
+    all++;
+    const x = ((i - 3) / 4) % W;
+    if (x < 2 || x >= W - 2) edge++;
+  }
+  return {edge, all};
+}"""
+
+
+def test_heading_tape_draws_no_label_cut_at_its_ends(station, browser):
+    """Heading 090: the tape spans 045..135, so NE and SE sit on its ends. A label cut in
+    half there misreads (NE as "E", SE as "S"): a label is drawn whole or not at all."""
+    vehicle, base = station
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    page.goto(base + "/")
+    vehicle.yaw_rad = math.radians(90)
+    expect(page.locator("[data-osd=heading]")).to_have_attribute(
+        "data-heading", "90", timeout=30_000
+    )
+    ink = page.evaluate(TAPE_LABEL_INK)
+    assert ink["all"] > 0, "the tape drew no labels"
+    assert ink["edge"] == 0, ink
+
+
 def test_a_quiet_group_lends_no_freshness_to_its_old_value(station, browser):
     """VFR_HUD stops (another GCS on the link set its stream rate to 0) while
     GLOBAL_POSITION_INT goes on: speed and climb come from the position, fresh; VFR_HUD's

@@ -446,8 +446,10 @@ function drawTape(c, hdg, dpr) {
     const deg = ((d % 360) + 360) % 360;
     ticks.rect(x - dpr, H * 0.55, 2 * dpr, deg % 15 === 0 ? H * 0.4 : H * 0.2);
     if (deg % 15 === 0) {
+      // Only a label that fits whole: one cut at the tape's end misreads (NE as "E").
       const sprite = label(COMPASS[deg] ?? String(deg), px, true);
-      ctx.drawImage(sprite, x - sprite.width / 2, 0);
+      const left = x - sprite.width / 2;
+      if (left >= 0 && left + sprite.width <= W) ctx.drawImage(sprite, left, 0);
     }
   }
   ctx.fillStyle = "#fff";
