@@ -54,3 +54,16 @@ def test_vehicle_clock_stretches_and_fallback():
     want = [10.0, 10.2, 10.4, 10.6, 13.8, 14.0, 100.0, 100.2]
     assert on_vehicle_clock(r, v) == pytest.approx(want)
     assert on_vehicle_clock(r, np.zeros(r.size)) == pytest.approx(r)  # no vehicle time
+
+
+def test_vehicle_clock_at_another_rate_stays_on_the_receive_clock():
+    """The twin's simulated clock on a loaded machine runs slow (3 % here), and packets
+    come through with a little delay: times are never after a packet arrived, and are
+    within that delay of it, not spread around a middle delay (up to 0.9 s off here)."""
+    rng = np.random.default_rng(3)
+    received = np.arange(0.0, 60.0, 0.2) + rng.uniform(0.0, 0.03, 300)
+    vehicle = 4.0 + 0.97 * np.arange(0.0, 60.0, 0.2)
+    early = received - on_vehicle_clock(received, vehicle)
+    assert early.min() >= 0.0
+    assert early.max() < 0.2  # the last 5 s look back (3 % of 5 s, plus the delay)
+    assert early[received < 55.0].max() < 0.03

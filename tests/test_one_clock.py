@@ -14,6 +14,7 @@ import httpx
 import numpy as np
 import pytest
 
+from analysis.track import load_session_dir
 from companion.recording import layout
 from core.geodesy import geodetic_to_enu
 from tests.helpers import chromium, wait_until
@@ -74,6 +75,13 @@ def test_path_rows_and_frames_agree_on_the_session_clock(tmp_path):
         assert has_fix.mean() > 0.9 and traj["duration_s"] >= t_rows[has_fix][-1]
         # The path starts where the rows first hold a fix, not seconds away from it.
         assert path_t[0] == pytest.approx(t_rows[np.argmax(has_fix)], abs=1e-6)
+
+        # Analysis measures on the vehicle's spacing, placed on the same clock: a sample
+        # was taken no later than the row that first held it, and not long before.
+        track = load_session_dir(folder)
+        np.testing.assert_allclose(track.row_t_s, path_t, atol=1e-6)
+        early = track.row_t_s - track.t_s
+        assert early.min() >= 0.0 and early.max() < 1.0, (early.min(), early.max())
 
         period = {cam: float(np.median(np.diff(frames[cam][0]))) for cam in layout.CAMERAS}
         worst = {"path_m": 0.0}
