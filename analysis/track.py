@@ -3,10 +3,10 @@ a downloaded session zip, or a bare `.tlog`.
 
 One sample per GPS solution, timed by the vehicle's clock where the file has it (see
 `analysis.vehicle_clock`), and also by the session clock of the first row that holds it
-(`row_t_s`: the one time axis that views share with the rows and frames). The recorder writes one CSV row per telemetry tick (faster
-than the GPS updates), so the same GPS solution appears on several rows; counting it
-several times would weight slow-update stretches more than others and bias every mean
-and standard deviation. We keep the first row of each GPS *message*, recognised by a
+(`row_t_s`: the one time axis that views share with the rows and frames). The recorder
+writes one CSV row per telemetry tick (faster than the GPS updates), so the same GPS
+solution appears on several rows; counting it several times would weight slow-update
+stretches more than others and bias every mean and standard deviation. We keep the first row of each GPS *message*, recognised by a
 change of the group's `t_mono` (or `time_usec`) column; only when neither column exists
 do we fall back to a change of (lat, lon, alt). Identical coordinates from distinct
 messages (a perfect hover) are therefore kept, as they are real samples.

@@ -142,7 +142,7 @@ def test_path_rows_and_frames_agree_on_the_session_clock(tmp_path):
             page = open_offline(browser, outside)
             # Not the 3D panel's WebGL client (software rendering here): its scene is
             # checked through station.replay3d, which the page moves through the route.
-            page.route(f"**:{scene.port}/**", lambda route: route.abort())
+            page.route("**/3d/**", lambda route: route.abort())
             page.goto(f"{base}/replay.html?session={sid}")
             page.wait_for_function(
                 "document.getElementById('replay-status').textContent.includes('fixes')",
