@@ -12,11 +12,12 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
+import numpy as np
 from fastapi import APIRouter, Query, Request
 
 from analysis.errors import NoGpsFixError, TrackLoadError
 from analysis.track import load_session_dir
-from companion.recording import layout
+from companion.recording import frame_pack, layout
 from companion.recording.store import (
     InvalidPath,
     SessionFileNotFound,
@@ -31,7 +32,6 @@ from server.trajectory3d.replay import (
     CameraFrames,
     TrajectoryReply,
     build_trajectory,
-    parse_frames_csv,
 )
 
 router = APIRouter(tags=["trajectory"])
@@ -66,7 +66,14 @@ def load_trajectory(
             frames_csv = store.file(session_id, layout.frames_csv_relpath(camera))
         except (SessionFileNotFound, InvalidPath):
             continue  # a session without this camera
-        cameras.append(parse_frames_csv(camera, frames_csv.read_bytes()))
+        # The recorder's own reader of frames.csv; only frames whose bytes are on disk.
+        index = frame_pack.read_index_file(frames_csv, camera)
+        if index is None:
+            continue
+        index = index.where(frame_pack.on_disk(folder, index) & np.isfinite(index.t_s))
+        order = np.argsort(index.t_s, kind="stable")  # capture order, as written
+        names = [index.name(int(k)) for k in order]
+        cameras.append(CameraFrames(camera, index.t_s[order], names))
     try:
         return build_trajectory(
             session_id,

@@ -1,8 +1,8 @@
 """A recorded flight as the replay view draws it: ENU arrays with times, gaps, and the
 front and bottom frame of each instant.
 
-Pure numpy over the columns of an `analysis.track.Track` and the cameras' `frames.csv`;
-the route does the file access. Origin: the arming point (the first armed sample), else
+Pure numpy over the columns of an `analysis.track.Track` and the cameras' frames (as the
+recorder's `frame_pack.read_index` lists them); the route does the file access. Origin: the arming point (the first armed sample), else
 the first fix. Optional alignment as in the paper: rotated about the vertical so that the
 line from the origin to a reference point lies along +x: a given point (the landing pad),
 the last point ("end", for A-to-B flights), or the point farthest from the origin
@@ -11,8 +11,6 @@ the last point ("end", for A-to-B flights), or the point farthest from the origi
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -36,7 +34,7 @@ class GeoPoint(BaseModel):
     alt_m: float | None = None
 
 
-class FrameIndex(BaseModel):
+class FrameTimeline(BaseModel):
     """One camera's frames in capture order: capture time (session clock) and name."""
 
     t_s: list[float]
@@ -63,36 +61,16 @@ class TrajectoryReply(BaseModel):
     starts_run: list[bool]  # True where a gap (no fix, or silence > gap_s) ends
     color: list[str]  # "#rrggbb" per point: height on the 3D panels' ramp (pages draw it)
     frames: dict[str, list[str | None]]  # camera -> file (relative to the session) per fix
-    frame_index: dict[str, FrameIndex]  # camera -> every frame, for instants between fixes
+    frame_index: dict[str, FrameTimeline]  # camera -> every frame, for instants between fixes
 
 
 @dataclass(frozen=True, slots=True)
 class CameraFrames:
-    """One camera's frames.csv: capture time on the session clock and relative path."""
+    """One camera's frames in capture order: capture time (session clock) and name."""
 
     camera: str
     t_s: NDArray[np.float64]
     relpath: list[str]
-
-
-def parse_frames_csv(camera: str, raw: bytes) -> CameraFrames:
-    """Read `<camera>/frames.csv` (columns seq, file, t_s, ...); bad rows are skipped."""
-    times: list[float] = []
-    paths: list[str] = []
-    reader = csv.DictReader(io.StringIO(raw.decode("utf-8", "replace")))
-    for row in reader:
-        try:
-            t = float(row["t_s"])
-            name = row["file"].strip()
-        except (KeyError, TypeError, ValueError, AttributeError):
-            continue
-        if not name or not math.isfinite(t):
-            continue
-        # The CSV may name the file alone or with its folder.
-        paths.append(name if "/" in name else f"{camera}/{name}")
-        times.append(t)
-    order = np.argsort(np.asarray(times), kind="stable")
-    return CameraFrames(camera, np.asarray(times, float)[order], [paths[i] for i in order])
 
 
 def frames_at(times_s: NDArray[np.float64], frames: CameraFrames) -> list[str | None]:
@@ -161,7 +139,7 @@ def build_trajectory(
         starts_run=starts.tolist(),
         color=ramp_hex(enu[:, 2], *height_range_m),
         frames={c.camera: frames_at(t, c) for c in cameras},
-        frame_index={c.camera: FrameIndex(t_s=c.t_s.tolist(), file=c.relpath) for c in cameras},
+        frame_index={c.camera: FrameTimeline(t_s=c.t_s.tolist(), file=c.relpath) for c in cameras},
     )
 
 
