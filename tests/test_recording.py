@@ -200,13 +200,15 @@ def test_under_cpu_hogs_each_row_names_the_newest_frame_captured_by_its_instant(
         named = 0
         for r in rows:
             t_row = float(r["t_s"])
-            k = int(np.searchsorted(captured, t_row + 1e-6, side="right"))  # at or before
-            if k == 0:
-                assert r[f"{cam}.seq"] == "", (cam, t_row, r[f"{cam}.seq"])
-                continue
-            assert float(r[f"{cam}.skew_s"]) >= 0, (cam, t_row, r[f"{cam}.skew_s"])
-            assert int(r[f"{cam}.seq"]) == seqs[k - 1], (cam, t_row, r[f"{cam}.seq"])
-            named += 1
+            # The newest frame at or before the row (the files round times to the
+            # microsecond: a frame within one of the row's instant may be either side).
+            k = int(np.searchsorted(captured, t_row + 1e-6, side="right"))
+            k_sure = int(np.searchsorted(captured, t_row - 1e-6, side="right"))
+            want = {str(seqs[i - 1]) if i else "" for i in range(k_sure, k + 1)}
+            assert r[f"{cam}.seq"] in want, (cam, t_row, r[f"{cam}.seq"], want)
+            if r[f"{cam}.seq"]:
+                assert float(r[f"{cam}.skew_s"]) >= 0, (cam, t_row, r[f"{cam}.skew_s"])
+                named += 1
         assert named >= len(rows) - 3, (cam, named, len(rows))  # the start held a frame
 
 

@@ -66,7 +66,6 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
 
     for cam in layout.CAMERAS:
         refs = {r[f"{cam}.file"] for r in rows if r[f"{cam}.file"]}
-        assert len(refs) > 0.5 * t[-1] * fps[cam]
         on_disk = recorded_frames(folder, cam)
         assert refs <= on_disk.keys()  # every frame named is on disk
         q = meta["quality"]["cameras"][cam]
@@ -74,25 +73,21 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
         assert q["frames_written"] == len(frames) == len(on_disk)
         assert all(len(on_disk[fr["file"]]) == int(fr["bytes"]) for fr in frames)
         assert all(j[:2] == b"\xff\xd8" and j[-2:] == b"\xff\xd9" for j in on_disk.values())
-        # Skew. The recorder takes the freshest frame at each row, so a row's skew stays
-        # under one frame period of the camera... when the camera delivers evenly. The
-        # twin renders on the same loaded CPU and its frames come unevenly (gaps of 100+
-        # ms on a busy 2-core box), so the property tested per row is: skew <= the gap
-        # from the row's frame to the next frame + one period (the next frame had not
-        # been published yet). On a quiet machine the p99 is under one period (see
-        # docs/PERFORMANCE.md).
+        # Each row names the newest frame captured at or before its instant, however
+        # unevenly the twin (rendering on the same loaded CPU) delivers them: never one
+        # from the row's future (no negative skew), never an older one.
+        t_cap = np.array([float(fr["t_s"]) for fr in frames])
+        seqs = [int(fr["seq"]) for fr in frames]
+        # (The files round times to the microsecond: a frame within one of the row's
+        # instant may be either side of it.)
+        newest = np.searchsorted(t_cap, t + 1e-6, side="right")
+        surely = np.searchsorted(t_cap, t - 1e-6, side="right")
+        for r, k, k_sure in zip(rows, newest, surely):
+            want = {str(seqs[i - 1]) if i else "" for i in range(k_sure, k + 1)}
+            assert r[f"{cam}.seq"] in want, (cam, r["t_s"], r[f"{cam}.seq"], want)
+            assert not r[f"{cam}.seq"] or float(r[f"{cam}.skew_s"]) >= 0, (cam, r["t_s"])
+        assert len(refs) > 50, len(refs)
         period = 1.0 / fps[cam]
-        t_cap = {int(fr["seq"]): float(fr["t_s"]) for fr in frames}
-        seqs = sorted(t_cap)
-        gap_after = {a: t_cap[b] - t_cap[a] for a, b in zip(seqs, seqs[1:])}
-        ok = [
-            float(r[f"{cam}.skew_s"]) <= gap_after.get(int(r[f"{cam}.seq"]), np.inf) + period
-            for r in rows
-            if r[f"{cam}.seq"]
-        ]
-        # Most rows, not all: on a starved box a capture thread can also stall between a
-        # frame's capture time and its publish (0.964 at load 5-7 once, against 0.97).
-        assert np.mean(ok) >= 0.9, (cam, np.mean(ok), q)
         skews = np.array([float(r[f"{cam}.skew_s"]) for r in rows if r[f"{cam}.seq"]])
         # The freshest frame is under one period old at the median row, a period of the
         # frames as they came: the configured one on a quiet machine (20 ms here); a starved

@@ -273,9 +273,9 @@ class RecordingSession:
         with track.lock:
             if track.last_seq is not None and frame.seq <= track.last_seq:
                 return track.ref  # a frame already offered
-            track.seen_mono = frame.t_mono if frame.signal else None
             if not frame.signal:
-                return track.ref  # a placeholder: the camera has nothing newer
+                track.seen_mono = None  # a placeholder: the camera has nothing newer
+                return track.ref
             if track.last_seq is not None:
                 track.missed += frame.seq - track.last_seq - 1
             else:
@@ -294,6 +294,9 @@ class RecordingSession:
                 track.ref = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
                 if not self.clock.own:
                     track.published.append(track.ref)
+            # Last: the writer reads it without the lock, and a row it lets through must
+            # find this frame among the published ones.
+            track.seen_mono = frame.t_mono
             return track.ref
 
     def _take_frame(self, cam: str, frame: Frame) -> None:
