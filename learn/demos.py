@@ -1,11 +1,12 @@
 """Synthetic demonstrations: the twin's scripted pilot flies a task K times, faster than
-real time, and each flight is written as an ordinary session (the recorder's format).
+real time, and each flight is recorded as an ordinary session.
 
 Everything goes the way the station records a real flight: the twin sends real MAVLink
 over a loopback UDP socket, the link's framer and `StateTracker` make the vehicle state
-from those bytes, the recorder's `RowFormatter`/`SessionWriter` write telemetry.csv, the
-tlog and the camera frames. Only the clock differs: the twin runs on its own (sim) clock,
-and everything recorded is stamped with it (`wall = start + sim time`).
+from those bytes, and the recorder's `RecordingSession` writes telemetry.csv, the tlog,
+the camera frames and session.json (with the flown task, as the pilot page's choice is
+written into a recorded session). Only the clock differs: the twin runs on its own (sim)
+clock, and the session is recorded on it as a replayed log is (`wall = start + sim time`).
 
 Pilot variability, seeded per flight: a reaction lag (sticks reach the vehicle
 `lag_s` late), stick noise (Gaussian, per stick), and small path errors (each waypoint
@@ -14,8 +15,8 @@ and the hover height off by a few tens of centimetres).
 
 from __future__ import annotations
 
+import asyncio
 import socket
-import time
 from collections import deque
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -23,12 +24,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from companion.latest import Latest
 from companion.recording import layout
-from companion.recording.meta import CameraQuality, Quality, SessionMeta, write_meta
-from companion.recording.rows import FrameRef, RowFormatter, Sample
-from companion.recording.store import create_session_dir
-from companion.recording.writer import SessionWriter, WriterLimits
+from companion.recording.meta import session_task
+from companion.recording.session import RecordingSession, SessionConfig
+from companion.recording.writer import WriterLimits
+from companion.source_clock import SourceClock
 from companion.state_tracker import StateTracker
+from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
 from core.mavlink.framing import MavFramer
 from core.scene import Scene, load_scene
@@ -79,8 +82,9 @@ def noisy_plan(scene: Scene, task_id: int, rng: np.random.Generator, err_m: floa
 def fly_demo(
     root: Path, seed: int, config: DemoConfig = DemoConfig(), scene: Scene | None = None
 ) -> Path:
-    """Fly one demonstration and write it as a session under `root`; returns its folder."""
+    """Fly one demonstration and record it as a session under `root`; returns its folder."""
     scene = scene or load_scene()
+    task = scene.task(config.task_id)
     rng = np.random.default_rng(seed)
     v = config.variability
     lag_ticks = int(round(rng.uniform(*v.lag_s) / TICK_S))
@@ -88,38 +92,59 @@ def fly_demo(
     if config.hold_s is not None:
         legs = [replace(leg, seconds=config.hold_s) if leg.kind == "hold" else leg for leg in legs]
     pilot = Pilot(legs)
+    cams = layout.CAMERAS if config.cameras else ()
+    wall0 = WALL_T0 + 3600.0 * seed
+    # The recorder records the twin as it records a replayed log: on the source's own
+    # clock (the sim's, from wall0), its rows and frames sampled from this thread.
+    clock = SourceClock(own=True)
+    clock.advance(wall0)
+    state: Latest[VehicleState] = Latest()
+    slots: dict[str, Latest[Frame]] = {c: Latest() for c in cams}
+    session = RecordingSession(
+        Path(root),
+        state,
+        slots,
+        SessionConfig(
+            rate_hz=config.rate_hz,
+            limits=WriterLimits(min_free_bytes=0),
+            source="sim",
+            settings={"demo": {"task": config.task_id, "seed": seed, "lag_s": lag_ticks * TICK_S}},
+            camera_fps=dict.fromkeys(cams, config.camera_fps),
+        ),
+        trigger="demos",
+        clock=clock,
+        task=session_task(scene, None, task),
+    )
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.setblocking(False)
     twin = Twin(scene, SimConfig(seed=seed), mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}")
-    cams = layout.CAMERAS if config.cameras else ()
-    wall0 = WALL_T0 + 3600.0 * seed
-    sid, folder = create_session_dir(Path(root), wall0, "sim")
     t0 = twin.sim.t_s
-    writer = SessionWriter(
-        folder,
-        RowFormatter(cams, t0),
-        WriterLimits(min_free_bytes=0),
-    )
     framer, tracker = MavFramer(), StateTracker()
     seqs = dict.fromkeys(cams, 0)
-    refs: dict[str, FrameRef | None] = dict.fromkeys(cams)
     sticks: deque[tuple[float, float, float, float]] = deque([(0.0, 0.0, 0.0, 0.0)] * lag_ticks)
-    next_row, next_frame = t0, t0
+    next_frame = t0
     disarmed_at: float | None = None
-    started = time.perf_counter()
+    reason = "error"
+    session.start()
     try:
         while True:
             now = twin.sim.t_s
             elapsed = now - t0
+            t = wall0 + elapsed
+            clock.advance(t)
+            session.advance(t)  # the rows of the instants before `t`
+            changed = False
             while True:  # what the twin sent during the last step, as the link reads it
                 try:
                     data = rx.recv(65535)
                 except BlockingIOError:
                     break
                 for msg in framer.feed(data):
-                    writer.put_packet(wall0 + now - t0, bytes(msg.get_msgbuf()))
-                    tracker.update(msg, now)
+                    session.on_packet(t, bytes(msg.get_msgbuf()))
+                    changed |= tracker.update(msg, t)
+            if changed:
+                state.publish(tracker.state)
             if cams and now >= next_frame - 1e-9:
                 next_frame += 1.0 / config.camera_fps
                 for cam in cams:
@@ -129,17 +154,15 @@ def fly_demo(
                     )
                     seqs[cam] += 1
                     h, w = bgr.shape[:2]
-                    frame = Frame(cam, seqs[cam], jpeg.tobytes(), w, h, now, wall0 + now - t0)
-                    writer.put_frame(cam, frame)
-                    refs[cam] = FrameRef(frame.seq, frame.t_mono, frame.t_wall)
-            if now >= next_row - 1e-9:
-                next_row += 1.0 / config.rate_hz
-                state = tracker.state
-                writer.put_row(Sample(now, wall0 + now - t0, state, tuple(refs[c] for c in cams)))
-            writer.write_now()
+                    slots[cam].publish(Frame(cam, seqs[cam], jpeg.tobytes(), w, h, t, t))
+                session.writer.wait_for_room()  # faster than real time, yet no frame lost
 
             armed = bool(twin.sim.commander.armed[0])
-            if twin.sim.state.crash[0] or elapsed > config.timeout_s:
+            if twin.sim.state.crash[0]:
+                reason = "crash"
+                break
+            if elapsed > config.timeout_s:
+                reason = "timeout"
                 break
             if elapsed >= GPS_WARMUP_S and not pilot.done:
                 pose = twin.pose()
@@ -154,51 +177,16 @@ def fly_demo(
                 if disarmed_at is None and not armed:
                     disarmed_at = now
                 if disarmed_at is not None and now - disarmed_at >= TAIL_S:
+                    reason = "disarmed"
                     break
             twin.step_for(TICK_S)
     finally:
         if twin.vehicle is not None:
             twin.vehicle.close()
         rx.close()
-        writer.close()
-    end = twin.sim.t_s
-    st = writer.stats
-    meta = SessionMeta(
-        id=sid,
-        status=layout.STATUS_COMPLETE,
-        stop_reason="crash"
-        if twin.sim.state.crash[0]
-        else ("disarmed" if pilot.done else "timeout"),
-        start_wall=wall0,
-        start_utc=layout.utc_label(wall0),
-        end_wall=wall0 + end - t0,
-        end_utc=layout.utc_label(wall0 + end - t0),
-        duration_s=round(end - t0, 3),
-        source="sim",
-        cameras=list(cams),
-        settings={
-            "demo": {"task": config.task_id, "seed": seed, "lag_s": lag_ticks * TICK_S},
-            "wall_s_to_fly": round(time.perf_counter() - started, 3),
-        },
-        trigger="demos",
-        quality=Quality(
-            telemetry_rate_hz=config.rate_hz,
-            telemetry_rows=st.rows_written,
-            tlog_packets=st.packets_written,
-            cameras={
-                c: CameraQuality(
-                    configured_fps=config.camera_fps,
-                    frames_captured=st.frames_written.get(c, 0),
-                    frames_written=st.frames_written.get(c, 0),
-                    first_seq=st.first_seq.get(c),
-                    last_seq=st.last_seq.get(c),
-                )
-                for c in cams
-            },
-        ),
-    )
-    write_meta(folder / layout.SESSION_JSON, meta)
-    return folder
+        # The recorder's own stop: the last rows, the files closed, session.json final.
+        asyncio.run(session.stop(reason))
+    return session.folder
 
 
 def fly_demos(

@@ -26,35 +26,21 @@ from analysis.errors import AnalysisError, without_dirs
 from analysis.report import analyze_paths
 from analysis.tasks import PAPER_RESULTS
 from companion.recording import layout
-from companion.recording.meta import SessionMeta, SessionTask, TrialScore, read_meta, write_meta
+from companion.recording.meta import (
+    SessionMeta,
+    SessionTask,
+    TrialScore,
+    read_meta,
+    session_task,
+    write_meta,
+)
 from companion.recording.recorder import Recorder, Spawn
-from core.geodesy import enu_to_geodetic
-from core.scene import Scene, SceneError, Task, load_scene
+from core.scene import Scene, SceneError, load_scene
 from server.settings import Settings
 
 log = logging.getLogger(__name__)
 
 MAX_ATTEMPTS_SHOWN = 20
-
-
-def session_task(scene: Scene, scene_file: Path | None, task: Task) -> SessionTask:
-    """What a session records of its task: the task, its scene and its +x reference."""
-    end = scene.pad(task.end_pad)
-    lat, lon, _ = enu_to_geodetic([end.x_m, end.y_m, 0.0], *scene.home_llh)
-    return SessionTask(
-        id=task.id,
-        name=task.name,
-        analysis=task.analysis_task,
-        scene=scene.name,
-        scene_file=str(scene_file) if scene_file is not None else None,
-        start_pad=task.start_pad,
-        end_pad=task.end_pad,
-        altitude_m=task.altitude_m,
-        hold_s=task.hold_s,
-        reference_lat_deg=round(float(lat), 8),
-        reference_lon_deg=round(float(lon), 8),
-        procedure=list(task.procedure),
-    )
 
 
 def score_session(folder: Path, task: SessionTask) -> TrialScore:

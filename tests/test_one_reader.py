@@ -60,6 +60,9 @@ def add_second_vehicle(tlog: Path) -> int:
 
 def twin_flight(root: Path, task_id: int) -> Path:
     folder = fly_demo(root, seed=task_id, config=DemoConfig(task_id=task_id))
+    # Recorded as the recorder records: with the task it flew, as a pilot's choice is.
+    meta = json.loads((folder / "session.json").read_text())
+    assert meta["task"]["id"] == task_id and meta["status"] == "complete"
     assert add_second_vehicle(folder / "mavlink.tlog") > 10
     return folder
 

@@ -12,11 +12,15 @@ import errno
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from companion.recording.layout import FORMAT_VERSION, STATUS_RECORDING
+from core.geodesy import enu_to_geodetic
+
+if TYPE_CHECKING:
+    from core.scene import Scene, Task
 
 
 class _Model(BaseModel):
@@ -122,6 +126,27 @@ class SessionTask(_Model):
     reference_lat_deg: float | None = None  # the end pad: the analysis' +x reference
     reference_lon_deg: float | None = None
     procedure: list[str] = Field(default_factory=list)
+
+
+def session_task(scene: Scene, scene_file: Path | None, task: Task) -> SessionTask:
+    """What a session records of its task: the task, its scene and its +x reference (the
+    pilot's choice in a recorded session, the flown task in a twin demonstration)."""
+    end = scene.pad(task.end_pad)
+    lat, lon, _ = enu_to_geodetic([end.x_m, end.y_m, 0.0], *scene.home_llh)
+    return SessionTask(
+        id=task.id,
+        name=task.name,
+        analysis=task.analysis_task,
+        scene=scene.name,
+        scene_file=str(scene_file) if scene_file is not None else None,
+        start_pad=task.start_pad,
+        end_pad=task.end_pad,
+        altitude_m=task.altitude_m,
+        hold_s=task.hold_s,
+        reference_lat_deg=round(float(lat), 8),
+        reference_lon_deg=round(float(lon), 8),
+        procedure=list(task.procedure),
+    )
 
 
 class TrialScore(_Model):

@@ -149,15 +149,11 @@ class SessionWriter:
         return True
 
     def wait_for_room(self, timeout: float = 5.0) -> None:
-        """For a producer that can wait (a replay on its own clock): return when the row
-        queue is at most half full, or after `timeout`."""
+        """For a producer that can wait (a replay or the twin on its own clock): return
+        when no queue (rows, packets, a camera's frames) is half full, or after `timeout`."""
         with self._cond:
             self._cond.wait_for(
-                lambda: (
-                    self.failure is not None
-                    or self._closing
-                    or len(self._rows) <= self.limits.row_queue // 2
-                ),
+                lambda: self.failure is not None or self._closing or not self._half_full(),
                 timeout,
             )
 
