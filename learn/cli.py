@@ -28,7 +28,8 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
         "--task",
         type=int,
         default=None,
-        help="the scene's task id (1-4); default: the task the sessions were recorded for, else 1",
+        help="the scene's task id (1-4); default: the task the sessions were recorded for "
+        "(sessions that do not say are refused)",
     )
     p.add_argument("--description", help="free-text task description stored with episodes")
     p.add_argument("--fps", type=int, default=DEFAULT_FPS, help="frames per second")

@@ -24,7 +24,7 @@ from learn.formats import DEFAULT_FPS, FORMATS
 @dataclass(frozen=True)
 class ExportOptions:
     # The scene's task; None: the task the sessions were recorded for (session.json
-    # `task`, chosen on the pilot page), else task 1.
+    # `task`: chosen on the pilot page, or flown by `demos`), never a guess.
     task_id: int | None = None
     description: str | None = None  # free text; default: the scene's task name and procedure
     fps: int = DEFAULT_FPS
@@ -52,20 +52,30 @@ def task_description(scene: Scene, task_id: int) -> str:
 
 
 def recorded_task_id(paths: Sequence[Path]) -> int:
-    """The one flight task the recordings were made for (session.json `task`), 1 if none
-    says; recordings of different tasks must be exported separately (a Minari dataset is
-    one task's environment)."""
-    ids = set()
+    """The one flight task the recordings were made for (session.json `task`). A task is
+    never guessed: a recording that does not say (a bare tlog, a session recorded with no
+    task chosen) is refused, as are recordings of different tasks together (a Minari
+    dataset is one task's environment); `--task` chooses it for them."""
+    ids: set[int] = set()
+    unknown: list[str] = []
     for path in paths:
         task = recording_meta(path).get("task")
         if isinstance(task, dict) and isinstance(task.get("id"), int):
             ids.add(task["id"])
+        else:
+            unknown.append(Path(path).name)
+    if unknown:
+        raise RecordingError(
+            f"{', '.join(unknown)}: no task recorded in session.json, so the episodes' task "
+            "(its text, and the pad the state is measured from) is unknown; give it with "
+            "--task N."
+        )
     if len(ids) > 1:
         raise RecordingError(
             f"these recordings were flown for tasks {sorted(ids)}: export each task's "
             "recordings separately, or choose one with --task."
         )
-    return ids.pop() if ids else 1
+    return ids.pop()
 
 
 def export_recordings(

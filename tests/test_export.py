@@ -452,3 +452,24 @@ def test_an_episode_carries_the_task_its_session_was_flown_for(session, tmp_path
             tmp_path / "mixed",
             ExportOptions(fps=FPS, cameras=()),
         )
+
+
+def test_a_session_of_unknown_task_is_refused_unless_the_task_is_given(session, tmp_path, capsys):
+    """A demonstration records the task it flew (as a session recorded on the pilot page);
+    one whose session.json says no task is never exported under a guessed one."""
+    import shutil
+
+    meta = json.loads((session / "session.json").read_text())
+    assert meta["task"]["id"] == 1 and meta["task"]["end_pad"]  # written by the recorder
+    assert meta["trigger"] == "demos" and meta["status"] == "complete"
+    untold = tmp_path / session.name
+    shutil.copytree(session, untold)
+    meta.pop("task")
+    (untold / "session.json").write_text(json.dumps(meta))
+
+    argv = ["export", str(untold), "--format", "mcap", "--no-progress", "--cameras", "none"]
+    assert cli_main([*argv, "--out", str(tmp_path / "guessed")]) == 1
+    assert "no task recorded" in capsys.readouterr().err
+    assert not (tmp_path / "guessed").exists()
+    assert cli_main([*argv, "--out", str(tmp_path / "told"), "--task", "2"]) == 0
+    assert "mcap: 1 episodes" in capsys.readouterr().out
