@@ -37,17 +37,24 @@ class Controls:
         self._lock = threading.Lock()
         self._requests = Requests()
         gui = server.gui
+        # A viewer without the token sees them too (viser's GUI is one for all): say so.
+        shared = "; for every viewer, from the pilot's page (control token)"
         with gui.add_folder("Trajectory"):
             self.follow = gui.add_checkbox(
                 "Follow vehicle",
                 initial_value=follow,
-                hint="Keep the camera on the vehicle; off = free camera",
+                hint="Keep the cameras on the vehicle; off = free camera" + shared,
             )
             self.color_by = gui.add_dropdown(
-                "Colour by", options=COLOR_BY_CHOICES, initial_value=color_by
+                "Colour by",
+                options=COLOR_BY_CHOICES,
+                initial_value=color_by,
+                hint="Colour the trail by height or speed" + shared,
             )
-            self.show_field = gui.add_checkbox("Show field", initial_value=True)
-            self.clear = gui.add_button("Clear trail")
+            self.show_field = gui.add_checkbox(
+                "Show field", initial_value=True, hint="Show the flying field" + shared
+            )
+            self.clear = gui.add_button("Clear trail", hint="Drop the trail so far" + shared)
             self.status = gui.add_markdown("waiting for a position fix")
 
         @self.clear.on_click
