@@ -163,9 +163,9 @@ class SessionWriter:
         self._thread.start()
 
     def write_now(self) -> None:
-        """Write what is queued, on the caller's thread. For a producer on its own clock
-        that runs faster than real time (the twin's demonstrations, `learn.demos`): it
-        never starts the thread, and calls this after each step so the queues stay short."""
+        """Write what is queued, on the caller's thread. For a producer that never starts
+        the thread (a benchmark timing the rest apart) and calls this so the queues stay
+        short."""
         with self._cond:
             taken = self._take()
         self._write_or_count(*taken)
