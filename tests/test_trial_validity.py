@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 
 import httpx
+import numpy as np
 import pytest
 
 from analysis.tasks import TaskParams, analyze
@@ -71,12 +72,18 @@ def test_a_landing_off_the_pad_is_not_a_valid_trial(tmp_path):
         Leg("land"),
     ]
     with recorded_twin_flight(tmp_path, 1, NO_CAMERAS, before_flight=_choose(1), legs=legs) as f:
+        twin = f.station.twin
+        pad = twin.scene.pad("start")
+        # Where it really landed: the pilot's goto stops within its tolerance and the
+        # descent drifts, more so when the twin is starved of CPU.
+        landed_off_m = float(np.hypot(*(twin.pose().pos_enu_m[:2] - pad.xy_m)))
         score = _scored(f.base_url)
         rest = _rest(f.base_url, f.session_id, "hover")
     result = score["result"]
     assert score["ok"] and result["valid"] is False, score
     assert result["landing_pad"] == "start"
-    assert result["landing_accuracy_m"] == pytest.approx(2.7, abs=0.4)
+    assert landed_off_m > pad.size_m  # clearly off the pad
+    assert result["landing_accuracy_m"] == pytest.approx(landed_off_m, abs=0.3)
     (reason,) = result["invalid_reasons"]
     assert "landed off pad 'start'" in reason and "m from its centre" in reason
     assert rest["valid"] is False and rest["landing_accuracy_m"] == result["landing_accuracy_m"]
