@@ -442,3 +442,14 @@ def test_sim_cameras_render_the_real_twin():
     # On the start pad the front camera sees sky above the horizon, the bottom one the pad:
     # two different views, not one picture twice.
     assert np.abs(front.astype(int) - bottom.astype(int)).mean() > 20
+
+
+def test_a_cameras_declared_optics_reach_its_figures(tmp_path):
+    """The tilt and vertical field of view set for a camera are in its figures (GET
+    /api/cameras, which the OSD draws its horizon with); a camera with none set says so."""
+    folder = write_images(tmp_path / "png", 2, (160, 120))
+    cfg = CameraConfig(spec=f"folder:{folder}", tilt_up_deg=25.0, vfov_deg=70.0)
+    stats = build_camera("front", cfg).stats()
+    assert (stats.tilt_up_deg, stats.vfov_deg) == (25.0, 70.0)
+    stats = build_camera("front", CameraConfig(spec=f"folder:{folder}")).stats()
+    assert (stats.tilt_up_deg, stats.vfov_deg) == (None, None)

@@ -10,13 +10,17 @@ import numpy as np
 
 
 class CountingRenderer:
-    """Anything with `render(camera) -> BGR ndarray` is a twin to the sim source."""
+    """Anything with `render(camera) -> BGR ndarray` and `optics(camera)` is a twin to the
+    sim source; this one declares no optics."""
 
     def __init__(self, width: int = 320, height: int = 240) -> None:
         self.width, self.height = width, height
         self.calls: dict[str, int] = {}
         self.fail = threading.Event()  # set: render raises, as a crashed twin would
         self._lock = threading.Lock()
+
+    def optics(self, camera: str) -> None:
+        return None
 
     def render(self, camera: str) -> np.ndarray:
         if self.fail.is_set():

@@ -39,6 +39,16 @@ class CameraModel:
         f = (self.width / 2) / np.tan(np.radians(self.hfov_deg) / 2)
         return np.array([[f, 0, self.width / 2], [0, f, self.height / 2], [0, 0, 1.0]])
 
+    @property
+    def vfov_deg(self) -> float:
+        """Top edge to bottom edge of the frame, through K's square pixels."""
+        return float(np.degrees(2 * np.arctan((self.height / 2) / self.K[1, 1])))
+
+    @property
+    def tilt_up_deg(self) -> float:
+        """The optical axis above the body's nose (FLU: its up component)."""
+        return float(np.degrees(np.arcsin(np.clip(self.R_body_cam[2, 2], -1.0, 1.0))))
+
 
 def front_camera(tilt_up_deg: float = 15.0, hfov_deg: float = 100.0) -> CameraModel:
     t = np.radians(tilt_up_deg)
@@ -87,7 +97,7 @@ class Renderer:
         pad_px_per_m: int = 160,
     ) -> None:
         self.scene = scene
-        self.cameras = {"front": front or front_camera(), "bottom": bottom or bottom_camera()}
+        self.cameras = self.camera_models(front, bottom)
         self.fpv_noise = fpv_noise
         self._rng = np.random.default_rng(seed)
         f = scene.field
@@ -104,6 +114,13 @@ class Renderer:
             self._stamp(pad, tex)
         self._noise = [self._rng.normal(0, 12, (480, 640, 3)).astype(np.int16) for _ in range(6)]
         self._net = self._net_segments()
+
+    @staticmethod
+    def camera_models(
+        front: CameraModel | None = None, bottom: CameraModel | None = None
+    ) -> dict[str, CameraModel]:
+        """The cameras a renderer built with these options draws (cheap: no textures)."""
+        return {"front": front or front_camera(), "bottom": bottom or bottom_camera()}
 
     # ---- textures ----
     def _ground_texture(self, w_m: float, h_m: float) -> np.ndarray:

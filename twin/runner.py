@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.cameras.source import Optics
 from companion.latest import Latest
 from core.scene import Scene, load_scene
 from twin.settings import TwinSettings
@@ -186,6 +187,17 @@ class Twin:
         """(480, 640, 3) BGR uint8 of camera "front" or "bottom" at the latest true pose."""
         renderer = self._get_renderer()
         return renderer.render(camera, self.pose())
+
+    def optics(self, camera: str) -> Optics | None:
+        """The tilt and vertical field of view `render(camera)` draws with (None: no such
+        camera)."""
+        from twin.render import Renderer
+
+        options = self._render_options
+        model = Renderer.camera_models(options.get("front"), options.get("bottom")).get(camera)
+        if model is None:
+            return None
+        return Optics(tilt_up_deg=model.tilt_up_deg, vfov_deg=model.vfov_deg)
 
     def _get_renderer(self):
         with self._render_lock:

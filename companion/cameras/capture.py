@@ -53,6 +53,8 @@ class CameraStats:
     last_frame_time: float | None  # Unix time of the newest good frame's capture
     last_frame_age_s: float | None
     opens: int  # successful source opens (1 + recoveries)
+    tilt_up_deg: float | None  # optical axis above the nose (settings or the source's own)
+    vfov_deg: float | None  # vertical field of view; None when unknown
 
 
 class Camera:
@@ -285,6 +287,8 @@ class Camera:
             last_frame_time=last_wall,
             last_frame_age_s=None if last_mono is None else time.monotonic() - last_mono,
             opens=self._opens,
+            tilt_up_deg=self.config.tilt_up_deg,
+            vfov_deg=self.config.vfov_deg,
         )
 
 

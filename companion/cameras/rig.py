@@ -66,6 +66,12 @@ def build_camera(
     retry_max_s: float = 5.0,
 ) -> Camera:
     spec = parse_spec(effective_spec(name, cfg.spec, link_source))
+    tilt_up_deg, vfov_deg = cfg.tilt_up_deg, cfg.vfov_deg
+    twin = renderer() if spec.kind == "sim" else None
+    declared = twin.optics(spec.target) if twin is not None else None
+    if declared is not None:  # the twin's camera declares what it renders; settings override
+        tilt_up_deg = declared.tilt_up_deg if tilt_up_deg is None else tilt_up_deg
+        vfov_deg = declared.vfov_deg if vfov_deg is None else vfov_deg
     config = SourceConfig(
         name=name,
         width=spec.width or cfg.width,
@@ -73,6 +79,8 @@ def build_camera(
         fps=spec.fps or cfg.fps,
         jpeg_quality=spec.quality or cfg.jpeg_quality,
         stall_s=stall_s,
+        tilt_up_deg=tilt_up_deg,
+        vfov_deg=vfov_deg,
     )
     return Camera(spec, config, make_source(spec, config, renderer), retry_min_s, retry_max_s)
 

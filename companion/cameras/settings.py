@@ -20,6 +20,23 @@ class CameraConfig(Section):
     height: int = Field(480, ge=16, le=8192)
     fps: float = Field(30.0, gt=0, le=240)
     jpeg_quality: int = Field(80, ge=1, le=100)
+    # The optics the OSD draws its horizon and pitch ladder with (web/osd.js).
+    tilt_up_deg: float | None = Field(
+        None,
+        ge=-90,
+        le=90,
+        description="How far the camera's optical axis points above the vehicle's nose, in "
+        "degrees (FPV cameras are tilted up for forward flight). None: the source's own "
+        "(the twin's cameras declare theirs), else 0.",
+    )
+    vfov_deg: float | None = Field(
+        None,
+        gt=0,
+        lt=180,
+        description="The picture's vertical field of view, top edge to bottom edge, in "
+        "degrees. None: the source's own (the twin's cameras declare theirs), else unknown "
+        "(the OSD then assumes 60).",
+    )
 
 
 class CameraSettings(Section):

@@ -31,6 +31,16 @@ class SourceConfig:
     fps: float
     jpeg_quality: int
     stall_s: float = 2.0
+    tilt_up_deg: float | None = None  # optical axis above the nose (CameraConfig)
+    vfov_deg: float | None = None  # vertical field of view, None when unknown
+
+
+@dataclass(frozen=True, slots=True)
+class Optics:
+    """Where a camera looks and how much it sees: what a source can declare about itself."""
+
+    tilt_up_deg: float  # optical axis above the vehicle's nose
+    vfov_deg: float  # vertical field of view of the frames it delivers
 
 
 @dataclass(slots=True)

@@ -13,11 +13,23 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError, as_bgr
+from companion.cameras.source import (
+    Captured,
+    FrameSource,
+    Optics,
+    SourceConfig,
+    SourceError,
+    as_bgr,
+)
 
 
 class Renderer(Protocol):
     def render(self, camera: str) -> np.ndarray: ...
+
+    def optics(self, camera: str) -> Optics | None:
+        """The tilt and vertical field of view that `render(camera)` draws with (None: no
+        such camera)."""
+        ...
 
 
 class SimSource(FrameSource):

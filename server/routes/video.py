@@ -2,7 +2,8 @@
 
     GET /video/{camera}.mjpg   multipart/x-mixed-replace, one part per frame
     GET /video/{camera}.jpg    the newest frame
-    GET /api/cameras           per camera: source, resolution, fps, drops, encode time, clients
+    GET /api/cameras           per camera: source, resolution, fps, drops, encode time, clients,
+                               tilt and vertical field of view
 
 Every viewer is an async generator (no thread per viewer, no queue) fed by the camera's
 fan-out (`server.video_fanout`): one waiter on the camera's `Latest[Frame]`, each frame's
@@ -48,6 +49,8 @@ class CameraInfo(BaseModel):
     last_frame_time: float | None
     last_frame_age_s: float | None
     opens: int
+    tilt_up_deg: float | None  # optical axis above the vehicle's nose, degrees
+    vfov_deg: float | None  # vertical field of view, degrees; None when unknown
 
 
 class CamerasReply(BaseModel):
