@@ -8,10 +8,12 @@ import re
 import time
 
 import httpx
+import numpy as np
 import pytest
 from playwright.sync_api import expect
 
 from server.app import create_app
+from server.settings import load_settings
 from tests.helpers import run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
 
@@ -422,3 +424,96 @@ def test_not_recording_shows_while_armed_without_a_recording(tmp_path, browser):
             vehicle.disarm()
             expect(page.locator("[data-osd=armed]")).to_have_text("DISARMED", timeout=15_000)
             expect(badge).to_have_text("")
+
+
+# The drawn horizon's row in the horizon canvas (mean of its white pixels in the columns at a
+# quarter and three quarters of the width, where only the horizon line is drawn), with the
+# canvas' size.
+HORIZON_ROW = """() => {
+  const c = document.querySelector('[data-osd=horizon]');
+  const {width: W, height: H} = c;
+  const img = c.getContext('2d').getImageData(0, 0, W, H).data;
+  const rowAt = (x) => { let sum = 0, n = 0;
+    for (let y = 0; y < H; y++) { const i = (y * W + x) * 4;
+      if (img[i + 3] > 200 && img[i] > 200 && img[i + 2] > 200) { sum += y; n++; } }
+    return n ? sum / n : null; };
+  const yl = rowAt(Math.round(W * 0.25)), yr = rowAt(Math.round(W * 0.75));
+  return {W, H, row: yl === null || yr === null ? null : (yl + yr) / 2};
+}"""
+
+
+def rendered_horizon_row(frame) -> float:
+    """The sky/ground boundary's row in a twin frame at the columns a quarter and three
+    quarters across: the last sky pixel of each column (sky is not seen below the horizon;
+    obstacles and the net only hide some of it), the lowest in a small band of columns."""
+    from twin.render import SKY_BGR
+
+    height, width = frame.shape[:2]
+    sky = (frame == np.array(SKY_BGR, np.uint8)).all(axis=2)
+    rows = np.arange(height)[:, None]
+    last_sky = np.where(sky, rows, -1).max(axis=0) + 1.0  # per column
+    bands = [last_sky[int(width * q) - 8 : int(width * q) + 8].max() for q in (0.25, 0.75)]
+    return float(np.mean(bands))
+
+
+def test_osd_horizon_lies_on_the_twins_rendered_horizon_in_a_level_hover(tmp_path, browser):
+    """The twin's front camera looks 15 degrees above the nose, its picture ~84 degrees
+    high: the OSD draws the horizon with the optics the station declares for it, so in a
+    level hover the drawn horizon lies on the rendered one (within 2 degrees), not on the
+    picture's centre."""
+    from tests.helpers import arm_and_climb, sticks_on
+
+    settings = load_settings(
+        None,
+        {
+            "link.source": "sim",
+            "twin.realtime_factor": 2.0,
+            "recording.auto_record_on_arm": False,
+            "recording.sessions_dir": str(tmp_path),
+            "viser.enabled": False,
+        },
+        environ={},
+    )
+    app = create_app(settings)
+    station = None
+    with run_uvicorn(app) as base:
+        station = app.state.station
+        front = next(
+            c for c in httpx.get(base + "/api/cameras").json()["cameras"] if c["name"] == "front"
+        )
+        tilt, vfov = front["tilt_up_deg"], front["vfov_deg"]
+        model = station.twin.optics("front")
+        assert (tilt, vfov) == (model.tilt_up_deg, model.vfov_deg)
+        assert tilt == pytest.approx(15.0) and vfov == pytest.approx(83.6, abs=0.1)
+
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        sticks_on(page, base)
+        arm_and_climb(page, station, height_m=1.5)
+        page.wait_for_function("() => (window.fpv.cameras.front || {}).vfov_deg", timeout=15_000)
+        # Level: the hover has settled (the OSD's own roll and pitch near zero).
+        page.wait_for_function(
+            """() => { const d = document.querySelector('[data-osd=horizon]').dataset;
+            return Math.abs(+d.roll) < 1 && Math.abs(+d.pitch) < 1; }""",
+            timeout=30_000,
+        )
+        drawn = page.evaluate(HORIZON_ROW)
+        frame = station.twin.render("front")
+
+    # Both rows as angles below the picture's centre, through the declared field of view.
+    # The picture is shown whole (object-fit: contain) and centred in the canvas.
+    ih, iw = frame.shape[:2]
+    f_frame = (ih / 2) / math.tan(math.radians(vfov) / 2)
+    rendered_deg = math.degrees(math.atan((rendered_horizon_row(frame) - ih / 2) / f_frame))
+    pic_h = ih * min(drawn["W"] / iw, drawn["H"] / ih)
+    f_canvas = (pic_h / 2) / math.tan(math.radians(vfov) / 2)
+    assert drawn["row"] is not None, "no horizon drawn"
+    drawn_deg = math.degrees(math.atan((drawn["row"] - drawn["H"] / 2) / f_canvas))
+    assert rendered_deg == pytest.approx(15.0, abs=3.0)  # the camera's tilt, level
+    assert abs(drawn_deg - rendered_deg) < 2.0, (drawn_deg, rendered_deg)
+    # ... as the OSD says it drew it.
+    drawn_with = page.locator("[data-osd=horizon]")
+    assert (drawn_with.get_attribute("data-tilt"), drawn_with.get_attribute("data-vfov")) == (
+        "15.0",
+        f"{vfov:.1f}",
+    )
+    print(f"horizon: rendered {rendered_deg:.2f} deg, drawn {drawn_deg:.2f} deg below centre")

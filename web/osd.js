@@ -27,7 +27,11 @@ const MESSAGE_LINES = 2;
 const WARNING_SHOWN_S = 15; // an emergency/crash/failsafe message keeps its warning this long
 const VIDEO_STALE_S = 1.0;
 const REFUSED_SHOWN_S = 10; // "MAVLINK REFUSED" stays this long after the station last refused some
-const PITCH_FOV_DEG = 60; // the ladder's scale: the view's height spans this many degrees
+// The camera's optics (its tilt above the nose and vertical field of view) come from its
+// settings through GET /api/cameras (video.js: fpv.cameras); a camera that does not say is
+// taken as looking along the nose with this field of view.
+const DEFAULT_VFOV_DEG = 60;
+const D2R = Math.PI / 180;
 const FIX_NAMES = ["NO GPS", "NO FIX", "2D", "3D", "DGPS", "RTK FLT", "RTK FIX"];
 const SEVERITY = ["EMERG", "ALERT", "CRIT", "ERR", "WARN", "NOTE", "INFO", "DEBUG"];
 const M_PER_DEG_LAT = 111_320;
@@ -126,6 +130,8 @@ export function mountOsd(view, { menu = true } = {}) {
 
   let attitudeKey = "", headingKey = "", dirty = true;
   let resized = true, sizeDpr = 0;
+  // How the picture sits in the view: its <img>'s object-fit, read after a resize.
+  let fit = "contain", opticsKey = "";
   new ResizeObserver(() => { resized = true; }).observe(view);
 
   const setText = (node, text) => { if (node.textContent !== text) node.textContent = text; };
@@ -173,8 +179,14 @@ export function mountOsd(view, { menu = true } = {}) {
         c.height = Math.round(c.clientHeight * dpr);
         canvasFont.delete(c); // a resized canvas has lost its drawing state
       }
+      const img = view.querySelector("img.video-stream");
+      fit = img ? getComputedStyle(img).objectFit : "contain";
       dirty = true;
     }
+    // The picture's optics, in the horizon canvas' pixels: focal length and where the nose is.
+    const cam = (fpv.cameras || {}).front;
+    const optics = pictureOptics(cam, view.querySelector("img.video-stream"), fit, horizon);
+    if (optics.key !== opticsKey) { opticsKey = optics.key; dirty = true; }
     if (!s) { setText(nodes.warning, feed.socketOpen ? "NO TELEMETRY" : "STATION UNREACHABLE"); return; }
     // Horizon and pitch ladder.
     const attR = reading("attitude"), att = attR.value;
@@ -183,9 +195,11 @@ export function mountOsd(view, { menu = true } = {}) {
     const aKey = `${fixed(roll, 1)},${fixed(pitch, 1)}`;
     if (!hidden.has("horizon") && (aKey !== attitudeKey || dirty)) {
       attitudeKey = aKey;
-      drawHorizon(horizon, roll, pitch, dpr);
+      drawHorizon(horizon, roll, pitch, optics, dpr);
       horizon.dataset.roll = fixed(roll, 1);
       horizon.dataset.pitch = fixed(pitch, 1);
+      horizon.dataset.tilt = fixed(optics.tiltDeg, 1);
+      horizon.dataset.vfov = fixed(optics.vfovDeg, 1);
     }
     setValue("horizon", attR, `roll ${fixed(roll, 0)}° pitch ${fixed(pitch, 0)}°`);
     // Heading tape.
@@ -260,7 +274,6 @@ export function mountOsd(view, { menu = true } = {}) {
 
     // Ages: the newest vehicle telemetry and the front camera's newest frame.
     const tAge = ageOfNewest();
-    const cam = (fpv.cameras || {}).front;
     const vAge = cam && cam.last_frame_age_s !== null && cam.last_frame_age_s !== undefined
       ? cam.last_frame_age_s + (performance.now() - (fpv.camerasAt || performance.now())) / 1000 : null;
     setText(nodes.age, `TLM ${tAge === null ? "--" : tAge.toFixed(1) + "s"} VID ${vAge === null ? "--" : vAge.toFixed(1) + "s"}`);
@@ -389,43 +402,75 @@ function outlinedStroke(ctx, path, colour, width, dpr) {
   ctx.stroke(path);
 }
 
-function drawHorizon(c, roll, pitch, dpr) {
+// The camera's tilt and vertical field of view (its settings, else none and the default),
+// and from them, in `c`'s pixels, the focal length of the picture as the <img> shows it
+// (object-fit contain or cover, centred; `cam.width`/`height`: the frames' size).
+function pictureOptics(cam, img, fit, c) {
+  const tiltDeg = cam && cam.tilt_up_deg != null ? cam.tilt_up_deg : 0;
+  const vfovDeg = cam && cam.vfov_deg != null ? cam.vfov_deg : DEFAULT_VFOV_DEG;
+  const iw = (img && img.naturalWidth) || (cam && cam.width) || 0;
+  const ih = (img && img.naturalHeight) || (cam && cam.height) || 0;
+  const W = c.width, H = c.height;
+  let picH = H;
+  if (iw > 0 && ih > 0) {
+    const scale = fit === "cover" ? Math.max(W / iw, H / ih) : Math.min(W / iw, H / ih);
+    picH = ih * scale;
+  }
+  const fPx = picH / 2 / Math.tan((vfovDeg * D2R) / 2);
+  return { tiltDeg, vfovDeg, fPx, key: `${tiltDeg}|${vfovDeg}|${fPx.toFixed(1)}` };
+}
+
+// Horizon and pitch ladder where the camera sees them: a pinhole camera `tiltDeg` above
+// the nose, its focal length `fPx`. The horizon is exact (a straight line, turned and
+// offset as the camera's axes point); a rung at elevation e lies f*tan(elevation of the
+// view's centre - e) from the centre, across the horizon.
+function drawHorizon(c, roll, pitch, { tiltDeg, fPx }, dpr) {
   const ctx = c.getContext("2d");
   const W = c.width, H = c.height;
   ctx.clearRect(0, 0, W, H);
   if (roll === null || pitch === null) return;
-  const pxPerDeg = H / PITCH_FOV_DEG;
+  const r = roll * D2R, p = pitch * D2R, t = tiltDeg * D2R;
+  // The world-up components of the camera's right, down and forward axes (body FRD, roll
+  // then pitch; yaw turns nothing about the horizon).
+  const upRight = -Math.cos(p) * Math.sin(r);
+  const upDown = Math.sin(p) * Math.sin(t) - Math.cos(p) * Math.cos(r) * Math.cos(t);
+  const upFwd = Math.sin(p) * Math.cos(t) + Math.cos(p) * Math.cos(r) * Math.sin(t);
+  const centreElev = Math.asin(Math.max(-1, Math.min(1, upFwd))) / D2R;
   ctx.save();
   ctx.translate(W / 2, H / 2);
-  ctx.rotate((-roll * Math.PI) / 180); // the world turns against the vehicle's roll
-  ctx.translate(0, pitch * pxPerDeg); // nose up: the horizon goes down
+  ctx.rotate(Math.atan2(upRight, -upDown)); // the world turns against the vehicle's roll
+  const offset = (elev) => fPx * Math.tan((centreElev - elev) * D2R); // nose up: goes down
   const solid = new Path2D(), dashed = new Path2D(); // the ladder: dashed below the horizon
-  solid.moveTo(-W * 0.4, 0); solid.lineTo(-W * 0.06, 0); // with a gap for the aircraft
-  solid.moveTo(W * 0.06, 0); solid.lineTo(W * 0.4, 0);
+  if (Math.abs(centreElev) < 89) {
+    const y0 = offset(0);
+    solid.moveTo(-W * 0.4, y0); solid.lineTo(-W * 0.06, y0); // with a gap for the aircraft
+    solid.moveTo(W * 0.06, y0); solid.lineTo(W * 0.4, y0);
+  }
   const labels = [];
-  for (let p = -50; p <= 50; p += 10) {
-    if (p === 0) continue;
-    const y = -p * pxPerDeg;
-    if (Math.abs(y + pitch * pxPerDeg) > H * 0.4) continue; // only what is near the centre
-    const path = p < 0 ? dashed : solid;
+  for (let e = -50; e <= 50; e += 10) {
+    if (e === 0 || Math.abs(centreElev - e) >= 89) continue;
+    const y = offset(e);
+    if (Math.abs(y) > H * 0.4) continue; // only what is near the centre
+    const path = e < 0 ? dashed : solid;
     path.moveTo(-W * 0.1, y); path.lineTo(-W * 0.04, y);
     path.moveTo(W * 0.04, y); path.lineTo(W * 0.1, y);
-    labels.push([p, y]);
+    labels.push([e, y]);
   }
   outlinedStroke(ctx, solid, "#fff", 2 * dpr, dpr);
   ctx.setLineDash([6 * dpr, 4 * dpr]);
   outlinedStroke(ctx, dashed, "#fff", 2 * dpr, dpr);
   ctx.setLineDash([]);
-  for (const [p, y] of labels) {
-    const sprite = label(String(p), Math.round(12 * dpr));
+  for (const [e, y] of labels) {
+    const sprite = label(String(e), Math.round(12 * dpr));
     ctx.drawImage(sprite, W * 0.105, y - sprite.height / 2);
   }
   ctx.restore();
-  // The aircraft symbol, fixed at the centre.
+  // The aircraft symbol where the nose points: the tilt below the picture's centre.
+  const ny = H / 2 + fPx * Math.tan(t);
   const plane = new Path2D();
-  plane.moveTo(W / 2 - W * 0.05, H / 2); plane.lineTo(W / 2 - W * 0.015, H / 2);
-  plane.lineTo(W / 2, H / 2 + 6 * dpr);
-  plane.lineTo(W / 2 + W * 0.015, H / 2); plane.lineTo(W / 2 + W * 0.05, H / 2);
+  plane.moveTo(W / 2 - W * 0.05, ny); plane.lineTo(W / 2 - W * 0.015, ny);
+  plane.lineTo(W / 2, ny + 6 * dpr);
+  plane.lineTo(W / 2 + W * 0.015, ny); plane.lineTo(W / 2 + W * 0.05, ny);
   outlinedStroke(ctx, plane, "#ffd24a", 3 * dpr, dpr);
 }
 
