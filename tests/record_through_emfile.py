@@ -17,16 +17,7 @@ import resource
 import sys
 from pathlib import Path
 
-from tests.recording_fakes import FakeRig, recorder_options, starve
-
-
-async def until(predicate, within_s: float) -> bool:
-    """Poll `predicate` on the loop (the recorder's state has no event to wait on)."""
-    for _ in range(int(within_s / 0.05)):
-        if predicate():
-            return True
-        await asyncio.sleep(0.05)
-    return bool(predicate())
+from tests.recording_fakes import FakeRig, recorder_options, starve, until
 
 
 async def main(root: Path) -> None:

@@ -8,6 +8,7 @@ as the station does.
 
 from __future__ import annotations
 
+import asyncio
 import os
 import threading
 import time
@@ -24,6 +25,15 @@ from companion.recording.session import SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.vehicle_state import Heartbeat, PilotAltitude, RcChannels, VehicleState
 from companion.video_frame import Frame
+
+
+async def until(predicate, within_s: float) -> bool:
+    """Poll `predicate` on the loop (the recorder's state has no event to wait on)."""
+    for _ in range(int(within_s / 0.05)):
+        if predicate():
+            return True
+        await asyncio.sleep(0.05)
+    return bool(predicate())
 
 
 def starve(hog: list[int]) -> None:
@@ -136,6 +146,7 @@ class FakeVehicle:
         self.listeners: list = []
         self.packets_sent = 0
         self.armed = False
+        self._armed_since: float | None = None
         self.alt_m = 0.0
         self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
         self._stop = threading.Event()
@@ -151,10 +162,21 @@ class FakeVehicle:
 
     def publish_now(self) -> None:
         now = time.monotonic()
+        # The flight timer as the state tracker keeps it: from the first state armed.
+        if self.armed and self._armed_since is None:
+            self._armed_since = now
+        elif not self.armed:
+            self._armed_since = None
         self.state.publish(
             VehicleState(
                 heartbeat=Heartbeat(
-                    t_mono=now, sysid=1, compid=1, autopilot="px4", armed=self.armed, mode="POSCTL"
+                    t_mono=now,
+                    sysid=1,
+                    compid=1,
+                    autopilot="px4",
+                    armed=self.armed,
+                    mode="POSCTL",
+                    armed_since_mono=self._armed_since,
                 ),
                 rc=RcChannels(t_mono=now, chancount=8, pwm_us=(1500, 1500, 1100, 1500) + (0,) * 14),
                 altitude=PilotAltitude(

@@ -5,10 +5,12 @@ into a new session, which ends when the vehicle disarms like the one arming star
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import errno
 import json
 import os
+import shutil
 
 import pytest
 
@@ -17,7 +19,8 @@ from companion.recording.session import RecordingSession, SessionConfig
 from companion.recording.writer import WriterLimits
 from companion.vehicle_state import VehicleState
 from companion.video_frame import Frame
-from tests.recording_fakes import starve
+from tests.recording_fakes import FakeRig, recorder_options, starve, until
+from tests.test_recording import DiskUsage
 from tests.test_recording_kill import read_line, spawn
 
 
@@ -139,3 +142,49 @@ def test_a_start_refused_on_arming_is_retried_while_armed(tmp_path):
     assert missed["unrecorded_s"] == missed["armed_before_start_s"]
     assert "Too many open files" in missed["reason"]
     assert meta["arming"] is not None  # the rows after the start still know the arming
+
+
+def test_a_start_refused_for_low_disk_is_retried_while_armed(tmp_path, monkeypatch):
+    """Under the free-space minimum when the vehicle arms: each start is refused (and
+    leaves nothing behind) while the recorder says so and tries again; once space is
+    freed the flight is recorded, and its session says what it missed and why."""
+    real = shutil.disk_usage
+    free = {"bytes": 10 * 10**6}
+    monkeypatch.setattr(
+        shutil, "disk_usage", lambda p: DiskUsage(real(p).total, real(p).used, free["bytes"])
+    )
+    rig = FakeRig(
+        tmp_path, recorder_options(50 * 10**6, auto_record_on_arm=True, post_disarm_tail_s=0.2)
+    )
+    rec, vehicle = rig.start().recorder, rig.vehicle
+
+    async def run():
+        await rec.open()
+        vehicle.armed = True
+        assert await until(lambda: rec.last_error is not None, 10), "the start was not refused"
+        await until(lambda: rec.status().not_recording, 10)
+        refused, left = rec.status(), sorted(tmp_path.iterdir())
+        free["bytes"] = 10**9  # space freed
+        started = await until(lambda: rec.session is not None, 5.0)  # a hang guard
+        trigger = rec.session.trigger if started else None
+        await asyncio.sleep(0.5)
+        vehicle.armed = False
+        await until(lambda: rec.session is None, 10)
+        await rec.aclose()
+        return refused, left, started, trigger
+
+    try:
+        refused, left, started, trigger = asyncio.run(run())
+    finally:
+        rig.stop()
+    assert not refused.recording and refused.not_recording, refused
+    assert refused.last_error.startswith("disk full") and refused.armed_unrecorded_s >= 1.0
+    assert left == []  # the refused starts made no folder
+    assert started and trigger == "retry"
+    (folder,) = tmp_path.iterdir()
+    meta = json.loads((folder / "session.json").read_text())
+    assert meta["status"] == "complete" and meta["stop_reason"] == "disarmed"
+    missed = meta["missed"]
+    assert missed["armed_before_start_s"] >= refused.armed_unrecorded_s
+    assert missed["unrecorded_s"] == missed["armed_before_start_s"]
+    assert missed["reason"].startswith("disk full")
