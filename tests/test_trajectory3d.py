@@ -4,6 +4,7 @@ vehicle states through a `Latest`, as the station feeds it."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import math
 import threading
@@ -30,6 +31,7 @@ from server.trajectory3d.colors import ramp_rgb
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.service import Trajectory3D
 from server.trajectory3d.trail import Trail, TrailSample
+from server.trajectory3d.viser_loop import on_viser_loop_blocking
 from tests.helpers import (
     CountingSelector,
     run_uvicorn,
@@ -543,3 +545,70 @@ def test_positions_without_a_fix_are_not_drawn():
     raw = make_state(1.0, (1.0, 2.0, 3.0)).gps
     s = sample_from_state(VehicleState(gps=raw))
     assert s is not None and s.lat_deg == raw.lat_deg
+
+
+def test_the_scene_is_changed_only_on_vipers_own_loop_thread(monkeypatch):
+    """viser wakes its senders with an asyncio.Event of its own loop, set from the thread
+    that changes the scene: from any other thread that races its viewers' waits ("deque
+    mutated during iteration"). Every message the panel queues, from its start, its
+    steps, its GUI requests and its redraws, with many viewers watching a fast trail,
+    must be queued on the loop of the buffer it goes into."""
+    from viser.infra._async_message_buffer import AsyncMessageBuffer
+
+    import server.trajectory3d.service as service_module
+
+    foreign: list[tuple[str, str]] = []
+    push = AsyncMessageBuffer.push
+    opened = service_module.open_viser
+    built = threading.Event()  # viser's constructor queues its own defaults: not ours
+
+    def open_viser(*args, **kwargs):
+        server = opened(*args, **kwargs)
+        built.set()
+        return server
+
+    def checked_push(self, message):
+        if not built.is_set():
+            return push(self, message)
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is not self.event_loop:
+            foreign.append((threading.current_thread().name, type(message).__name__))
+        return push(self, message)
+
+    monkeypatch.setattr(AsyncMessageBuffer, "push", checked_push)
+    monkeypatch.setattr(service_module, "open_viser", open_viser)
+    state: Latest[VehicleState] = Latest()
+    svc = Trajectory3D(
+        ViserSettings(port=0, chunk_segments=5, update_hz=30.0),
+        state,
+        host="127.0.0.1",
+        field=FIELD,
+    )
+    svc.start()
+    try:
+        with contextlib.ExitStack() as viewers:
+            for _ in range(12):
+                viewers.enter_context(viser_viewer(svc.port))
+            assert wait_until(lambda: len(svc.server.get_clients()) == 12)
+            # Each viewer's camera moves too (set where a viewer's change lands).
+            on_viser_loop_blocking(svc.server, lambda: setattr(svc.controls.follow, "value", True))
+
+            async def fly() -> None:
+                task = asyncio.create_task(svc.run())
+                for i in range(400):
+                    state.publish(make_state(i * 0.05, (i * 0.1, 0.0, 3.0)))
+                    if i == 200:
+                        svc.controls._requests.color_by = "speed"  # a whole redraw
+                    await asyncio.sleep(0.005)
+                    assert not task.done(), task
+                state.close()
+                await asyncio.wait_for(task, 10.0)
+
+            asyncio.run(fly())
+        assert svc.steps > 20 and len(svc.scene.chunk_handles) > 2
+        assert foreign == [], foreign[:5]
+    finally:
+        svc.stop()

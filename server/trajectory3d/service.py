@@ -13,17 +13,22 @@ second), and the event loop takes them once a second, or as soon as a viewer com
 instead of waking `update_hz` times a second for them. The viser
 server itself (and viser's import) waits for `start()`, which the station calls on the
 first visit (server.station.start_3d_panels); the trail is kept from the station's start.
+
+Once viser runs, `run()` hands each update (one step, one batch of kept states, one turn
+of a redraw) to viser's own event-loop thread and awaits it there (viser_loop.py): viser's
+scene and GUI are changed on no other thread.
 """
 
 from __future__ import annotations
 
 import asyncio
 import collections
+import functools
 import logging
 import math
 import time
-from collections.abc import Iterator
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -35,6 +40,7 @@ from server.settings import ViserSettings
 from server.trajectory3d.gate import LOOPBACK, ViewerInput, open_viser
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.trail import Origin, Trail, TrailSample
+from server.trajectory3d.viser_loop import on_viser_loop, on_viser_loop_blocking
 
 if TYPE_CHECKING:  # imported by start(): viser costs memory and start-up time
     import viser
@@ -43,6 +49,8 @@ if TYPE_CHECKING:  # imported by start(): viser costs memory and start-up time
     from server.trajectory3d.live_scene import LiveScene
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
+_DONE = object()
 
 MIN_FIX_TYPE = 3  # a 2D fix has no usable altitude: drawn as a gap
 # Chunks resent per turn of the event loop when the whole trail is redrawn (a first viewer,
@@ -147,21 +155,25 @@ class Trajectory3D:
 
         s = self.settings
         server = open_viser(s.port, "fpv-station 3D", self.host)
-        server.gui.configure_theme(show_share_button=False)
-        server.scene.set_up_direction("+z")
-        server.initial_camera.position = (-25.0, -30.0, 20.0)
-        server.initial_camera.look_at = (0.0, 0.0, 0.0)
-        scene = LiveScene(
-            server,
-            height_range_m=s.height_range_m,
-            speed_range_mps=s.speed_range_mps,
-            color_by=s.color_by,
-            field=self.field,
-        )
-        if self.field is not None:
-            # Before any fix, show the field about its own anchor.
-            scene.set_origin(self.field.home_llh)
-        self.scene, self.controls = scene, Controls(server, s.color_by)
+
+        def build() -> tuple[LiveScene, Controls]:  # on viser's loop, as every change
+            server.gui.configure_theme(show_share_button=False)
+            server.scene.set_up_direction("+z")
+            server.initial_camera.position = (-25.0, -30.0, 20.0)
+            server.initial_camera.look_at = (0.0, 0.0, 0.0)
+            scene = LiveScene(
+                server,
+                height_range_m=s.height_range_m,
+                speed_range_mps=s.speed_range_mps,
+                color_by=s.color_by,
+                field=self.field,
+            )
+            if self.field is not None:
+                # Before any fix, show the field about its own anchor.
+                scene.set_origin(self.field.home_llh)
+            return scene, Controls(server, s.color_by)
+
+        self.scene, self.controls = on_viser_loop_blocking(server, build)
         self._stale = True
         server.on_client_connect(lambda _client: self._viewer_came.wake())
         self.server = server
@@ -205,8 +217,20 @@ class Trajectory3D:
         self._viewer_came.clear()
         if not self.watched():  # one may have come before the clear
             await self._viewer_came.wait(UNWATCHED_TURN_S)
+        if self._kept:
+            await self._on_viser(self._step_kept)
+
+    def _step_kept(self) -> None:
         while self._kept:
             self.step(self._kept.popleft(), draw=False)
+
+    async def _on_viser(self, fn: Callable[[], T]) -> T:
+        """Run `fn` (a step: it may change the scene) on viser's loop thread once the
+        server runs (viser_loop.py); before that there is no scene, and it runs here."""
+        server = self.server
+        if server is None:
+            return fn()
+        return await on_viser_loop(server, fn)
 
     async def _run(self) -> None:
         period_s = 1.0 / self.settings.update_hz
@@ -223,13 +247,15 @@ class Trajectory3D:
             current = await self.state.wait_newer(version, timeout=0.25)
             if current is not None and current.version > version:
                 version = current.version
-                self.step(current.value, redraw=False)
+                await self._on_viser(functools.partial(self.step, current.value, redraw=False))
                 next_step = time.monotonic() + period_s
             else:
-                self.apply_requests()  # GUI actions while no telemetry flows
+                await self._on_viser(self.apply_requests)  # GUI actions, no telemetry
             if self._stale and self.watched():  # a viewer came, or the step asked for it
-                for _ in self._redraw_turns(REDRAW_CHUNKS_PER_TURN):
-                    await asyncio.sleep(0)  # the loop serves the others between turns
+                # One turn per hop: both loops serve the others between turns.
+                turns = self._redraw_turns(REDRAW_CHUNKS_PER_TURN)
+                while await self._on_viser(functools.partial(next, turns, _DONE)) is not _DONE:
+                    pass
 
     # -- one update ----------------------------------------------------------------
 
