@@ -20,7 +20,6 @@ from analysis.track import load_session_dir
 from companion.recording import frame_pack, layout
 from companion.recording.store import (
     InvalidPath,
-    SessionFileNotFound,
     SessionStore,
 )
 from core.geodesy import LatLonError, parse_latlon
@@ -62,14 +61,14 @@ def load_trajectory(
         raise BadRequest(f"Session '{session_id}' has no trajectory to draw: {exc}") from None
     cameras: list[CameraFrames] = []
     for camera in layout.CAMERAS:
+        # The index the file route serves frames by (the store's, kept between requests);
+        # only frames whose bytes are on disk.
         try:
-            frames_csv = store.file(session_id, layout.frames_csv_relpath(camera))
-        except (SessionFileNotFound, InvalidPath):
-            continue  # a session without this camera
-        # The recorder's own reader of frames.csv; only frames whose bytes are on disk.
-        index = frame_pack.read_index_file(frames_csv, camera)
-        if index is None:
+            index = store.frame_index(session_id, camera)
+        except InvalidPath:
             continue
+        if index is None:
+            continue  # a session without this camera
         index = index.where(frame_pack.on_disk(folder, index) & np.isfinite(index.t_s))
         order = np.argsort(index.t_s, kind="stable")  # capture order, as written
         names = [index.name(int(k)) for k in order]
