@@ -7,7 +7,7 @@ vehicle, recording on arming), takes every free descriptor, arms the vehicle and
 descriptors for REFUSED_S, reading /api/health and /api/status over a connection opened
 before; then gives them back, waits for the recording and disarms. Lines:
 "REFUSED health=<status> not_recording=<bool> reasons=<json>" (while starved),
-"STARTED <id> trigger=<trigger>" (or "NOT STARTED"), "HEALTH <status>" (once recording),
+"STARTED <id> trigger=<trigger> after=<s>" (or "NOT STARTED"), "HEALTH <status>" (once recording),
 "STOPPED <reason>", "DONE".
 """
 
@@ -64,10 +64,13 @@ def main(root: Path) -> None:
             for fd in hog:
                 os.close(fd)
             hog.clear()
+            released = time.monotonic()
             # A hang guard: the retry tries every second while armed.
             if wait_until(lambda: station.recorder.session is not None, 5.0):
                 session = station.recorder.session
-                print(f"STARTED {session.id} trigger={session.trigger}", flush=True)
+                after = time.monotonic() - released  # for people: no test asserts it
+                print(f"STARTED {session.id} trigger={session.trigger}", end="")
+                print(f" after={after:.2f}s", flush=True)
             else:
                 print("NOT STARTED", flush=True)
             print(f"HEALTH {client.get('/api/health').json()['status']}", flush=True)

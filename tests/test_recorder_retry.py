@@ -129,7 +129,7 @@ def test_a_start_refused_on_arming_is_retried_while_armed(tmp_path):
         if proc.poll() is None:
             proc.kill()
         proc.wait()
-    sid, trigger = started.split()
+    sid, trigger, _after = started.split()
     assert trigger == "trigger=retry"
     # The refused starts left no folder behind: one session, the flight's.
     assert [p.name for p in tmp_path.iterdir()] == [sid]
