@@ -73,8 +73,10 @@ class Latest(Generic[T]):
             self._listeners = (*self._listeners, listener)
 
     def remove_listener(self, listener: Callable[[T], None]) -> None:
+        """Remove a listener added before. Compared by equality, not identity: each
+        `obj.method` access makes a new bound method, equal to the one that was added."""
         with self._lock:
-            self._listeners = tuple(x for x in self._listeners if x is not listener)
+            self._listeners = tuple(x for x in self._listeners if x != listener)
 
     def close(self) -> None:
         """Wake every waiter for good; later waits return at once."""

@@ -101,3 +101,20 @@ def test_a_wakeup_from_another_thread_is_not_missed():
     before, during, none = asyncio.run(run())
     assert before < 1.0 and during < 4.0  # not the 5 s timeout
     assert none >= 0.15
+
+
+def test_a_bound_method_listener_is_removed_by_the_same_expression():
+    class Owner:
+        def __init__(self) -> None:
+            self.seen: list[int] = []
+
+        def note(self, value: int) -> None:
+            self.seen.append(value)
+
+    slot: Latest[int] = Latest()
+    owner = Owner()
+    slot.add_listener(owner.note)
+    slot.publish(1)
+    slot.remove_listener(owner.note)  # a new bound method object, equal to the added one
+    slot.publish(2)
+    assert owner.seen == [1]
