@@ -157,7 +157,7 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_pat
     with chromium() as browser:
         page = open_offline(browser, outside)
         # Replay: picked from the sessions page, a second session overlaid in the paper's frame.
-        page.goto(f"{base}/sessions.html")
+        page.goto(f"{base}/sessions.html?token={TOKEN}")  # kept by lib.js
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
         page.wait_for_url(f"**/replay.html?session={SESSION_A}*")
         page.wait_for_function(

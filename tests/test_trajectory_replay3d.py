@@ -15,6 +15,9 @@ from server.trajectory3d.replay_scene import Replay3D
 from tests.helpers import run_uvicorn
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 
+TOKEN = "replay-test-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
 
 def straight_line(session_id: str, n: int = 1200, gap_at: int | None = None):
     """A 0.5 m/s east flight at 2 m, 10 Hz, as a trajectory reply (optionally a 3 s gap)."""
@@ -217,3 +220,32 @@ def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
         assert wait_until(lambda: np.allclose(cameras()[0].look_at, centre, atol=0.5), 30), (
             cameras()[0].look_at
         )
+
+
+def test_replay3d_changes_need_the_control_token(sessions_dir):  # noqa: F811
+    """What the replay panel shows is shared by all its viewers: only the token moves it."""
+    settings = load_settings(
+        environ={},
+        overrides={
+            "link.source": "none",
+            "viser.port": 0,
+            "server.token": TOKEN,
+            "recording.sessions_dir": str(sessions_dir),
+            "recording.auto_record_on_arm": False,
+        },
+    )
+    app = create_app(settings)
+    with run_uvicorn(app) as url:
+        load = {"session": SESSION_A}
+        for headers in ({}, {"Authorization": "Bearer wrong-token"}):
+            r = httpx.put(f"{url}/api/replay3d", json=load, headers=headers, timeout=30)
+            assert r.status_code == 401 and r.json()["error"] == "Unauthorized"
+        replay = app.state.station.replay3d
+        assert replay is None or replay.primary is None  # nothing drawn for a stranger
+        r = httpx.put(f"{url}/api/replay3d", json=load, headers=AUTH, timeout=30)
+        assert r.status_code == 200 and r.json()["session"] == SESSION_A
+        replay = app.state.station.replay3d
+        r = httpx.put(f"{url}/api/replay3d/time", json={"t_s": 30.0})
+        assert r.status_code == 401 and replay.t_s == 0.0
+        r = httpx.put(f"{url}/api/replay3d/time", json={"t_s": 30.0}, headers=AUTH)
+        assert r.status_code == 200 and replay.t_s == 30.0

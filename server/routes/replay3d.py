@@ -1,23 +1,27 @@
 """The replay's 3D panel: which sessions it shows and the instant of the time slider.
 
-Both endpoints change only what the replay panel draws, never recorded data, so they stay
-open like reading (no control token). The scene is shared by every viewer of the replay
-panel: the last page to load or scrub wins (a field station has few users).
+Both endpoints change only what the replay panel draws, never recorded data; but the scene
+is shared by every viewer of the replay panel (the last page to load or scrub wins), so
+they need the control token like every change others see (server/auth.py). The scene is
+changed on its viser server's own loop thread (server/trajectory3d/viser_loop.py).
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel, Field
 
+from server.auth import require_control_token
 from server.errors import BadRequest, Unavailable
 from server.routes.recording import get_recorder
 from server.routes.trajectory import load_trajectory, reference_param
 from server.station import start_3d_panels
 from server.trajectory3d.replay import Align
+from server.trajectory3d.viser_loop import on_viser_loop
 
 router = APIRouter(tags=["trajectory"])
 
@@ -69,6 +73,7 @@ def _state(service) -> Replay3DState:
     "/api/replay3d",
     response_model=Replay3DState,
     summary="Show a session (and an overlay) in the 3D replay panel",
+    dependencies=[Depends(require_control_token)],
 )
 async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     service = await _service(request)
@@ -77,12 +82,13 @@ async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     ref = reference_param(body.reference)
     viser = settings.viser
 
-    def work() -> None:  # file reads, geodesy and the scene batch: off the event loop
+    def read():  # file reads and geodesy: off the event loop
         a = load_trajectory(store, body.session, body.align, ref, viser)
         b = load_trajectory(store, body.overlay, body.align, ref, viser) if body.overlay else None
-        service.load(a, b)
+        return a, b
 
-    await asyncio.to_thread(work)
+    a, b = await asyncio.to_thread(read)
+    await on_viser_loop(service.server, functools.partial(service.load, a, b))
     return _state(service)
 
 
@@ -90,6 +96,7 @@ async def put_replay3d(request: Request, body: Replay3DLoad) -> Replay3DState:
     "/api/replay3d/time",
     response_model=Replay3DState,
     summary="Move the 3D replay panel's vehicle to an instant",
+    dependencies=[Depends(require_control_token)],
 )
 async def put_replay3d_time(request: Request, body: Replay3DTime) -> Replay3DState:
     service = await _service(request)
@@ -97,5 +104,5 @@ async def put_replay3d_time(request: Request, body: Replay3DTime) -> Replay3DSta
         raise BadRequest("t_s must be a finite number of seconds.")
     if service.primary is None:
         raise BadRequest("No session loaded: PUT /api/replay3d first.")
-    service.set_time(body.t_s)  # a few small messages: cheap enough for the loop
+    await on_viser_loop(service.server, functools.partial(service.set_time, body.t_s))
     return _state(service)
