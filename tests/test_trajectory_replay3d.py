@@ -82,17 +82,23 @@ def test_replay_scene_draws_the_path_with_gaps_and_moves_the_vehicle(replay):
     assert all_segments(replay).shape == (49, 2, 3) and replay.overlay_handles == []
 
 
-@pytest.fixture
-def base(sessions_dir):  # noqa: F811
-    settings = load_settings(
+def replay_settings(sessions_dir, **overrides):  # noqa: F811
+    """A station with its 3D panels on and `sessions_dir`'s recorded sessions."""
+    return load_settings(
         environ={},
         overrides={
             "link.source": "none",
             "viser.port": 0,
             "recording.sessions_dir": str(sessions_dir),
             "recording.auto_record_on_arm": False,
+            **overrides,
         },
     )
+
+
+@pytest.fixture
+def base(sessions_dir):  # noqa: F811
+    settings = replay_settings(sessions_dir)
     app = create_app(settings)
     with run_uvicorn(app) as url:
         yield url, app
@@ -224,17 +230,7 @@ def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
 
 def test_replay3d_changes_need_the_control_token(sessions_dir):  # noqa: F811
     """What the replay panel shows is shared by all its viewers: only the token moves it."""
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
-            "viser.port": 0,
-            "server.token": TOKEN,
-            "recording.sessions_dir": str(sessions_dir),
-            "recording.auto_record_on_arm": False,
-        },
-    )
-    app = create_app(settings)
+    app = create_app(replay_settings(sessions_dir, **{"server.token": TOKEN}))
     with run_uvicorn(app) as url:
         load = {"session": SESSION_A}
         for headers in ({}, {"Authorization": "Bearer wrong-token"}):
