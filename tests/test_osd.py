@@ -364,16 +364,17 @@ def test_goggles_show_the_task_step_as_an_osd_line(station, browser):
     reply = page.request.post(base + "/api/task", data={"task_id": first_task})
     assert reply.ok, reply.text()
     page.reload()
-    expect(page.locator("[data-osd=task]")).to_have_text("TASK Armed", timeout=30_000)
+    # What to do next, not the step's name as done ("TASK Armed" while disarmed).
+    expect(page.locator("[data-osd=task]")).to_have_text("next: arm", timeout=30_000)
     # Side-by-side stereo: the right eye shows the step too, from the moment it appears.
     page.keyboard.press("s")
     right = page.locator("#front-view-right [data-osd=task]")
-    expect(right).to_have_text("TASK Armed", timeout=15_000)
+    expect(right).to_have_text("next: arm", timeout=15_000)
     vehicle.arm()
     expect(page.locator("#front-view [data-osd=task]")).to_have_text(
-        "TASK Took off", timeout=30_000
+        "next: take off", timeout=30_000
     )
-    expect(right).to_have_text("TASK Took off", timeout=15_000)
+    expect(right).to_have_text("next: take off", timeout=15_000)
 
 
 @pytest.mark.parametrize("size", [(390, 844), (844, 390)])

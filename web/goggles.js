@@ -3,7 +3,7 @@
 //   F or a tap   fullscreen          B   bottom camera picture-in-picture
 //   O            OSD elements menu   S   side-by-side stereo (phone headsets)
 // The screen is kept awake (Screen Wake Lock, re-taken when the page is shown again), and
-// the flight task's current step (task-panel.js, "fpv:task-step") is an OSD line. The
+// the flight task's next step (task-panel.js, "fpv:task-step") is an OSD line. The
 // picture fills the screen (object-fit: cover in style.css): a 4:3 camera on 16:9
 // goggles loses its edges rather than a quarter of the screen to black bars. In stereo each
 // eye shows the whole picture at its aspect ratio (a half screen is narrower than any
@@ -47,10 +47,19 @@ async function keepAwake() {
 document.addEventListener("visibilitychange", keepAwake);
 keepAwake();
 
+// The task panel names each step as done ("Armed", "Reached 4 m"); the pilot in goggles
+// reads what to do next ("next: arm", "next: climb to 4 m").
+const NEXT = [[/^Armed$/, "arm"], [/^Took off$/, "take off"], [/^Reached (.+)$/, "climb to $1"],
+  [/^Held (.+)$/, "hold $1"], [/^Passed (.+)$/, "pass $1"], [/^Landed$/, "land"], [/^Disarmed$/, "disarm"]];
+function nextAction(step) {
+  const found = NEXT.find(([done]) => done.test(step));
+  return found ? step.replace(found[0], found[1]) : step;
+}
+
 // Both eyes show it in stereo; the right eye, mounted later, starts with the current one.
 let taskLine = "";
 window.addEventListener("fpv:task-step", (e) => {
-  taskLine = e.detail ? `TASK ${e.detail}` : "";
+  taskLine = e.detail ? `next: ${nextAction(e.detail)}` : "";
   for (const osd of [fpv.osd, fpv.osdRight]) if (osd) osd.setLine("task", taskLine);
 });
 
