@@ -16,6 +16,7 @@ from server.app import create_app
 from server.settings import load_settings
 from tests.helpers import run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
+from tests.test_pilot_layout import overlap
 
 
 @pytest.fixture
@@ -518,3 +519,38 @@ def test_osd_horizon_lies_on_the_twins_rendered_horizon_in_a_level_hover(tmp_pat
         f"{vfov:.1f}",
     )
     print(f"horizon: rendered {rendered_deg:.2f} deg, drawn {drawn_deg:.2f} deg below centre")
+
+
+@pytest.mark.parametrize("size", [(1280, 720), (390, 844)])
+def test_link_lost_banner_leaves_the_osd_uncovered(station, browser, size):
+    """The vehicle goes silent: the page's LINK LOST banner shows, and it lies over no part
+    of the front view, whose OSD says LINK LOST itself."""
+    vehicle, base = station
+    w, h = size
+    page = browser.new_page(viewport={"width": w, "height": h})
+    page.goto(base + "/")
+    expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=30_000)
+    vehicle.silent = True
+    banner = page.locator("#link-banner")
+    expect(banner).to_be_visible(timeout=30_000)
+    expect(banner).to_contain_text("LINK LOST")
+    expect(page.locator("[data-osd=warning]")).to_contain_text("LINK LOST")
+    view = page.locator("#front-view").bounding_box()
+    assert not overlap(banner.bounding_box(), view), (banner.bounding_box(), view)
+
+
+def test_a_station_that_is_down_is_not_reported_as_gps_lost(tmp_path, browser):
+    """The station stops while the page is open: the OSD says the station is unreachable.
+    Its last GPS fix ages like every other group, but no GPS was lost: no GPS LOST."""
+    with MavVehicle("udp") as vehicle:
+        settings = station_settings(vehicle.station_source, tmp_path / "sessions")
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        with run_uvicorn(create_app(settings)) as base:
+            page.goto(base + "/")
+            expect(page.locator("[data-osd=gps]")).to_have_text("3D 12 sats", timeout=30_000)
+        warning, gps = page.locator("[data-osd=warning]"), page.locator("[data-osd=gps]")
+        # The last fix is well past the GPS's lost age (3 s).
+        expect(gps).to_have_text(re.compile(r"\(([4-9]|\d\d+)s\)"), timeout=30_000)
+        expect(warning).not_to_contain_text("GPS LOST")
+        expect(warning).to_contain_text("STATION UNREACHABLE")
+        expect(warning).not_to_contain_text("LINK LOST")

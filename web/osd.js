@@ -284,9 +284,14 @@ export function mountOsd(view, { menu = true } = {}) {
     setText(nodes.messages, recent.slice(-MESSAGE_LINES)
       .map((m) => `${SEVERITY[m.severity] ?? "MSG"} ${m.text}`).join("\n"));
     const warnings = [];
-    if (!feed.flowing() || s.link.link_lost) warnings.push("LINK LOST");
+    // Station down: every group ages, the GPS's too; only a vehicle heard can lose its GPS.
+    const heard = feed.flowing() && !s.link.link_lost;
+    if (!feed.socketOpen) warnings.push("STATION UNREACHABLE");
+    else if (!heard) warnings.push("LINK LOST");
     if (low) warnings.push("LOW BATTERY");
-    if (s.gps.t_mono !== null && (s.gps.fix_type < 3 || (groupAge("gps") ?? 0) > 3)) warnings.push("GPS LOST");
+    if (heard && s.gps.t_mono !== null && (s.gps.fix_type < 3 || (groupAge("gps") ?? 0) > 3)) {
+      warnings.push("GPS LOST");
+    }
     const serious = s.messages.recent.filter((m) => m.kind === "statustext" && now - m.t_mono < WARNING_SHOWN_S);
     if (serious.some((m) => /fail-?safe/i.test(m.text)) || /failsafe/i.test(s.heartbeat.mode)) warnings.push("FAILSAFE");
     if (serious.some((m) => /crash/i.test(m.text))) warnings.push("CRASH");
