@@ -3,6 +3,10 @@ folders, real viser, real uvicorn) and moves the vehicle to the slider's instant
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import threading
+
 import httpx
 import numpy as np
 import pytest
@@ -12,7 +16,7 @@ from server.app import create_app
 from server.settings import ViserSettings, load_settings
 from server.trajectory3d.replay import build_trajectory
 from server.trajectory3d.replay_scene import Replay3D
-from tests.helpers import run_uvicorn
+from tests.helpers import run_uvicorn, viser_viewer, wait_until
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 
 TOKEN = "replay-test-token"
@@ -125,10 +129,58 @@ def test_replay3d_endpoints_load_sessions_and_set_time(base):
     assert j["segments"] == sum(1 for s in traj["starts_run"][1:] if not s)
     t = httpx.put(f"{url}/api/replay3d/time", json={"t_s": 30.0})
     assert t.status_code == 200 and t.json()["t_s"] == 30.0
-    i = max(k for k, ts in enumerate(traj["t_s"]) if ts - traj["t_s"][0] <= 30.0)
+    i = max(k for k, ts in enumerate(traj["t_s"]) if ts <= 30.0)  # the session clock
     np.testing.assert_allclose(
         replay.scene.vehicle.position, [traj["x_m"][i], traj["y_m"][i], traj["z_m"][i]], atol=0.01
     )
+
+
+def test_replay_scene_is_changed_only_on_visers_own_loop(base, monkeypatch):
+    """viser wakes its senders with an Event of its own loop, set by the thread that
+    changes the scene; from another thread that races its viewers' waits ("deque mutated
+    during iteration", server/trajectory3d/viser_loop.py). Every message the replay panel
+    queues, from its start, its loads and its instants, with viewers watching, is queued
+    on viser's loop."""
+    from viser.infra._async_message_buffer import AsyncMessageBuffer
+
+    import server.trajectory3d.replay_scene as replay_module
+
+    url, app = base
+    foreign: list[tuple[str, str]] = []
+    push = AsyncMessageBuffer.push
+    opened = replay_module.open_viser
+    built = threading.Event()  # viser's constructor queues its own defaults: not ours
+
+    def open_viser(*args, **kwargs):
+        server = opened(*args, **kwargs)
+        built.set()
+        return server
+
+    def checked_push(self, message):
+        if not built.is_set():
+            return push(self, message)
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is not self.event_loop:
+            foreign.append((threading.current_thread().name, type(message).__name__))
+        return push(self, message)
+
+    monkeypatch.setattr(AsyncMessageBuffer, "push", checked_push)
+    monkeypatch.setattr(replay_module, "open_viser", open_viser)
+    assert httpx.get(f"{url}/api/viser").status_code == 200  # the panels start
+    replay = app.state.station.replay3d
+    with contextlib.ExitStack() as viewers:
+        for _ in range(4):
+            viewers.enter_context(viser_viewer(replay.port))
+        assert wait_until(lambda: len(replay.server.get_clients()) == 4, 20)
+        body = {"session": SESSION_A, "overlay": SESSION_B, "align": "farthest"}
+        assert httpx.put(f"{url}/api/replay3d", json=body, timeout=60).status_code == 200
+        for t in np.linspace(0.0, 45.0, 40):  # within the session (49.8 s)
+            r = httpx.put(f"{url}/api/replay3d/time", json={"t_s": float(t)}, timeout=30)
+            assert r.status_code == 200 and r.json()["t_s"] == pytest.approx(t)
+    assert foreign == [], foreign[:5]
 
 
 def test_replay3d_endpoints_refuse_bad_input(base):

@@ -28,6 +28,7 @@ from server.trajectory3d.live_scene import LiveScene
 from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
 from server.trajectory3d.replay import TrajectoryReply
 from server.trajectory3d.trail import TrailChunk
+from server.trajectory3d.viser_loop import on_viser_loop_blocking
 
 log = logging.getLogger(__name__)
 
@@ -102,22 +103,27 @@ class Replay3D:
         self._framing: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # look, eye
         self._title: viser.GuiMarkdownHandle | None = None
         self._inputs: dict[str, ViewerInput] = {}
-        self._lock = threading.Lock()  # load runs in a worker thread, set_time on the loop
+        self._lock = threading.Lock()  # a load and a set_time called from other threads
 
     def start(self) -> None:
         s = self.settings
-        self.server = open_viser(s.replay_port_resolved, "fpv-station replay 3D", self.host)
-        self.server.scene.set_up_direction("+z")
-        self.server.initial_camera.position = (-25.0, -30.0, 20.0)
-        self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
-        self._add_gui()
-        self.scene = LiveScene(
-            self.server,
-            height_range_m=s.height_range_m,
-            speed_range_mps=s.speed_range_mps,
-            color_by=s.color_by,
-            field=self.field,
-        )
+        server = open_viser(s.replay_port_resolved, "fpv-station replay 3D", self.host)
+        self.server = server
+
+        def build() -> LiveScene:  # on viser's loop, as every change (viser_loop.py)
+            server.scene.set_up_direction("+z")
+            server.initial_camera.position = (-25.0, -30.0, 20.0)
+            server.initial_camera.look_at = (0.0, 0.0, 0.0)
+            self._add_gui()
+            return LiveScene(
+                server,
+                height_range_m=s.height_range_m,
+                speed_range_mps=s.speed_range_mps,
+                color_by=s.color_by,
+                field=self.field,
+            )
+
+        self.scene = on_viser_loop_blocking(server, build)
         log.info("3D replay panel (viser) on port %d", self.port)
 
     def _add_gui(self) -> None:
@@ -153,7 +159,7 @@ class Replay3D:
             self.server = None
 
     def load(self, primary: TrajectoryReply, overlay: TrajectoryReply | None = None) -> None:
-        """Replace the drawn sessions (heavy: run it off the event loop)."""
+        """Replace the drawn sessions (heavy; on viser's loop, `viser_loop.on_viser_loop`)."""
         assert self.server is not None and self.scene is not None
         a = ReplayPath(primary)
         b = ReplayPath(overlay) if overlay is not None else None
@@ -243,7 +249,7 @@ class Replay3D:
     def set_time(self, t_s: float) -> float:
         """Move the vehicle(s) to the instant `t_s` of the primary's session clock (cheap:
         a few small messages). Returns the time applied (clamped to the session)."""
-        # Never wait for a load in progress (this runs on the event loop): that load ends
+        # Never wait for a load in progress (this runs on a loop): that load ends
         # by setting its own time, and the page sends the next instant soon after.
         if not self._lock.acquire(blocking=False):
             return self.t_s
