@@ -95,6 +95,40 @@ def viser_camera(x: float = -25.0) -> bytes:
     return msgspec.msgpack.encode(message.as_serializable_dict())
 
 
+def watch_viser_pushes(monkeypatch, module) -> list[tuple[str, str]]:
+    """The messages viser is handed from a thread other than its own loop's, once
+    `module.open_viser` has built a server (its constructor queues its own defaults):
+    (thread name, message type) each. viser wakes its senders with an Event of its own
+    loop, set by the thread that changes the scene (server/trajectory3d/viser_loop.py)."""
+    import asyncio
+
+    from viser.infra._async_message_buffer import AsyncMessageBuffer
+
+    foreign: list[tuple[str, str]] = []
+    push = AsyncMessageBuffer.push
+    opened = module.open_viser
+    built = threading.Event()
+
+    def open_viser(*args, **kwargs):
+        server = opened(*args, **kwargs)
+        built.set()
+        return server
+
+    def checked_push(self, message):
+        if built.is_set():
+            try:
+                running = asyncio.get_running_loop()
+            except RuntimeError:
+                running = None
+            if running is not self.event_loop:
+                foreign.append((threading.current_thread().name, type(message).__name__))
+        return push(self, message)
+
+    monkeypatch.setattr(AsyncMessageBuffer, "push", checked_push)
+    monkeypatch.setattr(module, "open_viser", open_viser)
+    return foreign
+
+
 @contextlib.contextmanager
 def viser_viewer(port: int) -> Iterator[None]:
     """A viewer of the panel at viser's protocol: a WebSocket with viser's subprotocol that

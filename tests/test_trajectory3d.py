@@ -38,6 +38,7 @@ from tests.helpers import (
     station_settings,
     viser_viewer,
     wait_until,
+    watch_viser_pushes,
 )
 
 FIELD = load_scene()
@@ -553,33 +554,9 @@ def test_the_scene_is_changed_only_on_vipers_own_loop_thread(monkeypatch):
     mutated during iteration"). Every message the panel queues, from its start, its
     steps, its GUI requests and its redraws, with many viewers watching a fast trail,
     must be queued on the loop of the buffer it goes into."""
-    from viser.infra._async_message_buffer import AsyncMessageBuffer
-
     import server.trajectory3d.service as service_module
 
-    foreign: list[tuple[str, str]] = []
-    push = AsyncMessageBuffer.push
-    opened = service_module.open_viser
-    built = threading.Event()  # viser's constructor queues its own defaults: not ours
-
-    def open_viser(*args, **kwargs):
-        server = opened(*args, **kwargs)
-        built.set()
-        return server
-
-    def checked_push(self, message):
-        if not built.is_set():
-            return push(self, message)
-        try:
-            running = asyncio.get_running_loop()
-        except RuntimeError:
-            running = None
-        if running is not self.event_loop:
-            foreign.append((threading.current_thread().name, type(message).__name__))
-        return push(self, message)
-
-    monkeypatch.setattr(AsyncMessageBuffer, "push", checked_push)
-    monkeypatch.setattr(service_module, "open_viser", open_viser)
+    foreign = watch_viser_pushes(monkeypatch, service_module)
     state: Latest[VehicleState] = Latest()
     svc = Trajectory3D(
         ViserSettings(port=0, chunk_segments=5, update_hz=30.0),

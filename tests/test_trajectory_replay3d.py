@@ -3,9 +3,7 @@ folders, real viser, real uvicorn) and moves the vehicle to the slider's instant
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
-import threading
 
 import httpx
 import numpy as np
@@ -16,7 +14,7 @@ from server.app import create_app
 from server.settings import ViserSettings, load_settings
 from server.trajectory3d.replay import build_trajectory
 from server.trajectory3d.replay_scene import Replay3D
-from tests.helpers import run_uvicorn, viser_viewer, wait_until
+from tests.helpers import run_uvicorn, viser_viewer, wait_until, watch_viser_pushes
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 
 TOKEN = "replay-test-token"
@@ -141,34 +139,10 @@ def test_replay_scene_is_changed_only_on_visers_own_loop(base, monkeypatch):
     during iteration", server/trajectory3d/viser_loop.py). Every message the replay panel
     queues, from its start, its loads and its instants, with viewers watching, is queued
     on viser's loop."""
-    from viser.infra._async_message_buffer import AsyncMessageBuffer
-
     import server.trajectory3d.replay_scene as replay_module
 
     url, app = base
-    foreign: list[tuple[str, str]] = []
-    push = AsyncMessageBuffer.push
-    opened = replay_module.open_viser
-    built = threading.Event()  # viser's constructor queues its own defaults: not ours
-
-    def open_viser(*args, **kwargs):
-        server = opened(*args, **kwargs)
-        built.set()
-        return server
-
-    def checked_push(self, message):
-        if not built.is_set():
-            return push(self, message)
-        try:
-            running = asyncio.get_running_loop()
-        except RuntimeError:
-            running = None
-        if running is not self.event_loop:
-            foreign.append((threading.current_thread().name, type(message).__name__))
-        return push(self, message)
-
-    monkeypatch.setattr(AsyncMessageBuffer, "push", checked_push)
-    monkeypatch.setattr(replay_module, "open_viser", open_viser)
+    foreign = watch_viser_pushes(monkeypatch, replay_module)
     assert httpx.get(f"{url}/api/viser").status_code == 200  # the panels start
     replay = app.state.station.replay3d
     with contextlib.ExitStack() as viewers:
