@@ -12,6 +12,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from server.listen import listening_socket, uvicorn_server
 from server.settings import Settings, load_settings
@@ -130,10 +131,11 @@ def watch_viser_pushes(monkeypatch, module) -> list[tuple[str, str]]:
 
 
 @contextlib.contextmanager
-def viser_viewer(port: int) -> Iterator[None]:
+def viser_viewer(port: int) -> Iterator[Any]:
     """A viewer of the panel at viser's protocol: a WebSocket with viser's subprotocol that
     reports its camera (viser counts a client from its first camera message) and reads
-    (and drops) what the server sends, as the browser's client does."""
+    (and drops) what the server sends, as the browser's client does. Yields the socket,
+    to send what a viewer sends (a GUI click, say)."""
     import viser
     from websockets.sync.client import connect
 
@@ -148,7 +150,7 @@ def viser_viewer(port: int) -> Iterator[None]:
     thread = threading.Thread(target=drain, name="viser-viewer", daemon=True)
     thread.start()
     try:
-        yield
+        yield ws
     finally:
         ws.close()
         thread.join(5)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 
 import httpx
+import msgspec
 import numpy as np
 import pytest
 
@@ -154,6 +155,21 @@ def test_replay_scene_is_changed_only_on_visers_own_loop(base, monkeypatch):
         for t in np.linspace(0.0, 45.0, 40):  # within the session (49.8 s)
             r = httpx.put(f"{url}/api/replay3d/time", json={"t_s": float(t)}, timeout=30)
             assert r.status_code == 200 and r.json()["t_s"] == pytest.approx(t)
+        # A viewer clicks "Frame the path": viser runs the click on its worker pool, and
+        # the clicking viewer's camera is moved to the framing.
+        with viser_viewer(replay.port) as ws:
+            assert wait_until(lambda: len(replay.server.get_clients()) == 5, 20)
+            (frame_button,) = replay.viewer_inputs()
+            clients = replay.server.get_clients()
+            clicking = clients[max(clients)]  # the newest viewer
+            ws.send(
+                msgspec.msgpack.encode(
+                    {"type": "GuiUpdateMessage", "uuid": frame_button, "updates": {"value": True}}
+                )
+            )
+            _, eye = replay._framing
+            assert not np.allclose(clicking.camera.position, eye, atol=1e-3)
+            assert wait_until(lambda: np.allclose(clicking.camera.position, eye, atol=1e-3), 20)
     assert foreign == [], foreign[:5]
 
 

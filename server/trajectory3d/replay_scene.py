@@ -140,8 +140,10 @@ class Replay3D:
 
         @frame.on_click
         def _(event: viser.GuiEvent) -> None:
-            if event.client is not None and self._framing is not None:
-                self._move_camera(event.client, *self._framing)
+            # viser calls this on its worker pool: the camera moves on viser's loop.
+            client, framing = event.client, self._framing
+            if client is not None and framing is not None and self.server is not None:
+                on_viser_loop_blocking(self.server, lambda: self._move_camera(client, *framing))
 
     def viewer_inputs(self) -> dict[str, ViewerInput]:
         """The GUI inputs viewers may change (server/trajectory3d/gate.py), by uuid."""
