@@ -13,10 +13,10 @@ import pytest
 from playwright.sync_api import expect
 
 from server.app import create_app
-from server.settings import load_settings
 from tests.helpers import run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
 from tests.test_pilot_layout import overlap
+from tests.twin_flights import twin_station_settings
 
 
 @pytest.fixture
@@ -465,16 +465,9 @@ def test_osd_horizon_lies_on_the_twins_rendered_horizon_in_a_level_hover(tmp_pat
     picture's centre."""
     from tests.helpers import arm_and_climb, sticks_on
 
-    settings = load_settings(
-        None,
-        {
-            "link.source": "sim",
-            "twin.realtime_factor": 2.0,
-            "recording.auto_record_on_arm": False,
-            "recording.sessions_dir": str(tmp_path),
-            "viser.enabled": False,
-        },
-        environ={},
+    # The twin at twice real time, flown by the page's sticks: no recording on arming.
+    settings = twin_station_settings(
+        tmp_path, {"twin.realtime_factor": 2.0, "recording.auto_record_on_arm": False}
     )
     app = create_app(settings)
     station = None

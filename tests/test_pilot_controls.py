@@ -9,27 +9,20 @@ import pytest
 from playwright.sync_api import expect
 
 from server.app import create_app
-from server.settings import load_settings
 from tests.helpers import (
     arm_and_climb,
     run_uvicorn,
     sticks_on,
     wait_until,
 )
+from tests.twin_flights import twin_station_settings
 
 
 @pytest.fixture()
 def twin_station(tmp_path):
-    settings = load_settings(
-        None,
-        {
-            "link.source": "sim",
-            "twin.realtime_factor": 2.0,
-            "recording.auto_record_on_arm": False,
-            "recording.sessions_dir": str(tmp_path),
-            "viser.enabled": False,
-        },
-        environ={},
+    # The twin at twice real time, flown by the page's sticks: no recording on arming.
+    settings = twin_station_settings(
+        tmp_path, {"twin.realtime_factor": 2.0, "recording.auto_record_on_arm": False}
     )
     app = create_app(settings)
     with run_uvicorn(app) as url:
