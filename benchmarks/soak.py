@@ -72,6 +72,13 @@ async def telemetry_client(url: str, counts: Counts, i: int, stop: asyncio.Event
             counts.telemetry[i] += 1
 
 
+def _spread(rates: list[float]) -> str:
+    """Min and median of per-client rates; a load run with none of those clients says so."""
+    if not rates:
+        return "no clients"
+    return f"min {min(rates):.1f}, median {statistics.median(rates):.1f}"
+
+
 async def viewer_3d(url: str, counts: Counts, i: int, stop: asyncio.Event) -> None:
     """A 3D panel's viewer: its camera once a second, every frame of the scene read."""
     import viser
@@ -252,18 +259,15 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
             fps = [(p - p0) / dt for p, p0 in zip(parts, since["parts"], strict=True)]
             rows_rate = (fig["rows"] - since["rows"]) / dt
             print(
-                f"  telemetry msg/s per client: min {min(msg_rates):.1f}, median "
-                f"{statistics.median(msg_rates):.1f}; MJPEG fps per viewer: min {min(fps):.1f}, "
-                f"median {statistics.median(fps):.1f}; session rows/s {rows_rate:.1f} "
-                f"(rate {args.rate_hz:g} Hz)"
+                f"  telemetry msg/s per client: {_spread(msg_rates)}; MJPEG fps per viewer: "
+                f"{_spread(fps)}; session rows/s {rows_rate:.1f} (rate {args.rate_hz:g} Hz)"
             )
             # The live panel's viewers (even ones): the replay's scene stands still.
             live = [(f - f0) / dt for f, f0 in zip(frames_3d, since["frames_3d"], strict=True)]
             if live[::2]:
                 print(
-                    f"  live 3D viewer frames/s: min {min(live[::2]):.1f}, median "
-                    f"{statistics.median(live[::2]):.1f} ({len(frames_3d)} 3D viewers, "
-                    f"{sum(frames_3d[1::2])} frames to the replay's)"
+                    f"  live 3D viewer frames/s: {_spread(live[::2])} ({len(frames_3d)} 3D "
+                    f"viewers, {sum(frames_3d[1::2])} frames to the replay's)"
                 )
         print(
             f"{label}: RSS {fig['rss_mb']:.1f} MB, fds {fig['fds']}, tasks {fig['tasks']}, "
