@@ -35,7 +35,6 @@ parser would end a deep enough document with RecursionError, dropping the socket
 from __future__ import annotations
 
 import contextlib
-import ipaddress
 import json
 import logging
 import re
@@ -43,6 +42,8 @@ import socket
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 from urllib.parse import urlsplit
+
+from companion.transports import is_ip_address
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -89,14 +90,6 @@ def _host_name(host: str) -> str | None:
     except ValueError:
         return None
     return name.rstrip(".") if name else None
-
-
-def _is_ip(name: str) -> bool:
-    try:
-        ipaddress.ip_address(name)
-    except ValueError:
-        return False
-    return True
 
 
 def _host_key(host: str, scheme: str) -> tuple[str, int] | None:
@@ -165,7 +158,7 @@ class RequestGuard:
         if host is None:
             return True  # HTTP/1.0: not a browser
         name = _host_name(host)
-        return name is not None and (_is_ip(name) or name.lower() in self.names)
+        return name is not None and (is_ip_address(name) or name.lower() in self.names)
 
     def _origin_ok(self, headers: dict[str, str], scope: Scope) -> bool:
         origin = headers.get("origin")
