@@ -285,6 +285,11 @@ class Controller:
         return u
 
     @property
+    def rate_sp_rad_s(self) -> np.ndarray:
+        """The body-rate setpoints (N, 3), FLU, of the last `inner` (the same buffer)."""
+        return self._rate_sp
+
+    @property
     def throttle(self) -> np.ndarray:
         """The last rotor throttles (N, 4) `inner` returned (the same buffer)."""
         return self._u

@@ -13,8 +13,10 @@ its cameras rendered on demand from the latest true pose.
 from __future__ import annotations
 
 import logging
+import tempfile
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,6 +24,8 @@ import numpy as np
 from companion.cameras.source import Optics
 from companion.latest import Latest
 from core.scene import Scene, load_scene
+from twin.flight_log import FlightLogger
+from twin.log_server import LogServer
 from twin.settings import TwinSettings
 from twin.sim import Pose, Sim, SimConfig
 from twin.vehicle import MavlinkVehicle
@@ -40,6 +44,8 @@ class Twin:
         tick_hz: float = 100.0,
         render_options: dict[str, Any] | None = None,
         signing_key: bytes | None = None,
+        flight_log: bool = True,
+        flight_log_dir: Path | None = None,
     ) -> None:
         if realtime_factor <= 0:
             raise ValueError("realtime_factor must be > 0")
@@ -60,15 +66,30 @@ class Twin:
         self._renderer = None
         self._render_lock = threading.Lock()
         self.error: str | None = None
+        # Its own flight log (a ULog per armed period, `twin.flight_log`), on its "SD
+        # card": `flight_log_dir`, or a private folder removed when the twin stops.
+        self._log_tmp: tempfile.TemporaryDirectory[str] | None = None
+        self.flight_log: FlightLogger | None = None
+        if flight_log:
+            if flight_log_dir is None:
+                self._log_tmp = tempfile.TemporaryDirectory(prefix="fpv-twin-logs-")
+                flight_log_dir = Path(self._log_tmp.name)
+            self.flight_log = FlightLogger(flight_log_dir)
+            self.sim.on_physics_step = self.flight_log.on_step
 
     # ---- lifecycle ----
-    def start(self) -> None:
-        if self._thread is not None:
-            raise RuntimeError("The twin is already running.")
+    def _open_vehicle(self) -> None:
         if self.mavlink_url and self.vehicle is None:
             self.vehicle = MavlinkVehicle(
                 self.mavlink_url, self.rates_hz, signing_key=self.signing_key
             )
+            if self.flight_log is not None:
+                self.vehicle.logs = LogServer(self.vehicle.mav, self.flight_log)
+
+    def start(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError("The twin is already running.")
+        self._open_vehicle()
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="twin", daemon=True)
         self._thread.start()
@@ -79,8 +100,14 @@ class Twin:
             self._thread.join(timeout=5)
             self._thread = None
         if self.vehicle is not None:
+            if self.vehicle.logs is not None:
+                self.vehicle.logs.close()
             self.vehicle.close()
             self.vehicle = None
+        if self.flight_log is not None:
+            self.flight_log.close()
+        if self._log_tmp is not None:
+            self._log_tmp.cleanup()
         self.poses.close()
 
     def __enter__(self) -> Twin:
@@ -129,10 +156,7 @@ class Twin:
         Telemetry goes out at sim-time rates, so a long call bursts many packets at once:
         a peer reading UDP slower than that loses the excess in its socket buffer.
         """
-        if self.mavlink_url and self.vehicle is None:
-            self.vehicle = MavlinkVehicle(
-                self.mavlink_url, self.rates_hz, signing_key=self.signing_key
-            )
+        self._open_vehicle()
         per_tick = max(1, int(round(self.tick_s / self.sim.dt_s)))
         for _ in range(int(round(seconds / (per_tick * self.sim.dt_s)))):
             with self.lock:
@@ -234,4 +258,6 @@ def twin_from_settings(
         realtime_factor=ts.realtime_factor,
         render_options={"fpv_noise": ts.fpv_noise, "seed": ts.seed},
         signing_key=signing_key,
+        flight_log=ts.flight_log,
+        flight_log_dir=ts.flight_log_dir,
     )

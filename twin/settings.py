@@ -32,3 +32,13 @@ class TwinSettings(Section):
     max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
     rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
     fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
+    flight_log: bool = Field(
+        True,
+        description="Write the twin's own flight log (a PX4 ULog per armed period: IMU and "
+        "rate setpoints at the physics rate) and serve it over the MAVLink log protocol.",
+    )
+    flight_log_dir: Path | None = Field(
+        None,
+        description="Where the twin keeps its flight logs (its SD card); None: a private "
+        "folder removed when the twin stops.",
+    )

@@ -7,6 +7,7 @@ paces it in real time and puts a MAVLink vehicle and cameras around it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -96,6 +97,9 @@ class Sim:
             seed=cfg.seed,
         )
         self.rng = np.random.default_rng(cfg.seed + 1)
+        # Called after every physics step with the sim and its time (the twin's flight
+        # log samples its high-rate topics there); None costs nothing.
+        self.on_physics_step: Callable[[Sim, float], None] | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -224,8 +228,11 @@ class Sim:
                 ctl.set_limits(self.dynamics.max_rotor_speed_rad_s(s), com.armed, self._idle)
             # Attitude/rate loop and rigid body at the physics rate, up to the next outer tick.
             run = min(every - steps % every, end - steps)
-            for _ in range(run):
+            on_step = self.on_physics_step
+            for k in range(run):
                 physics_step(s, inner(s.R_world_body, s.omega_rad_s))
+                if on_step is not None:
+                    on_step(self, (steps + k + 1) * self.dt_s)
             self.throttle = ctl.throttle
             steps += run
             self.steps = steps

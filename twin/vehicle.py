@@ -33,6 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES, px4_main_sub, px4_mode_name
 from core.mavlink.signing import SignatureCheck, enable_signing
 from twin.control import AUTO_LOITER, AUTO_MISSION
+from twin.log_server import LOG_MESSAGES, LogServer
 from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu, up_m
 from twin.mission_protocol import MissionProtocol
 from twin.params import ParamServer, px4_params
@@ -134,6 +135,7 @@ class MavlinkVehicle:
         self.stats = VehicleStats()
         self.telemetry = Telemetry(self.mav)
         self.params: ParamServer | None = None  # built from the sim's config on first use
+        self.logs: LogServer | None = None  # the flight logs' server, when the twin logs
         self._pending_once: list[str] = []
         self._last_poll_s = 0.0
         self.mission = MissionRunner(
@@ -215,6 +217,8 @@ class MavlinkVehicle:
             sim.set_sticks(0.0, 0.0, 0.0, 0.5)
             self.stats.last_input_s = -1e9
         self.mission_protocol.poll()
+        if self.logs is not None:
+            self.logs.poll()
         self.mission.update(sim, now_s, self._home_alt_m(sim))
         for event in sim.drain_events():
             self.mav.statustext_send(event.severity, event.text.encode()[:50])
@@ -270,6 +274,9 @@ class MavlinkVehicle:
             if msg.target_system not in (0, self.sysid):
                 return
             self.mission_protocol.handle(msg)
+        elif kind in LOG_MESSAGES:
+            if self.logs is not None and msg.target_system in (0, self.sysid):
+                self.logs.handle(msg)
         elif kind == "SET_MODE":
             if msg.target_system not in (0, self.sysid):
                 return
