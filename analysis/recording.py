@@ -2,11 +2,13 @@
 `docs/SESSION_FORMAT.md`), a downloaded session zip, or a bare `.tlog`. Analysis
 (`analysis.track`), the exports and the learning evaluation all open recordings here.
 
-A recording's telemetry is always a telemetry.csv. A tlog without one (a bare tlog, or
-a session whose rows were lost) is replayed through the link's own `StateTracker` and
-sampled by the recorder's own `RowFormatter`, at the session's row rate, on the log's
-clock, into a temporary telemetry.csv: the same decoder, the same columns and the same
-rows as a live recording, so a flight reads the same from either file. A zip is unpacked
+A recording's telemetry is always a telemetry.csv, and what the vehicle said (its
+STATUSTEXTs: a crash, a failsafe) a messages.csv. A tlog without them (a bare tlog, or a
+session whose rows were lost) is replayed through the link's own `StateTracker` and
+sampled by the recorder's own `RowFormatter` and `message_rows`, at the session's row
+rate, on the log's clock, into a temporary telemetry.csv and messages.csv: the same
+decoder, the same columns and the same rows as a live recording, so a flight reads the
+same from either file, its crash included. A zip is unpacked
 into a temporary folder (its camera frames only when they are asked for). Both live as
 long as the `with` block; recordings are opened one at a time and closed after use, so
 an export's memory does not grow with the number of sessions.
@@ -18,12 +20,15 @@ session's metadata: the same flight, its task and platform, read from the other 
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
+import os
 import tempfile
 import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,7 +37,8 @@ from pymavlink.dialects.v20.ardupilotmega import MAVError, MAVLink_unknown
 from analysis.csvcols import CsvColumns, to_float
 from analysis.errors import TrackLoadError
 from companion.recording import frame_pack, layout
-from companion.recording.rows import RowFormatter, Sample
+from companion.recording.flags import vehicle_texts
+from companion.recording.rows import RowFormatter, Sample, message_rows
 from companion.state_tracker import StateTracker
 from core.mavlink.fast_decode import FastDecoder
 from core.mavlink.tlog_records import TlogReader
@@ -81,6 +87,7 @@ class Recording:
     tlog: Path | None
     meta: dict
     from_tlog: bool  # the telemetry was replayed from the tlog
+    messages_csv: Path | None = None  # recorded, or replayed from the tlog; None: neither
     # The columns asked for at open (float, NaN where empty), on the session clock.
     t_s: Array = field(default_factory=lambda: np.array([]))
     wall_time: Array = field(default_factory=lambda: np.array([]))
@@ -89,6 +96,11 @@ class Recording:
 
     def column(self, name: str) -> Array:
         return self.columns[name]
+
+    def vehicle_texts(self) -> list[tuple[float | None, str]]:
+        """The vehicle's STATUSTEXTs (session time, text), from the session's messages.csv
+        or replayed from its tlog; [] when the recording has neither."""
+        return vehicle_texts(self.messages_csv) if self.messages_csv is not None else []
 
     def frame_bytes(self, camera: str, k: int) -> bytes:
         """The recorded JPEG bytes of frame `k` (an index into `cameras[camera]`)."""
@@ -181,6 +193,8 @@ def _session(folder: Path, source: str, tmp: Path, frames: bool) -> Recording:
     csv_path = folder / layout.TELEMETRY_CSV
     if csv_path.is_file():
         rec = Recording(name, source, folder, csv_path, tlog, meta, from_tlog=False)
+        messages = folder / layout.MESSAGES_CSV
+        rec.messages_csv = messages if messages.is_file() else None
     elif tlog is not None:
         rec = _replayed(tlog, source, name, meta, tmp)
         rec.folder = folder
@@ -208,7 +222,7 @@ def _unzip(zip_path: Path, into: Path, frames: bool) -> Path:
                 names = [
                     n
                     for n in names
-                    if Path(n).name in (layout.TELEMETRY_CSV, *META_FILES)
+                    if Path(n).name in (layout.TELEMETRY_CSV, layout.MESSAGES_CSV, *META_FILES)
                     or n.lower().endswith(".tlog")
                 ]
             zf.extractall(into, names)
@@ -247,15 +261,23 @@ def _row_hz(meta: dict) -> float:
 
 
 def _replayed(tlog: Path, source: str, name: str, meta: dict, tmp: Path) -> Recording:
-    csv_path = tmp / layout.TELEMETRY_CSV
-    replay_tlog(tlog, csv_path, _row_hz(meta), source)
-    return Recording(name, source, tmp, csv_path, tlog, meta, from_tlog=True)
+    csv_path, messages = tmp / layout.TELEMETRY_CSV, tmp / layout.MESSAGES_CSV
+    replay_tlog(tlog, csv_path, _row_hz(meta), source, messages)
+    return Recording(name, source, tmp, csv_path, tlog, meta, True, messages)
 
 
-def replay_tlog(tlog: Path, out: Path, rate_hz: float, source: str | None = None) -> int:
+def replay_tlog(
+    tlog: Path,
+    out: Path,
+    rate_hz: float,
+    source: str | None = None,
+    messages_out: Path | None = None,
+) -> int:
     """Write the telemetry.csv a recorder would have written from the link that received
-    `tlog`: each record's packet decoded as the link decodes a whole packet
-    (`FastDecoder`; a tlog record is one packet, so no bytes carry over), tracked by a
+    `tlog`, and to `messages_out` its messages.csv (what the vehicle said, written at each
+    row as the recorder writes it; every message of the log, as in a recording that
+    started with the log): each record's packet decoded as the link decodes a whole
+    packet (`FastDecoder`; a tlog record is one packet, so no bytes carry over), tracked by a
     `StateTracker` on the log's clock, a row every `1 / rate_hz` s with the state that
     held at that instant (the packets stamped at or before it). Returns the rows written.
 
@@ -278,10 +300,15 @@ def replay_tlog(tlog: Path, out: Path, rate_hz: float, source: str | None = None
     rows = n = 0
     grid0 = last = 0  # µs on the session clock: the grid's start, the newest packet
     shift = 0  # µs: session clock - the log's clock, in this recording
+    said: Any = None  # messages.csv's writer
+    seen = 0  # the tracker's message count at the last row
 
     def row(f, at_us: int) -> None:
-        nonlocal rows, n
-        f.write(formatter.line(Sample(at_us * 1e-6, (at_us - shift) * 1e-6, tracker.state, ())))
+        nonlocal rows, n, seen
+        sample = Sample(at_us * 1e-6, (at_us - shift) * 1e-6, tracker.state, ())
+        f.write(formatter.line(sample))
+        new, seen = message_rows(sample, seen, formatter.t0_mono)
+        said.writerows(new)
         rows += 1
         n += 1
 
@@ -291,7 +318,12 @@ def replay_tlog(tlog: Path, out: Path, rate_hz: float, source: str | None = None
 
     reader = TlogReader(tlog)
     try:
-        with open(out, "w", newline="", buffering=1 << 16) as f:
+        with (
+            open(out, "w", newline="", buffering=1 << 16) as f,
+            open(messages_out or os.devnull, "w", newline="") as m,
+        ):
+            said = csv.writer(m)
+            said.writerow(layout.MESSAGE_COLUMNS)
             for segment, records in reader.segments():
                 started = False
                 for t, packet in records:
@@ -308,7 +340,7 @@ def replay_tlog(tlog: Path, out: Path, rate_hz: float, source: str | None = None
                         grid0 = last = t_log
                     elif not started and segment > 0:  # the next recording: a new tracker
                         rows_until(f, last, inclusive=True)
-                        tracker = StateTracker()
+                        tracker, seen = StateTracker(), 0
                         shift = last + round(FILL_GAP_S * 1e6) - t_log
                         grid0, n = t_log + shift, 0
                     started = True

@@ -13,8 +13,9 @@ within `scene_radius_m` of one of its pads: its landing pad then gives the +x di
 (unless a reference is given), plots draw it, and twin flights get their obstacle
 contacts counted and their landing judged on or off the pad. Neither is judged for
 physical flights: the scene only approximates the real field, and GPS noise would invent
-faults. A session folder's crash reports (the vehicle's STATUSTEXTs in messages.csv, as
-its quality flags read them) make the flight they fall in invalid.
+faults. The vehicle's crash reports (its STATUSTEXTs: a session's messages.csv, as its
+quality flags read them, or a bare tlog's own, through `open_recording`) make the flight
+they fall in invalid, whichever file the flight was read from.
 """
 
 from __future__ import annotations
@@ -34,8 +35,7 @@ from analysis.flight_frame import AlignedTrack, align_track
 from analysis.flights import Flight, track_flights
 from analysis.tasks import TaskParams, TaskResult, analyze, check_task
 from analysis.track import Track, load_track
-from companion.recording import layout
-from companion.recording.flags import is_crash, vehicle_texts
+from companion.recording.flags import is_crash
 from core.geodesy import geodetic_to_enu
 
 SCENE_RADIUS_M = 150.0
@@ -159,13 +159,9 @@ def analyze_tracks(
 
 
 def session_crashes(track: Track) -> list[tuple[float | None, str]]:
-    """The crash reports of the session folder a track was read from (session time,
-    text); none for a bare file (its folder is not a session) or a zip."""
-    source = Path(track.source)
-    folder = source if source.is_dir() else source.parent
-    if not (folder / layout.SESSION_JSON).is_file():
-        return []
-    return [(t, text) for t, text in vehicle_texts(folder / layout.MESSAGES_CSV) if is_crash(text)]
+    """The vehicle's crash reports in the recording a track was read from (session
+    time, text): a folder's or a zip's messages.csv, or its tlog's STATUSTEXTs."""
+    return [(t, text) for t, text in track.vehicle_texts if is_crash(text)]
 
 
 def _landing_pad(meta: dict) -> str | None:

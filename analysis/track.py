@@ -28,6 +28,7 @@ from analysis.errors import NoGpsFixError, TrackLoadError
 from analysis.recording import open_recording
 from analysis.vehicle_clock import on_vehicle_clock
 from companion.recording import layout
+from companion.recording.flags import vehicle_texts
 
 Array = NDArray[np.float64]
 PositionSource = Literal["gps", "global_position"]
@@ -56,6 +57,9 @@ class Track:
     # Session clock of the first telemetry.csv row holding the sample: at any instant the
     # row shows this sample, and the frames are stamped on this clock (None: `t_s`).
     row_t_s: Array = None  # type: ignore[assignment]
+    # What the vehicle said (its STATUSTEXTs: session time, text), from the recording's
+    # messages.csv or replayed from its tlog (`Recording.vehicle_texts`).
+    vehicle_texts: tuple[tuple[float | None, str], ...] = ()
 
     def __post_init__(self) -> None:
         if self.row_t_s is None:
@@ -103,13 +107,15 @@ def load_track(
     p = Path(path)
     if p.suffix.lower() == ".csv" and p.is_file():
         name = label or p.parent.name
-        return load_telemetry_csv(p.read_bytes(), name, str(p), position, min_fix_type)
+        track = load_telemetry_csv(p.read_bytes(), name, str(p), position, min_fix_type)
+        said = tuple(vehicle_texts(p.parent / layout.MESSAGES_CSV))
+        return replace(track, vehicle_texts=said)
     try:
         with open_recording(p, frames=False) as rec:
             name = label or str(rec.meta.get("label") or rec.name)
             raw = rec.telemetry_csv.read_bytes()
             track = load_telemetry_csv(raw, name, rec.source, position, min_fix_type)
-            return replace(track, meta=rec.meta)
+            return replace(track, meta=rec.meta, vehicle_texts=tuple(rec.vehicle_texts()))
     except OSError as exc:
         raise TrackLoadError(f"'{p}' cannot be read: {exc}") from None
 

@@ -150,3 +150,44 @@ class RowFormatter:
                     )
                 )
         return out
+
+
+def message_rows(sample: Sample, seen: int | None, t0_mono: float) -> tuple[list[tuple], int]:
+    """The messages.csv rows (`layout.MESSAGE_COLUMNS`) of what the vehicle said since the
+    state's message count was `seen` (None: nothing yet: messages from before the
+    session started are not the session's), and the count now. A burst beyond what the
+    state keeps is one station row that says how many were not kept."""
+    log_ = sample.state.messages if sample.state is not None else None
+    if log_ is None:
+        return [], seen if seen is not None else 0
+    if seen is None or log_.count <= seen:
+        return [], log_.count
+    new = log_.recent[-(log_.count - seen) :]
+    rows: list[tuple] = []
+    if log_.count - seen > len(new):
+        lost = log_.count - seen - len(new)
+        rows.append(
+            (
+                round(new[0].t_mono - t0_mono, 6),
+                "",
+                6,
+                "station",
+                f"{lost} older messages not kept in the burst (see mavlink.tlog)",
+                "",
+                "",
+            )
+        )
+    offset = sample.t_wall - sample.t_mono  # station monotonic -> Unix time
+    for m in new:
+        rows.append(
+            (
+                round(m.t_mono - t0_mono, 6),
+                round(m.t_mono + offset, 6),
+                m.severity,
+                m.kind,
+                m.text,
+                m.command or "",
+                m.result or "",
+            )
+        )
+    return rows, log_.count

@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from companion.recording import diskspace, layout
-from companion.recording.rows import RowFormatter, Sample
+from companion.recording.rows import RowFormatter, Sample, message_rows
 from companion.video_frame import Frame
 from core.mavlink.tlog_records import encode_record
 
@@ -366,39 +366,11 @@ class SessionWriter:
             q.clear()
 
     def _write_messages(self, sample: Sample) -> None:
-        """The vehicle's messages that arrived since the previous row (messages.csv).
-        Messages from before the session started are not the session's."""
-        log_ = sample.state.messages
-        seen, self._messages_seen = self._messages_seen, log_.count
-        if seen is None or log_.count <= seen:
-            return
-        t0 = self.formatter.t0_mono
-        new = log_.recent[-(log_.count - seen) :]
-        if log_.count - seen > len(new):  # a burst beyond what the state keeps
-            self._messages_csv.writerow(
-                (
-                    round(new[0].t_mono - t0, 6),
-                    "",
-                    6,
-                    "station",
-                    f"{log_.count - seen - len(new)} older messages not kept in the burst (see mavlink.tlog)",
-                    "",
-                    "",
-                )
-            )
-        offset = sample.t_wall - sample.t_mono  # station monotonic -> Unix time
-        for m in new:
-            self._messages_csv.writerow(
-                (
-                    round(m.t_mono - t0, 6),
-                    round(m.t_mono + offset, 6),
-                    m.severity,
-                    m.kind,
-                    m.text,
-                    m.command or "",
-                    m.result or "",
-                )
-            )
+        """The vehicle's messages that arrived since the previous row (messages.csv)."""
+        rows, self._messages_seen = message_rows(
+            sample, self._messages_seen, self.formatter.t0_mono
+        )
+        self._messages_csv.writerows(rows)
 
     def _count_lost(self, frames, rows, packets) -> None:
         with self._cond:
