@@ -2,7 +2,7 @@
 
     fpv-station export SESSION [SESSION ...] --format lerobot|minari|mcap --out DIR
                        [--task N] [--description TEXT] [--fps N] [--channel-map MAP]
-                       [--cameras front,bottom|none] [--dataset-id ID]
+                       [--cameras front,bottom|none] [--dataset-id ID] [--image-size WxH]
     fpv-station demos --task N --count K --out DIR [--seed S] [--cameras]
     fpv-station learn bc DATASET --out POLICY
     fpv-station learn eval POLICY --task N --episodes E [--seed S]
@@ -39,6 +39,12 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
         help="RC channels of the sticks: AETR, TAER, AERT or roll=1,pitch=2,throttle=3,yaw=4",
     )
     p.add_argument("--cameras", help="cameras to export: front,bottom or none (default: all)")
+    p.add_argument(
+        "--image-size",
+        metavar="WxH",
+        help="resize camera images once, at export (for example 160x120, TwinEnv's size); "
+        "default: as recorded",
+    )
     p.add_argument("--dataset-id", default=None, help="dataset name (LeRobot repo id, Minari id)")
     p.add_argument(
         "--video-preset",
@@ -53,10 +59,11 @@ def run_export(args: argparse.Namespace) -> int:
     from analysis.recording import RecordingError
     from core.scene import SceneError
     from learn.episodes import ChannelMap
-    from learn.export import ExportOptions, export_recordings, tqdm_progress
+    from learn.export import ExportOptions, export_recordings, parse_image_size, tqdm_progress
 
     try:
         cmap = ChannelMap.parse(args.channel_map)
+        size = parse_image_size(args.image_size) if args.image_size else None
     except ValueError as exc:
         print(f"fpv-station export: {exc}", file=sys.stderr)
         return 2
@@ -70,6 +77,7 @@ def run_export(args: argparse.Namespace) -> int:
         channel_map=cmap,
         cameras=cams,
         video_preset=args.video_preset,
+        image_size=size,
         **({"dataset_id": args.dataset_id} if args.dataset_id else {}),
     )
     progress = None if args.no_progress else tqdm_progress(len(args.sessions))

@@ -10,6 +10,7 @@ formats: `lerobot` (`learn.lerobot`), `minari` (`learn.minari_export`), `mcap`
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -32,6 +33,9 @@ class ExportOptions:
     cameras: tuple[str, ...] | None = None  # None: the cameras of the first recording
     dataset_id: str = "fpv-station/demonstrations"
     video_preset: str = "ultrafast"  # x264 preset of LeRobot videos
+    # (width, height) every camera image is resized to, once, as it is exported (LeRobot
+    # videos; MCAP images re-encoded as JPEG); None: as recorded (MCAP: the bytes as is).
+    image_size: tuple[int, int] | None = None
     scene: Scene | None = None
 
 
@@ -44,6 +48,17 @@ class ExportSummary:
     frames: int = 0  # dataset frames (rows)
     camera_frames: int = 0  # video frames written (or JPEGs copied, for MCAP)
     skipped: list[str] = field(default_factory=list)  # recordings without a flight, and why
+
+
+def parse_image_size(text: str) -> tuple[int, int]:
+    """`160x120` -> (160, 120): width and height, even (H.264's 4:2:0 needs them so)."""
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if m is None:
+        raise ValueError(f"image size '{text}': give WIDTHxHEIGHT, for example 160x120")
+    w, h = int(m.group(1)), int(m.group(2))
+    if not (2 <= w <= 4096 and 2 <= h <= 4096) or w % 2 or h % 2:
+        raise ValueError(f"image size '{text}': width and height are even, from 2 to 4096")
+    return w, h
 
 
 def task_description(scene: Scene, task_id: int) -> str:

@@ -42,6 +42,7 @@ import pyarrow.parquet as pq
 
 from learn import stats as st
 from learn.episodes import Episode
+from learn.images import decode_fit
 from twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 CODEBASE_VERSION = "v3.0"
@@ -57,7 +58,6 @@ VIDEO_OPTIONS = {"g": "2", "crf": "23"}
 # "veryfast" makes files ~45% smaller at about twice the encoding time.
 VIDEO_PRESET = "ultrafast"
 ROBOT_TYPE = "f450_quadcopter"
-IMAGE_STATS_FRAMES = 8  # frames per episode sampled for image stats (downscaled 1/4)
 
 FrameSource = Callable[[str, int], bytes]  # (camera, recorded frame index) -> JPEG bytes
 
@@ -106,6 +106,8 @@ class LeRobotWriter:
         self.tasks: dict[str, int] = {}
         self.episodes: list[dict] = []
         self._episode_stats: list[dict[str, st.Stats]] = []
+        # Per camera, the pixel histogram of every frame so far: the dataset's image stats.
+        self._image_hist = {c: np.zeros((3, 256), np.int64) for c in self.cameras}
         self.total_frames = 0
 
     # ------------------------------------------------------------------ episodes
@@ -154,7 +156,9 @@ class LeRobotWriter:
         }
         for cam, video in self._videos.items():
             start = video.frames
-            ep_stats[video_key(cam)] = video.add(ep.frames[cam], lambda k, c=cam: frame_bytes(c, k))
+            hist = video.add(ep.frames[cam], lambda k, c=cam: frame_bytes(c, k))
+            self._image_hist[cam] += hist
+            ep_stats[video_key(cam)] = st.histogram_stats(hist, n)
             meta.update(
                 {
                     f"videos/{video_key(cam)}/chunk_index": 0,
@@ -188,11 +192,19 @@ class LeRobotWriter:
             pq.write_table(pa.Table.from_pylist(self.episodes), self.root / EPISODES_PATH)
         _write_tasks(meta / "tasks.parquet", self.tasks)
         merged = {
-            f: st.merge([s[f] for s in self._episode_stats]) for f in self.features if self.episodes
+            f: st.merge([s[f] for s in self._episode_stats])
+            for f in self.features
+            if self.episodes and f not in self._videos_by_key()
         }
+        for cam, hist in self._image_hist.items():
+            if self.episodes:
+                merged[video_key(cam)] = st.histogram_stats(hist, self.total_frames)
         (meta / "stats.json").write_text(json.dumps(st.to_json(merged), indent=2))
         (meta / "info.json").write_text(json.dumps(self.info(), indent=2))
         (self.root / "README.md").write_text(card)
+
+    def _videos_by_key(self) -> set[str]:
+        return {video_key(c) for c in self.cameras}
 
     def info(self) -> dict:
         return {
@@ -254,7 +266,9 @@ class LeRobotExport:
     def __init__(self, out: Path, options, scene, rec, cameras: tuple[str, ...], task: str):
         self.task = task
         self.options = options
-        size = {c: (rec.cameras[c].width, rec.cameras[c].height) for c in cameras}
+        size = {
+            c: options.image_size or (rec.cameras[c].width, rec.cameras[c].height) for c in cameras
+        }
         self.writer = LeRobotWriter(
             out, options.fps, size, task_id=options.task_id, video_preset=options.video_preset
         )
@@ -327,40 +341,30 @@ class _VideoFile:
         self.time_base = Fraction(1, fps)
         self.frames = 0
 
-    def add(self, picks: np.ndarray, jpeg: Callable[[int], bytes]) -> st.Stats:
-        """Encode the recorded frames `picks` (one per dataset frame); returns the image
-        stats of a few of them."""
-        sample_at = set(np.linspace(0, len(picks) - 1, IMAGE_STATS_FRAMES).astype(int).tolist())
-        sampled = []
-        last, bgr, frame = None, None, None
-        for i, k in enumerate(picks):
+    def add(self, picks: np.ndarray, jpeg: Callable[[int], bytes]) -> np.ndarray:
+        """Encode the recorded frames `picks` (one per dataset frame); returns the pixel
+        histogram (`stats.image_histogram`, RGB) of all the frames encoded."""
+        total = np.zeros((3, 256), np.int64)
+        last, hist, frame = None, None, None
+        for k in picks:
             if k != last:  # a recorded frame held over several dataset frames: convert once
-                bgr = cv2.imdecode(np.frombuffer(jpeg(int(k)), np.uint8), cv2.IMREAD_COLOR)
-                if bgr is None or bgr.shape[1::-1] != self.size:
-                    bgr = _fit(bgr, self.size)
+                bgr = decode_fit(jpeg(int(k)), self.size)
                 # OpenCV's I420 conversion is BT.601 limited range, what an untagged H.264
                 # stream is decoded as, and several times faster than swscale from BGR.
                 i420 = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420)
                 frame = av.VideoFrame.from_ndarray(i420, format="yuv420p")
                 frame.time_base = self.time_base
+                hist = st.image_histogram(bgr)[::-1]  # BGR -> RGB
                 last = k
-            if i in sample_at:
-                sampled.append(bgr[::4, ::4, ::-1])
+            total += hist
             frame.pts = self.frames  # the encoder takes its own reference: reuse is safe
             self.container.mux(self.stream.encode(frame))
             self.frames += 1
-        return st.image_stats(np.stack(sampled))
+        return total
 
     def close(self) -> None:
         self.container.mux(self.stream.encode(None))
         self.container.close()
-
-
-def _fit(bgr: np.ndarray | None, size: tuple[int, int]) -> np.ndarray:
-    """A frame of another size scaled to the video's; an undecodable one is black."""
-    if bgr is None:
-        return np.zeros((size[1], size[0], 3), np.uint8)
-    return cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
 
 
 def _fixed_list(a: np.ndarray) -> pa.FixedSizeListArray:

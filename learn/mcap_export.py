@@ -5,7 +5,7 @@ message on log time (Unix ns), so Foxglove plays it back with both cameras:
 
 | topic | schema | one message per |
 | --- | --- | --- |
-| `/<camera>/image/compressed` | `foxglove.CompressedImage` | recorded frame: its JPEG bytes as recorded, not re-encoded |
+| `/<camera>/image/compressed` | `foxglove.CompressedImage` | recorded frame: its JPEG bytes as recorded (re-encoded only if `--image-size` resizes it) |
 | `/gps` | `foxglove.LocationFix` | telemetry row (GPS_RAW_INT position, else GLOBAL_POSITION_INT) |
 | `/pose` | `foxglove.PoseInFrame` | telemetry row: `base_link` in the scene's ENU frame `field` |
 | `/tf` | `foxglove.FrameTransform` | telemetry row: `field` -> `base_link` (the same pose) |
@@ -46,6 +46,7 @@ from foxglove.messages import (
 from analysis.recording import Recording
 from core.mavlink.tlog_records import TlogReader
 from learn.episodes import COLUMNS, Episode, carry_forward, scene_xyz
+from learn.images import resized_jpeg
 
 WORLD_FRAME = "field"
 BODY_FRAME = "base_link"
@@ -73,7 +74,16 @@ class McapExport:
 
     def add(self, rec: Recording, ep: Episode) -> None:
         path = self.out / mcap_name(rec, ep)
-        write_episode_mcap(path, rec, ep, self.scene, self.options.task_id, self.cameras, self.task)
+        write_episode_mcap(
+            path,
+            rec,
+            ep,
+            self.scene,
+            self.options.task_id,
+            self.cameras,
+            self.task,
+            self.options.image_size,
+        )
         self.files.append(path)
 
     def close(self, summary) -> None:
@@ -88,6 +98,7 @@ def write_episode_mcap(
     task_id: int,
     cameras: tuple[str, ...],
     task: str,
+    image_size: tuple[int, int] | None = None,
 ) -> None:
     ctx = foxglove.Context()
     images = {c: CompressedImageChannel(f"/{c}/image/compressed", context=ctx) for c in cameras}
@@ -117,7 +128,7 @@ def write_episode_mcap(
             },
         )
         streams = [_row_events(rec, scene, task_id, i0, i1, wall0)]
-        streams += [_frame_events(rec, c, ep, wall0) for c in cameras]
+        streams += [_frame_events(rec, c, ep, wall0, image_size) for c in cameras]
         if rec.tlog is not None:
             t_lo, t_hi = wall0 + rec.t_s[i0], wall0 + rec.t_s[i1]
             streams.append(_packet_events(rec.tlog, t_lo, t_hi))
@@ -185,10 +196,13 @@ def _frame_window(rec: Recording, cam: str, ep: Episode) -> np.ndarray:
     return np.flatnonzero((t >= rec.t_s[ep.flight.arm]) & (t <= rec.t_s[ep.flight.disarm]))
 
 
-def _frame_events(rec: Recording, cam: str, ep: Episode, wall0: float):
+def _frame_events(rec: Recording, cam: str, ep: Episode, wall0: float, size):
     t = rec.cameras[cam].t_s
     for k in _frame_window(rec, cam, ep):
-        yield int(round((wall0 + t[k]) * 1e9)), "frame", (cam, rec.frame_bytes(cam, int(k)))
+        jpeg = rec.frame_bytes(cam, int(k))
+        if size is not None:
+            jpeg = resized_jpeg(jpeg, size)
+        yield int(round((wall0 + t[k]) * 1e9)), "frame", (cam, jpeg)
 
 
 def _packet_events(tlog: Path, t_lo: float, t_hi: float) -> Iterator:

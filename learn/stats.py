@@ -2,7 +2,10 @@
 q50, q90, q99 quantiles), per episode and merged over a dataset.
 
 Vectors are reduced over frames (one value per element); images over frames and pixels,
-per channel, scaled to [0, 1] and shaped (3, 1, 1) as LeRobot's image stats are.
+per channel, scaled to [0, 1] and shaped (3, 1, 1) as LeRobot's image stats are. Pixels
+are 8-bit, so an image feature's stats come from per-channel histograms of every frame
+(`image_histogram`, summed): exact over all frames and pixels, quantiles included, at the
+cost of one histogram per distinct picture.
 Merging follows LeRobot's rule: means weighted by count, variances pooled about the
 merged mean, extremes of extremes, and quantiles as count-weighted means (an
 approximation LeRobot makes too: exact quantiles would need every value).
@@ -33,14 +36,38 @@ def vector_stats(values: NDArray) -> Stats:
     return out
 
 
-def image_stats(images: NDArray[np.uint8]) -> Stats:
-    """Stats of (n, H, W, 3) uint8 images per channel, in [0, 1], shaped (3, 1, 1); the
+def image_histogram(rgb: NDArray[np.uint8]) -> NDArray[np.int64]:
+    """(3, 256) pixel counts per channel of one (H, W, 3) uint8 image."""
+    flat = rgb.reshape(-1, rgb.shape[-1])
+    return np.stack([np.bincount(flat[:, c], minlength=256) for c in range(flat.shape[1])])
+
+
+def histogram_stats(hist: NDArray[np.int64], images: int) -> Stats:
+    """Stats of every pixel counted in a (3, 256) histogram, per channel, in [0, 1] and
+    shaped (3, 1, 1); the quantiles are `np.quantile`'s (linear) over those pixels. The
     count is the number of images, as LeRobot counts it."""
-    px = images.reshape(-1, images.shape[-1]).astype(np.float64) / 255.0
-    s = vector_stats(px)
-    s = {k: v.reshape(-1, 1, 1) for k, v in s.items() if k != "count"}
-    s["count"] = np.array([images.shape[0]], dtype=np.float64)
-    return s
+    h = np.asarray(hist, dtype=np.float64)
+    v = np.arange(h.shape[1], dtype=np.float64) / 255.0
+    n = h.sum(1)
+    mean = h @ v / n
+    var = (h * (v[None, :] - mean[:, None]) ** 2).sum(1) / n
+    seen = h > 0
+    out = {
+        "min": v[seen.argmax(1)],
+        "max": v[h.shape[1] - 1 - seen[:, ::-1].argmax(1)],
+        "mean": mean,
+        "std": np.sqrt(var),
+    }
+    cum = np.cumsum(hist, axis=1)
+    for key, q in QUANTILES.items():
+        pos = q * (n - 1)  # np.quantile's linear rule on the sorted pixels
+        lo, hi = np.floor(pos), np.ceil(pos)
+        at_lo = np.array([np.searchsorted(c, k, side="right") for c, k in zip(cum, lo)])
+        at_hi = np.array([np.searchsorted(c, k, side="right") for c, k in zip(cum, hi)])
+        out[key] = v[at_lo] + (v[at_hi] - v[at_lo]) * (pos - lo)
+    out = {k: a.reshape(-1, 1, 1) for k, a in out.items()}
+    out["count"] = np.array([images], dtype=np.float64)
+    return out
 
 
 def merge(stats: list[Stats]) -> Stats:

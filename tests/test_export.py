@@ -473,3 +473,84 @@ def test_a_session_of_unknown_task_is_refused_unless_the_task_is_given(session, 
     assert not (tmp_path / "guessed").exists()
     assert cli_main([*argv, "--out", str(tmp_path / "told"), "--task", "2"]) == 0
     assert "mcap: 1 episodes" in capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def small(session, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("small")
+    opts = ExportOptions(task_id=1, fps=FPS, image_size=(160, 120))
+    export_recordings([session, session], "lerobot", out, opts)
+    return out
+
+
+def _all_frames(session: Path, cam: str, t_s: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(n, H, W, 3) RGB: for every dataset instant, the JPEG recorded at or before it,
+    decoded and scaled to `size`, straight from the session's files."""
+    with open(session / cam / "frames.csv", newline="") as f:
+        recorded = list(csv.DictReader(f))
+    t_rec = np.array([float(r["t_s"]) for r in recorded])
+    on_disk = recorded_frames(session, cam)
+    out = []
+    for t in t_s:
+        j = max(int(np.searchsorted(t_rec, t + 1e-9, side="right") - 1), 0)
+        bgr = cv2.imdecode(np.frombuffer(on_disk[recorded[j]["file"]], np.uint8), 1)
+        out.append(cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)[..., ::-1])
+    return np.stack(out)
+
+
+def test_image_size_resizes_once_and_image_stats_hold_over_all_frames(small, session):
+    """`--image-size 160x120`: the videos are 160x120, and the image stats (dataset and per
+    episode) are within 0.01 of the same stats computed over every frame's pixels."""
+    info = json.loads((small / "meta/info.json").read_text())
+    stats = json.loads((small / "meta/stats.json").read_text())
+    data = pq.read_table(small / "data/chunk-000/file-000.parquet").to_pydict()
+    episodes = pq.read_table(small / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    t_s = np.array(data["session_time_s"])
+    for cam in ("front", "bottom"):
+        key = f"observation.images.{cam}"
+        assert info["features"][key]["shape"] == [120, 160, 3]
+        path = small / info["video_path"].format(video_key=key, chunk_index=0, file_index=0)
+        with av.open(str(path)) as c:
+            s = c.streams.video[0]
+            assert (s.width, s.height) == (160, 120)
+            assert sum(1 for _ in c.decode(s)) == info["total_frames"]
+        images = _all_frames(session, cam, t_s, (160, 120))
+        px = images.reshape(-1, 3).astype(np.float64) / 255.0
+        want = {
+            "mean": px.mean(0),
+            "std": px.std(0),
+            "min": px.min(0),
+            "max": px.max(0),
+            **{
+                f"q{round(q * 100):02d}": np.quantile(px, q, axis=0)
+                for q in (0.01, 0.1, 0.5, 0.9, 0.99)
+            },
+        }
+        for name, value in want.items():
+            got = np.ravel(stats[key][name])
+            assert np.abs(got - value).max() <= 0.01, (cam, name, got, value)
+        assert stats[key]["count"] == [info["total_frames"]]
+        # Each episode's own stats, over its own frames.
+        for ep in episodes:
+            part = images[ep["dataset_from_index"] : ep["dataset_to_index"]]
+            px = part.reshape(-1, 3).astype(np.float64) / 255.0
+            got = np.ravel(ep[f"stats/{key}/mean"])
+            assert np.abs(got - px.mean(0)).max() <= 0.01, (cam, got, px.mean(0))
+            got = np.ravel(ep[f"stats/{key}/q50"])
+            assert np.abs(got - np.quantile(px, 0.5, axis=0)).max() <= 0.01
+
+
+def test_image_size_resizes_mcap_images(session, tmp_path, capsys):
+    out = tmp_path / "mcap"
+    argv = ["export", str(session), "--format", "mcap", "--out", str(out), "--no-progress"]
+    assert cli_main([*argv, "--image-size", "160x120"]) == 0
+    (path,) = sorted(out.glob("*.mcap"))
+    images = _mcap_images(path)
+    assert set(images) == {"/front/image/compressed", "/bottom/image/compressed"}
+    for topic, frames in images.items():
+        start = frames[0].index(b"\xff\xd8")  # the JPEG inside the protobuf message
+        bgr = cv2.imdecode(np.frombuffer(frames[0][start:], np.uint8), cv2.IMREAD_COLOR)
+        assert bgr is not None and bgr.shape == (120, 160, 3), topic
+    capsys.readouterr()
+    assert cli_main([*argv, "--image-size", "160by120"]) == 2
+    assert "WIDTHxHEIGHT" in capsys.readouterr().err
