@@ -181,6 +181,11 @@ class MavlinkLink:
         not block (put into a bounded buffer and return)."""
         self._listeners = [*self._listeners, cb]  # copy-on-write: the thread iterates safely
 
+    def remove_packet_listener(self, cb: PacketListener) -> None:
+        """Stop calling `cb` (compared by equality: a bound method is a new object each
+        time it is looked up)."""
+        self._listeners = [x for x in self._listeners if x != cb]
+
     def send(self, msg: mavlink.MAVLink_message) -> None:
         """Queue a message for the vehicle; thread-safe and never blocks. Build it with
         `link.mav.<name>_encode(...)`. Dropped (oldest first) if the port is down long."""

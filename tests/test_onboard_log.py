@@ -1,0 +1,176 @@
+"""The MAVLink log protocol against real bytes: a real DataFlash log (tests/data/dataflash)
+served by a test vehicle over a real UDP socket, fetched by the station's link and
+`companion.onboard_log.LogDownload`; and the twin's own ULog served the same way."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from pymavlink import DFReader
+from pyulog import ULog
+
+from companion.link import MavlinkLink
+from companion.link_settings import LinkSettings
+from companion.onboard_log import (
+    DownloadStatus,
+    LogDownload,
+    LogEntry,
+    OnboardLogSettings,
+    choose_log,
+    log_file_name,
+)
+from tests.helpers import wait_until
+from tests.log_responder import LogResponder
+from twin.runner import Twin
+
+DATAFLASH = Path(__file__).parent / "data" / "dataflash" / "arducopter.bin"
+# Short retries: a lost window is asked for again within a fraction of a second; the
+# give-up stays long, so a loaded machine only retries more, never gives up early.
+FAST = {"request_timeout_s": 0.3, "give_up_s": 60.0}
+
+
+@pytest.fixture
+def dataflash() -> bytes:
+    return DATAFLASH.read_bytes()
+
+
+def _link(source: str) -> MavlinkLink:
+    link = MavlinkLink(LinkSettings(source=source, request_streams=False))
+    link.start()
+    return link
+
+
+@pytest.fixture
+def served(
+    dataflash: bytes, request: pytest.FixtureRequest
+) -> Iterator[tuple[LogResponder, MavlinkLink]]:
+    kwargs = getattr(request, "param", {})
+    logs = kwargs.pop("logs", {1: b"an older log" * 50, 2: dataflash})
+    with LogResponder(logs, **kwargs) as vehicle:
+        link = _link(vehicle.station_source)
+        try:
+            assert wait_until(lambda: link.health().autopilot_sysid == 1, 20), "never heard"
+            yield vehicle, link
+        finally:
+            link.stop()
+
+
+def _download(link: MavlinkLink, folder: Path, timeout_s: float = 90.0, **kwargs) -> DownloadStatus:
+    settings = OnboardLogSettings(**{**FAST, **kwargs.pop("settings", {})})
+    done: list[DownloadStatus] = []
+    dl = LogDownload(link, (1, 1), folder, settings, on_done=done.append, **kwargs)
+    dl.start()
+    dl.join(timeout_s)  # a hang guard: every path ends by itself
+    assert not dl.running, f"the download hangs: {dl.status.get().value}"
+    assert done and done[0] == dl.status.get().value
+    return done[0]
+
+
+def test_served_dataflash_downloads_byte_identical(
+    served, tmp_path: Path, dataflash: bytes
+) -> None:
+    vehicle, link = served
+    status = _download(link, tmp_path)
+    assert status.state == "complete", status
+    assert status.log_id == 2 and status.logs_listed == 2  # the newest: the flight's
+    assert status.file == "onboard.bin"
+    assert (tmp_path / "onboard.bin").read_bytes() == dataflash
+    assert not (tmp_path / "onboard.part").exists()
+    assert status.received_bytes == status.size_bytes == len(dataflash)
+    assert wait_until(lambda: vehicle.end_requests >= 1, 10)  # told the transfer is over
+    # Bounded windows: nothing was asked for beyond the window size.
+    window = OnboardLogSettings().window_bytes
+    assert vehicle.data_requests and all(count <= window for _, _, count in vehicle.data_requests)
+    # And it reads as a DataFlash log, IMU and all.
+    reader = DFReader.DFReader_binary(str(tmp_path / "onboard.bin"))
+    assert reader.recv_match(type="IMU") is not None
+
+
+@pytest.mark.parametrize("served", [{"drop_after_bytes": 20_000, "drop_s": 2.0}], indirect=True)
+def test_dropped_link_mid_download_resumes(served, tmp_path: Path, dataflash: bytes) -> None:
+    vehicle, link = served
+    status = _download(link, tmp_path)
+    assert status.state == "complete", status
+    assert (tmp_path / "onboard.bin").read_bytes() == dataflash
+    assert status.re_requests >= 1
+    # Resumed where it broke off, not from the start: a later request began past zero.
+    assert any(ofs >= 20_000 - 90 * 128 for _, ofs, _ in vehicle.data_requests[1:])
+    assert vehicle.data_requests.count((2, 0, vehicle.data_requests[0][2])) == 1
+
+
+@pytest.mark.parametrize("served", [{"drop_after_bytes": 20_000, "drop_s": 3600.0}], indirect=True)
+def test_link_that_stays_down_ends_incomplete(served, tmp_path: Path) -> None:
+    _, link = served
+    status = _download(link, tmp_path, settings={"give_up_s": 2.0})
+    assert status.state == "incomplete", status
+    assert 0 < status.received_bytes < status.size_bytes
+    assert "no data" in status.message
+    assert status.file == "onboard.bin"  # what came is kept, marked incomplete
+    assert (tmp_path / "onboard.bin").stat().st_size == status.size_bytes
+
+
+def test_a_log_that_does_not_exist(served, tmp_path: Path) -> None:
+    _, link = served
+    status = _download(link, tmp_path, log_id=7)
+    assert status.state == "no_log", status
+    assert "log 7 is not on the vehicle" in status.message and "1, 2" in status.message
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("served", [{"logs": {}}], indirect=True)
+def test_a_vehicle_without_logs(served, tmp_path: Path) -> None:
+    _, link = served
+    status = _download(link, tmp_path)
+    assert status.state == "no_log" and status.message == "the vehicle has no logs", status
+
+
+@pytest.mark.parametrize("served", [{"log_protocol": False}], indirect=True)
+def test_a_vehicle_that_does_not_answer(served, tmp_path: Path) -> None:
+    vehicle, link = served
+    status = _download(link, tmp_path)
+    assert status.state == "failed", status
+    assert "did not answer LOG_REQUEST_LIST" in status.message
+    assert vehicle.list_requests == 0  # it ignored them all
+
+
+def test_choose_log_takes_the_newest_started_before_the_flight_ended() -> None:
+    logs = [LogEntry(1, 1000, 10), LogEntry(2, 2000, 10), LogEntry(3, 9000, 10), LogEntry(4, 0, 0)]
+    assert choose_log(logs, None).id == 3
+    assert choose_log(logs, 2500).id == 2
+    assert choose_log(logs, 500) is None
+    assert choose_log([LogEntry(5, 0, 10)], 500).id == 5  # no clock: it counts
+
+
+def test_file_names() -> None:
+    assert log_file_name(b"ULog\x01\x12\x35\x01") == "onboard.ulg"
+    assert log_file_name(DATAFLASH.read_bytes()[:8]) == "onboard.bin"
+    assert log_file_name(b"hello") == "onboard.log"
+
+
+def test_twin_serves_its_ulog(tmp_path: Path) -> None:
+    """The twin's vehicle serves its flight log over the same protocol and real UDP."""
+    twin = Twin(mavlink="udpin:127.0.0.1:0", flight_log_dir=tmp_path / "sd")
+    twin.step_for(3.0)
+    assert twin.sim.arm(True)[0] and twin.sim.takeoff(2.0)[0]
+    twin.step_for(3.0)
+    assert twin.sim.arm(False, force=True)[0]
+    twin.step_for(0.1)
+    assert twin.flight_log is not None and len(twin.flight_log.logs) == 1
+    twin.start()
+    try:
+        port = twin.vehicle.sock.getsockname()[1]
+        link = _link(f"udpout:127.0.0.1:{port}")
+        try:
+            assert wait_until(lambda: link.health().autopilot_sysid == 1, 20), "never heard"
+            status = _download(link, tmp_path / "session")
+        finally:
+            link.stop()
+    finally:
+        twin.stop()
+    assert status.state == "complete", status
+    assert status.file == "onboard.ulg"
+    got = tmp_path / "session" / "onboard.ulg"
+    assert got.read_bytes() == twin.flight_log.logs[0].path.read_bytes()
+    assert any(d.name == "sensor_combined" for d in ULog(str(got)).data_list)
