@@ -101,6 +101,26 @@ PAPER_TASK_ANALYSIS: dict[int, TaskAnalysis] = {
 }
 
 
+class SceneWind(_Frozen):
+    """The air over the field, for the twin (`twin.dynamics.Wind`): a mean wind, gusts
+    and turbulence. Calm by default."""
+
+    east_mps: float = Field(0.0, ge=-30, le=30)
+    north_mps: float = Field(0.0, ge=-30, le=30)
+    gust_std_mps: float = Field(0.0, ge=0, le=10)
+    gust_tau_s: float = Field(2.0, gt=0)
+    turbulence_std_mps: float = Field(0.0, ge=0, le=10)
+
+
+class SceneStart(_Frozen):
+    """Where the twin's vehicle stands at the start: the start pad's centre facing east,
+    or (`random`) a seeded draw, uniform over the pad's square and over headings within
+    `heading_deg` either side of east."""
+
+    random: bool = False
+    heading_deg: float = Field(180.0, ge=0, le=180)
+
+
 class Task(_Frozen):
     id: int
     name: str
@@ -125,6 +145,8 @@ class Scene(_Frozen):
     pads: list[Pad] = Field(default_factory=list)
     obstacles: list[Obstacle] = Field(default_factory=list)
     tasks: list[Task] = Field(default_factory=list)
+    wind: SceneWind = Field(default_factory=SceneWind)
+    start: SceneStart = Field(default_factory=SceneStart)
 
     @model_validator(mode="after")
     def _references_exist(self) -> Scene:

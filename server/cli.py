@@ -116,6 +116,9 @@ def add_sim_parser(sub: Any) -> None:
     p.add_argument("--speed", dest="twin.realtime_factor", type=float, help="real-time factor")
     p.add_argument("--wind", dest="twin.wind_east_mps", type=float, help="east wind (m/s)")
     p.add_argument("--gusts", dest="twin.gust_std_mps", type=float, help="gust std (m/s)")
+    p.add_argument(
+        "--turbulence", dest="twin.turbulence_std_mps", type=float, help="turbulence std (m/s)"
+    )
     add_signing_flag(p)
     p.set_defaults(func=run_sim)
 

@@ -5,8 +5,8 @@ Frames: world ENU (x east, y north, z up); body FLU (x forward, y left, z up);
 1 front-right (CCW), 2 rear-left (CCW), 3 front-left (CW), 4 rear-right (CW).
 
 Each step is a fixed dt (>= 250 Hz): first-order motor lag towards the commanded speed,
-thrust k_T w^2, reaction torque, linear + quadratic drag against the air (optional mean
-wind with Gauss-Markov gusts), semi-implicit Euler, ground contact, and crash detection
+thrust k_T w^2, reaction torque, linear + quadratic drag against the air (`Wind`: a mean,
+gusts and Dryden-like turbulence; calm by default), semi-implicit Euler, ground contact, and crash detection
 against the ground (impact speed), the obstacles and the boundary net. The battery (3S
 5500 mAh) sags under load: the terminal voltage limits the motors' top speed and the
 electric power is calibrated so that a hover lasts about 11 minutes.
@@ -81,9 +81,64 @@ def ocv_per_cell_v(soc: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Wind:
+    """The air the vehicles fly in: a mean wind, gusts and turbulence (all ENU, m/s).
+
+    - Gusts: a first-order Gauss-Markov process on each axis (std `gust_std_mps`,
+      correlation time `gust_tau_s`): the wind's changes over seconds.
+    - Turbulence: Dryden-like, the low-altitude form of MIL-F-8785C with first-order
+      shaping filters (the u filter is Dryden's; v and w keep its variance and length
+      scale without the second-order zero). `turbulence_std_mps` is the horizontal sigma
+      (sigma_u = sigma_v); sigma_w = sigma_u (0.177 + 0.000823 h)^0.4, length scales
+      L_u = L_v = h / (0.177 + 0.000823 h)^1.2 and L_w = h (h the vehicle's height in
+      feet, held within 10-1000 ft), swept past at the vehicle's airspeed (at least
+      1 m/s: the mean wind carries the eddies past a hovering vehicle).
+    Both start from their stationary distribution, so an episode starts in gusty air.
+    """
+
     mean_enu_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gust_std_mps: float = 0.0
     gust_tau_s: float = 2.0
+    turbulence_std_mps: float = 0.0
+
+    def __post_init__(self) -> None:
+        if len(self.mean_enu_mps) != 3 or not np.all(np.isfinite(self.mean_enu_mps)):
+            raise ValueError(f"mean_enu_mps must be 3 finite numbers, not {self.mean_enu_mps}")
+        if not (self.gust_std_mps >= 0 and self.turbulence_std_mps >= 0):
+            raise ValueError("gust_std_mps and turbulence_std_mps must be >= 0")
+        if not self.gust_tau_s > 0:
+            raise ValueError(f"gust_tau_s must be > 0, not {self.gust_tau_s}")
+
+    @property
+    def calm(self) -> bool:
+        return not (any(self.mean_enu_mps) or self.gust_std_mps or self.turbulence_std_mps)
+
+    @classmethod
+    def parse(cls, value: Wind | dict | None) -> Wind | None:
+        """A `Wind`, or one from a mapping of its fields (env options, JSON); None stays."""
+        if value is None or isinstance(value, Wind):
+            return value
+        if not isinstance(value, dict):
+            raise ValueError(f"wind must be a mapping of Wind's fields, not {value!r}")
+        unknown = set(value) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown wind fields: {', '.join(sorted(unknown))}")
+        kw = dict(value)
+        if "mean_enu_mps" in kw:
+            kw["mean_enu_mps"] = tuple(float(v) for v in kw["mean_enu_mps"])
+        return cls(**kw)
+
+
+_FT = 0.3048
+
+
+def dryden_low_altitude(height_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sigma ratios, length scales in m), each (N, 3) for (u, v, w) at the heights:
+    sigma relative to the horizontal sigma; see `Wind`."""
+    h = np.clip(np.asarray(height_m, float) / _FT, 10.0, 1000.0)
+    den = 0.177 + 0.000823 * h
+    L_uv = h / den**1.2 * _FT
+    ratio = np.column_stack([np.ones_like(h), np.ones_like(h), den**0.4])
+    return ratio, np.column_stack([L_uv, L_uv, h * _FT])
 
 
 @dataclass
@@ -101,7 +156,9 @@ class BodyState:
     rotor_thrust_n: np.ndarray  # (N, 4)
     on_ground: np.ndarray  # (N,) bool
     crash: np.ndarray  # (N,) int, CRASH_* code of the first crash
-    wind_mps: np.ndarray  # (N, 3) current air velocity (mean + gust)
+    wind_mps: np.ndarray  # (N, 3) current air velocity (mean + gust + turbulence)
+    gust_mps: np.ndarray  # (N, 3) the gust part of it
+    turbulence_mps: np.ndarray  # (N, 3) the turbulence part of it
 
     @property
     def n(self) -> int:
@@ -196,7 +253,12 @@ class Dynamics:
         self._bound: tuple | None = None
         self._boxes: tuple | None = None
 
-    def initial_state(self, n: int, xy_m: np.ndarray, yaw_rad: float = 0.0) -> BodyState:
+    def initial_state(
+        self, n: int, xy_m: np.ndarray, yaw_rad: float | np.ndarray = 0.0
+    ) -> BodyState:
+        """`n` vehicles on the ground at `xy_m` ((2,) or (n, 2)) heading `yaw_rad` (scalar
+        or (n,)), disarmed, battery full, in the wind's air (gusts and turbulence drawn
+        from their stationary distribution)."""
         af = self.airframe
         pos = np.zeros((n, 3))
         pos[:, :2] = xy_m
@@ -204,10 +266,10 @@ class Dynamics:
         volt = np.full(n, af.cells * float(ocv_per_cell_v(1.0)))
         self._w_max_alive = _per_rotor(af.kv_rad_s_per_v * volt)
         self._grounded = True
-        return BodyState(
+        state = BodyState(
             pos_m=pos,
             vel_mps=np.zeros((n, 3)),
-            R_world_body=yaw_matrix(np.full(n, yaw_rad)),
+            R_world_body=yaw_matrix(np.broadcast_to(np.asarray(yaw_rad, float), (n,))),
             omega_rad_s=np.zeros((n, 3)),
             rotor_rad_s=np.zeros((n, 4)),
             charge_c=charge,
@@ -216,8 +278,20 @@ class Dynamics:
             rotor_thrust_n=np.zeros((n, 4)),
             on_ground=np.ones(n, bool),
             crash=np.zeros(n, int),
-            wind_mps=np.tile(np.asarray(self.wind.mean_enu_mps, float), (n, 1)),
+            wind_mps=np.zeros((n, 3)),
+            gust_mps=np.zeros((n, 3)),
+            turbulence_mps=np.zeros((n, 3)),
         )
+        w = self.wind
+        if w.gust_std_mps > 0:
+            state.gust_mps[:] = w.gust_std_mps * self._rng.standard_normal((n, 3))
+        if w.turbulence_std_mps > 0:
+            ratio, _ = dryden_low_altitude(pos[:, 2])
+            state.turbulence_mps[:] = (
+                w.turbulence_std_mps * ratio * self._rng.standard_normal((n, 3))
+            )
+        self._air(state)
+        return state
 
     def max_rotor_speed_rad_s(self, s: BodyState) -> np.ndarray:
         return self.airframe.kv_rad_s_per_v * s.voltage_v
@@ -333,15 +407,40 @@ class Dynamics:
     def slow_update(self, s: BodyState, dt: float) -> None:
         """Battery and gusts, which change slowly (~10 Hz is plenty)."""
         self._battery(s, s.rotor_thrust_n, dt)
-        if self.wind.gust_std_mps > 0:
-            k = dt / self.wind.gust_tau_s
-            gust = s.wind_mps - self.wind.mean_enu_mps
-            gust += -gust * k + self.wind.gust_std_mps * np.sqrt(2 * k) * self._rng.standard_normal(
-                gust.shape
-            )
-            s.wind_mps = gust + self.wind.mean_enu_mps
+        w = self.wind
+        if w.gust_std_mps > 0 or w.turbulence_std_mps > 0:
+            self._gusts_and_turbulence(s, dt)
         alive = (s.crash == 0) & (s.charge_c > 0)
         self._w_max_alive = _per_rotor(self.airframe.kv_rad_s_per_v * s.voltage_v * alive)
+
+    def _gusts_and_turbulence(self, s: BodyState, dt: float) -> None:
+        """Advance both first-order processes by `dt`, exactly discretized
+        (x <- a x + sigma sqrt(1 - a^2) n, a = exp(-dt / tau)), so the rate it runs at
+        does not change their statistics."""
+        w, rng = self.wind, self._rng
+        if w.gust_std_mps > 0:
+            a = np.exp(-dt / w.gust_tau_s)
+            s.gust_mps *= a
+            s.gust_mps += (
+                w.gust_std_mps * np.sqrt(1 - a * a) * rng.standard_normal(s.gust_mps.shape)
+            )
+        if w.turbulence_std_mps > 0:
+            ratio, length = dryden_low_altitude(s.pos_m[:, 2])
+            air = np.linalg.norm(s.vel_mps - s.wind_mps, axis=1)
+            a = np.exp(-dt * np.maximum(air, 1.0)[:, None] / length)
+            s.turbulence_mps *= a
+            s.turbulence_mps += (
+                w.turbulence_std_mps
+                * ratio
+                * np.sqrt(1 - a * a)
+                * rng.standard_normal(s.turbulence_mps.shape)
+            )
+        self._air(s)
+
+    def _air(self, s: BodyState) -> None:
+        """The air velocity: mean + gust + turbulence, in place (the step holds the array)."""
+        np.add(s.gust_mps, s.turbulence_mps, out=s.wind_mps)
+        s.wind_mps += self.wind.mean_enu_mps
 
     def _battery(self, s: BodyState, f: np.ndarray, dt: float) -> None:
         af = self.airframe

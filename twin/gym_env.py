@@ -25,7 +25,15 @@ pad for 10 s, then landing on it); -10 on a crash.
 
 ## Starting State
 On the task's start pad, armed, Position mode, sensors warmed up (GPS fix). Sensor noise,
-drift and gusts come from the episode's seed.
+drift, gusts and turbulence come from the episode's seed.
+
+## Wind and start (options)
+`TwinEnv(wind=..., start=...)`, or per episode `reset(options={"wind": ..., "start": ...})`:
+`wind` a `twin.dynamics.Wind` or a mapping of its fields (`mean_enu_mps`, `gust_std_mps`,
+`gust_tau_s`, `turbulence_std_mps`); `start` a `core.scene.SceneStart` or a mapping
+(`random`, `heading_deg`): with `random`, the vehicle stands anywhere on the start pad
+facing within `heading_deg` of east, drawn from the episode's seed. Unset: the scene's
+`[wind]` and `[start]` (the default field: calm, the pad's centre facing east).
 
 ## Episode End
 Terminated: crash, or landed (disarmed after touchdown). Truncated: `max_episode_s`.
@@ -40,7 +48,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from core.scene import Scene, Task, load_scene
+from core.scene import Scene, SceneStart, Task, load_scene
+from twin.dynamics import Wind
 from twin.sim import Sim, SimConfig
 
 # What each element of the state vector is; exporters name dataset features with these.
@@ -84,8 +93,12 @@ class TwinEnv(gym.Env):
         cameras: tuple[str, ...] = (),
         image_size: tuple[int, int] = (160, 120),
         render_mode: str | None = None,
+        wind: Wind | dict | None = None,
+        start: SceneStart | dict | None = None,
     ) -> None:
         self.scene = scene or load_scene()
+        self.wind = Wind.parse(wind)
+        self.start = _start(start)
         self.task = self.scene.task(task)
         self.config = config or SimConfig()
         self.max_episode_s = max_episode_s
@@ -114,7 +127,18 @@ class TwinEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         sim_seed = int(self.np_random.integers(0, 2**31 - 1))
-        self.sim = Sim(self.scene, replace(self.config, seed=sim_seed))
+        options = options or {}
+        unknown = set(options) - {"wind", "start"}
+        if unknown:
+            raise ValueError(f"unknown reset options: {', '.join(sorted(unknown))}")
+        config = replace(self.config, seed=sim_seed)
+        wind = Wind.parse(options["wind"]) if "wind" in options else self.wind
+        start = _start(options["start"]) if "start" in options else self.start
+        if wind is not None:
+            config = replace(config, wind=wind)
+        if start is not None:
+            config = replace(config, start=start)
+        self.sim = Sim(self.scene, config)
         self.sim.run_for(self.sim.config.sensors.gps_fix_delay_s + 0.5)
         ok, why = self.sim.arm()
         if not ok:
@@ -193,6 +217,12 @@ class TwinEnv(gym.Env):
             "distance_m": self.reward_fn.distance_m,
             "pos_enu_m": sim.state.pos_m[0].copy(),
         }
+
+
+def _start(value: SceneStart | dict | None) -> SceneStart | None:
+    if value is None or isinstance(value, SceneStart):
+        return value
+    return SceneStart.model_validate(value)
 
 
 class TaskReward:

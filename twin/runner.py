@@ -241,12 +241,15 @@ def twin_from_settings(
     from twin.dynamics import Wind
     from twin.sensors import SensorParams
 
+    wind = Wind(
+        mean_enu_mps=(ts.wind_east_mps, ts.wind_north_mps, 0.0),
+        gust_std_mps=ts.gust_std_mps,
+        turbulence_std_mps=ts.turbulence_std_mps,
+    )
     config = SimConfig(
         physics_hz=ts.physics_hz,
         seed=ts.seed,
-        wind=Wind(
-            mean_enu_mps=(ts.wind_east_mps, ts.wind_north_mps, 0.0), gust_std_mps=ts.gust_std_mps
-        ),
+        wind=wind if not wind.calm else None,  # calm settings: the scene's [wind]
         sensors=SensorParams(enabled=ts.sensor_noise, gps_rate_hz=ts.gps_rate_hz),
         gains=ControlGains(max_vel_xy_mps=ts.max_vel_xy_mps),
     )

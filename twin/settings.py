@@ -27,6 +27,7 @@ class TwinSettings(Section):
     wind_east_mps: float = 0.0
     wind_north_mps: float = 0.0
     gust_std_mps: float = Field(0.0, ge=0)
+    turbulence_std_mps: float = Field(0.0, ge=0)  # Dryden-like (twin.dynamics.Wind)
     sensor_noise: bool = True
     gps_rate_hz: float = Field(5.0, ge=1.0, le=20.0)
     max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.scene import Scene, load_scene
+from core.scene import Scene, SceneStart, load_scene
 from twin.commander import Commander, CommanderParams, Event
 from twin.control import MODE_NAMES, POSCTL, STABILIZED, ControlGains, Controller
 from twin.dynamics import CRASH_REASONS, Airframe, BodyState, Dynamics, Wind
@@ -42,7 +42,10 @@ class SimConfig:
     outer_every: int = 5  # position/velocity loop at physics_hz / 5 = 50 Hz
     slow_every: int = 5  # commander, battery, sensor drifts every 5 outer loops = 10 Hz
     seed: int = 0
-    wind: Wind = field(default_factory=Wind)
+    # None: the scene's `[wind]` and `[start]` (calm, the pad's centre facing east, unless
+    # the scene file says otherwise).
+    wind: Wind | None = None
+    start: SceneStart | None = None
     sensors: SensorParams = field(default_factory=SensorParams)
     gains: ControlGains = field(default_factory=ControlGains)
     commander: CommanderParams = field(default_factory=CommanderParams)
@@ -87,10 +90,20 @@ class Sim:
         self.n = n
         self.dt_s = 1.0 / cfg.physics_hz
         half = (self.scene.field.size_x_m / 2, self.scene.field.size_y_m / 2)
+        sw = self.scene.wind
+        self.wind = cfg.wind
+        if self.wind is None:
+            self.wind = Wind(
+                (sw.east_mps, sw.north_mps, 0.0),
+                sw.gust_std_mps,
+                sw.gust_tau_s,
+                sw.turbulence_std_mps,
+            )
+        self.start = cfg.start if cfg.start is not None else self.scene.start
         self.dynamics = Dynamics(
             airframe=cfg.airframe,
             dt_s=self.dt_s,
-            wind=cfg.wind,
+            wind=self.wind,
             obstacle_boxes_m=self.scene.obstacle_boxes_m(),
             net_half_extent_m=half if cfg.net_crashes else None,
             net_height_m=self.scene.field.net_height_m,
@@ -100,13 +113,15 @@ class Sim:
         # Called after every physics step with the sim and its time (the twin's flight
         # log samples its high-rate topics there); None costs nothing.
         self.on_physics_step: Callable[[Sim, float], None] | None = None
+        # Its own stream: a random start leaves the sensors' and the wind's draws as they were.
+        self._start_rng = np.random.default_rng([cfg.seed, 0x57A27])
         self.reset()
 
     def reset(self) -> None:
         cfg = self.config
         self.t_s = 0.0
         self.steps = 0
-        self.state: BodyState = self.dynamics.initial_state(self.n, self.scene.start_xy_m)
+        self.state: BodyState = self.dynamics.initial_state(self.n, *self._start_poses(self.n))
         self.controller = Controller(self.n, cfg.airframe, cfg.gains)
         self.commander = Commander(self.n, cfg.commander)
         self.sensors = Sensors(self.n, self.scene.home, cfg.sensors, self.rng)
@@ -124,7 +139,7 @@ class Sim:
         idx = np.nonzero(mask)[0]
         if not len(idx):
             return
-        fresh = self.dynamics.initial_state(len(idx), self.scene.start_xy_m)
+        fresh = self.dynamics.initial_state(len(idx), *self._start_poses(len(idx)))
         s = self.state
         for name in (
             "pos_m",
@@ -139,6 +154,8 @@ class Sim:
             "on_ground",
             "crash",
             "wind_mps",
+            "gust_mps",
+            "turbulence_mps",
         ):
             getattr(s, name)[idx] = getattr(fresh, name)
         self.dynamics.revive(s)
@@ -147,6 +164,15 @@ class Sim:
         self.sticks[idx] = [0.0, 0.0, 0.0, 0.5]
         self.est_pos_m, self.est_vel_mps = self.sensors.estimate(s.pos_m, s.vel_mps)
         self.controller.reset(mask, self.est_pos_m, s.R_world_body)
+
+    def _start_poses(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(xy (n, 2), heading (n,)) of `n` vehicles put on the start pad (`SceneStart`)."""
+        pad = self.scene.pads[0]
+        if not self.start.random:
+            return np.tile(pad.xy_m, (n, 1)), np.zeros(n)
+        xy = pad.xy_m + self._start_rng.uniform(-pad.size_m / 2, pad.size_m / 2, (n, 2))
+        span = np.radians(self.start.heading_deg)
+        return xy, self._start_rng.uniform(-span, span, n)
 
     # ---- inputs ----
     def set_sticks(
