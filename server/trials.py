@@ -10,13 +10,19 @@ station's analysis limiter, and stores the result in the session's `session.json
 The result says whether the trial is `valid` (no crash, no obstacle touched, landed on the
 pad) and how far from the pad's centre it landed. The score is read by anonymous pages:
 its texts name the session by its id, never by the server's folders.
+
+The chosen task is kept in the sessions folder (`CHOSEN_TASK_FILE`, beside the sessions it
+is written into), so that a restarted station flies on with it; a task its scene no
+longer has is dropped with a log line.
 """
 
 from __future__ import annotations
 
 import asyncio
 import datetime as dt
+import json
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +47,7 @@ from server.settings import Settings
 log = logging.getLogger(__name__)
 
 MAX_ATTEMPTS_SHOWN = 20
+CHOSEN_TASK_FILE = "chosen_task.json"  # in the sessions folder: {"scene": name, "task_id": n}
 
 
 def score_session(folder: Path, task: SessionTask) -> TrialScore:
@@ -92,8 +99,40 @@ class Trials:
         self._spawn = spawn
         self._limiter = limiter
         self._scoring = 0
+        self._chosen_file = None if recorder is None else recorder.store.root / CHOSEN_TASK_FILE
         if recorder is not None:
             recorder.session_end_hooks.append(self._on_session_end)
+        self._load_choice()
+
+    def _load_choice(self) -> None:
+        """The task chosen before the station last stopped, if its scene still has it."""
+        if self._chosen_file is None or not self._chosen_file.is_file():
+            return
+        try:
+            saved = json.loads(self._chosen_file.read_text())
+            if saved.get("scene") != self.scene.name:
+                log.info(
+                    "chosen task of scene %r not kept: the scene is now %r",
+                    saved.get("scene"),
+                    self.scene.name,
+                )
+                return
+            self.select(saved["task_id"])
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            log.warning("chosen task in %s not used: %s", self._chosen_file, exc)
+
+    def save_choice(self) -> None:
+        """Blocking: keep the chosen task for the next start (written whole, then renamed)."""
+        if self._chosen_file is None:
+            return
+        task_id = None if self.selected is None else self.selected.id
+        tmp = self._chosen_file.with_suffix(".tmp")
+        try:
+            self._chosen_file.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps({"scene": self.scene.name, "task_id": task_id}))
+            os.replace(tmp, self._chosen_file)
+        except OSError as exc:  # the choice still holds until the station stops
+            log.error("cannot keep the chosen task in %s: %s", self._chosen_file, exc)
 
     def select(self, task_id: int | None) -> SessionTask | None:
         """Choose the task for the next sessions (None: no task); KeyError if unknown."""

@@ -3,7 +3,8 @@
     GET  /api/scene     the station's field for the pilot's map (pads, obstacles, tasks)
     GET  /api/task      the chosen task, the scene's tasks, the last score, this day's
                         attempts at the chosen task and the paper's figures for it
-    POST /api/task      {"task_id": 1} or {"task_id": null} (control)
+    POST /api/task      {"task_id": 1} or {"task_id": null} (control); kept over a
+                        restart (server.trials.CHOSEN_TASK_FILE)
 
 The chosen task is written into every session that starts while it is chosen
 (`session.json` `task`); when such a session ends the station scores it (`score`).
@@ -11,11 +12,13 @@ The chosen task is written into every session that starts while it is chosen
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel, ConfigDict
 
+from analysis.compare import LOWER_IS_BETTER
 from companion.recording.meta import SessionTask, TrialScore
 from core.scene import bgr_to_rgb
 from server.auth import require_control_token
@@ -53,10 +56,13 @@ class TaskReply(BaseModel):
     selected: SessionTask | None
     tasks: list[TaskInfo]
     scoring: bool  # a finished session is being scored now
+    # The newest scored trial of the chosen task: this run's, else today's newest attempt
+    # (a restarted station still shows the last trial flown before it stopped).
     last_session: str | None
     last_score: TrialScore | None
     attempts: list[Attempt]  # today's scored sessions of the chosen task, newest first
     paper: dict[str, dict[str, float]] | None  # the paper's figures: physical, twin
+    lower_is_better: list[str]  # the result's fields where smaller is the better flight
 
 
 def _trials(request: Request) -> Trials:
@@ -67,7 +73,10 @@ def _trials(request: Request) -> Trials:
 
 async def _reply(trials: Trials) -> TaskReply:
     sel = trials.selected
+    attempts = [Attempt(**a) for a in await trials.attempts(sel.id)] if sel else []
     last = trials.last
+    if last is None and attempts:
+        last = (attempts[0].session, attempts[0].score)
     return TaskReply(
         selected=sel,
         tasks=[
@@ -87,8 +96,9 @@ async def _reply(trials: Trials) -> TaskReply:
         scoring=trials.scoring,
         last_session=last[0] if last else None,
         last_score=last[1] if last else None,
-        attempts=[Attempt(**a) for a in await trials.attempts(sel.id)] if sel else [],
+        attempts=attempts,
         paper=trials.paper(sel.analysis) if sel else None,
+        lower_is_better=sorted(LOWER_IS_BETTER),
     )
 
 
@@ -112,6 +122,7 @@ async def post_task(choice: TaskChoice, request: Request) -> TaskReply:
         raise BadRequest(
             f"No task {choice.task_id} in scene '{trials.scene.name}'; tasks: {known}."
         ) from None
+    await asyncio.to_thread(trials.save_choice)
     return await _reply(trials)
 
 
