@@ -83,8 +83,9 @@ def box_is_the_picture(p: dict) -> None:
 
 @pytest.mark.parametrize("size", [(1280, 720), (1280, 800), (1920, 1080)])
 def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station, browser, size):
-    """With a task selected (its procedure and steps fill the side column) the bottom
-    camera keeps the column's width at its own aspect ratio, on the screen."""
+    """With a task selected (its panel under the front camera) the bottom camera keeps the
+    column's width at its own aspect ratio, on the screen. At 720 px the front camera
+    gives up the height of the task panel, which is seen whole (tests/test_task_fit.py)."""
     base, shapes = station
     w, h = size
     page = browser.new_page(viewport={"width": w, "height": h})
@@ -100,11 +101,11 @@ def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station,
         p = pics[f"{name}-view"]
         check_aspect(p, shapes[name])
         assert p["visible"] >= 0.99, p  # the whole picture, on the screen without scrolling
-    assert pics["front-view"]["shownW"] >= 0.6 * w, pics["front-view"]
+    assert pics["front-view"]["shownW"] >= (0.55 if h <= 720 else 0.6) * w, pics["front-view"]
     bottom = pics["bottom-view"]
     box_is_the_picture(bottom)
     assert bottom["shownW"] >= 0.25 * w and bottom["ph"] >= 0.2 * h, bottom
-    # The task panel gave up height (it scrolls): the step the pilot is on is in view.
+    # The step the pilot is on is in view.
     inside = page.evaluate(
         """() => { const li = document.querySelector('#task-steps li.current');
         const r = li.getBoundingClientRect();

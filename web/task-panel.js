@@ -10,8 +10,12 @@
 // tolerance of the task's, and starts again when it leaves it), passed each obstacle on
 // the way (tasks that cross the field), landed and disarmed. The score says whether the
 // trial counts (valid: no crash, no obstacle touched, landed on the pad), how far from
-// the pad's centre it landed, and which figures are better when lower. Positions are metres east/north of the scene's home, which is
-// plenty exact over a 60 m field (an equirectangular projection).
+// the pad's centre it landed, and which figures are better when lower (all as the
+// station's analysis gives them; after a restart, the newest of today's trials). The panel
+// sits under the front camera, its procedure, map and score visible whole without
+// scrolling on a laptop, goggles' 1080p and a phone either way up (style.css). Positions
+// are metres east/north of the scene's home, which is plenty exact over a 60 m field (an
+// equirectangular projection).
 import { $, el, api, ApiError } from "/lib.js";
 
 const TAKEOFF_M = 0.5; // the analysis' airborne height (analysis.tasks.TaskParams)
@@ -34,15 +38,20 @@ const procedure = el("ol", { id: "task-procedure", class: "procedure" });
 const steps = el("ol", { id: "task-steps", class: "steps" });
 const map = el("canvas", { id: "task-map", width: 320, height: 200, "aria-label": "top-view map" });
 const score = el("div", { id: "task-score", class: "score" });
-body.append(procedure, steps, map, score);
-panel.append(el("div", { class: "task-head" }, toggle, select), body);
-$("side").prepend(panel);
+// The plan (what to fly), the map and the steps with the score side by side, under the
+// front camera (style.css places them per screen); on the goggles page, unseen, in #side.
+const plan = el("div", { class: "task-plan" }, el("div", { class: "task-head" }, toggle, select), procedure);
+const result = el("div", { class: "task-result" }, steps, score);
+body.append(map, result);
+panel.append(plan, body);
+if ($("main-col")) $("main-col").append(panel);
+else $("side").prepend(panel);
 
 toggle.addEventListener("click", () => {
-  body.hidden = !body.hidden;
+  body.hidden = procedure.hidden = !body.hidden;
   localStorage.setItem("fpv.task.hidden", body.hidden ? "1" : "");
 });
-body.hidden = localStorage.getItem("fpv.task.hidden") === "1";
+body.hidden = procedure.hidden = localStorage.getItem("fpv.task.hidden") === "1";
 
 select.addEventListener("change", async () => {
   const id = select.value === "" ? null : Number(select.value);
@@ -180,19 +189,9 @@ function render() {
   if (step !== currentStep) {
     currentStep = step;
     window.dispatchEvent(new CustomEvent("fpv:task-step", { detail: step }));
-    showInPanel(steps.querySelector("li.current"));
   }
   drawMap();
   renderScore();
-}
-
-// A short side column leaves the panel less than its height (it scrolls, style.css: the
-// bottom camera keeps its size): the step the pilot is on is scrolled into the panel's
-// view when it changes. Only the panel scrolls, never the page.
-function showInPanel(li) {
-  if (!li || panel.scrollHeight <= panel.clientHeight) return;
-  const r = li.getBoundingClientRect(), p = panel.getBoundingClientRect();
-  if (r.top < p.top || r.bottom > p.bottom) panel.scrollTop += r.top - p.top - (p.height - r.height) / 2;
 }
 
 function drawMap() {
@@ -256,7 +255,24 @@ function fmt(v, unit) {
   return v == null ? "--" : `${v.toFixed(unit === "s" ? 1 : 3)} ${unit}`;
 }
 
-const LOWER_IS_BETTER = "lower is better: distance, deviations, landing offset";
+// The figures of a scored trial, as analysis.tasks.TaskResult names them; a field the
+// station lists as lower-is-better (GET /api/task lower_is_better) carries a "\u2193".
+function figures(task, r) {
+  const rows = task.analysis === "hover"
+    ? [["hover_distance_m", "hover", "m"]]
+    : [["lateral_deviation_m", "lateral dev.", "m"]];
+  rows.push(["height_deviation_m", "height dev.", "m"]);
+  if (r.landing_accuracy_m != null) rows.push(["landing_accuracy_m", `landed from pad ${r.landing_pad}`, "m"]);
+  if (r.obstacle_contacts != null) rows.push(["obstacle_contacts", "obstacle contacts", ""]);
+  rows.push(["trial_time_s", "time", "s"]);
+  const lower = new Set(taskInfo.lower_is_better || []);
+  return rows.map(([key, name, unit]) => {
+    const v = r[key];
+    const text = unit ? fmt(v, unit) : String(v);
+    return el("span", { class: "figure", "data-field": key, title: lower.has(key) ? "lower is better" : null },
+      `${name} ${text}${lower.has(key) ? " \u2193" : ""}`);
+  });
+}
 
 function renderScore() {
   const task = taskInfo && taskInfo.selected;
@@ -267,32 +283,37 @@ function renderScore() {
   if (last && last.task === task.analysis) {
     if (last.ok) {
       const r = last.result;
-      const metric = task.analysis === "hover"
-        ? `hover ${fmt(r.hover_distance_m, "m")}, height dev. ${fmt(r.height_deviation_m, "m")}`
-        : `lateral dev. ${fmt(r.lateral_deviation_m, "m")}, height dev. ${fmt(r.height_deviation_m, "m")}`;
-      const landed = r.landing_accuracy_m == null ? "" : `, landed ${fmt(r.landing_accuracy_m, "m")} from pad ${r.landing_pad}`;
       const valid = r.valid !== false;
+      const parts = figures(task, r).flatMap((f, i) => (i ? [", ", f] : [f]));
       rows.push(el("p", { id: "task-result", class: valid ? "result" : "result bad", "data-valid": String(valid) },
-        el("b", {}, valid ? "Valid" : "Invalid"), ` trial: ${metric}${landed}, time ${fmt(r.trial_time_s, "s")}`));
-      if (!valid) rows.push(el("p", { id: "task-invalid", class: "result bad" }, `Does not count: ${r.invalid_reasons.join("; ")}`));
-      rows.push(el("p", { class: "note" }, LOWER_IS_BETTER));
+        el("b", { class: "verdict" }, valid ? "Valid" : "Invalid"), " trial: ", ...parts));
+      if (!valid) {
+        rows.push(el("p", { id: "task-invalid", class: "result bad" }, `Does not count: ${r.invalid_reasons.join("; ")}`));
+      }
     } else {
       rows.push(el("p", { id: "task-result", class: "result bad" }, `Last trial not scored: ${last.reason}`));
     }
   }
+  // One line of notes: which way is better, the paper's figures, today's attempts (folded).
+  const notes = [];
+  if (last && last.ok && last.task === task.analysis) notes.push("\u2193 lower is better. ");
   const paper = taskInfo.paper;
   if (paper) {
     const key = task.analysis === "hover" ? "hover_distance_m" : "lateral_deviation_m";
     const name = task.analysis === "hover" ? "hover" : "lateral dev.";
-    rows.push(el("p", { class: "note" },
-      `Paper: ${name} ${fmt(paper.physical[key], "m")} physical, ${fmt(paper.twin[key], "m")} twin; ` +
-      `time ${fmt(paper.physical.trial_time_s, "s")} / ${fmt(paper.twin.trial_time_s, "s")}`));
+    notes.push(`Paper: ${name} ${fmt(paper.physical[key], "m")} physical, ${fmt(paper.twin[key], "m")} twin; ` +
+      `time ${fmt(paper.physical.trial_time_s, "s")} / ${fmt(paper.twin.trial_time_s, "s")}`);
   }
+  if (notes.length) rows.push(el("p", { class: "note" }, ...notes));
   if (taskInfo.attempts.length) {
-    rows.push(el("ul", { id: "task-attempts", class: "attempts" },
+    // Today's attempts fold away: the newest trial's score above is what must be seen.
+    const list = el("ul", { id: "task-attempts", class: "attempts" },
       ...taskInfo.attempts.map((a) => el("li", {}, `${a.start_utc.slice(11, 19)} ` +
         (a.score.ok ? (task.analysis === "hover" ? fmt(a.score.result.hover_distance_m, "m") : fmt(a.score.result.lateral_deviation_m, "m")) + `, ${fmt(a.score.result.trial_time_s, "s")}` +
-          (a.score.result.valid === false ? " (invalid)" : "") : `not scored`)))));
+          (a.score.result.valid === false ? " (invalid)" : "") : `not scored`))));
+    const open = score.querySelector("details.attempts-box");
+    rows.push(el("details", { class: "attempts-box", open: Boolean(open && open.open) },
+      el("summary", {}, `Today: ${taskInfo.attempts.length} attempt${taskInfo.attempts.length > 1 ? "s" : ""}`), list));
   }
   score.replaceChildren(...rows);
 }

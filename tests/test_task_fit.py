@@ -1,0 +1,128 @@
+"""The flight task on the pilot page, in headless Chromium against a real station process:
+the task chosen survives the station's restart, and the restarted station's page shows
+the procedure, the top-view map and the score of the last trial whole, without
+scrolling, at a laptop's 1280x720, goggles' 1920x1080 and a phone either way up. The
+score is the station's own scoring of a session (server.trials) of a trial that crashed:
+invalid, the analysis' reasons, its landing accuracy and which figures are better lower."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+
+import httpx
+import pytest
+from playwright.sync_api import expect
+
+from companion.recording.meta import session_task
+from core.scene import load_scene
+from server.trials import _score_and_store
+from tests import synthetic as syn
+from tests.station_process import serve_station
+
+TOKEN = "task-fit-token"
+SIZES = {
+    "laptop": {"viewport": {"width": 1280, "height": 720}},
+    "goggles": {"viewport": {"width": 1920, "height": 1080}},
+    "phone-portrait": {
+        "viewport": {"width": 390, "height": 844},
+        "is_mobile": True,
+        "has_touch": True,
+        "device_scale_factor": 2,
+    },
+    "phone-landscape": {
+        "viewport": {"width": 844, "height": 390},
+        "is_mobile": True,
+        "has_touch": True,
+        "device_scale_factor": 2,
+    },
+}
+
+# Each element's box: on the screen at the first scroll position, and what is drawn at its
+# corners and centre is the element itself (nothing covers it, no scrolling box clips it).
+SEEN_WHOLE = """(ids) => ids.map((id) => {
+  const e = document.getElementById(id);
+  if (!e) return [id, 'missing'];
+  const r = e.getBoundingClientRect();
+  if (r.width < 4 || r.height < 4) return [id, 'empty'];
+  if (r.left < 0 || r.top < 0 || r.right > innerWidth + 0.5 || r.bottom > innerHeight + 0.5)
+    return [id, `off-screen ${r.left},${r.top},${r.right},${r.bottom} of ${innerWidth}x${innerHeight}`];
+  const points = [[r.left + 2, r.top + 2], [r.right - 2, r.top + 2], [r.left + 2, r.bottom - 2],
+    [r.right - 2, r.bottom - 2], [(r.left + r.right) / 2, (r.top + r.bottom) / 2]];
+  for (const [x, y] of points) {
+    const hit = document.elementFromPoint(x, y);
+    if (!hit || !(hit === e || e.contains(hit)))
+      return [id, `covered at ${x},${y} by ${hit ? hit.outerHTML.slice(0, 80) : 'nothing'}`];
+  }
+  return [id, 'ok'];
+})"""
+
+
+def crashed_a_to_b_session(root):
+    """A recorded A-to-B trial with the vehicle's crash report, chosen as task 2 of the
+    station's field and scored by the station's own scoring."""
+    scene = load_scene(None)
+    task = session_task(scene, None, scene.task(2))
+    now = dt.datetime.now(dt.UTC)
+    sid = now.strftime("%Y%m%dT%H%M%SZ") + "_sim"
+    meta = {
+        "id": sid,
+        "source": "sim",
+        "start_wall": now.timestamp(),
+        "start_utc": now.isoformat(timespec="seconds"),
+        "task": task.model_dump(mode="json"),
+    }
+    flight = syn.a_to_b_flight()
+    folder = syn.write_session(flight, root / sid, wall_t0=now.timestamp(), meta=meta)
+    crash_at = float(flight.t_s[len(flight.t_s) // 2])
+    (folder / "messages.csv").write_text(
+        f"t_s,t_wall,severity,kind,text\n{crash_at:.3f},,2,statustext,CRASH: obstacle\n"
+    )
+    score = _score_and_store(folder, task)
+    assert score.ok and score.result["valid"] is False, score
+    return score
+
+
+@pytest.mark.timeout(240)
+def test_task_survives_a_restart_and_its_panel_fits_every_screen(tmp_path, browser):
+    root = tmp_path / "sessions"
+    score = crashed_a_to_b_session(root)
+    args = ["--source", "none", "--token", TOKEN]
+    env = {"FPV_RECORDING__SESSIONS_DIR": str(root), "FPV_RECORDING__MIN_FREE_MB": "0"}
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    with serve_station(args, env) as station:
+        assert httpx.get(f"{station.base}/api/task").json()["selected"] is None
+        reply = httpx.post(f"{station.base}/api/task", json={"task_id": 2}, headers=auth)
+        assert reply.status_code == 200, reply.text
+    with serve_station(args, env) as station:
+        task = httpx.get(f"{station.base}/api/task").json()
+        assert task["selected"]["id"] == 2, task["selected"]
+        assert task["last_score"]["result"]["valid"] is False  # the newest of today's trials
+        for name, options in SIZES.items():
+            context = browser.new_context(**options)
+            try:
+                page = context.new_page()
+                page.goto(f"{station.base}/")
+                expect(page.locator("#task-select")).to_have_value("2")
+                result = page.locator("#task-result")
+                expect(result).to_have_attribute("data-valid", "false")
+                expect(result).to_contain_text("Invalid")
+                accuracy = score.result["landing_accuracy_m"]
+                expect(result).to_contain_text(f"landed from pad landing {accuracy:.3f} m")
+                lower = result.locator("[data-field='lateral_deviation_m']")
+                assert lower.get_attribute("title") == "lower is better"
+                expect(page.locator("#task-invalid")).to_contain_text("reported a crash")
+                expect(page.locator("#task-procedure li")).to_have_count(4)
+                seen = dict(page.evaluate(SEEN_WHOLE, ["task-procedure", "task-map", "task-score"]))
+                assert seen == dict.fromkeys(seen, "ok"), (name, seen)
+            finally:
+                context.close()
+    # The choice is a file of the sessions folder, beside the sessions it goes into.
+    saved = json.loads((root / "chosen_task.json").read_text())
+    assert saved["task_id"] == 2
+    # Set to none, it stays none.
+    with serve_station(args, env) as station:
+        reply = httpx.post(f"{station.base}/api/task", json={"task_id": None}, headers=auth)
+        assert reply.status_code == 200, reply.text
+    with serve_station(args, env) as station:
+        assert httpx.get(f"{station.base}/api/task").json()["selected"] is None
