@@ -80,6 +80,11 @@ class Comparison:
             for r in self.results
             if not r.valid
         ]
+        lines += [
+            f"- {r.label}, uncertain: {'; '.join(r.uncertain)}."
+            for r in self.results
+            if r.uncertain
+        ]
         lower = [h for n, h in self.columns if n in LOWER_IS_BETTER]
         lines.append(f"Lower is better: {', '.join(lower)}.")
         return "\n".join(lines) + "\n"

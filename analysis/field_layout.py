@@ -110,18 +110,27 @@ def load_field_layout(path: str | Path | None = None) -> FieldLayout:
 
 
 def obstacle_contacts(
-    xyz_m: NDArray[np.float64], obstacles: tuple[Obstacle, ...], vehicle_radius_m: float
+    xyz_m: NDArray[np.float64],
+    obstacles: tuple[Obstacle, ...],
+    vehicle_radius_m: float,
+    margin_m: float | NDArray[np.float64] = 0.0,
 ) -> int:
     """How many times the vehicle (a sphere of `vehicle_radius_m`) enters an obstacle's
-    box; each entry counts once however long it stays. Obstacles in the track's frame."""
+    box; each entry counts once however long it stays. Obstacles in the track's frame.
+
+    `margin_m` (one value, or one per sample): how far the measured position may be
+    from the true one horizontally. A positive margin counts only entries that hold
+    wherever in that margin the vehicle truly was (certain contacts); a negative one,
+    entries that could have happened (possible contacts)."""
     contacts = 0
     for o in obstacles:
         c, s = np.cos(-o.yaw_rad), np.sin(-o.yaw_rad)
         dx, dy = xyz_m[:, 0] - o.x_m, xyz_m[:, 1] - o.y_m
         u, v = c * dx - s * dy, s * dx + c * dy  # in the box's own axes
+        reach = vehicle_radius_m - np.asarray(margin_m, dtype=np.float64)
         inside = (
-            (np.abs(u) <= o.width_m / 2 + vehicle_radius_m)
-            & (np.abs(v) <= o.depth_m / 2 + vehicle_radius_m)
+            (np.abs(u) <= o.width_m / 2 + reach)
+            & (np.abs(v) <= o.depth_m / 2 + reach)
             & (xyz_m[:, 2] - vehicle_radius_m <= o.height_m)
         )
         contacts += int(inside[0]) + int(np.count_nonzero(inside[1:] & ~inside[:-1]))

@@ -10,10 +10,10 @@ figure 8s) is listed in `skipped` with the reason, unless it is the only one ask
 
 The field (pads and obstacles of the twin's scene) is used for a flight that starts
 within `scene_radius_m` of one of its pads: its landing pad then gives the +x direction
-(unless a reference is given), plots draw it, and twin flights get their obstacle
-contacts counted and their landing judged on or off the pad. Neither is judged for
-physical flights: the scene only approximates the real field, and GPS noise would invent
-faults. The vehicle's crash reports (its STATUSTEXTs: a session's messages.csv, as its
+(unless a reference is given), plots draw it, and every flight gets its obstacle
+contacts counted and its landing judged on or off the pad, within the GPS's error
+(`analysis.tasks.gps_margin`: a judgement that error could swing is named as uncertain,
+not held against the trial). The vehicle's crash reports (its STATUSTEXTs: a session's messages.csv, as its
 quality flags read them, or a bare tlog's own, through `open_recording`) make the flight
 they fall in invalid, whichever file the flight was read from.
 """
@@ -187,9 +187,7 @@ def _analyze_one(
         min_reference_m=p.margin_m,
         ground_height_m=p.airborne_height_m,
     )
-    # Draw the field for every flight, judge contacts and landing for the twin only.
-    twin = track.platform == "twin"
-    result = analyze(a, task, p, twin, crashes, _landing_pad(track.meta))
+    result = analyze(a, task, p, True, crashes, _landing_pad(track.meta))
     return a, replace(result, flight=track.meta.get("flight"))
 
 

@@ -21,9 +21,14 @@
 - Landing accuracy: horizontal distance from the landing point (where the vehicle sat
   when it disarmed, else its last airborne sample) to the centre of its landing pad (the
   session's task's end pad, else the pad nearest take-off for tasks that return, else
-  the nearest other pad). Contacts and "off the pad" are judged only where the field is
-  the one flown (`judge_field`): for a physical flight the scene only approximates the
-  real pads and obstacles, and GPS noise would invent faults.
+  the nearest other pad).
+- Contacts and "off the pad" are judged for every flight on a known field, with a margin
+  for the GPS's error (`gps_margin`): the receiver's recorded horizontal accuracy
+  (GPS_RAW_INT `h_acc`) where the log has it, else `TaskParams.gps_accuracy_m` for a
+  physical flight and none for the twin (its field is the one flown). A fault makes the
+  trial invalid only when it holds wherever within the margin the vehicle truly was; one
+  the GPS's error could undo (a pass that might have grazed an obstacle, a landing near
+  the pad's edge) is named in `uncertain` instead, and the trial stays valid.
 """
 
 from __future__ import annotations
@@ -34,11 +39,13 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 import numpy as np
+from numpy.typing import NDArray
 
 from analysis.errors import TaskWindowError, TooFewPointsError, UnknownTaskError
 from analysis.field_layout import FieldLayout, Pad, obstacle_contacts
 from analysis.flight_frame import AlignedTrack, HeightSource
 
+Array = NDArray[np.float64]
 TaskName = Literal["hover", "a-to-b", "obstacle", "figure8"]
 TASKS: tuple[str, ...] = get_args(TaskName)
 # Tasks that land where they took off; the others land on another pad.
@@ -92,6 +99,9 @@ class TaskParams:
     min_window_points: int = 3
     speed_span_s: float = 1.0
     vehicle_radius_m: float = 0.3  # F450: 450 mm motor-to-motor, props reach ~0.35 m
+    # The GPS's horizontal error assumed for a physical flight whose log does not record
+    # it (`h_acc`): a u-blox M8 receiver's stated 2.5 m (CEP), the paper's class of GPS.
+    gps_accuracy_m: float = 2.5
     # What decides take-off, landing, reaching the hover height and obstacle contacts:
     # "pilot" = the altitude the pilot saw (since arming) where recorded, else GPS z;
     # "gps" = GPS z only. The deviations are always GPS z, as in the paper.
@@ -140,10 +150,18 @@ class TaskResult:
     invalid_reasons: tuple[str, ...] = ()  # why not valid, in words
     landing_pad: str | None = None  # the pad the trial should end on, when the field is known
     landing_accuracy_m: float | None = None  # landing point to that pad's centre (horizontal)
+    # The GPS error allowed when judging contacts and the landing (median over the trial;
+    # None: nothing judged), and the judgements that error could swing, in words.
+    gps_margin_m: float | None = None
+    uncertain: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         """As JSON gives it back (lists, not tuples)."""
-        return {**dataclasses.asdict(self), "invalid_reasons": list(self.invalid_reasons)}
+        return {
+            **dataclasses.asdict(self),
+            "invalid_reasons": list(self.invalid_reasons),
+            "uncertain": list(self.uncertain),
+        }
 
 
 def check_task(task: str) -> str:
@@ -157,6 +175,8 @@ class Landing:
     pad: str
     accuracy_m: float  # horizontal distance from the pad's centre
     on_pad: bool  # the vehicle (a disc of `vehicle_radius_m`) overlaps the pad's square
+    margin_m: float = 0.0  # the GPS error allowed at the landing point
+    uncertain: bool = False  # on or off the pad depends on where within the margin it was
 
 
 def landing_index(a: AlignedTrack, i_land: int) -> int:
@@ -169,15 +189,21 @@ def landing_index(a: AlignedTrack, i_land: int) -> int:
 
 
 def landing(
-    a: AlignedTrack, task: str, trial: tuple[int, int], p: TaskParams, pad_name: str | None
+    a: AlignedTrack,
+    task: str,
+    trial: tuple[int, int],
+    p: TaskParams,
+    pad_name: str | None,
+    margin_m: Array | None = None,
 ) -> Landing | None:
     """The landing against the field's pad (see the module docstring); None without a
-    field or pads."""
+    field or pads. `margin_m`: the GPS error allowed at each sample (none: 0)."""
     field = a.field
     if field is None or not field.pads:
         return None
     i_to, i_land = trial
-    at = a.xyz_m[landing_index(a, i_land), :2]
+    i_rest = landing_index(a, i_land)
+    at = a.xyz_m[i_rest, :2]
     pad = field.pad(pad_name) if pad_name else None
     if pad is None:
         pad = _expected_pad(field, task, a.xyz_m[i_to, :2], at)
@@ -187,7 +213,9 @@ def landing(
     c, s = np.cos(-a.rotation_rad), np.sin(-a.rotation_rad)
     u, v = c * d[0] - s * d[1], s * d[0] + c * d[1]
     reach = pad.size_m / 2 + p.vehicle_radius_m
-    return Landing(pad.name, float(np.hypot(*d)), bool(abs(u) <= reach and abs(v) <= reach))
+    off_by = max(abs(u), abs(v)) - reach  # > 0: off the pad's square
+    m = float(margin_m[i_rest]) if margin_m is not None else 0.0
+    return Landing(pad.name, float(np.hypot(*d)), bool(off_by <= 0), m, bool(abs(off_by) < m))
 
 
 def _expected_pad(field: FieldLayout, task: str, takeoff_xy, landed_xy) -> Pad:
@@ -203,16 +231,46 @@ def _expected_pad(field: FieldLayout, task: str, takeoff_xy, landed_xy) -> Pad:
 def invalid_reasons(
     crashes: Sequence[tuple[float | None, str]], contacts: int | None, land: Landing | None
 ) -> tuple[str, ...]:
-    """Why a trial is not valid, in words (empty: valid)."""
+    """Why a trial is not valid, in words (empty: valid). A landing whose side of the pad's
+    edge the GPS's error could swing is no reason (`uncertain_judgements`)."""
     out = []
     for t_s, text in crashes[:1]:
         when = f" at {t_s:.1f} s" if t_s is not None else ""
         out.append(f"the vehicle reported a crash{when} ({text})")
     if contacts:
         out.append(f"it touched an obstacle ({contacts} contact{'s' if contacts > 1 else ''})")
-    if land is not None and not land.on_pad:
+    if land is not None and not land.on_pad and not land.uncertain:
         out.append(f"it landed off pad '{land.pad}', {land.accuracy_m:.1f} m from its centre")
     return tuple(out)
+
+
+def uncertain_judgements(
+    contacts: int | None, possible: int, margin_m: float, land: Landing | None
+) -> tuple[str, ...]:
+    """The judgements the GPS's error could swing, in words."""
+    out = []
+    if contacts is not None and possible > contacts:
+        n = possible - contacts
+        out.append(
+            f"it may have touched an obstacle ({n} pass{'es' if n > 1 else ''} within the "
+            f"GPS's {margin_m:.1f} m), not counted"
+        )
+    if land is not None and land.uncertain:
+        side = "on" if land.on_pad else "off"
+        out.append(
+            f"it landed {land.accuracy_m:.1f} m from pad '{land.pad}''s centre, {side} the "
+            f"pad by less than the GPS's {land.margin_m:.1f} m: on or off is not known"
+        )
+    return tuple(out)
+
+
+def gps_margin(a: AlignedTrack, p: TaskParams) -> Array:
+    """The GPS's horizontal error allowed at each sample when judging contacts and the
+    landing: the recorded accuracy (`h_acc`) where the log has it, else
+    `p.gps_accuracy_m` for a physical flight and 0 for the twin."""
+    fallback = 0.0 if a.track.platform == "twin" else p.gps_accuracy_m
+    h_acc = a.track.h_acc_m
+    return np.where(np.isfinite(h_acc) & (h_acc > 0), h_acc, fallback)
 
 
 def trial_span(a: AlignedTrack, p: TaskParams) -> tuple[int, int]:
@@ -287,8 +345,9 @@ def analyze(
     """The paper's metrics (and the extras) for one aligned flight, and whether the trial
     is valid. `crashes`: the vehicle's crash reports during this flight (session time,
     text). Obstacle contacts are counted, and a landing off the pad judged, when
-    `judge_field` and the field is known (else contacts are None); `landing_pad` names
-    the pad the trial should end on (else it is inferred, see the module docstring)."""
+    `judge_field` and the field is known (else contacts are None), within the GPS's
+    error (`gps_margin`); `landing_pad` names the pad the trial should end on (else it is
+    inferred, see the module docstring)."""
     p = params or TaskParams()
     check_task(task)
     trial = trial_span(a, p)
@@ -300,13 +359,19 @@ def analyze(
     t_fly = t[i_to : i_land + 1]
     trial_s = float(t[i_land] - t[i_to])
     path_m = float(np.sum(np.linalg.norm(np.diff(fly, axis=0), axis=1)))
-    contacts = None
+    contacts, possible = None, 0
+    margin = gps_margin(a, p)
     if judge_field and a.field is not None and a.field.obstacles:
         body = fly.copy()
         body[:, 2] = a.height_m(p.height_source)[i_to : i_land + 1]
-        contacts = obstacle_contacts(body, a.field.obstacles, p.vehicle_radius_m)
-    land = landing(a, task, trial, p, landing_pad)
-    reasons = invalid_reasons(crashes, contacts, land if judge_field else None)
+        m = margin[i_to : i_land + 1]
+        contacts = obstacle_contacts(body, a.field.obstacles, p.vehicle_radius_m, m)
+        possible = obstacle_contacts(body, a.field.obstacles, p.vehicle_radius_m, -m)
+    land = landing(a, task, trial, p, landing_pad, margin)
+    judged = land if judge_field else None
+    reasons = invalid_reasons(crashes, contacts, judged)
+    trial_margin = float(np.median(margin[i_to : i_land + 1]))
+    unsure = uncertain_judgements(contacts, possible, trial_margin, judged)
     return TaskResult(
         task=task,
         label=a.label,
@@ -337,6 +402,8 @@ def analyze(
         invalid_reasons=reasons,
         landing_pad=land.pad if land else None,
         landing_accuracy_m=land.accuracy_m if land else None,
+        gps_margin_m=trial_margin if judge_field and a.field is not None else None,
+        uncertain=unsure,
     )
 
 

@@ -57,6 +57,8 @@ class Track:
     # Session clock of the first telemetry.csv row holding the sample: at any instant the
     # row shows this sample, and the frames are stamped on this clock (None: `t_s`).
     row_t_s: Array = None  # type: ignore[assignment]
+    # The GPS's horizontal uncertainty (m) where the receiver reported it, else NaN.
+    h_acc_m: Array = None  # type: ignore[assignment]
     # What the vehicle said (its STATUSTEXTs: session time, text), from the recording's
     # messages.csv or replayed from its tlog (`Recording.vehicle_texts`).
     vehicle_texts: tuple[tuple[float | None, str], ...] = ()
@@ -64,6 +66,8 @@ class Track:
     def __post_init__(self) -> None:
         if self.row_t_s is None:
             object.__setattr__(self, "row_t_s", self.t_s)
+        if self.h_acc_m is None:
+            object.__setattr__(self, "h_acc_m", np.full(self.t_s.size, np.nan))
 
     def __len__(self) -> int:
         return int(self.t_s.size)
@@ -93,6 +97,7 @@ _ARRAY_FIELDS = (
     "ground_speed_mps",
     "climb_mps",
     "row_t_s",
+    "h_acc_m",
 )
 
 
@@ -176,6 +181,7 @@ def load_telemetry_csv(
         "rel": ["altitude.relative_alt_m", "global_position.relative_alt_m"],
         "speed": ["vfr_hud.ground_speed_mps", "gps.ground_speed_mps"],
         "climb": ["vfr_hud.climb_mps"],
+        "h_acc": ["gps.h_acc_m"],
         "vehicle_t": [f"{pos}.time_usec", f"{pos}.time_boot_ms"],
     }
     chosen = {k: next((c for c in cands if c in index), None) for k, cands in wanted.items()}
@@ -226,6 +232,7 @@ def load_telemetry_csv(
         relative_alt_m=column("rel")[ok],
         ground_speed_mps=column("speed")[ok],
         climb_mps=column("climb")[ok],
+        h_acc_m=column("h_acc")[ok],
     )
 
 

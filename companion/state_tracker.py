@@ -291,6 +291,7 @@ class StateTracker:
             alt_m=m.alt * 1e-3,
             eph_m=_scaled(m.eph, 0.01, _UINT16_UNKNOWN),
             epv_m=_scaled(m.epv, 0.01, _UINT16_UNKNOWN),
+            h_acc_m=_scaled(getattr(m, "h_acc", 0) or 0, 1e-3, 0),
             ground_speed_mps=_scaled(m.vel, 0.01, _UINT16_UNKNOWN),
             course_deg=_scaled(m.cog, 0.01, _UINT16_UNKNOWN),
         )

@@ -61,6 +61,9 @@ class GpsRaw:
     alt_m: float | None = None  # MSL
     eph_m: float | None = None
     epv_m: float | None = None
+    # The receiver's horizontal position uncertainty (MAVLink 2 `h_acc`); None: not sent
+    # (MAVLink 1, or 0: an autopilot that does not know it).
+    h_acc_m: float | None = None
     ground_speed_mps: float | None = None
     course_deg: float | None = None
 

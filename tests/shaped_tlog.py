@@ -238,6 +238,7 @@ def vehicle_flight(
     alt_error_m: np.ndarray | None = None,
     mavlink1: bool = False,
     rezero_m: float = 0.0,
+    h_acc_m: float | None = None,
 ) -> Shaper:
     """A dense flight (`tests/synthetic.Flight`: positions and the armed state) as its
     autopilot sends it at a real log's rates: ATTITUDE 50 Hz, GLOBAL_POSITION_INT and
@@ -261,6 +262,8 @@ def vehicle_flight(
       arming, and ArduPilot re-zeroes it at arming (its barometer and height datum, and
       its home set there): until then `relative_alt` reads it, and so does `alt` before
       the origin is set (after it, the origin's height keeps `alt` continuous).
+    - `h_acc_m`: the GPS's horizontal accuracy in GPS_RAW_INT `h_acc` (MAVLink 2; None:
+      0, which says the receiver does not know it).
     """
     log = Shaper(t0=t0)
     ap = log.sender(1, 1, mavlink1=mavlink1)
@@ -300,6 +303,7 @@ def vehicle_flight(
                 mav.gps_raw_int_encode(
                     int((boot_s + now) * 1e6), 3, lat, lon, int(round(gps_alt * 1000)),
                     80, 120, int(round(100 * np.hypot(ve, vn))), 0, 14,
+                    h_acc=0 if h_acc_m is None else int(round(h_acc_m * 1000)),
                 )
             )  # fmt: skip
         if tick % 25 == 0:

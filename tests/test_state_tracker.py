@@ -311,7 +311,7 @@ def test_the_twins_mah_used_reaches_the_state():
 
 # The fields each message carries: the only ones it may change. A field not named here
 # (one added to a group later, or another message's) must keep its value.
-_GPS = ("fix_type", "satellites", "lat_deg", "lon_deg", "alt_m", "eph_m", "epv_m")
+_GPS = ("fix_type", "satellites", "lat_deg", "lon_deg", "alt_m", "eph_m", "epv_m", "h_acc_m")
 _POSITION = ("lat_deg", "lon_deg", "alt_m", "relative_alt_m", "vx_mps", "vy_mps", "vz_mps")
 _PILOT = ("relative_alt_m", "reference_alt_m", "reference", "retaken_because")
 CARRIED = {
