@@ -8,6 +8,7 @@ through the station's framer and tracker, and through a real replay into a sessi
 from __future__ import annotations
 
 import csv
+import json
 
 import httpx
 import numpy as np
@@ -90,6 +91,8 @@ def test_the_session_records_which_altitude_measured_the_flight(tmp_path):
     with open(tmp_path / "sessions" / session["id"] / layout.TELEMETRY_CSV) as fh:
         rows = [r for r in csv.DictReader(fh) if r["heartbeat.armed"] == "1"]
     assert {r["altitude.source"] for r in rows} == {"relative_alt"}
+    meta = json.loads((tmp_path / "sessions" / session["id"] / layout.SESSION_JSON).read_text())
+    assert meta["arming"]["altitude_source"] == "relative_alt"  # said once, for the flight
     heights = [float(r["altitude.relative_alt_m"]) for r in rows]
     assert max(heights) == pytest.approx(HEIGHT_M, abs=0.2)
     assert abs(heights[-1]) < 0.3  # on the ground at disarming, not -3.6 m

@@ -76,6 +76,10 @@ class Arming(_Model):
     reference_alt_m: float | None = None
     home_lat_deg: float | None = None
     home_lon_deg: float | None = None
+    # What measured the pilot's altitude (the state's `altitude.source`): "alt", or
+    # "relative_alt" where the two disagreed on the ground (old firmware's GPS altitude
+    # in `alt`). None: a session written before it was recorded.
+    altitude_source: str | None = None
 
 
 class Missed(_Model):

@@ -438,12 +438,14 @@ class RecordingSession:
                 self._arming is None
                 or self._was_armed is False
                 or self._arming.reference_alt_m != alt.reference_alt_m
+                or self._arming.altitude_source != alt.source
             ):
                 self._arming = Arming(
                     t_s=round(now_mono - self.t0_mono, 3),
                     reference_alt_m=alt.reference_alt_m,
                     home_lat_deg=alt.home_lat_deg,
                     home_lon_deg=alt.home_lon_deg,
+                    altitude_source=alt.source,
                 )
         self._was_armed = armed
 
