@@ -8,7 +8,8 @@ FROM python:3.11-slim
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
 WORKDIR /app
 COPY pyproject.toml README.md ./
-# Every package pyproject.toml installs ([tool.setuptools.packages.find]).
+# Every folder pyproject.toml installs ([tool.setuptools.package-dir]).
+COPY fpv_station ./fpv_station
 COPY core ./core
 COPY companion ./companion
 COPY twin ./twin

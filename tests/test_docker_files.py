@@ -18,11 +18,20 @@ def dockerfile() -> str:
 
 def test_dockerfile_copies_every_installed_package():
     pyproject = tomllib.loads((REPO / "pyproject.toml").read_text())
-    packages = [
-        p.rstrip("*") for p in pyproject["tool"]["setuptools"]["packages"]["find"]["include"]
-    ]
+    folders = pyproject["tool"]["setuptools"]["package-dir"].values()
     copied = set(re.findall(r"^COPY (\w+) \./\1$", dockerfile(), re.M))
-    assert set(packages) == copied
+    assert set(folders) == copied
+
+
+def test_pyproject_lists_every_package_of_the_tree():
+    """A package left out of pyproject.toml's list would be missing from the wheel."""
+    setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    in_tree = {
+        f"{name}.{'.'.join(init.parent.relative_to(REPO / folder).parts)}".rstrip(".")
+        for name, folder in setuptools["package-dir"].items()
+        for init in (REPO / folder).rglob("__init__.py")
+    }
+    assert set(setuptools["packages"]) == in_tree
 
 
 def test_dockerfile_exposes_every_default_port_and_checks_health():
