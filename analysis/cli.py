@@ -20,9 +20,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from analysis.errors import AnalysisError
-from analysis.tasks import TASKS, TaskParams
-from core.geodesy import LatLonError, parse_latlon
+from fpv_station.analysis.errors import AnalysisError
+from fpv_station.analysis.tasks import TASKS, TaskParams
+from fpv_station.core.geodesy import LatLonError, parse_latlon
 
 
 def _latlon_arg(text: str) -> tuple[float, float]:
@@ -93,7 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from analysis.report import analyze_paths
+    from fpv_station.analysis.report import analyze_paths
 
     params = TaskParams(
         hover_height_m=args.hover_height,

@@ -8,8 +8,8 @@ import io
 import json
 from dataclasses import dataclass
 
-from analysis.errors import AnalysisError
-from analysis.tasks import TASK_TITLES, TaskResult
+from fpv_station.analysis.errors import AnalysisError
+from fpv_station.analysis.tasks import TASK_TITLES, TaskResult
 
 PLATFORM_NAMES = {"physical": "Physical quadcopter", "twin": "Digital twin"}
 Column = tuple[str, str]  # (TaskResult field, heading)

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from analysis.errors import TrackLoadError
-from core.geodesy import enu_to_geodetic, geodetic_to_enu, rotate_about_up
-from core.scene import DEFAULT_PAD_SIZE_M, Scene, SceneError, load_scene
+from fpv_station.analysis.errors import TrackLoadError
+from fpv_station.core.geodesy import enu_to_geodetic, geodetic_to_enu, rotate_about_up
+from fpv_station.core.scene import DEFAULT_PAD_SIZE_M, Scene, SceneError, load_scene
 
 
 @dataclass(frozen=True)

@@ -27,10 +27,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from analysis.errors import TooFewPointsError
-from analysis.field_layout import FieldLayout
-from analysis.track import Track
-from core.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
+from fpv_station.analysis.errors import TooFewPointsError
+from fpv_station.analysis.field_layout import FieldLayout
+from fpv_station.analysis.track import Track
+from fpv_station.core.geodesy import geodetic_to_enu, heading_alignment_rad, rotate_about_up
 
 Array = NDArray[np.float64]
 ReferenceKind = Literal["given", "scene", "landing", "farthest", "none"]

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from analysis.track import Track
+from fpv_station.analysis.track import Track
 
 Array = NDArray[np.float64]
 

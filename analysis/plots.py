@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from analysis.field_layout import FieldLayout, Obstacle
-from analysis.flight_frame import AlignedTrack
-from analysis.tasks import TASK_TITLES, TaskResult
+from fpv_station.analysis.field_layout import FieldLayout, Obstacle
+from fpv_station.analysis.flight_frame import AlignedTrack
+from fpv_station.analysis.tasks import TASK_TITLES, TaskResult
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

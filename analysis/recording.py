@@ -34,14 +34,14 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20.ardupilotmega import MAVError, MAVLink_unknown
 
-from analysis.csvcols import CsvColumns, to_float
-from analysis.errors import TrackLoadError
-from companion.recording import frame_pack, layout
-from companion.recording.flags import vehicle_texts
-from companion.recording.rows import RowFormatter, Sample, message_rows
-from companion.state_tracker import StateTracker
-from core.mavlink.fast_decode import FastDecoder
-from core.mavlink.tlog_records import TlogReader
+from fpv_station.analysis.csvcols import CsvColumns, to_float
+from fpv_station.analysis.errors import TrackLoadError
+from fpv_station.companion.recording import frame_pack, layout
+from fpv_station.companion.recording.flags import vehicle_texts
+from fpv_station.companion.recording.rows import RowFormatter, Sample, message_rows
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.core.mavlink.fast_decode import FastDecoder
+from fpv_station.core.mavlink.tlog_records import TlogReader
 
 Array = NDArray[np.float64]
 

@@ -27,16 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis import plots
-from analysis.compare import Comparison, compare
-from analysis.errors import AnalysisError, TaskWindowError, TrackLoadError
-from analysis.field_layout import FieldLayout, load_field_layout
-from analysis.flight_frame import AlignedTrack, align_track
-from analysis.flights import Flight, track_flights
-from analysis.tasks import TaskParams, TaskResult, analyze, check_task
-from analysis.track import Track, load_track
-from companion.recording.flags import is_crash
-from core.geodesy import geodetic_to_enu
+from fpv_station.analysis import plots
+from fpv_station.analysis.compare import Comparison, compare
+from fpv_station.analysis.errors import AnalysisError, TaskWindowError, TrackLoadError
+from fpv_station.analysis.field_layout import FieldLayout, load_field_layout
+from fpv_station.analysis.flight_frame import AlignedTrack, align_track
+from fpv_station.analysis.flights import Flight, track_flights
+from fpv_station.analysis.tasks import TaskParams, TaskResult, analyze, check_task
+from fpv_station.analysis.track import Track, load_track
+from fpv_station.companion.recording.flags import is_crash
+from fpv_station.core.geodesy import geodetic_to_enu
 
 SCENE_RADIUS_M = 150.0
 

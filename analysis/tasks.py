@@ -41,9 +41,9 @@ from typing import Literal, get_args
 import numpy as np
 from numpy.typing import NDArray
 
-from analysis.errors import TaskWindowError, TooFewPointsError, UnknownTaskError
-from analysis.field_layout import FieldLayout, Pad, obstacle_contacts
-from analysis.flight_frame import AlignedTrack, HeightSource
+from fpv_station.analysis.errors import TaskWindowError, TooFewPointsError, UnknownTaskError
+from fpv_station.analysis.field_layout import FieldLayout, Pad, obstacle_contacts
+from fpv_station.analysis.flight_frame import AlignedTrack, HeightSource
 
 Array = NDArray[np.float64]
 TaskName = Literal["hover", "a-to-b", "obstacle", "figure8"]

@@ -23,12 +23,12 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from analysis.csvcols import CsvColumns, to_bool, to_float
-from analysis.errors import NoGpsFixError, TrackLoadError
-from analysis.recording import open_recording
-from analysis.vehicle_clock import on_vehicle_clock
-from companion.recording import layout
-from companion.recording.flags import vehicle_texts
+from fpv_station.analysis.csvcols import CsvColumns, to_bool, to_float
+from fpv_station.analysis.errors import NoGpsFixError, TrackLoadError
+from fpv_station.analysis.recording import open_recording
+from fpv_station.analysis.vehicle_clock import on_vehicle_clock
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.flags import vehicle_texts
 
 Array = NDArray[np.float64]
 PositionSource = Literal["gps", "global_position"]

@@ -26,9 +26,12 @@ import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
-from analysis.report import analyze_paths  # noqa: E402
-from companion.recording import layout  # noqa: E402
-from server.app import create_app  # noqa: E402
+from fpv_station.analysis.report import analyze_paths  # noqa: E402
+from fpv_station.companion.recording import layout  # noqa: E402
+from fpv_station.server.app import create_app  # noqa: E402
+from fpv_station.twin.runner import Twin  # noqa: E402
+from fpv_station.twin.sensors import SensorParams  # noqa: E402
+from fpv_station.twin.sim import SimConfig  # noqa: E402
 from tests import shaped_tlog  # noqa: E402
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
@@ -38,9 +41,6 @@ from tests.test_flight_truth import by_stream, mavloss, replay_status  # noqa: E
 from tests.test_replay_clock import record, two_sorties  # noqa: E402
 from tests.test_trial_per_flight import SORTIES as JOINED  # noqa: E402
 from tests.test_twin_mission import MISSION, REL, take_off, upload  # noqa: E402
-from twin.runner import Twin  # noqa: E402
-from twin.sensors import SensorParams  # noqa: E402
-from twin.sim import SimConfig  # noqa: E402
 
 mav = mavutil.mavlink
 ROWS: list[tuple[str, str, str, str, str]] = []

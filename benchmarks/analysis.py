@@ -20,8 +20,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.report import analyze_tracks  # noqa: E402
-from analysis.track import load_track  # noqa: E402
+from fpv_station.analysis.report import analyze_tracks  # noqa: E402
+from fpv_station.analysis.track import load_track  # noqa: E402
 from tests import synthetic as syn  # noqa: E402
 
 PLOT_KINDS = ("trajectory3d", "birdseye", "history")

@@ -25,14 +25,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from learn.demos import DemoConfig, fly_demo  # noqa: E402
+from fpv_station.learn.demos import DemoConfig, fly_demo  # noqa: E402
 
 CHILD = """
 import json, sys, threading, time
 from pathlib import Path
 import psutil
-from learn.export import ExportOptions, export_recordings
-import learn.lerobot, learn.minari_export, learn.mcap_export, minari, foxglove, av  # noqa
+from fpv_station.learn.export import ExportOptions, export_recordings
+import fpv_station.learn.lerobot, fpv_station.learn.minari_export, fpv_station.learn.mcap_export, minari, foxglove, av  # noqa
 proc = psutil.Process()
 base = proc.memory_info().rss
 peak = [base]

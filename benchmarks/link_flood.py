@@ -22,9 +22,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.link import MavlinkLink  # noqa: E402
-from companion.link_settings import LinkSettings  # noqa: E402
-from core.mavlink.signing import write_key_file  # noqa: E402
+from fpv_station.companion.link import MavlinkLink  # noqa: E402
+from fpv_station.companion.link_settings import LinkSettings  # noqa: E402
+from fpv_station.core.mavlink.signing import write_key_file  # noqa: E402
 from tests.helpers import free_port  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
 

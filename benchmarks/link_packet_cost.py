@@ -31,16 +31,16 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.pi_budget import thread_cpu_s  # noqa: E402
-from companion.latest import Latest  # noqa: E402
-from companion.link import MavlinkLink  # noqa: E402
-from companion.link_health import HealthMeter  # noqa: E402
-from companion.link_settings import LinkSettings  # noqa: E402
-from companion.recording.recorder import Recorder  # noqa: E402
-from companion.recording.session import RecordingSession, SessionConfig  # noqa: E402
-from companion.recording.writer import WriterLimits  # noqa: E402
-from companion.state_tracker import StateTracker  # noqa: E402
-from companion.vehicle_state import VehicleState  # noqa: E402
-from core.mavlink.framing import MavFramer  # noqa: E402
+from fpv_station.companion.latest import Latest  # noqa: E402
+from fpv_station.companion.link import MavlinkLink  # noqa: E402
+from fpv_station.companion.link_health import HealthMeter  # noqa: E402
+from fpv_station.companion.link_settings import LinkSettings  # noqa: E402
+from fpv_station.companion.recording.recorder import Recorder  # noqa: E402
+from fpv_station.companion.recording.session import RecordingSession, SessionConfig  # noqa: E402
+from fpv_station.companion.recording.writer import WriterLimits  # noqa: E402
+from fpv_station.companion.state_tracker import StateTracker  # noqa: E402
+from fpv_station.companion.vehicle_state import VehicleState  # noqa: E402
+from fpv_station.core.mavlink.framing import MavFramer  # noqa: E402
 from tests.mav_vehicle import MavVehicle  # noqa: E402
 
 

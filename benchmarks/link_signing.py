@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from companion.link_settings import LinkSettings  # noqa: E402
-from core.mavlink.framing import MavFramer  # noqa: E402
-from core.mavlink.signing import enable_signing  # noqa: E402
+from fpv_station.companion.link_settings import LinkSettings  # noqa: E402
+from fpv_station.core.mavlink.framing import MavFramer  # noqa: E402
+from fpv_station.core.mavlink.signing import enable_signing  # noqa: E402
 
 
 def packets(n: int, key: bytes | None) -> list[bytes]:

@@ -32,7 +32,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-from server.app import create_app  # noqa: E402
+from fpv_station.server.app import create_app  # noqa: E402
 from tests.helpers import chromium, run_uvicorn, station_settings  # noqa: E402
 from tests.mav_vehicle import DEFAULT_RATES_HZ, MavVehicle  # noqa: E402
 

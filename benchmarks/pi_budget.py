@@ -74,7 +74,7 @@ from benchmarks.host_wake_cost import (  # noqa: E402
     warm_speed,
 )
 from benchmarks.video import MjpegViewer, make_frames  # noqa: E402
-from server.install_service import small_pi_toml  # noqa: E402
+from fpv_station.server.install_service import small_pi_toml  # noqa: E402
 from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle  # noqa: E402
 from tests.station_process import StationProcess, serve_station  # noqa: E402
 

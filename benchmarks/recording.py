@@ -29,9 +29,9 @@ import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from companion.recording.recorder import Recorder, RecorderOptions  # noqa: E402
-from companion.recording.session import SessionConfig  # noqa: E402
-from companion.recording.writer import WriterLimits  # noqa: E402
+from fpv_station.companion.recording.recorder import Recorder, RecorderOptions  # noqa: E402
+from fpv_station.companion.recording.session import SessionConfig  # noqa: E402
+from fpv_station.companion.recording.writer import WriterLimits  # noqa: E402
 from tests.recording_fakes import FakeCamera, FakeVehicle  # noqa: E402
 
 FPS = 30.0

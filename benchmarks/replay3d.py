@@ -19,11 +19,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.geodesy import enu_to_geodetic  # noqa: E402
-from core.scene import load_scene  # noqa: E402
-from server.settings import ViserSettings  # noqa: E402
-from server.trajectory3d.replay import build_trajectory  # noqa: E402
-from server.trajectory3d.replay_scene import Replay3D  # noqa: E402
+from fpv_station.core.geodesy import enu_to_geodetic  # noqa: E402
+from fpv_station.core.scene import load_scene  # noqa: E402
+from fpv_station.server.settings import ViserSettings  # noqa: E402
+from fpv_station.server.trajectory3d.replay import build_trajectory  # noqa: E402
+from fpv_station.server.trajectory3d.replay_scene import Replay3D  # noqa: E402
 
 
 def main() -> None:

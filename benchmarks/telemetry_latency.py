@@ -242,8 +242,8 @@ def link_cpu_us_per_packet() -> float:
     """CPU per packet of the link thread's work (framing, decode, state merge, publish)."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-    from companion.link import MavlinkLink
-    from companion.link_settings import LinkSettings
+    from fpv_station.companion.link import MavlinkLink
+    from fpv_station.companion.link_settings import LinkSettings
 
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     packets = [bytes(mav.heartbeat_encode(2, 12, 81, 3 << 16, 4).pack(mav))]

@@ -23,13 +23,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.latest import Latest  # noqa: E402
-from companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState  # noqa: E402
-from core.geodesy import enu_to_geodetic  # noqa: E402
-from core.scene import load_scene  # noqa: E402
-from server.settings import ViserSettings  # noqa: E402
-from server.trajectory3d.replay import build_trajectory  # noqa: E402
-from server.trajectory3d.service import Trajectory3D  # noqa: E402
+from fpv_station.companion.latest import Latest  # noqa: E402
+from fpv_station.companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState  # noqa: E402
+from fpv_station.core.geodesy import enu_to_geodetic  # noqa: E402
+from fpv_station.core.scene import load_scene  # noqa: E402
+from fpv_station.server.settings import ViserSettings  # noqa: E402
+from fpv_station.server.trajectory3d.replay import build_trajectory  # noqa: E402
+from fpv_station.server.trajectory3d.service import Trajectory3D  # noqa: E402
 from tests.helpers import viser_viewer, wait_until  # noqa: E402
 
 

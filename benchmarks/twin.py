@@ -19,9 +19,9 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import numpy as np  # noqa: E402
 
-from twin.pilot import Leg, Pilot, fly  # noqa: E402
-from twin.render import Renderer  # noqa: E402
-from twin.sim import Sim  # noqa: E402
+from fpv_station.twin.pilot import Leg, Pilot, fly  # noqa: E402
+from fpv_station.twin.render import Renderer  # noqa: E402
+from fpv_station.twin.sim import Sim  # noqa: E402
 
 
 def hovering_sim(n: int = 1) -> Sim:
@@ -54,7 +54,7 @@ def dynamics_rate(steps: int) -> float:
 
 def vector_env_rate(num_envs: int, steps: int) -> tuple[float, float]:
     """Gymnasium vector env: env steps/s and the physics vehicle-steps/s behind them."""
-    from twin.gym_vector import TwinVectorEnv
+    from fpv_station.twin.gym_vector import TwinVectorEnv
 
     env = TwinVectorEnv(num_envs=num_envs)
     env.reset(seed=0)

@@ -104,6 +104,6 @@ def install() -> None:
 
 if __name__ == "__main__":
     install()
-    from server.cli import main
+    from fpv_station.server.cli import main
 
     sys.exit(main(sys.argv[1:]))

@@ -17,8 +17,8 @@ import logging
 import threading
 from collections.abc import Callable
 
-from companion.link_health import ForwardTarget
-from companion.transports import ConnSpec, UdpTransport, format_addr, resolve_udp_peer
+from fpv_station.companion.link_health import ForwardTarget
+from fpv_station.companion.transports import ConnSpec, UdpTransport, format_addr, resolve_udp_peer
 
 log = logging.getLogger(__name__)
 

@@ -29,14 +29,14 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.forward_resolver import ForwardResolver
-from companion.latest import Latest
-from companion.link_health import HealthMeter, LinkHealth, LinkSecurity, RateChange
-from companion.link_settings import LinkSettings
-from companion.source_clock import SourceClock
-from companion.state_tracker import StateTracker
-from companion.stream_request import StreamRequester
-from companion.transports import (
+from fpv_station.companion.forward_resolver import ForwardResolver
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.link_health import HealthMeter, LinkHealth, LinkSecurity, RateChange
+from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.companion.source_clock import SourceClock
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.companion.stream_request import StreamRequester
+from fpv_station.companion.transports import (
     ConnectionStringError,
     ConnSpec,
     ForeignSenders,
@@ -47,16 +47,16 @@ from companion.transports import (
     open_transport,
     parse_connection,
 )
-from companion.vehicle_state import VehicleState
-from core.mavlink.framing import MavFramer, packet_version
-from core.mavlink.signing import (
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.core.mavlink.framing import MavFramer, packet_version
+from fpv_station.core.mavlink.signing import (
     SignatureCheck,
     Verdict,
     enable_signing,
     mavproxy_reads_differently,
     read_passphrase,
 )
-from core.mavlink.tlog_records import TlogReader
+from fpv_station.core.mavlink.tlog_records import TlogReader
 
 log = logging.getLogger(__name__)
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 from pydantic import computed_field
 
-from companion.stream_loss import StreamLoss, StreamLossCounter
-from core.mavlink.framing import FramerCounters
+from fpv_station.companion.stream_loss import StreamLoss, StreamLossCounter
+from fpv_station.core.mavlink.framing import FramerCounters
 
 _SNAPSHOT_EVERY_S = 0.5
 _WINDOW_SNAPSHOTS = 5  # 4 intervals = 2 s window

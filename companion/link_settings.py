@@ -7,8 +7,8 @@ from typing import Annotated
 
 from pydantic import Field
 
-from core.mavlink.signing import load_key_file
-from core.settings_section import Section, checked_by
+from fpv_station.core.mavlink.signing import load_key_file
+from fpv_station.core.settings_section import Section, checked_by
 
 
 class LinkSettings(Section):

@@ -38,9 +38,9 @@ from typing import Literal, Protocol
 from pydantic import Field
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.latest import Latest
-from core.mavlink.framing import MAGIC_V1, message_id
-from core.settings_section import Section
+from fpv_station.companion.latest import Latest
+from fpv_station.core.mavlink.framing import MAGIC_V1, message_id
+from fpv_station.core.settings_section import Section
 
 log = logging.getLogger(__name__)
 

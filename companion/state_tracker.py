@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.vehicle_state import (
+from fpv_station.companion.vehicle_state import (
     MESSAGES_KEPT,
     UTC_PLAUSIBLE_AFTER_S,
     GlobalPosition,
@@ -26,9 +26,9 @@ from companion.vehicle_state import (
     quick_replace,
     unfrozen_twin,
 )
-from core.mavlink.ardupilot_modes import ardupilot_mode_name
-from core.mavlink.framing import packet_version
-from core.mavlink.px4_modes import px4_main_sub, px4_mode_name
+from fpv_station.core.mavlink.ardupilot_modes import ardupilot_mode_name
+from fpv_station.core.mavlink.framing import packet_version
+from fpv_station.core.mavlink.px4_modes import px4_main_sub, px4_mode_name
 
 _AUTOPILOT_NAMES = {
     mavlink.MAV_AUTOPILOT_PX4: "px4",

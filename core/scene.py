@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from core.geodesy import geodetic_to_enu
+from fpv_station.core.geodesy import geodetic_to_enu
 
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "field.toml"

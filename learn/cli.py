@@ -19,7 +19,7 @@ from pathlib import Path
 
 
 def add_export_arguments(p: argparse.ArgumentParser) -> None:
-    from learn.formats import DEFAULT_FPS, FORMATS
+    from fpv_station.learn.formats import DEFAULT_FPS, FORMATS
 
     p.add_argument("sessions", nargs="+", type=Path, metavar="SESSION")
     p.add_argument("--format", required=True, choices=FORMATS)
@@ -56,10 +56,15 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from analysis.recording import RecordingError
-    from core.scene import SceneError
-    from learn.episodes import ChannelMap
-    from learn.export import ExportOptions, export_recordings, parse_image_size, tqdm_progress
+    from fpv_station.analysis.recording import RecordingError
+    from fpv_station.core.scene import SceneError
+    from fpv_station.learn.episodes import ChannelMap
+    from fpv_station.learn.export import (
+        ExportOptions,
+        export_recordings,
+        parse_image_size,
+        tqdm_progress,
+    )
 
     try:
         cmap = ChannelMap.parse(args.channel_map)
@@ -105,7 +110,7 @@ def add_demos_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_demos(args: argparse.Namespace) -> int:
-    from learn.demos import DemoConfig, fly_demos
+    from fpv_station.learn.demos import DemoConfig, fly_demos
 
     if args.count < 1:
         print("fpv-station demos: --count must be at least 1", file=sys.stderr)
@@ -147,7 +152,7 @@ def add_learn_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_bc(args: argparse.Namespace) -> int:
-    from learn.bc import train
+    from fpv_station.learn.bc import train
 
     try:
         policy = train(args.dataset, args.k)
@@ -160,9 +165,9 @@ def run_bc(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from core.scene import load_scene
-    from learn import evaluate as ev
-    from learn.bc import BcPolicy
+    from fpv_station.core.scene import load_scene
+    from fpv_station.learn import evaluate as ev
+    from fpv_station.learn.bc import BcPolicy
 
     try:
         policy = BcPolicy.load(args.policy)

@@ -24,20 +24,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.latest import Latest
-from companion.recording import layout
-from companion.recording.meta import session_task
-from companion.recording.session import RecordingSession, SessionConfig
-from companion.recording.writer import WriterLimits
-from companion.source_clock import SourceClock
-from companion.state_tracker import StateTracker
-from companion.vehicle_state import VehicleState
-from companion.video_frame import Frame
-from core.mavlink.framing import MavFramer
-from core.scene import Scene, load_scene
-from twin.pilot import Leg, Observation, Pilot, task_plan
-from twin.runner import Twin
-from twin.sim import SimConfig
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import session_task
+from fpv_station.companion.recording.session import RecordingSession, SessionConfig
+from fpv_station.companion.recording.writer import WriterLimits
+from fpv_station.companion.source_clock import SourceClock
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.companion.video_frame import Frame
+from fpv_station.core.mavlink.framing import MavFramer
+from fpv_station.core.scene import Scene, load_scene
+from fpv_station.twin.pilot import Leg, Observation, Pilot, task_plan
+from fpv_station.twin.runner import Twin
+from fpv_station.twin.sim import SimConfig
 
 TICK_S = 0.02  # the pilot's 50 Hz, as the pilot page sends sticks
 GPS_WARMUP_S = 2.5  # on the pad, disarmed, until the GPS has a fix

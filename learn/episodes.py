@@ -30,12 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from analysis.flights import Flight, split_flights
-from analysis.recording import Recording
-from analysis.report import SCENE_RADIUS_M
-from core.geodesy import geodetic_to_enu
-from core.scene import Scene
-from twin.gym_env import ACTION_NAMES, STATE_NAMES
+from fpv_station.analysis.flights import Flight, split_flights
+from fpv_station.analysis.recording import Recording
+from fpv_station.analysis.report import SCENE_RADIUS_M
+from fpv_station.core.geodesy import geodetic_to_enu
+from fpv_station.core.scene import Scene
+from fpv_station.twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 Array = NDArray[np.float64]
 

@@ -24,18 +24,18 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.errors import AnalysisError
-from analysis.field_layout import load_field_layout as load_field
-from analysis.recording import open_recording
-from analysis.report import analyze_tracks
-from analysis.tasks import TaskParams, TaskResult
-from analysis.track import Track, load_track
-from core.geodesy import enu_to_geodetic
-from core.scene import Scene, load_scene
-from learn.episodes import COLUMNS
-from learn.episodes import episodes as recording_episodes
-from twin.gym_env import TwinEnv
-from twin.pilot import Observation, Pilot, task_plan
+from fpv_station.analysis.errors import AnalysisError
+from fpv_station.analysis.field_layout import load_field_layout as load_field
+from fpv_station.analysis.recording import open_recording
+from fpv_station.analysis.report import analyze_tracks
+from fpv_station.analysis.tasks import TaskParams, TaskResult
+from fpv_station.analysis.track import Track, load_track
+from fpv_station.core.geodesy import enu_to_geodetic
+from fpv_station.core.scene import Scene, load_scene
+from fpv_station.learn.episodes import COLUMNS
+from fpv_station.learn.episodes import episodes as recording_episodes
+from fpv_station.twin.gym_env import TwinEnv
+from fpv_station.twin.pilot import Observation, Pilot, task_plan
 
 TASK_NAMES = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
 # The hover's "reached 4 m" tolerance: the scripted pilot levels off just under 4 m (see

@@ -16,10 +16,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from analysis.recording import Recording, RecordingError, open_recording, recording_meta
-from core.scene import Scene, load_scene
-from learn.episodes import COLUMNS, ChannelMap, episodes
-from learn.formats import DEFAULT_FPS, FORMATS
+from fpv_station.analysis.recording import Recording, RecordingError, open_recording, recording_meta
+from fpv_station.core.scene import Scene, load_scene
+from fpv_station.learn.episodes import COLUMNS, ChannelMap, episodes
+from fpv_station.learn.formats import DEFAULT_FPS, FORMATS
 
 
 @dataclass(frozen=True)
@@ -144,14 +144,14 @@ def export_recordings(
 
 def _writer(fmt, out, options, scene, rec: Recording, cameras, task):
     if fmt == "lerobot":
-        from learn.lerobot import LeRobotExport
+        from fpv_station.learn.lerobot import LeRobotExport
 
         return LeRobotExport(out, options, scene, rec, cameras, task)
     if fmt == "minari":
-        from learn.minari_export import MinariExport
+        from fpv_station.learn.minari_export import MinariExport
 
         return MinariExport(out, options, scene, task)
-    from learn.mcap_export import McapExport
+    from fpv_station.learn.mcap_export import McapExport
 
     return McapExport(out, options, scene, cameras, task)
 

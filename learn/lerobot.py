@@ -40,10 +40,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from learn import stats as st
-from learn.episodes import Episode
-from learn.images import decode_fit
-from twin.gym_env import ACTION_NAMES, STATE_NAMES
+from fpv_station.learn import stats as st
+from fpv_station.learn.episodes import Episode
+from fpv_station.learn.images import decode_fit
+from fpv_station.twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000

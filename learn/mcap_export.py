@@ -43,10 +43,10 @@ from foxglove.messages import (
     Vector3,
 )
 
-from analysis.recording import Recording
-from core.mavlink.tlog_records import TlogReader
-from learn.episodes import COLUMNS, Episode, carry_forward, scene_xyz
-from learn.images import resized_jpeg
+from fpv_station.analysis.recording import Recording
+from fpv_station.core.mavlink.tlog_records import TlogReader
+from fpv_station.learn.episodes import COLUMNS, Episode, carry_forward, scene_xyz
+from fpv_station.learn.images import resized_jpeg
 
 WORLD_FRAME = "field"
 BODY_FRAME = "base_link"

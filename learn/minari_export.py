@@ -1,7 +1,7 @@
 """A Minari dataset (offline RL) whose environment is the twin's `TwinEnv` for the task.
 
 `minari.load_dataset(ID).recover_environment()` builds `TwinEnv(task=N)` from the stored
-env spec (entry point `twin.gym_env:TwinEnv`, id `twin.gym_env.ENV_ID`), so a policy
+env spec (entry point `fpv_station.twin.gym_env:TwinEnv`, id `twin.gym_env.ENV_ID`), so a policy
 trained on the dataset is evaluated in the twin without glue. Each flight is one episode:
 
 - observations: the env's state vector (`twin.gym_env.STATE_NAMES`) at every frame,
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.recording import Recording
-from learn.episodes import Episode, target_m
-from twin.gym_env import ENV_ID, TaskReward
+from fpv_station.analysis.recording import Recording
+from fpv_station.learn.episodes import Episode, target_m
+from fpv_station.twin.gym_env import ENV_ID, TaskReward
 
 DATA_FORMAT = "arrow"
 
@@ -93,7 +93,7 @@ class MinariExport:
         import gymnasium as gym
         import minari
 
-        from twin.gym_env import TwinEnv
+        from fpv_station.twin.gym_env import TwinEnv
 
         if not self.buffers:
             raise ValueError("no episode of two frames or more to write")

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from server.errors import Unavailable
+from fpv_station.server.errors import Unavailable
 
 if TYPE_CHECKING:
     from concurrent.futures import ProcessPoolExecutor
@@ -213,10 +213,10 @@ def run_job(job: AnalysisJob) -> dict | bytes:
 @functools.lru_cache(maxsize=4)
 def _analysis(job: AnalysisJob):  # -> analysis.report.Analysis
     # The figures of one table come one request each: their analysis is made once.
-    from analysis.field_layout import load_field_layout
-    from analysis.recording import parse_meta
-    from analysis.report import analyze_tracks
-    from analysis.track import load_track
+    from fpv_station.analysis.field_layout import load_field_layout
+    from fpv_station.analysis.recording import parse_meta
+    from fpv_station.analysis.report import analyze_tracks
+    from fpv_station.analysis.track import load_track
 
     tracks = []
     for session_id, (data, _, _), meta in job.files:

@@ -8,10 +8,10 @@ from collections.abc import AsyncIterator
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
-from server import __version__
-from server.errors import install_error_handlers
-from server.guard import RequestGuard, redact_tokens_in_logs
-from server.routes import (
+from fpv_station.server import __version__
+from fpv_station.server.errors import install_error_handlers
+from fpv_station.server.guard import RequestGuard, redact_tokens_in_logs
+from fpv_station.server.routes import (
     analysis,
     control,
     health,
@@ -25,10 +25,10 @@ from server.routes import (
     video,
     viser_panel,
 )
-from server.sd_notify import Notifier, notify_loop, notify_stopping
-from server.settings import Settings
-from server.station import open_station
-from web import WEB_DIR
+from fpv_station.server.sd_notify import Notifier, notify_loop, notify_stopping
+from fpv_station.server.settings import Settings
+from fpv_station.server.station import open_station
+from fpv_station.web import WEB_DIR
 
 
 def create_app(settings: Settings) -> FastAPI:

@@ -14,7 +14,7 @@ import secrets
 
 from starlette.requests import HTTPConnection
 
-from server.errors import Unauthorized
+from fpv_station.server.errors import Unauthorized
 
 
 def _presented_token(conn: HTTPConnection) -> str | None:

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from server.settings import Settings, SettingsError, load_settings
+from fpv_station.server.settings import Settings, SettingsError, load_settings
 
 
 def add_serve_parser(sub: Any) -> None:
@@ -137,8 +137,8 @@ def run_sim(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from core.scene import SceneError
-    from twin.runner import twin_from_settings
+    from fpv_station.core.scene import SceneError
+    from fpv_station.twin.runner import twin_from_settings
 
     settings = settings_from_args(args)
     try:
@@ -164,7 +164,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
 
 def add_analyze_parser(sub: Any) -> None:
-    from analysis import cli as analysis_cli
+    from fpv_station.analysis import cli as analysis_cli
 
     p = sub.add_parser(
         "analyze",
@@ -178,7 +178,7 @@ def add_analyze_parser(sub: Any) -> None:
 
 def add_learn_parsers(sub: Any) -> None:
     """export / demos: need the `learn` extra only when run (imports are in the commands)."""
-    from learn import cli as learn_cli
+    from fpv_station.learn import cli as learn_cli
 
     p = sub.add_parser(
         "export",
@@ -208,7 +208,7 @@ def add_cameras_parser(sub: Any) -> None:
 
 
 def run_cameras(args: argparse.Namespace) -> int:
-    from companion.cameras.devices import format_devices, list_devices
+    from fpv_station.companion.cameras.devices import format_devices, list_devices
 
     print(format_devices(list_devices()))
     return 0
@@ -227,7 +227,7 @@ def add_doctor_parser(sub: Any) -> None:
 
 
 def run_doctor(args: argparse.Namespace) -> int:
-    from server.doctor import format_table, run_checks
+    from fpv_station.server.doctor import format_table, run_checks
 
     settings = settings_from_args(args)
     check_link_settings(settings)  # a malformed source is an error to say, not a traceback
@@ -249,7 +249,12 @@ def add_install_service_parser(sub: Any) -> None:
 
 
 def run_install_service(args: argparse.Namespace) -> int:
-    from server.install_service import DEFAULT_USER, ServicePlan, install, installed_exec_path
+    from fpv_station.server.install_service import (
+        DEFAULT_USER,
+        ServicePlan,
+        install,
+        installed_exec_path,
+    )
 
     plan = ServicePlan(user=args.user or DEFAULT_USER, exec_path=installed_exec_path())
     return install(plan, dry_run=args.dry_run)
@@ -261,15 +266,15 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    from server.app import create_app
-    from server.listen import listening_socket, uvicorn_server
+    from fpv_station.server.app import create_app
+    from fpv_station.server.listen import listening_socket, uvicorn_server
 
     settings = settings_from_args(args)
     check_link_settings(settings)
     srv = settings.server
     token_from = "server.token (--token)"
     if srv.control == "token" and not srv.token:
-        from server.token_file import default_token_file, load_or_create_token
+        from fpv_station.server.token_file import default_token_file, load_or_create_token
 
         srv.token = load_or_create_token(srv.token_file)
         token_from = str(srv.token_file or default_token_file())
@@ -293,8 +298,8 @@ def run_serve(args: argparse.Namespace) -> int:
 
 def check_link_settings(settings: Settings) -> None:
     """Refuse unusable connection strings before the server starts, with a clear message."""
-    from companion.stream_request import message_id
-    from companion.transports import ConnectionStringError, parse_connection
+    from fpv_station.companion.stream_request import message_id
+    from fpv_station.companion.transports import ConnectionStringError, parse_connection
 
     try:
         parse_connection(settings.link.source)

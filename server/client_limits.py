@@ -31,7 +31,7 @@ import resource
 import threading
 from collections.abc import Iterator
 
-from server.errors import Unavailable
+from fpv_station.server.errors import Unavailable
 
 log = logging.getLogger(__name__)
 

@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING, Literal
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.link_health import LinkSecurity
-from companion.system_clock import clock_synchronised
-from core.mavlink.framing import MavFramer
-from server.listen import listening_socket
-from server.settings import Settings
+from fpv_station.companion.link_health import LinkSecurity
+from fpv_station.companion.system_clock import clock_synchronised
+from fpv_station.core.mavlink.framing import MavFramer
+from fpv_station.server.listen import listening_socket
+from fpv_station.server.settings import Settings
 
 if TYPE_CHECKING:
-    from companion.link import MavlinkLink
+    from fpv_station.companion.link import MavlinkLink
 
 Status = Literal["ok", "FAIL", "warn", "skip"]
 # JPEG bytes per 640x480 frame when no camera delivers one to measure (typical USB MJPEG).
@@ -43,7 +43,7 @@ class Check:
 
 
 def check_serial(settings: Settings, proc: Path = Path("/proc")) -> list[Check]:
-    from companion.transports import parse_connection
+    from fpv_station.companion.transports import parse_connection
 
     spec = parse_connection(settings.link.source)
     if spec.kind != "serial":
@@ -145,7 +145,7 @@ def check_pi_uart(
     (ttyS*)? Asked of the device the source names (/dev/serial0 is a link the firmware
     points at one or the other), so that any way of getting there passes (disable-bt,
     miniuart-bt, a Pi without Bluetooth) and a USB cable to the Pixhawk is no UART."""
-    from companion.transports import parse_connection
+    from fpv_station.companion.transports import parse_connection
 
     try:
         model = model_file.read_bytes().rstrip(b"\0").decode()
@@ -173,7 +173,7 @@ def check_pi_uart(
 
 
 def check_heartbeat(settings: Settings, timeout_s: float, rates_s: float = 3.0) -> list[Check]:
-    from companion.link import MavlinkLink
+    from fpv_station.companion.link import MavlinkLink
 
     if settings.link.source.strip() in ("none", "sim"):
         return [Check("MAVLink heartbeat", "skip", f"source is {settings.link.source}")]
@@ -312,7 +312,7 @@ class AutopilotVersionProbe:
 
 def check_cameras(settings: Settings, seconds: float = 2.0) -> tuple[list[Check], float]:
     """Each configured camera: does it deliver, at what fps; and the bytes per second."""
-    from companion.cameras.rig import CAMERA_NAMES, build_camera
+    from fpv_station.companion.cameras.rig import CAMERA_NAMES, build_camera
 
     checks, bytes_per_s = [], 0.0
     for name in CAMERA_NAMES:

@@ -26,7 +26,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from companion.recording import store as session_store
+from fpv_station.companion.recording import store as session_store
 
 log = logging.getLogger(__name__)
 

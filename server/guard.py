@@ -43,7 +43,7 @@ from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 from urllib.parse import urlsplit
 
-from companion.transports import is_ip_address
+from fpv_station.companion.transports import is_ip_address
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]

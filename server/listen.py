@@ -50,10 +50,10 @@ from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 from websockets.http11 import Request
 
-from companion.latest import Wakeup
-from server.client_limits import ClientCap
-from server.errors import DenialLogFilter
-from server.guard import redact_tokens_in_logs
+from fpv_station.companion.latest import Wakeup
+from fpv_station.server.client_limits import ClientCap
+from fpv_station.server.errors import DenialLogFilter
+from fpv_station.server.guard import redact_tokens_in_logs
 
 log = logging.getLogger(__name__)
 

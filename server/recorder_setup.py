@@ -10,16 +10,16 @@ import contextlib
 from collections.abc import Mapping
 from typing import Any
 
-from companion.latest import Latest
-from companion.link import MavlinkLink
-from companion.recording.recorder import Recorder, RecorderOptions
-from companion.recording.session import SessionConfig
-from companion.recording.writer import WriterLimits
-from companion.vehicle_state import VehicleState
-from companion.video_frame import Frame
-from core.spawn import Spawn
-from server import __version__
-from server.settings import Settings
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.recording.recorder import Recorder, RecorderOptions
+from fpv_station.companion.recording.session import SessionConfig
+from fpv_station.companion.recording.writer import WriterLimits
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.companion.video_frame import Frame
+from fpv_station.core.spawn import Spawn
+from fpv_station.server import __version__
+from fpv_station.server.settings import Settings
 
 
 def recorder_options(settings: Settings, camera_fps: Mapping[str, float | None]) -> RecorderOptions:

@@ -18,7 +18,7 @@ import socket
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from server.tasks import TaskSupervisor
+from fpv_station.server.tasks import TaskSupervisor
 
 log = logging.getLogger(__name__)
 

@@ -20,11 +20,11 @@ from typing import Any, Literal
 
 from pydantic import Field, ValidationError
 
-from companion.cameras.settings import CameraSettings
-from companion.link_settings import LinkSettings
-from companion.recording.settings import RecordingSettings
-from core.settings_section import Section
-from twin.settings import TwinSettings
+from fpv_station.companion.cameras.settings import CameraSettings
+from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.companion.recording.settings import RecordingSettings
+from fpv_station.core.settings_section import Section
+from fpv_station.twin.settings import TwinSettings
 
 
 class ServerSettings(Section):

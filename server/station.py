@@ -15,25 +15,25 @@ from typing import TYPE_CHECKING
 
 import anyio
 
-from companion.latest import Latest
-from companion.link import MavlinkLink
-from companion.recording.recorder import Recorder
-from companion.vehicle_state import VehicleState
-from server.analysis_worker import AnalysisWorker
-from server.client_limits import ClientCap, ClientLimits, raise_nofile_limit
-from server.pilot import Pilot
-from server.settings import Settings
-from server.tasks import TaskSupervisor
-from server.telemetry_json import SharedStateJson
-from server.telemetry_pump import TelemetryPump
-from server.trials import Trials, station_scene
-from server.video_fanout import FrameFanout
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.recording.recorder import Recorder
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.server.analysis_worker import AnalysisWorker
+from fpv_station.server.client_limits import ClientCap, ClientLimits, raise_nofile_limit
+from fpv_station.server.pilot import Pilot
+from fpv_station.server.settings import Settings
+from fpv_station.server.tasks import TaskSupervisor
+from fpv_station.server.telemetry_json import SharedStateJson
+from fpv_station.server.telemetry_pump import TelemetryPump
+from fpv_station.server.trials import Trials, station_scene
+from fpv_station.server.video_fanout import FrameFanout
 
 if TYPE_CHECKING:  # built lazily in open_station: importing them costs start-up time
-    from companion.cameras.capture import Camera
-    from server.trajectory3d.replay_scene import Replay3D
-    from server.trajectory3d.service import Trajectory3D
-    from twin.runner import Twin
+    from fpv_station.companion.cameras.capture import Camera
+    from fpv_station.server.trajectory3d.replay_scene import Replay3D
+    from fpv_station.server.trajectory3d.service import Trajectory3D
+    from fpv_station.twin.runner import Twin
 
 
 log = logging.getLogger(__name__)
@@ -104,7 +104,7 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
         if source == "sim":
             # The embedded twin vehicle, reached by a MavlinkLink over a loopback socket,
             # exactly as a real vehicle below (server/twin_link.py).
-            from server.twin_link import open_twin_link
+            from fpv_station.server.twin_link import open_twin_link
 
             station.twin, station.link = open_twin_link(settings, stack)
             station.state = station.link.state
@@ -155,7 +155,7 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
 
 
 async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> Recorder:
-    from server.recorder_setup import open_recorder
+    from fpv_station.server.recorder_setup import open_recorder
 
     cams = station.cameras
     return await open_recorder(
@@ -171,7 +171,12 @@ async def _open_recorder(station: Station, stack: contextlib.AsyncExitStack) -> 
 
 async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> None:
     """Front and bottom cameras; after the twin, whose renderer the sim cameras use."""
-    from companion.cameras.rig import CAMERA_NAMES, build_camera, start_cameras, stop_cameras
+    from fpv_station.companion.cameras.rig import (
+        CAMERA_NAMES,
+        build_camera,
+        start_cameras,
+        stop_cameras,
+    )
 
     cams = station.settings.cameras
     for name in CAMERA_NAMES:
@@ -191,7 +196,7 @@ async def _open_cameras(station: Station, stack: contextlib.AsyncExitStack) -> N
 
 
 def _open_trajectory3d(station: Station, stack: contextlib.AsyncExitStack) -> None:
-    from server.trajectory3d.service import Trajectory3D
+    from fpv_station.server.trajectory3d.service import Trajectory3D
 
     s = station.settings
     # The station's one field (server.trials.station_scene, loaded once): drawn when it is
@@ -220,7 +225,7 @@ async def start_3d_panels(station: Station) -> None:
             await asyncio.to_thread(live.start)  # viser binds and spawns its thread
         if station.replay3d is None:
             # The replay's own viser server, with the same field (replay_scene.py).
-            from server.trajectory3d.replay_scene import Replay3D
+            from fpv_station.server.trajectory3d.replay_scene import Replay3D
 
             s = station.settings
             replay = Replay3D(s.viser, field=live.field)

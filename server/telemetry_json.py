@@ -27,9 +27,9 @@ from typing import Any
 
 import orjson
 
-from companion.latest import Versioned
-from companion.source_clock import SourceClock
-from companion.vehicle_state import VehicleState
+from fpv_station.companion.latest import Versioned
+from fpv_station.companion.source_clock import SourceClock
+from fpv_station.companion.vehicle_state import VehicleState
 
 _GROUPS = tuple(f.name for f in fields(VehicleState))
 

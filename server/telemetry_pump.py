@@ -37,10 +37,10 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-from companion.latest import Latest, Versioned
-from companion.vehicle_state import VehicleState
-from core.spawn import Spawn
-from server.telemetry_json import SharedStateJson
+from fpv_station.companion.latest import Latest, Versioned
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.core.spawn import Spawn
+from fpv_station.server.telemetry_json import SharedStateJson
 
 PUMP_TASK = "telemetry-pump"
 # A moment this close before a time counts as that time (a client's due time, the next

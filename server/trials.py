@@ -28,11 +28,11 @@ from typing import Any
 
 import anyio
 
-from analysis.errors import AnalysisError, without_dirs
-from analysis.report import analyze_paths
-from analysis.tasks import PAPER_RESULTS
-from companion.recording import layout
-from companion.recording.meta import (
+from fpv_station.analysis.errors import AnalysisError, without_dirs
+from fpv_station.analysis.report import analyze_paths
+from fpv_station.analysis.tasks import PAPER_RESULTS
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import (
     SessionMeta,
     SessionTask,
     TrialScore,
@@ -40,9 +40,9 @@ from companion.recording.meta import (
     session_task,
     write_meta,
 )
-from companion.recording.recorder import Recorder, Spawn
-from core.scene import Scene, SceneError, load_scene
-from server.settings import Settings
+from fpv_station.companion.recording.recorder import Recorder, Spawn
+from fpv_station.core.scene import Scene, SceneError, load_scene
+from fpv_station.server.settings import Settings
 
 log = logging.getLogger(__name__)
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 import contextlib
 import logging
 
-from companion.link import MavlinkLink
-from server.settings import Settings
-from twin.runner import Twin, twin_from_settings
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.server.settings import Settings
+from fpv_station.twin.runner import Twin, twin_from_settings
 
 log = logging.getLogger(__name__)
 

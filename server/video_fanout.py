@@ -15,9 +15,9 @@ import contextlib
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
-from companion.latest import Latest
-from companion.video_frame import Frame
-from core.spawn import Spawn
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.video_frame import Frame
+from fpv_station.core.spawn import Spawn
 
 BOUNDARY = "fpvframe"
 # While a camera sends nothing (a `none` camera, a stuck source), the pump wakes its

@@ -9,10 +9,10 @@ import tempfile
 import pytest
 from pymavlink import mavutil
 
+from fpv_station.twin.runner import Twin
+from fpv_station.twin.sensors import SensorParams
+from fpv_station.twin.sim import SimConfig
 from tests.helpers import chromium, free_port
-from twin.runner import Twin
-from twin.sensors import SensorParams
-from twin.sim import SimConfig
 
 # `fpv-station serve` keeps its first-start control token under XDG_CONFIG_HOME: test
 # stations (and their subprocesses) get a throwaway one, never the user's.

@@ -14,8 +14,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from server.listen import listening_socket, uvicorn_server
-from server.settings import Settings, load_settings
+from fpv_station.server.listen import listening_socket, uvicorn_server
+from fpv_station.server.settings import Settings, load_settings
 
 # Flags that let Debian's chromium run headless as root on this closed network.
 CHROMIUM_PATH = "/usr/bin/chromium"

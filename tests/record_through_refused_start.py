@@ -22,7 +22,7 @@ from pathlib import Path
 
 import httpx
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
 from tests.recording_fakes import starve

@@ -18,13 +18,13 @@ import cv2
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.latest import Latest
-from companion.recording import frame_pack, layout
-from companion.recording.recorder import Recorder, RecorderOptions
-from companion.recording.session import SessionConfig
-from companion.recording.writer import WriterLimits
-from companion.vehicle_state import Heartbeat, PilotAltitude, RcChannels, VehicleState
-from companion.video_frame import Frame
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.recording import frame_pack, layout
+from fpv_station.companion.recording.recorder import Recorder, RecorderOptions
+from fpv_station.companion.recording.session import SessionConfig
+from fpv_station.companion.recording.writer import WriterLimits
+from fpv_station.companion.vehicle_state import Heartbeat, PilotAltitude, RcChannels, VehicleState
+from fpv_station.companion.video_frame import Frame
 
 
 async def until(predicate, within_s: float) -> bool:

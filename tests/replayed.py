@@ -9,7 +9,7 @@ from pathlib import Path
 
 import httpx
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
 
 

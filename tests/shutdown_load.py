@@ -100,7 +100,7 @@ def sigterm_under_load(
         "XDG_CONFIG_HOME": str(tmp / "config"),
         "PYTHONFAULTHANDLER": "1",  # a hang is ended with SIGABRT: every thread's stack
     }
-    args = ["-m", "server", "serve", "--source", "sim", "--host", "127.0.0.1"]
+    args = ["-m", "fpv_station.server", "serve", "--source", "sim", "--host", "127.0.0.1"]
     proc = spawn([*args, "--port", str(port), "--open"], env)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)

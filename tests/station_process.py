@@ -57,14 +57,14 @@ def serve_station(
     args: Sequence[str] = (),
     env: Mapping[str, str] | None = None,
     *,
-    launcher: Sequence[str] = ("-m", "server"),
+    launcher: Sequence[str] = ("-m", "fpv_station.server"),
     log_path: Path | None = None,
     timeout_s: float = 60.0,
     root: Path = ROOT,
 ) -> Iterator[StationProcess]:
     """Run `python LAUNCHER serve --host 127.0.0.1 --port P ARGS` until the block ends.
 
-    `env` is added to this process's environment; `launcher` replaces `-m server` (a
+    `env` is added to this process's environment; `launcher` replaces `-m fpv_station.server` (a
     script that sets something up, then runs the CLI). The server's output goes to
     `log_path` (a temporary file by default: uvicorn logs every connection). `root` is the
     checkout whose station runs (another commit's, to compare side by side)."""

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.recording import layout
-from core.geodesy import enu_to_geodetic, rotate_about_up
+from fpv_station.companion.recording import layout
+from fpv_station.core.geodesy import enu_to_geodetic, rotate_about_up
 
 Array = NDArray[np.float64]
 FIELD_HOME = (43.0021, -78.7875, 180.0)  # the paper's field, as core/scenes/field.toml

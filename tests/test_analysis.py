@@ -16,18 +16,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.errors import (
+from fpv_station.analysis.errors import (
     NoGpsFixError,
     TaskWindowError,
     TooFewPointsError,
     TrackLoadError,
     UnknownTaskError,
 )
-from analysis.field_layout import FieldLayout, Obstacle, Pad
-from analysis.plots import SIZE_PX
-from analysis.report import analyze_paths, analyze_tracks
-from analysis.track import load_track
-from core.geodesy import enu_to_geodetic
+from fpv_station.analysis.field_layout import FieldLayout, Obstacle, Pad
+from fpv_station.analysis.plots import SIZE_PX
+from fpv_station.analysis.report import analyze_paths, analyze_tracks
+from fpv_station.analysis.track import load_track
+from fpv_station.core.geodesy import enu_to_geodetic
 from tests import synthetic as syn
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -206,8 +206,8 @@ def test_obstacle_contacts_and_field_in_track_frame(tmp_path):
 
 
 def test_default_scene_is_the_one_scene_model():
-    from analysis.field_layout import load_field_layout
-    from core.scene import DEFAULT_PAD_SIZE_M, load_scene
+    from fpv_station.analysis.field_layout import load_field_layout
+    from fpv_station.core.scene import DEFAULT_PAD_SIZE_M, load_scene
 
     field, scene = load_field_layout(), load_scene()
     assert field.home == scene.home_llh and field.name == scene.name
@@ -219,7 +219,7 @@ def test_default_scene_is_the_one_scene_model():
 
 
 def test_a_bad_scene_file_is_a_track_load_error(tmp_path):
-    from analysis.field_layout import load_field_layout
+    from fpv_station.analysis.field_layout import load_field_layout
 
     bad = tmp_path / "scene.toml"
     bad.write_text(
@@ -294,7 +294,7 @@ def test_cli_writes_table_and_plots_and_reports_errors(flights, tmp_path):
     cmd = [
         sys.executable,
         "-m",
-        "server",
+        "fpv_station.server",
         "analyze",
         str(folder),
         str(tlog),
@@ -354,9 +354,9 @@ def test_tlog_with_other_messages_and_junk(flights, tmp_path):
 def test_session_written_by_the_real_recorder(tmp_path):
     """The recorder's own RowFormatter and SessionWriter (CRLF rows, booleans as 1/0,
     t_mono on the session clock, camera columns) feed the analysis unchanged."""
-    from companion.recording.rows import RowFormatter, Sample
-    from companion.recording.writer import SessionWriter, WriterLimits
-    from companion.vehicle_state import GpsRaw, Heartbeat, PilotAltitude, VehicleState
+    from fpv_station.companion.recording.rows import RowFormatter, Sample
+    from fpv_station.companion.recording.writer import SessionWriter, WriterLimits
+    from fpv_station.companion.vehicle_state import GpsRaw, Heartbeat, PilotAltitude, VehicleState
 
     flight = syn.hover_flight(radius_m=0.4, bob_m=0.1, dt=1 / 30, heading_deg=HEADING)
     llh = flight.llh()

@@ -12,9 +12,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from analysis.plots import SIZE_PX
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.analysis.plots import SIZE_PX
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn
 
@@ -66,7 +66,7 @@ def test_rest_and_cli_give_the_same_numbers(server, tmp_path):
     cmd = [
         sys.executable,
         "-m",
-        "server",
+        "fpv_station.server",
         "analyze",
         str(root / PHYSICAL),
         "--task",

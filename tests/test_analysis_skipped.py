@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 
-from server.cli import main as cli_main
+from fpv_station.server.cli import main as cli_main
 from tests import synthetic as syn
 
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.report import analyze_paths
-from analysis.track import load_track
-from analysis.vehicle_clock import on_vehicle_clock
+from fpv_station.analysis.report import analyze_paths
+from fpv_station.analysis.track import load_track
+from fpv_station.analysis.vehicle_clock import on_vehicle_clock
 from tests import shaped_tlog
 from tests import synthetic as syn
 

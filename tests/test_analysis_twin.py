@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.report import analyze_paths
-from core.mavlink.tlog_records import encode_record
+from fpv_station.analysis.report import analyze_paths
+from fpv_station.core.mavlink.tlog_records import encode_record
+from fpv_station.twin.pilot import Observation, Pilot, task_plan
+from fpv_station.twin.runner import Twin
 from tests.helpers import wait_until
-from twin.pilot import Observation, Pilot, task_plan
-from twin.runner import Twin
 
 TASKS = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
 WALL_T0 = 1.76e9
@@ -110,7 +110,7 @@ def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
     `fpv-station analyze --task hover` give for the session."""
     import httpx
 
-    from server.cli import main as cli_main
+    from fpv_station.server.cli import main as cli_main
     from tests.twin_flights import recorded_twin_flight
 
     def choose_task_1(base: str) -> None:
@@ -165,8 +165,8 @@ def test_an_aborted_trial_says_why(tmp_path):
     """Task 1 chosen, but the pilot lands from 2 m: no score, and the reason in words."""
     import httpx
 
+    from fpv_station.twin.pilot import Leg
     from tests.twin_flights import recorded_twin_flight
-    from twin.pilot import Leg
 
     def choose(base: str) -> None:
         assert httpx.post(f"{base}/api/task", json={"task_id": 1}).status_code == 200

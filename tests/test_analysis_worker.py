@@ -15,8 +15,8 @@ import psutil
 import pytest
 from websockets.sync.client import connect
 
-from server.analysis_worker import MAX_PENDING
-from server.app import create_app
+from fpv_station.server.analysis_worker import MAX_PENDING
+from fpv_station.server.app import create_app
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle

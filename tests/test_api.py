@@ -10,9 +10,9 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from companion.vehicle_state import Attitude, VehicleState
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.companion.vehicle_state import Attitude, VehicleState
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests.helpers import RawWsClient, run_uvicorn, wait_until
 from tests.mav_vehicle import MavVehicle
 

@@ -1,8 +1,8 @@
 import httpx
 import pytest
 
-from server.app import create_app
-from server.settings import SettingsError, load_settings
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import SettingsError, load_settings
 from tests.helpers import run_uvicorn
 
 

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def serve(*args, env=None):
     return subprocess.Popen(
-        [sys.executable, "-m", "server", "serve", *args],
+        [sys.executable, "-m", "fpv_station.server", "serve", *args],
         cwd=ROOT,
         # Any free port for the 3D panel (other runs may hold 8080), no sessions here.
         env={

@@ -11,7 +11,7 @@ import httpx
 import numpy as np
 import pytest
 
-from core.mavlink.tlog_records import STEP_BACK_MIN_S, TlogReader, encode_record
+from fpv_station.core.mavlink.tlog_records import STEP_BACK_MIN_S, TlogReader, encode_record
 from tests import shaped_tlog
 from tests import synthetic as syn
 from tests.replayed import replayed_station

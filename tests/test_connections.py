@@ -14,8 +14,8 @@ import httpx
 import psutil
 from websockets.sync.client import connect
 
-from server.app import create_app
-from server.client_limits import BASELINE_FDS, CONTROL_CLIENTS, HTTP_ROOM, ClientLimits
+from fpv_station.server.app import create_app
+from fpv_station.server.client_limits import BASELINE_FDS, CONTROL_CLIENTS, HTTP_ROOM, ClientLimits
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.station_process import serve_station
 
@@ -58,7 +58,7 @@ def test_a_cap_counts_places_taken_from_many_threads():
 LOW_LIMIT = (
     "-c",
     "import resource, sys; resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256)); "
-    "sys.argv[0] = 'fpv-station'; from server.cli import main; sys.exit(main())",
+    "sys.argv[0] = 'fpv-station'; from fpv_station.server.cli import main; sys.exit(main())",
 )
 
 

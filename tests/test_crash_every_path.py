@@ -12,7 +12,7 @@ import httpx
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from analysis.report import analyze_paths
+from fpv_station.analysis.report import analyze_paths
 from tests import shaped_tlog
 from tests import synthetic as syn
 from tests.replayed import replayed_station

@@ -7,7 +7,7 @@ import re
 import tomllib
 from pathlib import Path
 
-from server.settings import Settings
+from fpv_station.server.settings import Settings
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -13,7 +13,7 @@ import threading
 import tty
 from pathlib import Path
 
-from server.doctor import (
+from fpv_station.server.doctor import (
     check_disk,
     check_heartbeat,
     check_pi_uart,
@@ -21,8 +21,8 @@ from server.doctor import (
     check_serial,
     firmware_version,
 )
-from server.listen import listening_socket
-from server.settings import Settings
+from fpv_station.server.listen import listening_socket
+from fpv_station.server.settings import Settings
 from tests.helpers import free_port, station_settings
 from tests.mav_vehicle import MavVehicle
 
@@ -219,7 +219,7 @@ def test_firmware_version_as_ardupilot_and_px4_pack_it():
 def test_doctor_says_signing_refused_the_vehicle(tmp_path):
     """A vehicle that does not sign, heard by a station with a key: the heartbeat check
     fails and says why (signing), not "check the wiring"."""
-    from core.mavlink.signing import write_key_file
+    from fpv_station.core.mavlink.signing import write_key_file
 
     key = write_key_file(tmp_path / "mavlink.key", "field day 2026")
     with MavVehicle("udp") as vehicle:

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from analysis.flights import split_flights
-from companion.recording import layout
-from companion.state_tracker import StateTracker
-from core.mavlink.framing import MavFramer
-from core.mavlink.tlog_records import TlogReader
-from server.app import create_app
+from fpv_station.analysis.flights import split_flights
+from fpv_station.companion.recording import layout
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.core.mavlink.framing import MavFramer
+from fpv_station.core.mavlink.tlog_records import TlogReader
+from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, station_settings, wait_until

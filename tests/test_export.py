@@ -17,10 +17,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from learn.demos import DemoConfig, fly_demo
-from learn.episodes import ChannelMap
-from learn.export import ExportOptions, export_recordings, recorded_task_id
-from server.cli import main as cli_main
+from fpv_station.learn.demos import DemoConfig, fly_demo
+from fpv_station.learn.episodes import ChannelMap
+from fpv_station.learn.export import ExportOptions, export_recordings, recorded_task_id
+from fpv_station.server.cli import main as cli_main
 from tests import synthetic as syn
 from tests.recording_fakes import as_format_1, recorded_frames
 from tests.test_flights import _sorties
@@ -308,8 +308,8 @@ def test_cli_export_and_its_errors(session, tmp_path, capsys):
 
 
 def test_telemetry_read_in_small_blocks_is_the_same(session, monkeypatch):
-    from analysis import recording
-    from learn.episodes import COLUMNS
+    from fpv_station.analysis import recording
+    from fpv_station.learn.episodes import COLUMNS
 
     with recording.open_recording(session, COLUMNS) as whole:
         monkeypatch.setattr(recording, "CSV_BLOCK_BYTES", 1000)  # rows cut across blocks
@@ -426,7 +426,7 @@ def test_an_episode_carries_the_task_its_session_was_flown_for(session, tmp_path
     labels the episode with it; sessions of two tasks are refused together."""
     import shutil
 
-    from analysis.recording import RecordingError
+    from fpv_station.analysis.recording import RecordingError
 
     def flown_for(task_id: int, name: str) -> Path:
         copy = tmp_path / f"{session.name[:-4]}_t{task_id}"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings
 
 PAGES = ("/", "/goggles.html", "/sessions.html", "/analysis.html", "/replay.html")

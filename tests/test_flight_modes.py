@@ -6,9 +6,9 @@ import itertools
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.state_tracker import mode_name
-from core.mavlink.ardupilot_modes import BY_VEHICLE_TYPE, ardupilot_mode_name
-from core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES
+from fpv_station.companion.state_tracker import mode_name
+from fpv_station.core.mavlink.ardupilot_modes import BY_VEHICLE_TYPE, ardupilot_mode_name
+from fpv_station.core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES
 
 
 def test_tables_are_pymavlinks():

@@ -13,8 +13,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from companion.recording import layout
-from server.app import create_app
+from fpv_station.companion.recording import layout
+from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests.helpers import run_uvicorn, station_settings, wait_until
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.flights import Flight, split_flights, track_flights
-from analysis.track import load_track
+from fpv_station.analysis.flights import Flight, split_flights, track_flights
+from fpv_station.analysis.track import load_track
 from tests import synthetic as syn
 
 DT = 0.02

@@ -12,8 +12,8 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.recording import layout
-from server.app import create_app
+from fpv_station.companion.recording import layout
+from fpv_station.server.app import create_app
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from core import geodesy as g
+from fpv_station.core import geodesy as g
 
 HOME = (43.0021, -78.7875, 180.0)
 

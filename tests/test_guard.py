@@ -13,10 +13,10 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from server.app import create_app
-from server.errors import DenialLogFilter
-from server.guard import RedactTokens
-from server.settings import load_settings
+from fpv_station.server.app import create_app
+from fpv_station.server.errors import DenialLogFilter
+from fpv_station.server.guard import RedactTokens
+from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn, station_settings
 
 
@@ -174,7 +174,7 @@ def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
         resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256))
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", "server", "serve", "--source", "none", "--open", "--no-3d",
+        [sys.executable, "-m", "fpv_station.server", "serve", "--source", "none", "--open", "--no-3d",
          "--host", "127.0.0.1", "--port", str(port), "--sessions-dir", str(tmp_path)],
         preexec_fn=low_limit,
         stdout=subprocess.DEVNULL,

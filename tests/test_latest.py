@@ -1,7 +1,7 @@
 import asyncio
 import threading
 
-from companion.latest import Latest, Wakeup
+from fpv_station.companion.latest import Latest, Wakeup
 
 
 def test_get_before_and_after_publish():

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from learn.bc import FEATURES, BcPolicy
-from server.cli import main as cli_main
+from fpv_station.learn.bc import FEATURES, BcPolicy
+from fpv_station.server.cli import main as cli_main
 
 
 def _table(text: str) -> dict[str, list[str]]:

@@ -12,12 +12,12 @@ import tty
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.forward_resolver import ForwardResolver
-from companion.link import MavlinkLink
-from companion.link_health import ForwardTarget
-from companion.link_settings import LinkSettings
-from companion.transports import UdpTransport, format_addr, parse_connection
-from core.mavlink.tlog_records import write_record
+from fpv_station.companion.forward_resolver import ForwardResolver
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.link_health import ForwardTarget
+from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.companion.transports import UdpTransport, format_addr, parse_connection
+from fpv_station.core.mavlink.tlog_records import write_record
 from tests.helpers import free_port
 from tests.helpers import wait_until as _wait_until
 from tests.mav_vehicle import MavVehicle

@@ -21,15 +21,15 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from websockets.sync.client import connect
 
-from companion.link import MavlinkLink
-from companion.recording import layout
-from core.mavlink.signing import write_key_file
-from server.app import create_app
-from server.cli import main as cli_main
-from server.settings import SettingsError
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.recording import layout
+from fpv_station.core.mavlink.signing import write_key_file
+from fpv_station.server.app import create_app
+from fpv_station.server.cli import main as cli_main
+from fpv_station.server.settings import SettingsError
+from fpv_station.twin.runner import Twin
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
-from twin.runner import Twin
 
 REAL_LAT, FORGED_LAT = 43.0021, 12.5
 PASSPHRASE = "field day 2026"
@@ -444,7 +444,7 @@ def test_the_pilot_sees_refused_mavlink_on_the_osd(tmp_path) -> None:
 
 
 def test_serve_flags_set_the_link_defences(tmp_path) -> None:
-    from server.cli import build_parser, settings_from_args
+    from fpv_station.server.cli import build_parser, settings_from_args
 
     key = key_file(tmp_path)
     args = build_parser().parse_args(
@@ -467,7 +467,7 @@ def test_udpin_reads_a_burst_at_one_wake_up_and_still_refuses_a_foreign_datagram
     """The link reads every datagram queued at a wake-up (an autopilot's streams come in
     bursts), one at a time, so the lock still refuses another host's datagram inside the
     burst; with nothing queued the read returns at once."""
-    from companion.transports import UdpTransport, parse_connection
+    from fpv_station.companion.transports import UdpTransport, parse_connection
 
     port = free_port(socket.SOCK_DGRAM)
     transport = UdpTransport(parse_connection(f"udpin:127.0.0.1:{port}"))
@@ -561,7 +561,7 @@ def signer(sysid: int, compid: int, key: bytes | None) -> mavlink.MAVLink:
 @contextlib.contextmanager
 def link_on(source: str, **settings):
     """A started MavlinkLink and the packets it hands its listeners (the recorder's)."""
-    from companion.link_settings import LinkSettings
+    from fpv_station.companion.link_settings import LinkSettings
 
     link = MavlinkLink(LinkSettings(source=source, request_streams=False, **settings))
     got: list[bytes] = []
@@ -681,7 +681,7 @@ def test_forwarded_ground_stations_packets_are_checked_and_counted(tmp_path) -> 
 def test_a_passphrase_of_several_words_warns_that_mavproxy_reads_it_differently(
     tmp_path, caplog
 ) -> None:
-    from companion.link_settings import LinkSettings
+    from fpv_station.companion.link_settings import LinkSettings
 
     for passphrase, warned in ((PASSPHRASE, True), ("fieldday2026", False)):
         caplog.clear()

@@ -7,7 +7,7 @@ import threading
 
 import httpx
 
-from server.listen import listening_socket, uvicorn_server
+from fpv_station.server.listen import listening_socket, uvicorn_server
 from tests.helpers import CountingSelector, wait_until
 
 

@@ -5,8 +5,8 @@ import random
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from core.mavlink.framing import MavFramer, frame_length, message_id
-from core.mavlink.tlog_records import TlogReader, encode_record, write_record
+from fpv_station.core.mavlink.framing import MavFramer, frame_length, message_id
+from fpv_station.core.mavlink.tlog_records import TlogReader, encode_record, write_record
 
 ENC = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
 
@@ -201,7 +201,7 @@ def test_the_fast_decoder_gives_pymavlinks_messages_for_every_message_of_the_dia
     (the header's too), for every message type in MAVLink 2 and, where its id allows,
     MAVLink 1, with random and all-zero payloads (MAVLink 2 drops trailing zeros); and a
     bad checksum, a signed packet and an unknown id raise or decode as pymavlink does."""
-    from core.mavlink.fast_decode import _LAYOUTS, FastDecoder
+    from fpv_station.core.mavlink.fast_decode import _LAYOUTS, FastDecoder
 
     rng = random.Random(7)
     enc = mavlink.MAVLink(None, srcSystem=42, srcComponent=191)

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.recording import layout
-from companion.state_tracker import StateTracker
-from core.mavlink.framing import MavFramer
-from core.mavlink.tlog_records import TlogReader
+from fpv_station.companion.recording import layout
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.core.mavlink.framing import MavFramer
+from fpv_station.core.mavlink.tlog_records import TlogReader
 from tests import shaped_tlog
 from tests import synthetic as syn
 from tests.replayed import replayed_station

@@ -11,9 +11,9 @@ import pytest
 from pymavlink import DFReader
 from pyulog import ULog
 
-from companion.link import MavlinkLink
-from companion.link_settings import LinkSettings
-from companion.onboard_log import (
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.companion.onboard_log import (
     DownloadStatus,
     LogDownload,
     LogEntry,
@@ -21,9 +21,9 @@ from companion.onboard_log import (
     choose_log,
     log_file_name,
 )
+from fpv_station.twin.runner import Twin
 from tests.helpers import wait_until
 from tests.log_responder import LogResponder
-from twin.runner import Twin
 
 DATAFLASH = Path(__file__).parent / "data" / "dataflash" / "arducopter.bin"
 # Short retries: a lost window is asked for again within a fraction of a second; the

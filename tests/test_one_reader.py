@@ -21,11 +21,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from analysis.flights import track_flights
-from analysis.track import load_track
-from core.mavlink.tlog_records import TlogReader, encode_record
-from learn.demos import DemoConfig, fly_demo
-from server.cli import main as cli_main
+from fpv_station.analysis.flights import track_flights
+from fpv_station.analysis.track import load_track
+from fpv_station.core.mavlink.tlog_records import TlogReader, encode_record
+from fpv_station.learn.demos import DemoConfig, fly_demo
+from fpv_station.server.cli import main as cli_main
 from tests import shaped_tlog
 from tests import synthetic as syn
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from playwright.sync_api import expect
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
 from tests.test_pilot_layout import overlap
@@ -448,7 +448,7 @@ def rendered_horizon_row(frame) -> float:
     """The sky/ground boundary's row in a twin frame at the columns a quarter and three
     quarters across: the last sky pixel of each column (sky is not seen below the horizon;
     obstacles and the net only hide some of it), the lowest in a small band of columns."""
-    from twin.render import SKY_BGR
+    from fpv_station.twin.render import SKY_BGR
 
     height, width = frame.shape[:2]
     sky = (frame == np.array(SKY_BGR, np.uint8)).all(axis=2)

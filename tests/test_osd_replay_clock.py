@@ -15,7 +15,7 @@ import httpx
 import pytest
 from playwright.sync_api import expect
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests.helpers import run_uvicorn, station_settings, wait_until
 

@@ -23,9 +23,9 @@ from viser._messages import ShareUrlRequest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 
-from server.app import create_app
-from server.settings import load_settings
-from server.trajectory3d.gate import MESSAGES_BURST, MESSAGES_PER_S, gui_uuid
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
+from fpv_station.server.trajectory3d.gate import MESSAGES_BURST, MESSAGES_PER_S, gui_uuid
 from tests.helpers import free_port, run_uvicorn, wait_until
 from tests.helpers import viser_camera as camera
 from tests.station_process import serve_station

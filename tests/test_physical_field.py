@@ -12,9 +12,9 @@ import dataclasses
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from analysis.report import analyze_paths
-from analysis.tasks import TaskParams
-from core.geodesy import enu_to_geodetic
+from fpv_station.analysis.report import analyze_paths
+from fpv_station.analysis.tasks import TaskParams
+from fpv_station.core.geodesy import enu_to_geodetic
 from tests import shaped_tlog
 from tests import synthetic as syn
 

@@ -32,8 +32,8 @@ from pathlib import Path
 for name in sys.argv[2].split(","):
     sys.modules[name] = None  # importing it now fails, as when it is not installed
 import httpx
-from server.app import create_app
-from server.cli import build_parser
+from fpv_station.server.app import create_app
+from fpv_station.server.cli import build_parser
 from tests.helpers import run_uvicorn, station_settings
 
 build_parser()  # every subcommand's flags, as `fpv-station serve` builds them first
@@ -47,7 +47,7 @@ with run_uvicorn(create_app(settings)) as base:
     panel = httpx.get(base + "/api/viser", timeout=30).json()  # the first visit
     client = httpx.get(f"http://127.0.0.1:{panel['port']}/", timeout=10).status_code
     replay = httpx.get(f"http://127.0.0.1:{panel['replay_port']}/", timeout=10).status_code
-import twin.runner, twin.vehicle  # what `make run` adds: the embedded twin
+import fpv_station.twin.runner, fpv_station.twin.vehicle  # what `make run` adds: the embedded twin
 # Loaded after start: the 3D panels' first visit and the twin.
 later = sorted(set(sys.modules) - set(modules))
 print(json.dumps({"ok": health["ok"], "sessions": sessions, "modules": modules,

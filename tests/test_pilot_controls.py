@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import (
     arm_and_climb,
     run_uvicorn,

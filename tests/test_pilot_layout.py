@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import chromium, run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
 

@@ -2,8 +2,8 @@
 
 from playwright.sync_api import expect
 
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn
 from tests.mav_vehicle import MavVehicle
 

@@ -4,7 +4,12 @@ import itertools
 
 from pymavlink import mavutil
 
-from core.mavlink.px4_modes import PX4_MODES, px4_custom_mode, px4_main_sub, px4_mode_name
+from fpv_station.core.mavlink.px4_modes import (
+    PX4_MODES,
+    px4_custom_mode,
+    px4_main_sub,
+    px4_mode_name,
+)
 
 
 def test_custom_modes_are_px4s():

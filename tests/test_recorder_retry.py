@@ -14,11 +14,11 @@ import shutil
 
 import pytest
 
-from companion.latest import Latest
-from companion.recording.session import RecordingSession, SessionConfig
-from companion.recording.writer import WriterLimits
-from companion.vehicle_state import VehicleState
-from companion.video_frame import Frame
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.recording.session import RecordingSession, SessionConfig
+from fpv_station.companion.recording.writer import WriterLimits
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.companion.video_frame import Frame
 from tests.recording_fakes import FakeRig, recorder_options, starve, until
 from tests.test_recording import DiskUsage
 from tests.test_recording_kill import read_line, spawn

@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from companion.cameras.rig import build_camera
-from companion.cameras.settings import CameraConfig
-from companion.latest import Latest
-from companion.recording import layout
-from companion.recording.recorder import Recorder, RecorderOptions
-from companion.recording.session import RecordingSession, SessionConfig
-from companion.recording.writer import WriterLimits
-from companion.vehicle_state import Heartbeat, VehicleState
-from companion.video_frame import Frame
+from fpv_station.companion.cameras.rig import build_camera
+from fpv_station.companion.cameras.settings import CameraConfig
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.recorder import Recorder, RecorderOptions
+from fpv_station.companion.recording.session import RecordingSession, SessionConfig
+from fpv_station.companion.recording.writer import WriterLimits
+from fpv_station.companion.vehicle_state import Heartbeat, VehicleState
+from fpv_station.companion.video_frame import Frame
 from tests.helpers import CountingSelector, wait_until
 from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs, recorded_frames
 from tests.video_fixtures import write_images
@@ -542,8 +542,8 @@ def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog)
     import os
     import threading
 
-    from companion.recording.rows import RowFormatter, Sample
-    from companion.recording.writer import SessionWriter
+    from fpv_station.companion.recording.rows import RowFormatter, Sample
+    from fpv_station.companion.recording.writer import SessionWriter
 
     t0 = time.monotonic()
     reader = stalled_pack(tmp_path)
@@ -584,8 +584,8 @@ def test_writer_waits_for_its_batch_and_wakes_at_half_full(tmp_path):
     many wake-ups): what is queued waits for the batch timer, a queue at half its limit
     wakes the thread at once, and closing writes the rest. A batch's frames.csv rows go
     straight to the OS with its frames (no flush in this test but the close's)."""
-    from companion.recording.rows import RowFormatter, Sample
-    from companion.recording.writer import SessionWriter
+    from fpv_station.companion.recording.rows import RowFormatter, Sample
+    from fpv_station.companion.recording.writer import SessionWriter
     from tests.helpers import wait_until
 
     jpeg = make_jpegs(1)[0]
@@ -633,8 +633,8 @@ def test_a_failed_frame_write_keeps_the_batch_telemetry(tmp_path):
     still written (the telemetry files are fine) and only the frames are counted lost."""
     import os
 
-    from companion.recording.rows import RowFormatter, Sample
-    from companion.recording.writer import SessionWriter
+    from fpv_station.companion.recording.rows import RowFormatter, Sample
+    from fpv_station.companion.recording.writer import SessionWriter
 
     jpeg = make_jpegs(1)[0]
     t0 = time.monotonic()
@@ -665,8 +665,8 @@ def test_rows_reach_the_disk_only_after_the_frames_they_name(tmp_path):
     frame's write blocks in the kernel, no row of its batch may have been written."""
     import os
 
-    from companion.recording.rows import RowFormatter, Sample
-    from companion.recording.writer import SessionWriter
+    from fpv_station.companion.recording.rows import RowFormatter, Sample
+    from fpv_station.companion.recording.writer import SessionWriter
 
     jpeg = big_jpeg()
     t0 = time.monotonic()
@@ -712,10 +712,10 @@ def test_a_rows_text_is_what_csv_writes_of_its_cells():
     import io
     from dataclasses import replace
 
-    from companion.link_settings import LinkSettings
-    from companion.recording.rows import FrameRef, RowFormatter, Sample
-    from companion.state_tracker import StateTracker
-    from core.mavlink.framing import MavFramer
+    from fpv_station.companion.link_settings import LinkSettings
+    from fpv_station.companion.recording.rows import FrameRef, RowFormatter, Sample
+    from fpv_station.companion.state_tracker import StateTracker
+    from fpv_station.core.mavlink.framing import MavFramer
     from tests.mav_vehicle import MavVehicle
 
     vehicle, tracker, framer = MavVehicle(), StateTracker(), MavFramer()

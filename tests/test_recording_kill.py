@@ -14,7 +14,7 @@ import httpx
 import numpy as np
 from pymavlink import mavutil
 
-from companion.recording import layout
+from fpv_station.companion.recording import layout
 from tests.helpers import free_port, wait_until
 from tests.recording_fakes import recorded_frames
 
@@ -40,7 +40,7 @@ def spawn(args: list[str], env: dict | None = None) -> subprocess.Popen:
 
 def serve_args(source: str, port: int) -> list[str]:
     """`fpv-station serve` on loopback; --open: these tests are not about the token."""
-    return ["-m", "server", "serve", "--source", source, "--host", "127.0.0.1"] + [
+    return ["-m", "fpv_station.server", "serve", "--source", source, "--host", "127.0.0.1"] + [
         *("--port", str(port), "--no-3d", "--open")
     ]
 

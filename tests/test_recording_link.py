@@ -9,11 +9,11 @@ import httpx
 import numpy as np
 import pytest
 
-from companion.link import MavlinkLink
-from companion.link_settings import LinkSettings
-from companion.recording import layout
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.companion.recording import layout
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn, wait_until
 from tests.mav_vehicle import MavVehicle
 

@@ -12,11 +12,17 @@ from pathlib import Path
 
 import pytest
 
-from companion.recording import layout
-from companion.recording.meta import CameraQuality, Quality, SessionMeta, read_meta, write_meta
-from companion.recording.ondisk import TELEMETRY_TAIL_BYTES, take_census
-from companion.recording.recovery import mark_interrupted
-from companion.recording.store import SessionStore
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import (
+    CameraQuality,
+    Quality,
+    SessionMeta,
+    read_meta,
+    write_meta,
+)
+from fpv_station.companion.recording.ondisk import TELEMETRY_TAIL_BYTES, take_census
+from fpv_station.companion.recording.recovery import mark_interrupted
+from fpv_station.companion.recording.store import SessionStore
 from tests.recording_fakes import make_jpegs
 
 START = 1_700_000_000.0

@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from companion.recording import layout
-from companion.recording.meta import SessionMeta, write_meta
-from companion.recording.store import (
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import SessionMeta, write_meta
+from fpv_station.companion.recording.store import (
     InvalidPath,
     InvalidSessionId,
     SessionFileNotFound,
@@ -173,7 +173,7 @@ def test_the_folder_of_a_session_being_recorded_is_walked_at_most_every_refresh(
     session.json is unchanged; the recorder rewrites a live session's every 2 s, and a
     walk of a long flight's folder (70,000 JPEGs after 20 min) costs a Pi about a second.
     So a live session's size (and flags) are taken again at most every LIVE_REFRESH_S."""
-    from companion.recording import store as store_module
+    from fpv_station.companion.recording import store as store_module
 
     monkeypatch.setattr(store_module, "LIVE_REFRESH_S", 0.5)
     store = SessionStore(tmp_path)
@@ -203,7 +203,7 @@ def test_a_frame_index_reads_what_is_appended_and_rereads_a_rewritten_file(tmp_p
     a file replaced by recovery (a new inode) is read again from its start."""
     import os
 
-    from companion.recording import frame_pack
+    from fpv_station.companion.recording import frame_pack
 
     cam = tmp_path / "front"
     cam.mkdir()

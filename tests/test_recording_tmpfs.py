@@ -10,7 +10,7 @@ import time
 import pytest
 from pymavlink import mavutil
 
-from companion.recording import layout
+from fpv_station.companion.recording import layout
 from tests.recording_fakes import FakeRig, make_jpegs, recorder_options
 from tests.test_recording_kill import complete_rows, read_line, spawn
 
@@ -118,7 +118,7 @@ def test_recording_resumes_by_itself_when_the_disk_has_room_again(tmp_path, capl
     import logging
     import shutil
 
-    caplog.set_level(logging.INFO, logger="companion.recording.recorder")
+    caplog.set_level(logging.INFO, logger="fpv_station.companion.recording.recorder")
 
     with tmpfs(tmp_path / "disk", 8192) as root:
         rig = FakeRig(root, recorder_options(0, auto_record_on_arm=True), jpegs=big_jpegs())

@@ -11,10 +11,10 @@ import time
 import numpy as np
 import pytest
 
-from analysis.track import load_session_dir
-from companion.link import MavlinkLink
-from companion.link_settings import LinkSettings
-from companion.recording import layout
+from fpv_station.analysis.track import load_session_dir
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.companion.recording import layout
 from tests.helpers import wait_until
 from tests.recording_fakes import recorded_frames
 from tests.twin_flights import recorded_twin_flight

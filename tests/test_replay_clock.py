@@ -13,8 +13,8 @@ import httpx
 import numpy as np
 import pytest
 
-from core.mavlink.tlog_records import TlogReader
-from server.app import create_app
+from fpv_station.core.mavlink.tlog_records import TlogReader
+from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, station_settings, wait_until

@@ -10,12 +10,12 @@ import threading
 import pytest
 from playwright.sync_api import expect
 
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
+from fpv_station.twin.pilot import Leg, Pilot, fly_twin
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn
 from tests.twin_flights import twin_station_settings
-from twin.pilot import Leg, Pilot, fly_twin
 
 HELD = 3  # "Held 10 s" in task 1's steps: Armed, Took off, Reached 4 m, Held 10 s, ...
 

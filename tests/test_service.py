@@ -20,9 +20,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from companion.link_settings import LinkSettings
-from server.app import create_app
-from server.install_service import (
+from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.server.app import create_app
+from fpv_station.server.install_service import (
     HIDDEN_FROM_SERVICE,
     SMALL_PI_LINK,
     SMALL_PI_SERVER,
@@ -31,9 +31,9 @@ from server.install_service import (
     install,
     small_pi_toml,
 )
-from server.sd_notify import Notifier, notify_loop
-from server.settings import load_settings
-from server.tasks import TaskSupervisor
+from fpv_station.server.sd_notify import Notifier, notify_loop
+from fpv_station.server.settings import load_settings
+from fpv_station.server.tasks import TaskSupervisor
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
 

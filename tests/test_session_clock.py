@@ -10,17 +10,17 @@ import httpx
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.recording import layout
-from companion.recording.meta import SessionMeta, write_meta
-from companion.recording.recovery import mark_interrupted
-from companion.recording.session_clock import choose_session_clock
-from companion.recording.store import SessionStore
-from companion.state_tracker import StateTracker
-from companion.system_clock import clock_synchronised
-from companion.vehicle_state import VehicleUtc
-from core.mavlink.framing import MavFramer
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import SessionMeta, write_meta
+from fpv_station.companion.recording.recovery import mark_interrupted
+from fpv_station.companion.recording.session_clock import choose_session_clock
+from fpv_station.companion.recording.store import SessionStore
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.companion.system_clock import clock_synchronised
+from fpv_station.companion.vehicle_state import VehicleUtc
+from fpv_station.core.mavlink.framing import MavFramer
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn, wait_until
 from tests.mav_vehicle import MavVehicle
 

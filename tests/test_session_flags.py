@@ -14,16 +14,16 @@ import pytest
 from playwright.sync_api import expect
 from websockets.sync.client import connect
 
-from companion.recording import layout
-from companion.recording.flags import QUALITY_THRESHOLDS, session_flags
-from companion.recording.meta import (
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.flags import QUALITY_THRESHOLDS, session_flags
+from fpv_station.companion.recording.meta import (
     CameraQuality,
     LinkLoss,
     Quality,
     Recovery,
     SessionMeta,
 )
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import chromium, run_uvicorn, station_settings, wait_until
 
 START = 1_790_000_000.0  # 2026-09-21

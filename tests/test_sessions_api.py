@@ -4,8 +4,8 @@ import zipfile
 import httpx
 import pytest
 
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn
 
 

@@ -5,13 +5,13 @@ import dataclasses
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.state_tracker import StateTracker
-from companion.vehicle_state import MESSAGES_KEPT, VehicleState
-from core.mavlink.framing import MavFramer
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.companion.vehicle_state import MESSAGES_KEPT, VehicleState
+from fpv_station.core.mavlink.framing import MavFramer
+from fpv_station.twin.sensors import SensorParams
+from fpv_station.twin.sim import Sim, SimConfig
+from fpv_station.twin.telemetry import Telemetry
 from tests.mav_vehicle import MavVehicle
-from twin.sensors import SensorParams
-from twin.sim import Sim, SimConfig
-from twin.telemetry import Telemetry
 
 
 class Feed:

@@ -1,6 +1,6 @@
 """Loss per sender from sequence numbers (pure)."""
 
-from companion.stream_loss import MAX_STREAMS, StreamLossCounter
+from fpv_station.companion.stream_loss import MAX_STREAMS, StreamLossCounter
 
 
 def figures(counter, autopilot=(1, 1)):

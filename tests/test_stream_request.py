@@ -2,7 +2,7 @@
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.stream_request import StreamRequester
+from fpv_station.companion.stream_request import StreamRequester
 
 RATES = {"ATTITUDE": 50.0, "GPS_RAW_INT": 5.0}
 

@@ -8,7 +8,7 @@ import subprocess
 
 import pytest
 
-from companion.system_clock import clock_synchronised
+from fpv_station.companion.system_clock import clock_synchronised
 
 PROGRAM = r"""
 #include <stdio.h>

@@ -14,9 +14,9 @@ import httpx
 import pytest
 from playwright.sync_api import expect
 
-from companion.recording.meta import session_task
-from core.scene import load_scene
-from server.trials import _score_and_store
+from fpv_station.companion.recording.meta import session_task
+from fpv_station.core.scene import load_scene
+from fpv_station.server.trials import _score_and_store
 from tests import synthetic as syn
 from tests.station_process import serve_station
 

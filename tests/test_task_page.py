@@ -15,10 +15,10 @@ import pytest
 from playwright.sync_api import expect
 from websockets.sync.client import connect
 
-from server.app import create_app
+from fpv_station.server.app import create_app
+from fpv_station.twin.pilot import Leg, Observation, Pilot, task_plan
 from tests.helpers import chromium, run_uvicorn
 from tests.twin_flights import twin_station_settings
-from twin.pilot import Leg, Observation, Pilot, task_plan
 
 
 def fly_over_the_control_socket(ws_url: str, twin, pilot: Pilot, stop: threading.Event) -> None:

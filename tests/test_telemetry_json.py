@@ -9,10 +9,10 @@ import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.latest import Versioned
-from companion.state_tracker import StateTracker
-from core.mavlink.framing import MavFramer
-from server.telemetry_json import SharedStateJson
+from fpv_station.companion.latest import Versioned
+from fpv_station.companion.state_tracker import StateTracker
+from fpv_station.core.mavlink.framing import MavFramer
+from fpv_station.server.telemetry_json import SharedStateJson
 from tests.mav_vehicle import DEFAULT_RATES_HZ, MavVehicle
 
 

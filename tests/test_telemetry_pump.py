@@ -16,12 +16,12 @@ from dataclasses import replace
 import numpy as np
 from websockets.sync.client import connect
 
-from companion.latest import Latest
-from companion.vehicle_state import Attitude, VehicleState
-from server.app import create_app
-from server.tasks import TaskSupervisor
-from server.telemetry_json import SharedStateJson
-from server.telemetry_pump import TelemetryClient, TelemetryPump
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.vehicle_state import Attitude, VehicleState
+from fpv_station.server.app import create_app
+from fpv_station.server.tasks import TaskSupervisor
+from fpv_station.server.telemetry_json import SharedStateJson
+from fpv_station.server.telemetry_pump import TelemetryClient, TelemetryPump
 from tests.helpers import run_uvicorn, station_settings, wait_until
 
 

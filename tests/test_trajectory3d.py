@@ -15,23 +15,27 @@ import numpy as np
 import pytest
 import viser.transforms as vtf
 
-from companion.latest import Latest
-from companion.vehicle_state import (
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.vehicle_state import (
     Attitude,
     GlobalPosition,
     GpsRaw,
     PilotAltitude,
     VehicleState,
 )
-from core.geodesy import enu_to_geodetic
-from core.scene import load_scene
-from server.app import create_app
-from server.settings import ViserSettings, load_settings
-from server.trajectory3d.colors import ramp_rgb
-from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
-from server.trajectory3d.service import Trajectory3D
-from server.trajectory3d.trail import Trail, TrailSample
-from server.trajectory3d.viser_loop import on_viser_loop_blocking
+from fpv_station.core.geodesy import enu_to_geodetic
+from fpv_station.core.scene import load_scene
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import ViserSettings, load_settings
+from fpv_station.server.trajectory3d.colors import ramp_rgb
+from fpv_station.server.trajectory3d.pose import (
+    R_enu_flu_from_euler,
+    bottom_footprint_enu,
+    wxyz_from_matrix,
+)
+from fpv_station.server.trajectory3d.service import Trajectory3D
+from fpv_station.server.trajectory3d.trail import Trail, TrailSample
+from fpv_station.server.trajectory3d.viser_loop import on_viser_loop_blocking
 from tests.helpers import (
     CountingSelector,
     run_uvicorn,
@@ -435,7 +439,7 @@ def test_panel_starts_and_stops_with_the_station():
 
 
 def test_a_visit_after_the_station_stopped_starts_no_panel(tmp_path):
-    from server.station import open_station, start_3d_panels
+    from fpv_station.server.station import open_station, start_3d_panels
 
     settings = station_settings("none", tmp_path, **{"viser.enabled": True, "viser.port": 0})
 
@@ -450,7 +454,7 @@ def test_a_visit_after_the_station_stopped_starts_no_panel(tmp_path):
 
 
 def test_no_3d_flag():
-    from server.cli import build_parser, settings_from_args
+    from fpv_station.server.cli import build_parser, settings_from_args
 
     args = build_parser().parse_args(["serve", "--no-3d", "--viser-port", "8090"])
     settings = settings_from_args(args)
@@ -533,7 +537,7 @@ def test_cli_serves_the_panel_on_its_port_and_stops_it(tmp_path):
 
 
 def test_positions_without_a_fix_are_not_drawn():
-    from server.trajectory3d.service import sample_from_state
+    from fpv_station.server.trajectory3d.service import sample_from_state
 
     good = make_state(1.0, (1.0, 2.0, 3.0))
     assert sample_from_state(good) is not None
@@ -554,7 +558,7 @@ def test_the_scene_is_changed_only_on_vipers_own_loop_thread(monkeypatch):
     mutated during iteration"). Every message the panel queues, from its start, its
     steps, its GUI requests and its redraws, with many viewers watching a fast trail,
     must be queued on the loop of the buffer it goes into."""
-    import server.trajectory3d.service as service_module
+    import fpv_station.server.trajectory3d.service as service_module
 
     foreign = watch_viser_pushes(monkeypatch, service_module)
     state: Latest[VehicleState] = Latest()

@@ -12,10 +12,10 @@ import httpx
 import numpy as np
 import pytest
 
-from companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
-from core.geodesy import enu_to_geodetic
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
+from fpv_station.core.geodesy import enu_to_geodetic
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests.helpers import chromium, run_uvicorn, wait_until
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 

@@ -12,10 +12,10 @@ import httpx
 import numpy as np
 import pytest
 
-from companion.recording import layout
-from server.app import create_app
-from server.settings import load_settings
-from server.trajectory3d.replay import CameraFrames, build_trajectory, frames_at
+from fpv_station.companion.recording import layout
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
+from fpv_station.server.trajectory3d.replay import CameraFrames, build_trajectory, frames_at
 from tests.helpers import run_uvicorn
 from tests.synthetic import a_to_b_flight, figure8_flight, write_session
 
@@ -91,7 +91,7 @@ def test_frames_at_picks_the_newest_frame_at_or_before():
 
 
 def test_build_trajectory_origin_gaps_and_alignment():
-    from core.geodesy import enu_to_geodetic
+    from fpv_station.core.geodesy import enu_to_geodetic
 
     t = np.arange(0.0, 10.0, 0.5)
     enu = np.column_stack([t, 2 * t, np.full(t.size, 3.0)])  # along a 63 deg bearing from east
@@ -150,8 +150,8 @@ def test_trajectory_endpoint_matches_the_flown_path(base):
 
 def test_replay_and_analysis_share_the_flight_frame(base, sessions_dir):
     """The replay draws the frame the analysis measures in: same origin, same turn."""
-    from analysis.flight_frame import align_track
-    from analysis.track import load_track
+    from fpv_station.analysis.flight_frame import align_track
+    from fpv_station.analysis.track import load_track
 
     # A third flight whose arming is first seen in the air (HEARTBEAT at 1 Hz, a quick
     # pilot): the first armed sample is off the point where the vehicle was armed.

@@ -10,11 +10,11 @@ import msgspec
 import numpy as np
 import pytest
 
-from core.scene import load_scene
-from server.app import create_app
-from server.settings import ViserSettings, load_settings
-from server.trajectory3d.replay import build_trajectory
-from server.trajectory3d.replay_scene import Replay3D
+from fpv_station.core.scene import load_scene
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import ViserSettings, load_settings
+from fpv_station.server.trajectory3d.replay import build_trajectory
+from fpv_station.server.trajectory3d.replay_scene import Replay3D
 from tests.helpers import run_uvicorn, viser_viewer, wait_until, watch_viser_pushes
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 
@@ -24,7 +24,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 def straight_line(session_id: str, n: int = 1200, gap_at: int | None = None):
     """A 0.5 m/s east flight at 2 m, 10 Hz, as a trajectory reply (optionally a 3 s gap)."""
-    from core.geodesy import enu_to_geodetic
+    from fpv_station.core.geodesy import enu_to_geodetic
 
     f = load_scene()
     t = np.arange(n) * 0.1
@@ -140,7 +140,7 @@ def test_replay_scene_is_changed_only_on_visers_own_loop(base, monkeypatch):
     during iteration", server/trajectory3d/viser_loop.py). Every message the replay panel
     queues, from its start, its loads and its instants, with viewers watching, is queued
     on viser's loop."""
-    import server.trajectory3d.replay_scene as replay_module
+    import fpv_station.server.trajectory3d.replay_scene as replay_module
 
     url, app = base
     foreign = watch_viser_pushes(monkeypatch, replay_module)
@@ -215,7 +215,7 @@ def test_replay_port_defaults_to_live_port_plus_one():
 
 def test_replay_scene_turns_the_field_with_the_papers_alignment(replay):
     """A flight due north, aligned start-to-end on +x: the field turns with it (-90 deg)."""
-    from core.geodesy import enu_to_geodetic
+    from fpv_station.core.geodesy import enu_to_geodetic
 
     f = load_scene()
     t = np.arange(100) * 0.1

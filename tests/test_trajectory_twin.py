@@ -11,7 +11,7 @@ import httpx
 import numpy as np
 import pytest
 
-from companion.recording import layout
+from fpv_station.companion.recording import layout
 from tests.helpers import viser_viewer, wait_until
 from tests.twin_flights import recorded_twin_flight
 

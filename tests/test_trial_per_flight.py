@@ -11,7 +11,7 @@ import sys
 import httpx
 import pytest
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.test_replay_clock import two_sorties
@@ -54,7 +54,15 @@ def test_a_session_joining_two_flights_gives_one_row_each(joined_tlog, tmp_path)
 
 def test_cli_flight_picks_one(joined_tlog, tmp_path):
     def analyze(*extra: str) -> subprocess.CompletedProcess:
-        cmd = [sys.executable, "-m", "server", "analyze", str(joined_tlog), "--task", "a-to-b"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "fpv_station.server",
+            "analyze",
+            str(joined_tlog),
+            "--task",
+            "a-to-b",
+        ]
         cmd += ["--no-scene", "--out", str(tmp_path), *extra]
         return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
 

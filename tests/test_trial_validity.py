@@ -11,15 +11,15 @@ import httpx
 import numpy as np
 import pytest
 
-from analysis.tasks import TaskParams, analyze
-from companion.recording.meta import SessionTask
-from server.app import create_app
-from server.settings import load_settings
-from server.trials import score_session
+from fpv_station.analysis.tasks import TaskParams, analyze
+from fpv_station.companion.recording.meta import SessionTask
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
+from fpv_station.server.trials import score_session
+from fpv_station.twin.pilot import Leg
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, wait_until
 from tests.twin_flights import recorded_twin_flight
-from twin.pilot import Leg
 
 NO_CAMERAS = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
 
@@ -139,9 +139,9 @@ def test_no_message_names_a_server_folder(tmp_path):
 
 def test_a_good_trial_is_valid_and_says_how_far_it_landed(tmp_path):
     """The library's view of a clean hover on a field: valid, landed on the pad."""
-    from analysis.field_layout import FieldLayout, Pad
-    from analysis.flight_frame import align_track
-    from analysis.track import load_track
+    from fpv_station.analysis.field_layout import FieldLayout, Pad
+    from fpv_station.analysis.flight_frame import align_track
+    from fpv_station.analysis.track import load_track
 
     flight = syn.hover_flight()
     folder = syn.write_session(flight, tmp_path / "s", meta={"source": "sim"})

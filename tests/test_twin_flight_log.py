@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pyulog import ULog
 
-from twin.runner import Twin
+from fpv_station.twin.runner import Twin
 
 HIGH_RATE = (
     "sensor_combined",

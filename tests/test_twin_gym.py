@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from gymnasium.utils.env_checker import check_env
 
-from twin.gym_env import TwinEnv
-from twin.pilot import Observation, Pilot, task_plan
+from fpv_station.twin.gym_env import TwinEnv
+from fpv_station.twin.pilot import Observation, Pilot, task_plan
 
 
 def test_check_env_passes_with_and_without_cameras() -> None:
@@ -73,7 +73,7 @@ def test_crash_terminates_with_penalty() -> None:
 
 
 def test_vector_env_with_one_env_reproduces_the_single_env() -> None:
-    from twin.gym_vector import TwinVectorEnv
+    from fpv_station.twin.gym_vector import TwinVectorEnv
 
     single, vector = TwinEnv(task=2), TwinVectorEnv(num_envs=1, task=2)
     o1, _ = single.reset(seed=5)
@@ -89,7 +89,7 @@ def test_vector_env_with_one_env_reproduces_the_single_env() -> None:
 
 
 def test_vector_env_autoresets_one_crashed_vehicle_and_not_the_others() -> None:
-    from twin.gym_vector import TwinVectorEnv
+    from fpv_station.twin.gym_vector import TwinVectorEnv
 
     env = TwinVectorEnv(num_envs=8, task=2)
     obs, _ = env.reset(seed=0)

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from core.scene import load_scene
+from fpv_station.core.scene import load_scene
+from fpv_station.twin.pilot import Leg, Observation, Pilot
 from tests.helpers import free_port
-from twin.pilot import Leg, Observation, Pilot
 
 SPEED = 2.0  # real-time factor: the flight takes ~25 s of sim time
 
@@ -27,7 +27,7 @@ def sim_gcs():
         [
             sys.executable,
             "-m",
-            "server",
+            "fpv_station.server",
             "sim",
             "--mavlink",
             f"udpout:127.0.0.1:{port}",

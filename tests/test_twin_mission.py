@@ -14,7 +14,7 @@ import pymap3d
 import pytest
 from pymavlink import mavutil
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
 from tests.test_twin_vehicle import drain
 

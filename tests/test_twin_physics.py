@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from twin.dynamics import Wind
-from twin.pilot import Leg, Pilot, fly, task_plan
-from twin.sensors import SensorParams
-from twin.sim import Sim, SimConfig
+from fpv_station.twin.dynamics import Wind
+from fpv_station.twin.pilot import Leg, Pilot, fly, task_plan
+from fpv_station.twin.sensors import SensorParams
+from fpv_station.twin.sim import Sim, SimConfig
 
 QUIET = SimConfig(sensors=SensorParams(enabled=False))
 
@@ -176,8 +176,8 @@ def test_position_mode_holds_against_steady_wind_with_gusts() -> None:
 
 
 def test_fly_twin_steps_a_stopped_twin_faster_than_real_time() -> None:
-    from twin.pilot import fly_twin
-    from twin.runner import Twin
+    from fpv_station.twin.pilot import fly_twin
+    from fpv_station.twin.runner import Twin
 
     twin = Twin(config=QUIET)
     twin.step_for(2.5)
@@ -192,7 +192,7 @@ def test_fly_twin_steps_a_stopped_twin_faster_than_real_time() -> None:
 def test_free_fall_conserves_energy_and_drag_only_takes_it() -> None:
     from dataclasses import replace
 
-    from twin.dynamics import Airframe, Dynamics
+    from fpv_station.twin.dynamics import Airframe, Dynamics
 
     def fall(airframe: Airframe) -> float:
         dyn = Dynamics(airframe=airframe)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.scene import load_scene
-from twin.dynamics import yaw_matrix
-from twin.render import SKY_BGR, Renderer, project
-from twin.runner import Twin
-from twin.sim import Pose
+from fpv_station.core.scene import load_scene
+from fpv_station.twin.dynamics import yaw_matrix
+from fpv_station.twin.render import SKY_BGR, Renderer, project
+from fpv_station.twin.runner import Twin
+from fpv_station.twin.sim import Pose
 
 SCENE = load_scene()
 

@@ -7,8 +7,8 @@ import sys
 
 import pytest
 
-from core.scene import DEFAULT_SCENE, SceneError, load_scene
-from twin.sim import Sim
+from fpv_station.core.scene import DEFAULT_SCENE, SceneError, load_scene
+from fpv_station.twin.sim import Sim
 
 
 def test_default_scene_is_the_mission_field() -> None:
@@ -52,7 +52,7 @@ def test_sim_cli_refuses_a_bad_scene_cleanly(tmp_path) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 'no pads'\n")
     out = subprocess.run(
-        [sys.executable, "-m", "server", "sim", "--scene", str(bad)],
+        [sys.executable, "-m", "fpv_station.server", "sim", "--scene", str(bad)],
         capture_output=True,
         text=True,
         timeout=30,
@@ -70,7 +70,7 @@ def test_serve_refuses_a_bad_scene_in_settings_cleanly(tmp_path) -> None:
         [
             sys.executable,
             "-m",
-            "server",
+            "fpv_station.server",
             "serve",
             "--source",
             "sim",

@@ -9,8 +9,8 @@ import time
 import pytest
 from websockets.sync.client import connect
 
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn, wait_until
 
 
@@ -155,7 +155,7 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
         [
             sys.executable,
             "-m",
-            "server",
+            "fpv_station.server",
             "serve",
             "--source",
             "sim",

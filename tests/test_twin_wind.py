@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.scene import load_scene
-from twin.dynamics import Dynamics, Wind, dryden_low_altitude
-from twin.gym_env import TwinEnv
-from twin.runner import twin_from_settings
-from twin.settings import TwinSettings
-from twin.sim import Sim, SimConfig
+from fpv_station.core.scene import load_scene
+from fpv_station.twin.dynamics import Dynamics, Wind, dryden_low_altitude
+from fpv_station.twin.gym_env import TwinEnv
+from fpv_station.twin.runner import twin_from_settings
+from fpv_station.twin.settings import TwinSettings
+from fpv_station.twin.sim import Sim, SimConfig
 
 WINDY = {"mean_enu_mps": [2.0, 0.0, 0.0], "gust_std_mps": 0.5, "turbulence_std_mps": 0.5}
 

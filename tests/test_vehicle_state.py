@@ -7,8 +7,8 @@ import pickle
 
 import pytest
 
-from companion import vehicle_state
-from companion.vehicle_state import (
+from fpv_station.companion import vehicle_state
+from fpv_station.companion.vehicle_state import (
     Attitude,
     PilotAltitude,
     VehicleMessage,

@@ -17,9 +17,9 @@ import msgpack
 import numpy as np
 import pytest
 
-from companion.cameras.msgpack_rpc import MsgpackRpcClient, RpcError
-from companion.cameras.rig import build_camera
-from companion.cameras.settings import CameraConfig
+from fpv_station.companion.cameras.msgpack_rpc import MsgpackRpcClient, RpcError
+from fpv_station.companion.cameras.rig import build_camera
+from fpv_station.companion.cameras.settings import CameraConfig
 from tests.helpers import free_port, wait_until
 
 COLORS = {"front_center": (10, 200, 30), "bottom_center": (200, 20, 90)}  # BGR

@@ -6,7 +6,7 @@ import re
 
 from playwright.sync_api import expect
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import chromium, run_uvicorn, station_settings
 from tests.video_fixtures import write_images
 

@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from companion.cameras.jpeg import jpeg_size
-from companion.cameras.rig import build_camera, effective_spec
-from companion.cameras.settings import CameraConfig
-from companion.cameras.spec import CameraSpecError, parse_spec
-from server.settings import SettingsError, load_settings
+from fpv_station.companion.cameras.jpeg import jpeg_size
+from fpv_station.companion.cameras.rig import build_camera, effective_spec
+from fpv_station.companion.cameras.settings import CameraConfig
+from fpv_station.companion.cameras.spec import CameraSpecError, parse_spec
+from fpv_station.server.settings import SettingsError, load_settings
 from tests.helpers import wait_until
 from tests.video_fixtures import CountingRenderer, write_images
 
@@ -297,7 +297,7 @@ def test_the_watchdog_sleeps_while_frames_flow():
 
 
 def test_device_listing_reads_sysfs_and_says_when_there_are_none(tmp_path):
-    from companion.cameras.devices import format_devices, list_devices
+    from fpv_station.companion.cameras.devices import format_devices, list_devices
 
     assert "No V4L2 video devices found" in format_devices(list_devices(tmp_path / "absent"))
     sysfs = tmp_path / "video4linux"
@@ -322,7 +322,10 @@ def test_cameras_command_runs_here():
     import sys
 
     out = subprocess.run(
-        [sys.executable, "-m", "server", "cameras"], capture_output=True, text=True, timeout=30
+        [sys.executable, "-m", "fpv_station.server", "cameras"],
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     assert out.returncode == 0, out.stderr
     assert "/dev/video" in out.stdout or "No V4L2 video devices found" in out.stdout
@@ -360,9 +363,9 @@ class FakeUvcCapture:
 
 
 def test_v4l2_mjpeg_is_passed_through_untouched_and_a_lost_device_reopens():
-    from companion.cameras.capture import Camera
-    from companion.cameras.source import SourceConfig
-    from companion.cameras.v4l2 import V4l2Source
+    from fpv_station.companion.cameras.capture import Camera
+    from fpv_station.companion.cameras.source import SourceConfig
+    from fpv_station.companion.cameras.v4l2 import V4l2Source
 
     jpegs = [
         cv2.imencode(".jpg", np.full((240, 320, 3), 40 * i, np.uint8))[1].tobytes()
@@ -400,9 +403,9 @@ def test_v4l2_mjpeg_is_passed_through_untouched_and_a_lost_device_reopens():
 
 
 def test_v4l2_raw_format_device_is_encoded_once_per_frame():
-    from companion.cameras.capture import Camera
-    from companion.cameras.source import SourceConfig
-    from companion.cameras.v4l2 import V4l2Source
+    from fpv_station.companion.cameras.capture import Camera
+    from fpv_station.companion.cameras.source import SourceConfig
+    from fpv_station.companion.cameras.v4l2 import V4l2Source
 
     frames = [np.full((120, 160, 3), i, np.uint8) for i in range(5)]
     config = SourceConfig("bottom", 160, 120, 30.0, 80)
@@ -422,7 +425,7 @@ def test_v4l2_raw_format_device_is_encoded_once_per_frame():
 
 
 def test_sim_cameras_render_the_real_twin():
-    from twin.runner import twin_from_settings
+    from fpv_station.twin.runner import twin_from_settings
 
     twin = twin_from_settings(load_settings(environ={}).twin, None)
     cams = [

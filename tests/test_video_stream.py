@@ -11,7 +11,7 @@ import httpx
 import numpy as np
 import pytest
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mjpeg_client import Viewer
 from tests.video_fixtures import write_images

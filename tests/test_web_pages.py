@@ -11,8 +11,8 @@ import httpx
 import pytest
 from playwright.sync_api import expect
 
-from companion.vehicle_state import VehicleState
-from server.app import create_app
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings
 from tests.test_trajectory_replay import SESSION_A, sessions_dir  # noqa: F401
 

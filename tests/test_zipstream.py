@@ -9,7 +9,7 @@ import io
 import os
 import zipfile
 
-from server.zipstream import stream_zip
+from fpv_station.server.zipstream import stream_zip
 
 
 def test_a_file_that_grows_while_it_is_zipped_is_zipped_as_it_was(tmp_path, monkeypatch):

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from server.app import create_app
-from server.settings import load_settings
+from fpv_station.server.app import create_app
+from fpv_station.server.settings import load_settings
+from fpv_station.twin.pilot import Leg, Pilot, fly_twin, task_plan
 from tests.helpers import run_uvicorn, wait_until
-from twin.pilot import Leg, Pilot, fly_twin, task_plan
 
 
 @dataclass

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twin.control import (
+from fpv_station.twin.control import (
     ALTCTL,
     AUTO_LAND,
     AUTO_LOITER,
@@ -25,7 +25,7 @@ from twin.control import (
     POSCTL,
     STABILIZED,
 )
-from twin.dynamics import CRASH_REASONS
+from fpv_station.twin.dynamics import CRASH_REASONS
 
 LANDED_STATE_ON_GROUND, LANDED_STATE_IN_AIR, LANDED_STATE_TAKEOFF, LANDED_STATE_LANDING = (
     1,

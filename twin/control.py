@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twin.dynamics import GRAVITY_MPS2, Airframe, _clip
+from fpv_station.twin.dynamics import GRAVITY_MPS2, Airframe, _clip
 
 STABILIZED, ALTCTL, POSCTL, AUTO_TAKEOFF, AUTO_LOITER, AUTO_LAND, AUTO_MISSION = range(7)
 MODE_NAMES = {

@@ -21,9 +21,9 @@ from typing import BinaryIO
 
 import numpy as np
 
-from twin.sim import Sim
-from twin.telemetry import stick_to_pwm
-from twin.ulog import Topic, ULogWriter
+from fpv_station.twin.sim import Sim
+from fpv_station.twin.telemetry import stick_to_pwm
+from fpv_station.twin.ulog import Topic, ULogWriter
 
 log = logging.getLogger(__name__)
 

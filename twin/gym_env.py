@@ -48,9 +48,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from core.scene import Scene, SceneStart, Task, load_scene
-from twin.dynamics import Wind
-from twin.sim import Sim, SimConfig
+from fpv_station.core.scene import Scene, SceneStart, Task, load_scene
+from fpv_station.twin.dynamics import Wind
+from fpv_station.twin.sim import Sim, SimConfig
 
 # What each element of the state vector is; exporters name dataset features with these.
 STATE_NAMES: tuple[str, ...] = (
@@ -200,7 +200,7 @@ class TwinEnv(gym.Env):
         import cv2
 
         if self._renderer is None:
-            from twin.render import Renderer
+            from fpv_station.twin.render import Renderer
 
             self._renderer = Renderer(self.scene)
         bgr = self._renderer.render(name, self.sim.pose())
@@ -268,4 +268,4 @@ class TaskReward:
 
 
 if ENV_ID not in gym.registry:
-    gym.register(id=ENV_ID, entry_point="twin.gym_env:TwinEnv")
+    gym.register(id=ENV_ID, entry_point="fpv_station.twin.gym_env:TwinEnv")

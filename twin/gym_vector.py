@@ -20,9 +20,9 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from core.scene import Scene, load_scene
-from twin.gym_env import STATE_SIZE
-from twin.sim import Sim, SimConfig
+from fpv_station.core.scene import Scene, load_scene
+from fpv_station.twin.gym_env import STATE_SIZE
+from fpv_station.twin.sim import Sim, SimConfig
 
 
 class TwinVectorEnv(VectorEnv):

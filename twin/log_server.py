@@ -17,7 +17,7 @@ from typing import BinaryIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from twin.flight_log import FlightLogger, LogFile
+from fpv_station.twin.flight_log import FlightLogger, LogFile
 
 log = logging.getLogger(__name__)
 

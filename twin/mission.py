@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from core.geodesy import geodetic_to_enu
-from twin.control import AUTO_LOITER, AUTO_MISSION
-from twin.sim import Sim
+from fpv_station.core.geodesy import geodetic_to_enu
+from fpv_station.twin.control import AUTO_LOITER, AUTO_MISSION
+from fpv_station.twin.sim import Sim
 
 RELATIVE_FRAMES = frozenset(
     {

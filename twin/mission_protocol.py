@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from twin.mission import MissionItem
+from fpv_station.twin.mission import MissionItem
 
 RETRY_S = 1.0  # PX4 re-requests after about a second
 RETRIES = 5

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from twin.sim import SimConfig
+from fpv_station.twin.sim import SimConfig
 
 INT32 = mavlink.MAV_PARAM_TYPE_INT32
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.scene import Scene
+from fpv_station.core.scene import Scene
 
 DEADBAND = 0.1  # the controller's stick deadband; commands start just outside it
 # A pilot told to climb to 4 m climbs until the display reads 4 m: aim a little above the

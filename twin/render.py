@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from core.scene import Pad, Scene
-from twin.sim import Pose
+from fpv_station.core.scene import Pad, Scene
+from fpv_station.twin.sim import Pose
 
 SKY_BGR = (235, 200, 150)
 NEAR_M = 0.05

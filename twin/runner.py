@@ -21,14 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from companion.cameras.source import Optics
-from companion.latest import Latest
-from core.scene import Scene, load_scene
-from twin.flight_log import FlightLogger
-from twin.log_server import LogServer
-from twin.settings import TwinSettings
-from twin.sim import Pose, Sim, SimConfig
-from twin.vehicle import MavlinkVehicle
+from fpv_station.companion.cameras.source import Optics
+from fpv_station.companion.latest import Latest
+from fpv_station.core.scene import Scene, load_scene
+from fpv_station.twin.flight_log import FlightLogger
+from fpv_station.twin.log_server import LogServer
+from fpv_station.twin.settings import TwinSettings
+from fpv_station.twin.sim import Pose, Sim, SimConfig
+from fpv_station.twin.vehicle import MavlinkVehicle
 
 log = logging.getLogger(__name__)
 
@@ -176,7 +176,7 @@ class Twin:
     def true_geodetic(self) -> tuple[float, float, float]:
         """The true position as (lat_deg, lon_deg, alt_m MSL), georeferenced at the scene's
         home: compare recorded GPS tracks with it through the same geodesy."""
-        from core.geodesy import enu_to_geodetic
+        from fpv_station.core.geodesy import enu_to_geodetic
 
         home = self.scene.home
         lat, lon, alt = enu_to_geodetic(
@@ -215,7 +215,7 @@ class Twin:
     def optics(self, camera: str) -> Optics | None:
         """The tilt and vertical field of view `render(camera)` draws with (None: no such
         camera)."""
-        from twin.render import Renderer
+        from fpv_station.twin.render import Renderer
 
         options = self._render_options
         model = Renderer.camera_models(options.get("front"), options.get("bottom")).get(camera)
@@ -226,7 +226,7 @@ class Twin:
     def _get_renderer(self):
         with self._render_lock:
             if self._renderer is None:
-                from twin.render import Renderer  # textures are built on first use only
+                from fpv_station.twin.render import Renderer  # textures are built on first use only
 
                 self._renderer = Renderer(self.scene, **self._render_options)
             return self._renderer
@@ -237,9 +237,9 @@ def twin_from_settings(
 ) -> Twin:
     """Build a Twin from its settings section (`[twin]`); `signing_key` signs its MAVLink
     (the link's key, `link.signing_key_file`)."""
-    from twin.control import ControlGains
-    from twin.dynamics import Wind
-    from twin.sensors import SensorParams
+    from fpv_station.twin.control import ControlGains
+    from fpv_station.twin.dynamics import Wind
+    from fpv_station.twin.sensors import SensorParams
 
     wind = Wind(
         mean_enu_mps=(ts.wind_east_mps, ts.wind_north_mps, 0.0),

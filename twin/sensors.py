@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.geodesy import enu_to_geodetic
-from core.scene import Home
+from fpv_station.core.geodesy import enu_to_geodetic
+from fpv_station.core.scene import Home
 
 
 @dataclass(frozen=True)

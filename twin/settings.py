@@ -7,11 +7,11 @@ from typing import Annotated
 
 from pydantic import Field
 
-from core.settings_section import Section, checked_by
+from fpv_station.core.settings_section import Section, checked_by
 
 
 def _scene_loads(path: Path) -> None:
-    from core.scene import load_scene  # here: settings load without the scene code
+    from fpv_station.core.scene import load_scene  # here: settings load without the scene code
 
     load_scene(path)  # SceneError (a ValueError) says which file and key
 

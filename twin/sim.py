@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.scene import Scene, SceneStart, load_scene
-from twin.commander import Commander, CommanderParams, Event
-from twin.control import MODE_NAMES, POSCTL, STABILIZED, ControlGains, Controller
-from twin.dynamics import CRASH_REASONS, Airframe, BodyState, Dynamics, Wind
-from twin.sensors import SensorParams, Sensors
+from fpv_station.core.scene import Scene, SceneStart, load_scene
+from fpv_station.twin.commander import Commander, CommanderParams, Event
+from fpv_station.twin.control import MODE_NAMES, POSCTL, STABILIZED, ControlGains, Controller
+from fpv_station.twin.dynamics import CRASH_REASONS, Airframe, BodyState, Dynamics, Wind
+from fpv_station.twin.sensors import SensorParams, Sensors
 
 MODE_BY_NAME = {name: code for code, name in MODE_NAMES.items()}
 MODE_BY_NAME.update(

@@ -10,10 +10,10 @@ import time
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from core.geodesy import enu_to_geodetic
-from core.mavlink.px4_modes import px4_custom_mode
-from twin.control import ALTCTL, AUTO_TAKEOFF, MODE_NAMES, POSCTL, STABILIZED
-from twin.sim import Sim
+from fpv_station.core.geodesy import enu_to_geodetic
+from fpv_station.core.mavlink.px4_modes import px4_custom_mode
+from fpv_station.twin.control import ALTCTL, AUTO_TAKEOFF, MODE_NAMES, POSCTL, STABILIZED
+from fpv_station.twin.sim import Sim
 
 
 def stick_to_pwm(x: float) -> int:

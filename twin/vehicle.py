@@ -30,15 +30,20 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from core.mavlink.px4_modes import AUTO_MAIN_MODE, PX4_MODES, px4_main_sub, px4_mode_name
-from core.mavlink.signing import SignatureCheck, enable_signing
-from twin.control import AUTO_LOITER, AUTO_MISSION
-from twin.log_server import LOG_MESSAGES, LogServer
-from twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu, up_m
-from twin.mission_protocol import MissionProtocol
-from twin.params import ParamServer, px4_params
-from twin.sim import MODE_BY_NAME, Sim
-from twin.telemetry import Telemetry
+from fpv_station.core.mavlink.px4_modes import (
+    AUTO_MAIN_MODE,
+    PX4_MODES,
+    px4_main_sub,
+    px4_mode_name,
+)
+from fpv_station.core.mavlink.signing import SignatureCheck, enable_signing
+from fpv_station.twin.control import AUTO_LOITER, AUTO_MISSION
+from fpv_station.twin.log_server import LOG_MESSAGES, LogServer
+from fpv_station.twin.mission import AMSL_FRAMES, RELATIVE_FRAMES, MissionRunner, target_enu, up_m
+from fpv_station.twin.mission_protocol import MissionProtocol
+from fpv_station.twin.params import ParamServer, px4_params
+from fpv_station.twin.sim import MODE_BY_NAME, Sim
+from fpv_station.twin.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 

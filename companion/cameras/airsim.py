@@ -17,8 +17,14 @@ from typing import Any
 import cv2
 import numpy as np
 
-from companion.cameras.msgpack_rpc import MsgpackRpcClient, RpcConnectionError, RpcError
-from companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError, as_bgr
+from fpv_station.companion.cameras.msgpack_rpc import MsgpackRpcClient, RpcConnectionError, RpcError
+from fpv_station.companion.cameras.source import (
+    Captured,
+    FrameSource,
+    SourceConfig,
+    SourceError,
+    as_bgr,
+)
 
 SCENE = 0
 

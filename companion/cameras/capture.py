@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import cv2
 
-from companion.cameras.jpeg import JpegEncoder
-from companion.cameras.nosignal import render_no_signal
-from companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError
-from companion.cameras.spec import CameraSpec
-from companion.latest import Latest
-from companion.video_frame import Frame
+from fpv_station.companion.cameras.jpeg import JpegEncoder
+from fpv_station.companion.cameras.nosignal import render_no_signal
+from fpv_station.companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError
+from fpv_station.companion.cameras.spec import CameraSpec
+from fpv_station.companion.latest import Latest
+from fpv_station.companion.video_frame import Frame
 
 log = logging.getLogger(__name__)
 

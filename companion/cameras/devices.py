@@ -124,7 +124,7 @@ def _formats(fd: int) -> list[VideoFormat]:
 def _opencv_probe(path: str) -> str:
     import cv2
 
-    from companion.cameras.v4l2 import fourcc_text
+    from fpv_station.companion.cameras.v4l2 import fourcc_text
 
     cap = cv2.VideoCapture(path, cv2.CAP_V4L2)
     try:

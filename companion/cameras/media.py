@@ -11,9 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.cameras.jpeg import jpeg_size
-from companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError
-from companion.cameras.spec import IMAGE_SUFFIXES
+from fpv_station.companion.cameras.jpeg import jpeg_size
+from fpv_station.companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError
+from fpv_station.companion.cameras.spec import IMAGE_SUFFIXES
 
 
 class VideoFileSource(FrameSource):

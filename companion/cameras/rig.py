@@ -8,14 +8,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 
-from companion.cameras.airsim import AirSimSource
-from companion.cameras.capture import Camera
-from companion.cameras.media import ImageFolderSource, VideoFileSource
-from companion.cameras.settings import CameraConfig
-from companion.cameras.source import FrameSource, SourceConfig
-from companion.cameras.spec import CameraSpec, flag, parse_spec
-from companion.cameras.twin_cameras import Renderer, SimSource
-from companion.cameras.v4l2 import V4l2Source
+from fpv_station.companion.cameras.airsim import AirSimSource
+from fpv_station.companion.cameras.capture import Camera
+from fpv_station.companion.cameras.media import ImageFolderSource, VideoFileSource
+from fpv_station.companion.cameras.settings import CameraConfig
+from fpv_station.companion.cameras.source import FrameSource, SourceConfig
+from fpv_station.companion.cameras.spec import CameraSpec, flag, parse_spec
+from fpv_station.companion.cameras.twin_cameras import Renderer, SimSource
+from fpv_station.companion.cameras.v4l2 import V4l2Source
 
 CAMERA_NAMES = ("front", "bottom")
 

@@ -7,8 +7,8 @@ from typing import Annotated
 
 from pydantic import Field
 
-from companion.cameras.spec import parse_spec
-from core.settings_section import Section, checked_by
+from fpv_station.companion.cameras.spec import parse_spec
+from fpv_station.core.settings_section import Section, checked_by
 
 
 class CameraConfig(Section):

@@ -13,7 +13,7 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.cameras.source import (
+from fpv_station.companion.cameras.source import (
     Captured,
     FrameSource,
     Optics,

@@ -16,8 +16,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from companion.cameras.jpeg import jpeg_size, trim_jpeg
-from companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError
+from fpv_station.companion.cameras.jpeg import jpeg_size, trim_jpeg
+from fpv_station.companion.cameras.source import Captured, FrameSource, SourceConfig, SourceError
 
 log = logging.getLogger(__name__)
 

@@ -26,8 +26,8 @@ import math
 import re
 from pathlib import Path
 
-from companion.recording import layout
-from companion.recording.meta import LinkLoss, SessionMeta
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import LinkLoss, SessionMeta
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from companion.recording import layout
+from fpv_station.companion.recording import layout
 
 
 class FrameNotOnDisk(LookupError):

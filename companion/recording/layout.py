@@ -26,7 +26,7 @@ import time
 import typing
 from datetime import UTC, datetime
 
-from companion.vehicle_state import LOG_GROUPS, VehicleState
+from fpv_station.companion.vehicle_state import LOG_GROUPS, VehicleState
 
 FORMAT_VERSION = 2  # 2: frames in one frames.mjpeg per camera; 1: a file per frame
 FORMAT_FILE_PER_FRAME = 1  # the last version with a file per frame

@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from companion.recording.layout import FORMAT_VERSION, STATUS_RECORDING
-from core.geodesy import enu_to_geodetic
+from fpv_station.companion.recording.layout import FORMAT_VERSION, STATUS_RECORDING
+from fpv_station.core.geodesy import enu_to_geodetic
 
 if TYPE_CHECKING:
-    from core.scene import Scene, Task
+    from fpv_station.core.scene import Scene, Task
 
 
 class _Model(BaseModel):

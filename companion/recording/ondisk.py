@@ -43,10 +43,10 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from companion.cameras.jpeg import EOI, SOI, jpeg_size
-from companion.recording import layout
-from companion.recording.meta import Recovery, SessionMeta
-from core.mavlink.tlog_records import TlogReader
+from fpv_station.companion.cameras.jpeg import EOI, SOI, jpeg_size
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import Recovery, SessionMeta
+from fpv_station.core.mavlink.tlog_records import TlogReader
 
 log = logging.getLogger(__name__)
 

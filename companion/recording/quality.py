@@ -7,7 +7,7 @@ from array import array
 
 import numpy as np
 
-from companion.recording.meta import LinkLoss
+from fpv_station.companion.recording.meta import LinkLoss
 
 
 class SkewStats:

@@ -28,16 +28,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.latest import Latest, Wakeup
-from companion.recording import diskspace
-from companion.recording.meta import SessionMeta, SessionTask
-from companion.recording.recovery import mark_interrupted
-from companion.recording.session import RecordingSession, SessionConfig
-from companion.recording.store import SessionStore
-from companion.source_clock import SourceClock
-from companion.vehicle_state import VehicleState
-from companion.video_frame import Frame
-from core.spawn import Spawn
+from fpv_station.companion.latest import Latest, Wakeup
+from fpv_station.companion.recording import diskspace
+from fpv_station.companion.recording.meta import SessionMeta, SessionTask
+from fpv_station.companion.recording.recovery import mark_interrupted
+from fpv_station.companion.recording.session import RecordingSession, SessionConfig
+from fpv_station.companion.recording.store import SessionStore
+from fpv_station.companion.source_clock import SourceClock
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.companion.video_frame import Frame
+from fpv_station.core.spawn import Spawn
 
 log = logging.getLogger(__name__)
 

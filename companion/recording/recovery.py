@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import logging
 
-from companion.recording import layout
-from companion.recording.meta import write_meta
-from companion.recording.ondisk import apply_census, take_census
-from companion.recording.store import SessionStore
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import write_meta
+from fpv_station.companion.recording.ondisk import apply_census, take_census
+from fpv_station.companion.recording.store import SessionStore
 
 log = logging.getLogger(__name__)
 

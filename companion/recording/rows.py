@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any
 
-from companion.recording import layout
-from companion.vehicle_state import VehicleState
+from fpv_station.companion.recording import layout
+from fpv_station.companion.vehicle_state import VehicleState
 
 
 @dataclass(frozen=True, slots=True)

@@ -36,10 +36,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.latest import Latest, Versioned
-from companion.recording import layout
-from companion.recording.flags import QUALITY_THRESHOLDS
-from companion.recording.meta import (
+from fpv_station.companion.latest import Latest, Versioned
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.flags import QUALITY_THRESHOLDS
+from fpv_station.companion.recording.meta import (
     Arming,
     CameraQuality,
     Missed,
@@ -49,16 +49,19 @@ from companion.recording.meta import (
     SessionTask,
     write_meta,
 )
-from companion.recording.ondisk import apply_census, take_census
-from companion.recording.quality import LinkLossTracker, SkewStats
-from companion.recording.rows import FrameRef, RowFormatter, Sample
-from companion.recording.session_clock import DEFAULT_MAX_DISAGREE_S, choose_session_clock
-from companion.recording.store import create_session_dir, discard_session_dir
-from companion.recording.writer import SessionWriter, WriterLimits, WriterStats
-from companion.source_clock import SourceClock
-from companion.system_clock import clock_synchronised
-from companion.vehicle_state import VehicleState
-from companion.video_frame import Frame
+from fpv_station.companion.recording.ondisk import apply_census, take_census
+from fpv_station.companion.recording.quality import LinkLossTracker, SkewStats
+from fpv_station.companion.recording.rows import FrameRef, RowFormatter, Sample
+from fpv_station.companion.recording.session_clock import (
+    DEFAULT_MAX_DISAGREE_S,
+    choose_session_clock,
+)
+from fpv_station.companion.recording.store import create_session_dir, discard_session_dir
+from fpv_station.companion.recording.writer import SessionWriter, WriterLimits, WriterStats
+from fpv_station.companion.source_clock import SourceClock
+from fpv_station.companion.system_clock import clock_synchronised
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.companion.video_frame import Frame
 
 log = logging.getLogger(__name__)
 

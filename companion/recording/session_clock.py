@@ -19,8 +19,8 @@ The session's name and `start_utc`/`end_utc` are in that UTC.
 
 from __future__ import annotations
 
-from companion.recording.meta import SessionClock
-from companion.vehicle_state import VehicleUtc
+from fpv_station.companion.recording.meta import SessionClock
+from fpv_station.companion.vehicle_state import VehicleUtc
 
 DEFAULT_MAX_DISAGREE_S = 5.0  # a few seconds: more than any link delay, less than a mistake
 

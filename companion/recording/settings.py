@@ -6,7 +6,7 @@ from pathlib import Path
 
 from pydantic import Field
 
-from core.settings_section import Section
+from fpv_station.core.settings_section import Section
 
 
 class RecordingSettings(Section):

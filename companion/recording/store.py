@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Generic, TypeVar
 
-from companion.recording import frame_pack, layout
-from companion.recording.flags import QualityFlag, session_flags
-from companion.recording.meta import SessionMeta, read_meta
+from fpv_station.companion.recording import frame_pack, layout
+from fpv_station.companion.recording.flags import QualityFlag, session_flags
+from fpv_station.companion.recording.meta import SessionMeta, read_meta
 
 log = logging.getLogger(__name__)
 

@@ -43,10 +43,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from companion.recording import diskspace, layout
-from companion.recording.rows import RowFormatter, Sample, message_rows
-from companion.video_frame import Frame
-from core.mavlink.tlog_records import encode_record
+from fpv_station.companion.recording import diskspace, layout
+from fpv_station.companion.recording.rows import RowFormatter, Sample, message_rows
+from fpv_station.companion.video_frame import Frame
+from fpv_station.core.mavlink.tlog_records import encode_record
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from core.mavlink.fast_decode import FastDecoder
+from fpv_station.core.mavlink.fast_decode import FastDecoder
 
 MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD

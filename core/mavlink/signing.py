@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from core.mavlink.framing import MAGIC_V1, message_id
+from fpv_station.core.mavlink.framing import MAGIC_V1, message_id
 
 SIGNATURE_LEN = 13  # link id (1) + timestamp (6) + signature (6)
 _IFLAG_SIGNED = 0x01

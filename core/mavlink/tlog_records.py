@@ -27,7 +27,7 @@ from operator import attrgetter
 from pathlib import Path
 from typing import BinaryIO
 
-from core.mavlink.framing import frame_length
+from fpv_station.core.mavlink.framing import frame_length
 
 _TIME = struct.Struct(">Q")
 _HEAD = 3  # packet bytes needed to know its length (v2: marker, length, incompat flags)

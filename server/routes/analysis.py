@@ -26,16 +26,16 @@ import anyio
 from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import Response
 
-from analysis import errors as ae
-from analysis.errors import without_dirs
-from analysis.plots import PLOTS
-from analysis.tasks import TaskParams, check_task
-from companion.recording import layout
-from companion.recording import store as st
-from server.analysis_worker import AnalysisJob, Stamp, run_job
-from server.errors import ApiError, BadRequest, NotFound
-from server.routes.recording import get_recorder
-from server.routes.trajectory import reference_param
+from fpv_station.analysis import errors as ae
+from fpv_station.analysis.errors import without_dirs
+from fpv_station.analysis.plots import PLOTS
+from fpv_station.analysis.tasks import TaskParams, check_task
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording import store as st
+from fpv_station.server.analysis_worker import AnalysisJob, Stamp, run_job
+from fpv_station.server.errors import ApiError, BadRequest, NotFound
+from fpv_station.server.routes.recording import get_recorder
+from fpv_station.server.routes.trajectory import reference_param
 
 router = APIRouter(tags=["analysis"])
 MAX_SESSIONS = 8

@@ -36,15 +36,15 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, Field, ValidationError
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from core.mavlink.px4_modes import PX4_MODES
-from server.auth import require_control_token
-from server.errors import ApiError, BadRequest, Unavailable, deny_websocket
-from server.guard import loads_message
-from server.pilot import DEADMAN_S, Pilot
+from fpv_station.core.mavlink.px4_modes import PX4_MODES
+from fpv_station.server.auth import require_control_token
+from fpv_station.server.errors import ApiError, BadRequest, Unavailable, deny_websocket
+from fpv_station.server.guard import loads_message
+from fpv_station.server.pilot import DEADMAN_S, Pilot
 
 if TYPE_CHECKING:
-    from companion.link import MavlinkLink
-    from server.station import Station
+    from fpv_station.companion.link import MavlinkLink
+    from fpv_station.server.station import Station
 
 router = APIRouter(tags=["control"])
 

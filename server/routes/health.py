@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING, Literal
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
-from companion.recording.recorder import NOT_RECORDING_AFTER_S
-from companion.recording.session_clock import choose_session_clock
-from companion.system_clock import clock_synchronised
-from server import __version__
+from fpv_station.companion.recording.recorder import NOT_RECORDING_AFTER_S
+from fpv_station.companion.recording.session_clock import choose_session_clock
+from fpv_station.companion.system_clock import clock_synchronised
+from fpv_station.server import __version__
 
 if TYPE_CHECKING:
-    from server.station import Station
+    from fpv_station.server.station import Station
 
 router = APIRouter(tags=["health"])
 

@@ -7,9 +7,9 @@ import dataclasses
 from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel
 
-from companion.recording.recorder import Recorder, RecorderError
-from server.auth import require_control_token
-from server.errors import Unavailable
+from fpv_station.companion.recording.recorder import Recorder, RecorderError
+from fpv_station.server.auth import require_control_token
+from fpv_station.server.errors import Unavailable
 
 router = APIRouter(tags=["recording"])
 

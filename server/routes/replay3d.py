@@ -15,13 +15,13 @@ import math
 from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel, Field
 
-from server.auth import require_control_token
-from server.errors import BadRequest, Unavailable
-from server.routes.recording import get_recorder
-from server.routes.trajectory import load_trajectory, reference_param
-from server.station import start_3d_panels
-from server.trajectory3d.replay import Align
-from server.trajectory3d.viser_loop import on_viser_loop
+from fpv_station.server.auth import require_control_token
+from fpv_station.server.errors import BadRequest, Unavailable
+from fpv_station.server.routes.recording import get_recorder
+from fpv_station.server.routes.trajectory import load_trajectory, reference_param
+from fpv_station.server.station import start_3d_panels
+from fpv_station.server.trajectory3d.replay import Align
+from fpv_station.server.trajectory3d.viser_loop import on_viser_loop
 
 router = APIRouter(tags=["trajectory"])
 

@@ -14,15 +14,15 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import FileResponse, Response, StreamingResponse
 from pydantic import BaseModel
 
-from companion.recording import layout
-from companion.recording.meta import SessionMeta, SessionTask, TrialScore
-from companion.recording.recorder import Recorder
-from companion.recording.store import SessionSummary, is_frame_file
-from server.auth import require_control_token
-from server.errors import Conflict
-from server.routes.recording import get_recorder
-from server.trials import public_score
-from server.zipstream import stream_zip
+from fpv_station.companion.recording import layout
+from fpv_station.companion.recording.meta import SessionMeta, SessionTask, TrialScore
+from fpv_station.companion.recording.recorder import Recorder
+from fpv_station.companion.recording.store import SessionSummary, is_frame_file
+from fpv_station.server.auth import require_control_token
+from fpv_station.server.errors import Conflict
+from fpv_station.server.routes.recording import get_recorder
+from fpv_station.server.trials import public_score
+from fpv_station.server.zipstream import stream_zip
 
 router = APIRouter(tags=["sessions"])
 

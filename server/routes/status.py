@@ -8,9 +8,9 @@ import platform
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
-from companion.link_health import LinkHealth
-from companion.vehicle_state import VehicleState
-from server import __version__
+from fpv_station.companion.link_health import LinkHealth
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.server import __version__
 
 router = APIRouter(tags=["telemetry"])
 

@@ -18,13 +18,13 @@ from typing import Any
 from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel, ConfigDict
 
-from analysis.compare import LOWER_IS_BETTER
-from companion.recording.meta import SessionTask, TrialScore
-from core.scene import bgr_to_rgb
-from server.auth import require_control_token
-from server.errors import BadRequest
-from server.station import Station
-from server.trials import Trials
+from fpv_station.analysis.compare import LOWER_IS_BETTER
+from fpv_station.companion.recording.meta import SessionTask, TrialScore
+from fpv_station.core.scene import bgr_to_rgb
+from fpv_station.server.auth import require_control_token
+from fpv_station.server.errors import BadRequest
+from fpv_station.server.station import Station
+from fpv_station.server.trials import Trials
 
 router = APIRouter(tags=["task"])
 

@@ -28,9 +28,9 @@ import contextlib
 import orjson
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
-from server.errors import Unavailable, deny_websocket
-from server.station import Station
-from server.telemetry_pump import TelemetryClient, TelemetryPump
+from fpv_station.server.errors import Unavailable, deny_websocket
+from fpv_station.server.station import Station
+from fpv_station.server.telemetry_pump import TelemetryClient, TelemetryPump
 
 router = APIRouter(tags=["telemetry"])
 # The largest `?ack=` window: a larger one would not bound a slow client's staleness.

@@ -15,18 +15,18 @@ from pathlib import Path
 import numpy as np
 from fastapi import APIRouter, Query, Request
 
-from analysis.errors import NoGpsFixError, TrackLoadError
-from analysis.track import load_session_dir
-from companion.recording import frame_pack, layout
-from companion.recording.store import (
+from fpv_station.analysis.errors import NoGpsFixError, TrackLoadError
+from fpv_station.analysis.track import load_session_dir
+from fpv_station.companion.recording import frame_pack, layout
+from fpv_station.companion.recording.store import (
     InvalidPath,
     SessionStore,
 )
-from core.geodesy import LatLonError, parse_latlon
-from server.errors import BadRequest
-from server.routes.recording import get_recorder
-from server.settings import ViserSettings
-from server.trajectory3d.replay import (
+from fpv_station.core.geodesy import LatLonError, parse_latlon
+from fpv_station.server.errors import BadRequest
+from fpv_station.server.routes.recording import get_recorder
+from fpv_station.server.settings import ViserSettings
+from fpv_station.server.trajectory3d.replay import (
     Align,
     CameraFrames,
     TrajectoryReply,

@@ -22,8 +22,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import Response, StreamingResponse
 from pydantic import BaseModel
 
-from server.errors import NotFound, Unavailable
-from server.video_fanout import BOUNDARY, frame_time_header
+from fpv_station.server.errors import NotFound, Unavailable
+from fpv_station.server.video_fanout import BOUNDARY, frame_time_header
 
 router = APIRouter(tags=["video"])
 

@@ -28,10 +28,16 @@ from fastapi import APIRouter, Request, WebSocket
 from fastapi.responses import FileResponse
 from pydantic import BaseModel
 
-from server.auth import require_control_token
-from server.errors import BadRequest, NotFound, Unauthorized, Unavailable, deny_websocket
-from server.station import Station, start_3d_panels
-from server.trajectory3d.gate import ViewerRules, relay
+from fpv_station.server.auth import require_control_token
+from fpv_station.server.errors import (
+    BadRequest,
+    NotFound,
+    Unauthorized,
+    Unavailable,
+    deny_websocket,
+)
+from fpv_station.server.station import Station, start_3d_panels
+from fpv_station.server.trajectory3d.gate import ViewerRules, relay
 
 router = APIRouter(tags=["trajectory"])
 

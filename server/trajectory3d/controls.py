@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import viser
 
-from server.trajectory3d.colors import COLOR_BY_CHOICES, ColorBy
-from server.trajectory3d.gate import ViewerInput, gui_uuid
+from fpv_station.server.trajectory3d.colors import COLOR_BY_CHOICES, ColorBy
+from fpv_station.server.trajectory3d.gate import ViewerInput, gui_uuid
 
 
 @dataclass(slots=True)

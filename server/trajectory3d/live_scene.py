@@ -13,9 +13,9 @@ import numpy as np
 import viser
 from numpy.typing import NDArray
 
-from core.scene import Scene, bgr_to_rgb
-from server.trajectory3d.colors import ColorBy, ramp_rgb
-from server.trajectory3d.trail import Origin, Trail, TrailChunk
+from fpv_station.core.scene import Scene, bgr_to_rgb
+from fpv_station.server.trajectory3d.colors import ColorBy, ramp_rgb
+from fpv_station.server.trajectory3d.trail import Origin, Trail, TrailChunk
 
 # The F450 drawn three times its size, so that it stays visible over a 60 m field.
 _BODY_SCALE = 3.0

@@ -19,10 +19,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
-from analysis.flight_frame import arming_origin_index, rotation_to
-from core.geodesy import geodetic_to_enu, rotate_about_up
-from server.settings import ViserSettings
-from server.trajectory3d.colors import ramp_hex
+from fpv_station.analysis.flight_frame import arming_origin_index, rotation_to
+from fpv_station.core.geodesy import geodetic_to_enu, rotate_about_up
+from fpv_station.server.settings import ViserSettings
+from fpv_station.server.trajectory3d.colors import ramp_hex
 
 Align = Literal["none", "end", "farthest"]
 _HEIGHT_RANGE_M: tuple[float, float] = ViserSettings.model_fields["height_range_m"].default

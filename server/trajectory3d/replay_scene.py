@@ -21,14 +21,18 @@ import threading
 import numpy as np
 import viser
 
-from core.scene import Scene
-from server.settings import ViserSettings
-from server.trajectory3d.gate import LOOPBACK, ViewerInput, gui_uuid, open_viser
-from server.trajectory3d.live_scene import LiveScene
-from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
-from server.trajectory3d.replay import TrajectoryReply
-from server.trajectory3d.trail import TrailChunk
-from server.trajectory3d.viser_loop import on_viser_loop_blocking
+from fpv_station.core.scene import Scene
+from fpv_station.server.settings import ViserSettings
+from fpv_station.server.trajectory3d.gate import LOOPBACK, ViewerInput, gui_uuid, open_viser
+from fpv_station.server.trajectory3d.live_scene import LiveScene
+from fpv_station.server.trajectory3d.pose import (
+    R_enu_flu_from_euler,
+    bottom_footprint_enu,
+    wxyz_from_matrix,
+)
+from fpv_station.server.trajectory3d.replay import TrajectoryReply
+from fpv_station.server.trajectory3d.trail import TrailChunk
+from fpv_station.server.trajectory3d.viser_loop import on_viser_loop_blocking
 
 log = logging.getLogger(__name__)
 

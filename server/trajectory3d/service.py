@@ -32,21 +32,25 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from companion.latest import Latest, Wakeup
-from companion.vehicle_state import VehicleState
-from core.geodesy import geodetic_to_enu
-from core.scene import Scene
-from server.settings import ViserSettings
-from server.trajectory3d.gate import LOOPBACK, ViewerInput, open_viser
-from server.trajectory3d.pose import R_enu_flu_from_euler, bottom_footprint_enu, wxyz_from_matrix
-from server.trajectory3d.trail import Origin, Trail, TrailSample
-from server.trajectory3d.viser_loop import on_viser_loop, on_viser_loop_blocking
+from fpv_station.companion.latest import Latest, Wakeup
+from fpv_station.companion.vehicle_state import VehicleState
+from fpv_station.core.geodesy import geodetic_to_enu
+from fpv_station.core.scene import Scene
+from fpv_station.server.settings import ViserSettings
+from fpv_station.server.trajectory3d.gate import LOOPBACK, ViewerInput, open_viser
+from fpv_station.server.trajectory3d.pose import (
+    R_enu_flu_from_euler,
+    bottom_footprint_enu,
+    wxyz_from_matrix,
+)
+from fpv_station.server.trajectory3d.trail import Origin, Trail, TrailSample
+from fpv_station.server.trajectory3d.viser_loop import on_viser_loop, on_viser_loop_blocking
 
 if TYPE_CHECKING:  # imported by start(): viser costs memory and start-up time
     import viser
 
-    from server.trajectory3d.controls import Controls
-    from server.trajectory3d.live_scene import LiveScene
+    from fpv_station.server.trajectory3d.controls import Controls
+    from fpv_station.server.trajectory3d.live_scene import LiveScene
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -150,8 +154,8 @@ class Trajectory3D:
     def start(self) -> None:
         """Start the viser server (its own thread and event loop). Blocks briefly; may run
         in a worker thread while `run()` steps: `server` is set last, once all is built."""
-        from server.trajectory3d.controls import Controls
-        from server.trajectory3d.live_scene import LiveScene
+        from fpv_station.server.trajectory3d.controls import Controls
+        from fpv_station.server.trajectory3d.live_scene import LiveScene
 
         s = self.settings
         server = open_viser(s.port, "fpv-station 3D", self.host)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from core.geodesy import geodetic_to_enu
+from fpv_station.core.geodesy import geodetic_to_enu
 
 Origin = tuple[float, float, float]  # lat_deg, lon_deg, alt_m (MSL)
 
