@@ -4,10 +4,11 @@ The packages form layers, lowest first (docs/ARCHITECTURE.md):
 
     core  ->  companion  ->  twin  ->  analysis  ->  learn  ->  server
 
-A module may import from its own layer or any layer below it, never above, and modules
-may not import each other in a cycle. Imports under ``if TYPE_CHECKING:`` count too: a
-type that lives above you is a dependency on the layer above, even if only the type
-checker follows it. ``web/`` is the browser's and imports no Python.
+Every layer lives under the one namespace ``fpv_station`` (``fpv_station.core``, ...), the
+only name an install puts into site-packages. A module may import from its own layer or
+any layer below it, never above, and modules may not import each other in a cycle.
+Imports under ``if TYPE_CHECKING:`` count too: a type that lives above you is a
+dependency on the layer above, even if only the type checker follows it. ``web/`` is the browser's and imports no Python.
 
 The walk is over the source (ast), not the import system, so a test run imports nothing
 it checks and a lazy import inside a function is caught like any other.
@@ -22,6 +23,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+NS = "fpv_station"
 LAYERS = ("core", "companion", "twin", "analysis", "learn", "server")
 RANK = {name: i for i, name in enumerate(LAYERS)}
 
@@ -37,7 +39,13 @@ def module_name(path: Path) -> str:
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()
-    return ".".join(parts)
+    return ".".join([NS, *parts])
+
+
+def layer(name: str) -> str | None:
+    """The layer a dotted module name lies in (`fpv_station.core.x` -> `core`), or None."""
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 and parts[0] == NS and parts[1] in RANK else None
 
 
 def resolve(module: str, is_package: bool, node: ast.ImportFrom) -> str:
@@ -60,29 +68,33 @@ def project_modules() -> dict[str, Path]:
     }
 
 
+def imported_names(module: str, path: Path, modules: dict[str, Path]):
+    """(absolute module name, line) of every import in the file at `path`."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    is_package = path.name == "__init__.py"
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = resolve(module, is_package, node)
+            # "from pkg import name" may import the submodule pkg.name.
+            targets = [
+                f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base
+                for alias in node.names
+            ]
+        else:
+            continue
+        for target in targets:
+            yield target, node.lineno
+
+
 def import_edges(modules: dict[str, Path]) -> list[Edge]:
-    edges = []
-    for module, path in modules.items():
-        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-        is_package = path.name == "__init__.py"
-        for node in ast.walk(tree):
-            if isinstance(node, ast.Import):
-                targets = [alias.name for alias in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                base = resolve(module, is_package, node)
-                # "from pkg import name" may import the submodule pkg.name.
-                targets = [
-                    f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base
-                    for alias in node.names
-                ]
-            else:
-                continue
-            edges.extend(
-                Edge(module, target, node.lineno)
-                for target in targets
-                if target.split(".")[0] in RANK
-            )
-    return edges
+    return [
+        Edge(module, target, line)
+        for module, path in modules.items()
+        for target, line in imported_names(module, path, modules)
+        if layer(target)
+    ]
 
 
 def known_target(target: str, modules: dict[str, Path]) -> str | None:
@@ -140,12 +152,12 @@ EDGES = import_edges(MODULES)
 
 def test_the_walk_sees_the_layers():
     # Guards the test itself: an empty walk would pass everything.
-    assert {m.split(".")[0] for m in MODULES} == set(LAYERS)
+    assert {layer(m) for m in MODULES} == set(LAYERS)
     assert len(EDGES) > 50
 
 
 def test_every_import_points_down_the_layers():
-    upward = [e for e in EDGES if RANK[e.target.split(".")[0]] > RANK[e.source.split(".")[0]]]
+    upward = [e for e in EDGES if RANK[layer(e.target)] > RANK[layer(e.source)]]
     new = [
         f"{MODULES[e.source].relative_to(ROOT)}:{e.line}: {e.source} imports {e.target}"
         for e in upward
@@ -173,17 +185,37 @@ def test_no_import_cycles_between_modules():
 @pytest.mark.parametrize(
     ("source", "expected"),
     [
-        ("from . import x", "server.routes"),
-        ("from .. import settings", "server"),
-        ("from ..station import Station", "server.station"),
+        ("from . import x", "fpv_station.server.routes"),
+        ("from .. import settings", "fpv_station.server"),
+        ("from ..station import Station", "fpv_station.server.station"),
     ],
 )
 def test_relative_imports_resolve(source, expected):
     node = ast.parse(source).body[0]
     assert isinstance(node, ast.ImportFrom)
-    assert resolve("server.routes.control", False, node) == expected
+    assert resolve("fpv_station.server.routes.control", False, node) == expected
 
 
 def test_a_cycle_is_found():
     assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
     assert import_cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_every_import_of_ours_goes_through_the_namespace():
+    """`import core` in a checkout finds the folder too, but it is a second copy of every
+    module (other classes, other state) and, installed, someone else's `core` or nothing.
+    Checked in every Python file of the tree: packages, tests, benchmarks."""
+    ours = {*LAYERS, "web"}
+    others = {
+        ".".join(path.relative_to(ROOT).with_suffix("").parts): path
+        for path in sorted(ROOT.rglob("*.py"))
+        if not {*ours, NS, ".venv", "build", ".git"} & set(path.relative_to(ROOT).parts)
+    }
+    bare = [
+        f"{path.relative_to(ROOT)}:{line}: {target}"
+        for module, path in {**MODULES, **others}.items()
+        for target, line in imported_names(module, path, MODULES)
+        if target.split(".")[0] in ours
+    ]
+    assert len(others) > 50  # the walk sees the tests
+    assert not bare, "imports outside the fpv_station namespace:\n" + "\n".join(bare)
