@@ -61,18 +61,20 @@ def serve_station(
     log_path: Path | None = None,
     timeout_s: float = 60.0,
     root: Path = ROOT,
+    python: str | Path = sys.executable,
 ) -> Iterator[StationProcess]:
     """Run `python LAUNCHER serve --host 127.0.0.1 --port P ARGS` until the block ends.
 
     `env` is added to this process's environment; `launcher` replaces `-m fpv_station.server` (a
     script that sets something up, then runs the CLI). The server's output goes to
     `log_path` (a temporary file by default: uvicorn logs every connection). `root` is the
-    checkout whose station runs (another commit's, to compare side by side)."""
+    checkout whose station runs (another commit's, to compare side by side); `python` the
+    interpreter (another environment's, to run what is installed there)."""
     port = free_port()
     tmp = Path(tempfile.mkdtemp(prefix="fpv-station-process-"))
     keep_tmp = log_path is not None  # the caller keeps the log: leave it where it is
     log_path = log_path or tmp / "server.log"
-    cmd = [sys.executable, *launcher, "serve", "--host", "127.0.0.1", "--port", str(port), *args]
+    cmd = [str(python), *launcher, "serve", "--host", "127.0.0.1", "--port", str(port), *args]
     full_env = {
         **os.environ,
         "PYTHONPATH": str(root),

@@ -1,0 +1,186 @@
+"""The wheel installs beside another project's top-level `core` and `server`.
+
+The wheel is built from this tree as `pip install .` builds it, then installed into a fresh
+virtual environment after a small package of the test's own that has top-level `core`
+and `server` packages. There the installed station serves its pages, exports a Minari
+dataset, and another process recovers the twin from that dataset alone (its stored
+entry point), while the other package's `core` and `server` are still its own.
+
+The environment's own site-packages holds only these two wheels. Their dependencies
+(FastAPI, numpy, Gymnasium, Minari, ...) come from the running interpreter's
+site-packages, added as a plain path, so nothing is downloaded but the build backend and
+no import hook of an editable install runs there. Every process there runs with `-I`: no
+PYTHONPATH, no current folder, so no checkout can stand in for what was installed.
+
+Alone: `pytest -m wheel` (about a minute).
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests import synthetic as syn
+from tests.station_process import serve_station
+from tests.test_flights import _sorties
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = [pytest.mark.wheel, pytest.mark.timeout(600)]
+
+# The other project: generic names that a ground station must not take.
+OTHER_FILES = {
+    "core/__init__.py": 'NAME = "other-core"\n',
+    "core/engine.py": 'def run() -> str:\n    return "the other engine"\n',
+    "server/__init__.py": 'NAME = "other-server"\n',
+}
+
+CHECK_INSTALLED = """
+import importlib.metadata as md, json, sys
+import core, core.engine, server
+import fpv_station.server.app, fpv_station.twin.gym_env
+files = md.distribution("fpv-station").files
+print(json.dumps({
+    "top_level": sorted({f.parts[0] for f in files if f.parts[0] != ".."}),
+    "other": [core.NAME, core.engine.run(), server.NAME],
+    "ours": fpv_station.server.app.__file__,
+    "version": md.version("fpv-station"),
+}))
+"""
+
+RECOVER = """
+import json, sys
+import gymnasium as gym
+import minari
+import numpy as np
+ds = minari.load_dataset(sys.argv[1])
+env = ds.recover_environment()  # the stored spec only: nothing of ours imported before
+obs, _ = env.reset(seed=0)
+obs, reward, *_ = env.step(np.zeros(4, np.float32))
+# The registered id, through the module that registers it, in the same fresh process.
+by_id = gym.make("fpv_station.twin.gym_env:fpv_station/TwinEnv-v0", task=1)
+print(json.dumps({
+    "entry_point": ds.spec.env_spec.entry_point,
+    "env_file": sys.modules[type(env.unwrapped).__module__].__file__,
+    "obs": list(obs.shape), "reward": float(reward), "episodes": ds.total_episodes,
+    "by_id": type(by_id.unwrapped).__name__,
+}))
+"""
+
+
+def run(*args: str | Path, env: dict | None = None, timeout: float = 300) -> str:
+    """Run a command without this checkout on its path (pip would see its metadata)."""
+    base = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    done = subprocess.run(
+        [str(a) for a in args],
+        env={**base, **(env or {})},
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert done.returncode == 0, f"{args}: {done.stdout[-2000:]}\n{done.stderr[-4000:]}"
+    return done.stdout
+
+
+def source_copy(dst: Path) -> Path:
+    """What a wheel is built from (pyproject's package folders), so the build writes no
+    build/ or egg-info into the checkout and takes no stale files from one."""
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    dst.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, dst / name)
+    skip = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for folder in sorted(set(pyproject["tool"]["setuptools"]["package-dir"].values())):
+        shutil.copytree(ROOT / folder, dst / folder, ignore=skip)
+    return dst
+
+
+def other_wheel(out: Path) -> Path:
+    """A wheel with top-level `core` and `server`, written directly (nothing to build)."""
+    dist = "other_generic_names-1.0.dist-info"
+    files = {
+        **OTHER_FILES,
+        f"{dist}/METADATA": "Metadata-Version: 2.1\nName: other-generic-names\nVersion: 1.0\n",
+        f"{dist}/WHEEL": "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\n"
+        "Tag: py3-none-any\n",
+    }
+    record = []
+    for name, text in files.items():
+        digest = hashlib.sha256(text.encode()).digest()
+        b64 = base64.urlsafe_b64encode(digest).rstrip(b"=").decode()
+        record.append(f"{name},sha256={b64},{len(text.encode())}")
+    record.append(f"{dist}/RECORD,,")
+    path = out / "other_generic_names-1.0-py3-none-any.whl"
+    with zipfile.ZipFile(path, "w") as z:
+        for name, text in files.items():
+            z.writestr(name, text)
+        z.writestr(f"{dist}/RECORD", "\n".join(record) + "\n")
+    return path
+
+
+def make_venv(where: Path) -> tuple[Path, Path]:
+    """A venv without pip (the running pip installs into it) and its site-packages."""
+    run(sys.executable, "-m", "venv", "--without-pip", where)
+    python = where / "bin" / "python"
+    site = Path(run(python, "-I", "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"))
+    return python, Path(str(site).strip())
+
+
+def test_the_wheel_installs_and_runs_beside_other_core_and_server(tmp_path):
+    wheels = tmp_path / "wheels"
+    run(sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", wheels,
+        source_copy(tmp_path / "src"))  # fmt: skip
+    (ours,) = wheels.glob("fpv_station-*.whl")
+    with zipfile.ZipFile(ours) as z:
+        shipped = set(z.namelist())
+    # Every source file of every package folder is in the wheel, pages and scenes too.
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    for package, folder in pyproject["tool"]["setuptools"]["package-dir"].items():
+        for path in (ROOT / folder).rglob("*"):
+            if path.is_file() and "__pycache__" not in path.parts and path.suffix != ".pyc":
+                rel = path.relative_to(ROOT / folder).as_posix()
+                assert f"{package.replace('.', '/')}/{rel}" in shipped
+
+    python, site = make_venv(tmp_path / "venv")
+    pip = [sys.executable, "-m", "pip", "--python", python, "install", "-q", "--no-deps"]
+    run(*pip, "--no-index", other_wheel(tmp_path))  # the other project first: ours after it
+    run(*pip, "--no-index", ours)
+    deps = [p for p in sys.path if p.endswith(("site-packages", "dist-packages"))]
+    (site / "runner_dependencies.pth").write_text("\n".join(deps) + "\n")
+
+    got = json.loads(run(python, "-I", "-c", CHECK_INSTALLED).splitlines()[-1])
+    # The only importable name the station installs is its namespace.
+    assert [n for n in got["top_level"] if not n.endswith(".dist-info")] == ["fpv_station"]
+    assert got["other"] == ["other-core", "the other engine", "other-server"]
+    assert Path(got["ours"]).is_relative_to(site)  # the installed copy, not a checkout
+
+    # The console script, as a Pi runs it: the twin on the link, pages from the wheel.
+    script = python.parent / "fpv-station"
+    with serve_station(["--source", "sim"], python=python, launcher=("-I", str(script))) as st:
+        health = httpx.get(f"{st.base}/api/health", timeout=10).json()
+        index = httpx.get(f"{st.base}/", timeout=10)
+        style = httpx.get(f"{st.base}/style.css", timeout=10)
+    assert health["ok"] is True
+    assert index.status_code == 200 and "<html" in index.text.lower()
+    assert style.status_code == 200 and style.text == (ROOT / "web" / "style.css").read_text()
+
+    tlog = syn.write_tlog(_sorties(), tmp_path / "sorties.tlog")
+    datasets = tmp_path / "minari"
+    dataset_id = "fpv-station/wheel-task1/demos-v0"
+    run(python, "-I", script, "export", tlog, "--format", "minari", "--task", "1",
+        "--fps", "5", "--out", datasets, "--dataset-id", dataset_id, "--no-progress")  # fmt: skip
+    env = {"MINARI_DATASETS_PATH": str(datasets)}
+    got = json.loads(run(python, "-I", "-c", RECOVER, dataset_id, env=env).splitlines()[-1])
+    assert got["entry_point"] == "fpv_station.twin.gym_env:TwinEnv"
+    assert Path(got["env_file"]).is_relative_to(site)
+    assert got["obs"] == [18] and got["episodes"] == 3 and got["by_id"] == "TwinEnv"
