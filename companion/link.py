@@ -36,6 +36,7 @@ from fpv_station.companion.link_settings import LinkSettings
 from fpv_station.companion.source_clock import SourceClock
 from fpv_station.companion.state_tracker import StateTracker
 from fpv_station.companion.stream_request import StreamRequester
+from fpv_station.companion.timesync import TimeSync
 from fpv_station.companion.transports import (
     ConnectionStringError,
     ConnSpec,
@@ -48,7 +49,7 @@ from fpv_station.companion.transports import (
     parse_connection,
 )
 from fpv_station.companion.vehicle_state import VehicleState
-from fpv_station.core.mavlink.framing import MavFramer, packet_version
+from fpv_station.core.mavlink.framing import MavFramer, packet_version, payload
 from fpv_station.core.mavlink.signing import (
     SignatureCheck,
     Verdict,
@@ -107,6 +108,10 @@ class MavlinkLink:
         self._state_changed = False  # the tracker's state is newer than the one published
         self._meter = HealthMeter(self.spec.text)
         self._streams = StreamRequester(self.mav, settings.message_rates_hz)
+        # The vehicle's boot clock on ours (companion.timesync): asked on a live link,
+        # read back from the recorded exchange in a replay.
+        self.timesync = TimeSync(enabled=settings.timesync_hz > 0 or self.spec.kind == "replay")
+        self._next_timesync = 0.0
         self._listeners: list[PacketListener] = []
         self._outbox: collections.deque[mavlink.MAVLink_message] = collections.deque(
             maxlen=_OUTBOX_MAX
@@ -391,6 +396,7 @@ class MavlinkLink:
         self._state_changed |= self._tracker.set_link_lost(True, now, self._last_hb_mono)
         self._publish_state()
         self.clock.step_back()
+        self.timesync.reset()
         self._tracker = StateTracker(self.settings.sysid, gcs_sysid=self.settings.gcs_sysid)
         self._last_hb_mono = None
         self._framer.reset()
@@ -444,6 +450,8 @@ class MavlinkLink:
                 self._on_gcs_heartbeat(msg)
             elif mtype in _RATE_REQUESTS:
                 self._check_rate_request(msg, now, "link")
+            elif mtype == "TIMESYNC":
+                self._on_timesync(msg, now)
             self._notify(t_wall, packet)
             for fwd in self._forwarders:
                 fwd.write(packet)
@@ -516,6 +524,35 @@ class MavlinkLink:
                 self._check_rate_request(msg, now, "forward")
             self._notify(t_wall, bytes(msg.get_msgbuf()))
 
+    def _on_timesync(self, msg: mavlink.MAVLink_message, now: float) -> None:
+        """A TIMESYNC on the link (companion.timesync): an answer to us from the followed
+        autopilot is a round trip; in a replay, our recorded request is when it was sent."""
+        me = (self.mav.srcSystem, self.mav.srcComponent)
+        if msg.tc1 == 0:  # a request: the vehicle's own, another asker's, or our recorded one
+            if self.spec.kind == "replay" and (msg.get_srcSystem(), msg.get_srcComponent()) == me:
+                self.timesync.sent(msg.ts1, now)
+            return
+        if not self._tracker.follows(msg) or self._tracker.compid is None:
+            self.timesync.ignored += 1  # another system's answer (a companion computer's)
+            return
+        # target_system and target_component: extension bytes 16 and 17 of the payload
+        # (newer than pymavlink's dialect), 0 when absent (MAVLink 1, older firmware).
+        ext = payload(msg.get_msgbuf())[16:18].ljust(2, b"\0")
+        to = (ext[0], ext[1])
+        if to != (0, 0) and to != me:
+            self.timesync.ignored += 1  # the vehicle answering another ground station
+            return
+        self.timesync.answered(msg.tc1, msg.ts1, now)
+
+    def _send_timesync(self, transport: Transport, now: float) -> None:
+        self._next_timesync = now + 1.0 / self.settings.timesync_hz
+        ts1 = time.monotonic_ns()
+        # Broadcast, as pymavlink's dialect has no target fields: the autopilot answers
+        # any request, a companion computer may too (told apart by their answers).
+        msg = self.mav.timesync_encode(0, ts1)
+        self.timesync.sent(ts1, self.clock.mono())
+        self._write(transport, msg)
+
     def _on_own_identity(self, msg: mavlink.MAVLink_message) -> None:
         """A packet from the link in our own system and component id: another ground
         station configured as we are, or our packets sent back to us. Either way what
@@ -586,6 +623,9 @@ class MavlinkLink:
                 self._write(transport, hb)
             for req in self._streams.poll(now):
                 self._write(transport, req)
+            heard = self._tracker.compid is not None and not self._tracker.state.link.link_lost
+            if heard and self.settings.timesync_hz > 0 and now >= self._next_timesync:
+                self._send_timesync(transport, now)
             if self._reassert_at is not None and now >= self._reassert_at:
                 self._reassert_at = None
                 requests = self._streams.reassert()

@@ -22,6 +22,13 @@ class LinkSettings(Section):
     forward_resolve_s: float = Field(10.0, gt=0)
     link_lost_s: float = Field(2.0, gt=0)
     heartbeat_hz: float = Field(1.0, gt=0)
+    timesync_hz: float = Field(
+        1.0,
+        ge=0,
+        description="TIMESYNC requests a second, to measure the vehicle's boot clock "
+        "against the station's (companion.timesync); 0: none, vehicle times are then "
+        "placed by their shortest delay",
+    )
     reconnect_s: float = Field(1.0, gt=0)
     # Our own identity on the link. Not QGroundControl's or Mission Planner's 255/190 (nor
     # MAVProxy's 255): with --forward both talk to one vehicle, and a shared identity

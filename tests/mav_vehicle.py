@@ -13,6 +13,10 @@ sends uses pymavlink's own parser, not the station's code.
 
 `answer_sender=True` (UDP): the vehicle listens on `port` and answers whoever spoke last,
 as PX4 SITL or a network bridge does; the station then connects with `udpout:`.
+As an autopilot (component 1) it answers TIMESYNC as PX4 and ArduPilot do (`tc1` its
+boot clock in ns, `ts1` mirrored, addressed to the asker; signed, MAVLink 1 or
+`timesync="untargeted"`: as older firmware, to no one; "none": never), on a boot clock that runs `clock_rate` vehicle seconds per second of
+this host's monotonic clock (every `time_boot_ms`/`time_usec` it sends is on that clock).
 `signing_key`: MAVLink 2 signing as pymavlink (and so MAVProxy) does it: everything sent
 is signed with the key; what arrives is checked by pymavlink and `signed(msg)` says
 whether it carried a good signature.
@@ -23,12 +27,15 @@ from __future__ import annotations
 import collections
 import math
 import socket
+import struct
 import threading
 import time
+from collections.abc import Callable
 from typing import Literal
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from pymavlink.generator.mavcrc import x25crc
 
 from tests.helpers import free_port
 
@@ -88,6 +95,34 @@ def copter_custom_mode(name: str) -> int:
     return {v: k for k, v in mavutil.mode_mapping_acm.items()}[name]
 
 
+def timesync_v2(
+    mav: mavlink.MAVLink, tc1: int, ts1: int, target_system: int, target_component: int
+) -> Callable[[int], bytes]:
+    """A MAVLink 2 TIMESYNC with its extension fields target_system/target_component, as
+    PX4 1.14 and ArduPilot 4.3 send it (pymavlink's dialect here has no such fields)."""
+
+    def packet(seq: int) -> bytes:
+        body = struct.pack("<qqBB", tc1, ts1, target_system, target_component).rstrip(b"\0")
+        msg_id = mavlink.MAVLINK_MSG_ID_TIMESYNC
+        header = struct.pack(
+            "<BBBBBBBHB",
+            0xFD,
+            len(body),
+            0,
+            0,
+            seq,
+            mav.srcSystem,
+            mav.srcComponent,
+            msg_id & 0xFFFF,
+            msg_id >> 16,
+        )
+        crc = x25crc(header[1:] + body)
+        crc.accumulate(bytes([mavlink.MAVLink_timesync_message.crc_extra]))
+        return header + body + struct.pack("<H", crc.crc)
+
+    return packet
+
+
 class MavVehicle:
     def __init__(
         self,
@@ -105,8 +140,12 @@ class MavVehicle:
         signing_key: bytes | None = None,
         signing_clock_s: float = 0.0,
         host: str = "127.0.0.1",
+        timesync: Literal["targeted", "untargeted", "none"] = "targeted",
+        clock_rate: float = 1.0,
     ) -> None:
         self.transport = transport
+        self.timesync = timesync
+        self.clock_rate = clock_rate
         self.sysid, self.compid = sysid, compid
         self.autopilot = autopilot
         self.mavlink1 = mavlink1
@@ -151,7 +190,7 @@ class MavVehicle:
         self.sent: collections.Counter[str] = collections.Counter()
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._t0 = time.monotonic()
+        self.boot_mono = time.monotonic()
         self._threads: list[threading.Thread] = []
         self._conn: socket.socket | None = None
         if transport == "udp":
@@ -230,6 +269,12 @@ class MavVehicle:
         self.sent[msg.get_type()] += 1
         return buf
 
+    def send_raw(self, packet_of_seq: Callable[[int], bytes]) -> None:
+        """A packet built by hand (`packet_of_seq(seq)`), in sequence with the rest."""
+        with self._lock:
+            self._write(packet_of_seq(self.mav.seq))
+            self.mav.seq = (self.mav.seq + 1) % 256
+
     def send_now(self, name: str) -> bytes:
         return self.send_message(self.build(name))
 
@@ -252,8 +297,13 @@ class MavVehicle:
 
     # -- messages ----------------------------------------------------------------------
 
+    def boot_s(self) -> float:
+        """Its boot clock: `clock_rate` seconds per second since `boot_mono` (the
+        host's monotonic time of its boot)."""
+        return (time.monotonic() - self.boot_mono) * self.clock_rate
+
     def time_boot_ms(self) -> int:
-        return int((time.monotonic() - self._t0) * 1000)
+        return int(self.boot_s() * 1000)
 
     def heartbeat(self) -> mavlink.MAVLink_message:
         armed = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0
@@ -533,6 +583,18 @@ class MavVehicle:
                     self._handle(msg)
 
     def _handle(self, msg: mavlink.MAVLink_message) -> None:
+        if msg.get_type() == "TIMESYNC":
+            autopilot = (
+                self.compid == mavlink.MAV_COMP_ID_AUTOPILOT1 and self.autopilot != "invalid"
+            )
+            if msg.tc1 == 0 and self.timesync != "none" and autopilot:  # not a radio's
+                tc1 = int(self.boot_s() * 1e9)
+                if self.timesync == "untargeted" or self.mavlink1 or self.mav.signing.sign_outgoing:
+                    self.send_message(self.mav.timesync_encode(tc1, msg.ts1))
+                else:
+                    to = (msg.get_srcSystem(), msg.get_srcComponent())
+                    self.send_raw(timesync_v2(self.mav, tc1, msg.ts1, *to))
+            return
         if (
             msg.get_type() == "COMMAND_LONG"
             and msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE

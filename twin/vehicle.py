@@ -282,12 +282,22 @@ class MavlinkVehicle:
         elif kind in LOG_MESSAGES:
             if self.logs is not None and msg.target_system in (0, self.sysid):
                 self.logs.handle(msg)
+        elif kind == "TIMESYNC":
+            self._timesync(msg, now_s)
         elif kind == "SET_MODE":
             if msg.target_system not in (0, self.sysid):
                 return
             ok, why = self._set_mode(sim, *px4_main_sub(msg.custom_mode))
             if not ok:
                 self.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, why.encode()[:50])
+
+    def _timesync(self, msg, now_s: float) -> None:
+        """Answer a TIMESYNC request as PX4 does: `tc1` our boot clock (the sim's) in ns,
+        `ts1` mirrored (to no one in particular: pymavlink's dialect has no target
+        fields); answers to us (tc1 != 0) are not ours to use."""
+        if msg.tc1 != 0:
+            return
+        self.mav.timesync_send(int(now_s * 1e9), msg.ts1)
 
     def _set_mode(self, sim: Sim, main: int, sub: int) -> tuple[bool, str]:
         # PX4's name for the pair, in the twin's words (MANUAL: a multicopter flies it

@@ -169,6 +169,14 @@ def message_id(packet: bytes | bytearray) -> int:
     return packet[7] | (packet[8] << 8) | (packet[9] << 16)
 
 
+def payload(packet: bytes | bytearray) -> bytes:
+    """A whole packet's payload as it came: MAVLink 2 drops trailing zero bytes, so
+    fields beyond its end (extension fields included) are 0; pymavlink's decoder knows
+    only the fields of its own dialect version, the bytes keep the newer ones."""
+    start = 6 if packet[0] == MAGIC_V1 else 10
+    return bytes(packet[start : start + packet[1]])
+
+
 def packet_version(msg: mavlink.MAVLink_message) -> int:
     """1 or 2: the wire format the packet came in."""
     return 1 if msg.get_msgbuf()[0] == MAGIC_V1 else 2
