@@ -76,6 +76,7 @@ async def open_recorder(
         cameras,
         recorder_options(settings, camera_fps),
         clock=link.clock if link is not None else None,
+        timesync=link.timesync if link is not None else None,
     )
     if link is not None:
         link.add_packet_listener(recorder.on_packet)

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from fpv_station.companion.recording.layout import FORMAT_VERSION, STATUS_RECORDING
+from fpv_station.companion.timesync import VehicleClock
 from fpv_station.core.geodesy import enu_to_geodetic
 
 if TYPE_CHECKING:
@@ -179,6 +180,9 @@ class SessionClock(_Model):
     # The folder name is chosen once, at the start; stamps follow a GPS time first heard
     # later in the session. This says which clock the name used.
     named_by: str | None = None
+    # The vehicle's boot clock on the session clock (TIMESYNC, companion.timesync):
+    # t_s = offset_s + boot_s * (1 + drift_ppm * 1e-6); None: no vehicle link.
+    vehicle_boot: VehicleClock | None = None
 
 
 class SessionMeta(_Model):

@@ -35,6 +35,7 @@ from fpv_station.companion.recording.recovery import mark_interrupted
 from fpv_station.companion.recording.session import RecordingSession, SessionConfig
 from fpv_station.companion.recording.store import SessionStore
 from fpv_station.companion.source_clock import SourceClock
+from fpv_station.companion.timesync import TimeSync
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.companion.video_frame import Frame
 from fpv_station.core.spawn import Spawn
@@ -99,9 +100,11 @@ class Recorder:
         cameras: Mapping[str, Latest[Frame]],
         options: RecorderOptions = RecorderOptions(),
         clock: SourceClock | None = None,
+        timesync: TimeSync | None = None,
     ) -> None:
         self.store = SessionStore(sessions_dir)
         self.clock = clock or SourceClock()
+        self.timesync = timesync  # the link's measure of the vehicle's clock, for session.json
         self.state = state
         self.cameras = dict(cameras)
         self.options = options
@@ -207,6 +210,7 @@ class Recorder:
                 self._on_writer_failure,
                 self.clock,
                 task=self.task,
+                timesync=self.timesync,
                 recorded_until_wall=self.last_stop.end_wall if self.last_stop else None,
                 # why the flight went unrecorded until this retry (a stale one otherwise)
                 missed_reason=(self.last_error or self.failure) if trigger == "retry" else None,

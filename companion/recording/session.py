@@ -60,6 +60,7 @@ from fpv_station.companion.recording.store import create_session_dir, discard_se
 from fpv_station.companion.recording.writer import SessionWriter, WriterLimits, WriterStats
 from fpv_station.companion.source_clock import SourceClock
 from fpv_station.companion.system_clock import clock_synchronised
+from fpv_station.companion.timesync import TimeSync
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.companion.video_frame import Frame
 
@@ -131,6 +132,7 @@ class RecordingSession:
         task: SessionTask | None = None,
         recorded_until_wall: float | None = None,
         missed_reason: str | None = None,
+        timesync: TimeSync | None = None,
     ) -> None:
         """`recorded_until_wall`: the end of the station's previous session, and
         `missed_reason` why none recorded since, for a session that starts in mid-flight
@@ -138,6 +140,7 @@ class RecordingSession:
         self.config = config
         self.trigger = trigger
         self.task = task  # the flight task chosen when the session started
+        self._timesync = timesync  # the vehicle's boot clock, measured by the link
         self._state = state
         self._camera_slots = dict(cameras)
         self.cameras: tuple[str, ...] = tuple(cameras)
@@ -492,7 +495,10 @@ class RecordingSession:
 
     def meta(self, status: str) -> SessionMeta:
         st = self.writer.stats
-        utc = self._choose_clock().model_copy(update={"named_by": self._named_by})
+        boot = None if self._timesync is None else self._timesync.report().shifted(self.t0_mono)
+        utc = self._choose_clock().model_copy(
+            update={"named_by": self._named_by, "vehicle_boot": boot}
+        )
         end_wall = self.end_wall if status != layout.STATUS_RECORDING else st.last_row_wall
         duration = None if end_wall is None else round(end_wall - self.t0_wall, 3)
         cams: dict[str, CameraQuality] = {}

@@ -9,6 +9,7 @@ from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
 from fpv_station.companion.link_health import LinkHealth
+from fpv_station.companion.timesync import VehicleClock
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.server import __version__
 
@@ -32,6 +33,8 @@ class RecordingNow(BaseModel):
 class StatusReply(BaseModel):
     source: str  # the configured MAVLink source (connection string, "sim" or "none")
     link: LinkHealth | None  # None when there is no vehicle link (source "none")
+    # The vehicle's boot clock on the station's monotonic clock (TIMESYNC), or why not
+    vehicle_clock: VehicleClock | None = None
     recording: RecordingNow | None = None  # None: the station has no recorder
     state_version: int  # grows by one per state change; 0 before the first
     state: VehicleState | None  # None before the first state
@@ -65,6 +68,7 @@ async def get_status(request: Request) -> StatusReply:
     return StatusReply(
         source=station.settings.link.source,
         link=station.link.health() if station.link is not None else None,
+        vehicle_clock=station.link.timesync.report() if station.link is not None else None,
         recording=None
         if rec is None
         else RecordingNow(recording=rec.recording, not_recording=rec.not_recording),
