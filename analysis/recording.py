@@ -97,6 +97,29 @@ class Recording:
     def column(self, name: str) -> Array:
         return self.columns[name]
 
+    def tlog_packets(self) -> Iterator[tuple[float, bytes]]:
+        """`(t_s, packet)` of each MAVLink packet in the recording's tlog, on the session
+        clock of its rows: a replayed tlog's by the replay's own clock (each recording of
+        a joined log on its own, as its rows), a recorded session's by its receive time
+        less the rows' wall-clock offset. Only packets that decode to a known message of
+        a replayed tlog are given (those the replay read)."""
+        if self.tlog is None:
+            return
+        if self.from_tlog:
+            t0: int | None = None
+            for t_us, _, _, packet, _ in _on_session_clock(self.tlog):
+                t0 = t_us if t0 is None else t0
+                yield (t_us - t0) * 1e-6, packet
+            return
+        t_s, wall = self.t_s, self.wall_time
+        if not t_s.size:
+            t_s, wall, _ = read_columns(self.telemetry_csv, (), self.source)
+        d = wall - t_s
+        d = d[np.isfinite(d)]
+        offset = float(np.median(d)) if d.size else 0.0
+        for t, packet in TlogReader(self.tlog):
+            yield t - offset, packet
+
     def vehicle_texts(self) -> list[tuple[float | None, str]]:
         """The vehicle's STATUSTEXTs (session time, text), from the session's messages.csv
         or replayed from its tlog; [] when the recording has neither."""
@@ -293,7 +316,6 @@ def replay_tlog(
     while `wall_time` stays the log's own; so no flight is interleaved with another.
     """
     source = source or str(tlog)
-    decoder = FastDecoder()
     period_us = 1e6 / rate_hz
     formatter: RowFormatter | None = None
     tracker = StateTracker()
@@ -316,7 +338,6 @@ def replay_tlog(
         while (at := grid0 + round(n * period_us)) < end_us or (inclusive and at == end_us):
             row(f, at)
 
-    reader = TlogReader(tlog)
     try:
         with (
             open(out, "w", newline="", buffering=1 << 16) as f,
@@ -324,33 +345,22 @@ def replay_tlog(
         ):
             said = csv.writer(m)
             said.writerow(layout.MESSAGE_COLUMNS)
-            for segment, records in reader.segments():
-                started = False
-                for t, packet in records:
-                    try:
-                        msg = decoder.decode(bytearray(packet))
-                    except MAVError:
-                        continue
-                    if msg is None or isinstance(msg, MAVLink_unknown):
-                        continue
-                    t_log = round(t * 1e6)
-                    if formatter is None:
-                        formatter = RowFormatter((), t_log * 1e-6)
-                        f.write(formatter.header_line())
-                        grid0 = last = t_log
-                    elif not started and segment > 0:  # the next recording: a new tracker
-                        rows_until(f, last, inclusive=True)
-                        tracker, seen = StateTracker(), 0
-                        shift = last + round(FILL_GAP_S * 1e6) - t_log
-                        grid0, n = t_log + shift, 0
-                    started = True
-                    t_us = t_log + shift
-                    if t_us - last > FILL_GAP_S * 1e6:
-                        rows_until(f, last, inclusive=True)
-                        grid0, n = t_us, 0
-                    rows_until(f, t_us, inclusive=False)
-                    tracker.update(msg, t_us * 1e-6)
-                    last = t_us
+            for t_us, t_log, msg, _, new in _on_session_clock(tlog):
+                if formatter is None:
+                    formatter = RowFormatter((), t_log * 1e-6)
+                    f.write(formatter.header_line())
+                    grid0 = last = t_us
+                elif new:  # the next recording: a new tracker
+                    rows_until(f, last, inclusive=True)
+                    tracker, seen = StateTracker(), 0
+                    shift = t_us - t_log
+                    grid0, n = t_us, 0
+                if t_us - last > FILL_GAP_S * 1e6:
+                    rows_until(f, last, inclusive=True)
+                    grid0, n = t_us, 0
+                rows_until(f, t_us, inclusive=False)
+                tracker.update(msg, t_us * 1e-6)
+                last = t_us
             if formatter is not None:  # the instants up to the last packet
                 rows_until(f, last, inclusive=True)
     except OSError as exc:
@@ -358,6 +368,33 @@ def replay_tlog(
     if not rows:
         raise RecordingError(f"'{source}' holds no MAVLink packet.")
     return rows
+
+
+def _on_session_clock(tlog: Path) -> Iterator[tuple[int, int, Any, bytes, bool]]:
+    """`(t_us, t_log_us, message, packet, new_recording)` for each record of `tlog` that
+    decodes to a known message (`replay_tlog`'s clock): `t_us` on the replay's session
+    clock before its zero is taken off (the first packet's `t_log_us`), each recording
+    of a joined log `FILL_GAP_S` after the one before; `new_recording` on the first
+    packet of each recording after the first."""
+    decoder = FastDecoder()
+    last: int | None = None  # µs on the session clock: the newest packet
+    shift = 0  # µs: session clock - the log's clock, in this recording
+    for segment, records in TlogReader(tlog).segments():
+        started = False
+        for t, packet in records:
+            try:
+                msg = decoder.decode(bytearray(packet))
+            except MAVError:
+                continue
+            if msg is None or isinstance(msg, MAVLink_unknown):
+                continue
+            t_log = round(t * 1e6)
+            new = last is not None and not started and segment > 0
+            if new:
+                shift = last + round(FILL_GAP_S * 1e6) - t_log
+            started = True
+            last = t_log + shift
+            yield last, t_log, msg, packet, new
 
 
 # ---------------------------------------------------------------- columns

@@ -12,8 +12,10 @@ message on log time (Unix ns), so Foxglove plays it back with both cameras:
 | `/telemetry` | JSON | telemetry row: `t_s` and the columns the exporters read (NaN as null) |
 | `/mavlink` | raw bytes, encoding `mavlink` | MAVLink packet in the tlog |
 
-Rows and frames go on the session clock shifted to Unix time (the session's start);
-MAVLink packets keep their tlog receive times. The pose is the episode's position (see
+Rows, frames and MAVLink packets go on the session clock shifted to Unix time (the
+session's start): a packet is cut and placed by its time on the session clock
+(`Recording.tlog_packets`), so a tlog of several joined recordings, whose own clock
+steps back, gives each flight its own packets. The pose is the episode's position (see
 `learn.episodes`) with the attitude from ATTITUDE (FRD/NED turned into FLU/ENU).
 """
 
@@ -44,7 +46,6 @@ from foxglove.messages import (
 )
 
 from fpv_station.analysis.recording import Recording
-from fpv_station.core.mavlink.tlog_records import TlogReader
 from fpv_station.learn.episodes import COLUMNS, Episode, carry_forward, scene_xyz
 from fpv_station.learn.images import resized_jpeg
 
@@ -130,8 +131,7 @@ def write_episode_mcap(
         streams = [_row_events(rec, scene, task_id, i0, i1, wall0)]
         streams += [_frame_events(rec, c, ep, wall0, image_size) for c in cameras]
         if rec.tlog is not None:
-            t_lo, t_hi = wall0 + rec.t_s[i0], wall0 + rec.t_s[i1]
-            streams.append(_packet_events(rec.tlog, t_lo, t_hi))
+            streams.append(_packet_events(rec, rec.t_s[i0], rec.t_s[i1], wall0))
         for t_ns, kind, payload in heapq.merge(*streams, key=lambda e: e[0]):
             if kind == "row":
                 for channel, msg in zip((gps, pose, tf, telemetry), payload):
@@ -205,10 +205,12 @@ def _frame_events(rec: Recording, cam: str, ep: Episode, wall0: float, size):
         yield int(round((wall0 + t[k]) * 1e9)), "frame", (cam, jpeg)
 
 
-def _packet_events(tlog: Path, t_lo: float, t_hi: float) -> Iterator:
-    for t, packet in TlogReader(tlog):
+def _packet_events(rec: Recording, t_lo: float, t_hi: float, wall0: float) -> Iterator:
+    """The tlog's packets from `t_lo` to `t_hi` on the session clock (a joined log's
+    recordings each on their own, as the rows), on the rows' log time."""
+    for t, packet in rec.tlog_packets():
         if t_lo <= t <= t_hi:
-            yield int(round(t * 1e9)), "packet", packet
+            yield int(round((wall0 + t) * 1e9)), "packet", packet
 
 
 def _wall_offset(rec: Recording) -> float:
