@@ -26,9 +26,10 @@ from numpy.typing import NDArray
 from fpv_station.analysis.csvcols import CsvColumns, to_bool, to_float
 from fpv_station.analysis.errors import NoGpsFixError, TrackLoadError
 from fpv_station.analysis.recording import open_recording
-from fpv_station.analysis.vehicle_clock import on_vehicle_clock
+from fpv_station.analysis.vehicle_clock import on_vehicle_clock, vehicle_boot_clock
 from fpv_station.companion.recording import layout
 from fpv_station.companion.recording.flags import vehicle_texts
+from fpv_station.companion.timesync import VehicleClock
 
 Array = NDArray[np.float64]
 PositionSource = Literal["gps", "global_position"]
@@ -119,7 +120,8 @@ def load_track(
         with open_recording(p, frames=False) as rec:
             name = label or str(rec.meta.get("label") or rec.name)
             raw = rec.telemetry_csv.read_bytes()
-            track = load_telemetry_csv(raw, name, rec.source, position, min_fix_type)
+            boot = vehicle_boot_clock(rec.meta)
+            track = load_telemetry_csv(raw, name, rec.source, position, min_fix_type, boot)
             return replace(track, meta=rec.meta, vehicle_texts=tuple(rec.vehicle_texts()))
     except OSError as exc:
         raise TrackLoadError(f"'{p}' cannot be read: {exc}") from None
@@ -143,9 +145,11 @@ def load_telemetry_csv(
     source: str,
     position: PositionSource = "gps",
     min_fix_type: int = MIN_FIX_3D,
+    boot: VehicleClock | None = None,
 ) -> Track:
     """Parse the recorder's CSV: only the columns analysis needs, only the first row of
-    each GPS message, all vectorized (see `analysis.csvcols`)."""
+    each GPS message, all vectorized (see `analysis.csvcols`); `boot`: the session's
+    measured vehicle clock (`analysis.vehicle_clock.vehicle_boot_clock`)."""
     header_line, _, body = raw.partition(b"\n")
     header = [h.strip().strip('"') for h in header_line.decode("utf-8", "replace").split(",")]
     index = {name: i for i, name in enumerate(header)}
@@ -202,7 +206,7 @@ def load_telemetry_csv(
     wall, t_s = column("wall_time"), row_t
     if chosen["vehicle_t"] is not None:  # when the GPS took it, not when a burst brought it
         scale = 1e-6 if chosen["vehicle_t"].endswith("_usec") else 1e-3
-        taken = on_vehicle_clock(row_t, column("vehicle_t") * scale)
+        taken = on_vehicle_clock(row_t, column("vehicle_t") * scale, boot)
         wall, t_s = wall + (taken - row_t), taken
     ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & np.isfinite(t_s)
     ok &= ~((lat == 0) & (lon == 0))  # autopilots report 0,0 before a fix

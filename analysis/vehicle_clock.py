@@ -15,6 +15,12 @@ frames. A reboot (the vehicle's clock goes back) or a switch of time base (PX4 m
 GPS_RAW_INT from boot time to GPS time) starts a new stretch with delays of its own.
 Samples without a vehicle time (0 or NaN) keep their receive time.
 
+When the session measured the vehicle's clock with TIMESYNC (session.json
+`clock.vehicle_boot`, `companion.timesync`), a stretch on that clock is placed by that
+mapping instead (never after a sample arrived): one line for the whole session, the same
+that puts the onboard log on the session clock (`analysis.onboard_log`). A stretch the
+mapping does not fit (another time base, a reboot) keeps the shortest delay.
+
 Views of a session draw at the receive times (the rows'); these times are for measuring.
 """
 
@@ -22,6 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import ValidationError
+
+from fpv_station.companion.timesync import VehicleClock
 
 Array = NDArray[np.float64]
 
@@ -34,9 +43,30 @@ NEW_CLOCK_S = 60.0
 WINDOW_S = 5.0
 
 
-def on_vehicle_clock(receive_s: ArrayLike, vehicle_s: ArrayLike) -> Array:
+# A stretch the measured mapping fits: its samples arrive after they were made (within
+# the mapping's error) and, in the middle, no later than a radio buffers (WINDOW_S).
+FIT_EARLY_S = 0.25
+
+
+def vehicle_boot_clock(meta: dict) -> VehicleClock | None:
+    """The session's measured vehicle clock (session.json `clock.vehicle_boot`, on the
+    session clock); None when it has none or it was not measured."""
+    raw = (meta.get("clock") or {}).get("vehicle_boot")
+    if not isinstance(raw, dict):
+        return None
+    try:
+        boot = VehicleClock.model_validate(raw)
+    except ValidationError:
+        return None
+    return boot if boot.method == "timesync" and boot.offset_s is not None else None
+
+
+def on_vehicle_clock(
+    receive_s: ArrayLike, vehicle_s: ArrayLike, boot: VehicleClock | None = None
+) -> Array:
     """Times (s, on the receive clock) spaced as the vehicle's clock says; `receive_s`
-    in the order received."""
+    in the order received; `boot`: the measured mapping of the vehicle's boot clock onto
+    the receive clock, used for the stretches it fits."""
     r = np.asarray(receive_s, dtype=np.float64)
     v = np.asarray(vehicle_s, dtype=np.float64)
     out = r.copy()
@@ -58,6 +88,13 @@ def on_vehicle_clock(receive_s: ArrayLike, vehicle_s: ArrayLike) -> Array:
     start = np.searchsorted(r_sorted, np.minimum(rv, tail), side="left")
     start = np.minimum(np.maximum(start, first[stretch]), np.arange(rv.size))
     out[ok] = np.minimum(vv + _range_min(rv - vv, start, end), rv)  # exactly, not to a rounding
+    if boot is not None:
+        mapped = boot.station_s(vv)
+        late = rv - mapped
+        for k in range(first.size):
+            sl = slice(first[k], after[k])
+            if -FIT_EARLY_S <= np.median(late[sl]) <= WINDOW_S:
+                out[ok[sl]] = np.minimum(mapped[sl], rv[sl])
     return out
 
 

@@ -11,6 +11,7 @@ import pytest
 from fpv_station.analysis.report import analyze_paths
 from fpv_station.analysis.track import load_track
 from fpv_station.analysis.vehicle_clock import on_vehicle_clock
+from fpv_station.companion.timesync import VehicleClock
 from tests import shaped_tlog
 from tests import synthetic as syn
 
@@ -67,3 +68,20 @@ def test_vehicle_clock_at_another_rate_stays_on_the_receive_clock():
     assert early.min() >= 0.0
     assert early.max() < 0.2  # the last 5 s look back (3 % of 5 s, plus the delay)
     assert early[received < 55.0].max() < 0.03
+
+
+def test_a_measured_vehicle_clock_places_its_stretch_and_not_another():
+    """With TIMESYNC's line the boot-clock stretch is placed by it, at the made time
+    however late each packet came (a 2 s radio burst included); a stretch on another
+    time base (the reboot's new clock) keeps the shortest delay."""
+    made = np.arange(5.2, 35.0, 0.2)
+    boot_s = (made - 5.0) * 1.001  # booted at session time 5 s, its clock 0.1 % fast
+    late = np.where((made > 10) & (made < 12), 12.0 - made, 0.01)  # a burst at 12 s
+    received = made + late
+    boot = VehicleClock(method="timesync", reason="", offset_s=5.0, drift_ppm=1e6 / 1.001 - 1e6)
+    r = np.concatenate([received, [50.0, 50.2]])
+    v = np.concatenate([boot_s, [0.5, 0.7]])
+    placed = on_vehicle_clock(r, v, boot)
+    assert placed[: made.size] == pytest.approx(made, abs=1e-9)
+    assert placed[made.size :] == pytest.approx([50.0, 50.2])
+    assert on_vehicle_clock(r, v) != pytest.approx(placed)  # the shortest delay differs
