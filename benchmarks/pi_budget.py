@@ -349,8 +349,18 @@ def _short(frame: str) -> str:
 
 # -- start-up as installed ---------------------------------------------------------------
 
-# The packages `pip install` puts on a Pi (pyproject.toml), plus the benchmark's grabber.
-INSTALLED_PACKAGES = ("core", "companion", "twin", "analysis", "learn", "server", "benchmarks")
+# The folders `pip install` puts on a Pi (pyproject.toml's package-dir), plus the
+# benchmark's grabber.
+INSTALLED_PACKAGES = (
+    "fpv_station",
+    "core",
+    "companion",
+    "twin",
+    "analysis",
+    "learn",
+    "server",
+    "benchmarks",
+)
 
 
 def prepare_checkout(root: Path) -> None:
@@ -362,7 +372,8 @@ def prepare_checkout(root: Path) -> None:
     if root != ROOT:
         shutil.copy(ROOT / "benchmarks" / "usb_mjpeg_camera.py", root / "benchmarks")
     for package in INSTALLED_PACKAGES:
-        compileall.compile_dir(root / package, quiet=1)
+        if (root / package).is_dir():  # a baseline from before the namespace has no fpv_station/
+            compileall.compile_dir(root / package, quiet=1)
 
 
 # -- the clients ---------------------------------------------------------------------------
