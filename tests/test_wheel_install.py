@@ -46,13 +46,14 @@ OTHER_FILES = {
 }
 
 CHECK_INSTALLED = """
-import importlib.metadata as md, json, sys
-import core, core.engine, server
+import importlib, importlib.metadata as md, json, sys
+# The other project's names, by variable: no import line a rename would take for ours.
+core, engine, server = (importlib.import_module(n) for n in ("core", "core.engine", "server"))
 import fpv_station.server.app, fpv_station.twin.gym_env
 files = md.distribution("fpv-station").files
 print(json.dumps({
     "top_level": sorted({f.parts[0] for f in files if f.parts[0] != ".."}),
-    "other": [core.NAME, core.engine.run(), server.NAME],
+    "other": [core.NAME, engine.run(), server.NAME],
     "ours": fpv_station.server.app.__file__,
     "version": md.version("fpv-station"),
 }))
