@@ -11,15 +11,21 @@ packet that came straight through. So a sample is never placed after it arrived,
 takes its place from the packets around it, and the placement follows a vehicle clock
 that runs at another rate than the station's (the twin's simulated clock on a loaded
 machine: seconds a minute), keeping the times on the session clock of the rows and
-frames. A reboot (the vehicle's clock goes back) or a switch of time base (PX4 moving
-GPS_RAW_INT from boot time to GPS time) starts a new stretch with delays of its own.
-Samples without a vehicle time (0 or NaN) keep their receive time.
+frames. Nor is a sample placed before the previous sample arrived (the receive time
+before its own): a loaded station reads a stretch of packets late, each a few tenths of a
+second, and the packet that came straight through after it would otherwise put the whole
+stretch that much before its rows; bounded so, at any instant the sample that analysis
+measures is the row's or the one after it, and a burst after a fade still spreads over
+the silence before it. A reboot (the vehicle's clock goes back) or a switch of time base
+(PX4 moving GPS_RAW_INT from boot time to GPS time) starts a new stretch with delays of
+its own. Samples without a vehicle time (0 or NaN) keep their receive time.
 
 When the session measured the vehicle's clock with TIMESYNC (session.json
 `clock.vehicle_boot`, `companion.timesync`), a stretch on that clock is placed by that
-mapping instead (never after a sample arrived): one line for the whole session, the same
-that puts the onboard log on the session clock (`analysis.onboard_log`). A stretch the
-mapping does not fit (another time base, a reboot) keeps the shortest delay.
+mapping instead (never after a sample arrived, nor before the previous one arrived): one
+line for the whole session, the same that puts the onboard log on the session clock
+(`analysis.onboard_log`). A stretch the mapping does not fit (another time base, a
+reboot) keeps the shortest delay.
 
 Views of a session draw at the receive times (the rows'); these times are for measuring.
 """
@@ -95,6 +101,8 @@ def on_vehicle_clock(
             sl = slice(first[k], after[k])
             if -FIT_EARLY_S <= np.median(late[sl]) <= WINDOW_S:
                 out[ok[sl]] = np.minimum(mapped[sl], rv[sl])
+    before = np.searchsorted(r_sorted, rv, side="left") - 1  # the last arrival before it
+    out[ok] = np.maximum(out[ok], np.where(before >= 0, r_sorted[np.maximum(before, 0)], -np.inf))
     return out
 
 

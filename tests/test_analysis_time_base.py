@@ -85,3 +85,19 @@ def test_a_measured_vehicle_clock_places_its_stretch_and_not_another():
     assert placed[: made.size] == pytest.approx(made, abs=1e-9)
     assert placed[made.size :] == pytest.approx([50.0, 50.2])
     assert on_vehicle_clock(r, v) != pytest.approx(placed)  # the shortest delay differs
+
+
+def test_a_stretch_read_late_stays_within_a_sample_of_its_rows():
+    """A loaded station reads 10 s of 5 Hz samples 0.4 s late each, then on time again
+    (the backlog read in order, a millisecond apart): the on-time packets after the
+    stretch must not pull it 0.4 s before its rows (two samples): each sample is placed
+    after the previous one arrived."""
+    vehicle = np.arange(0.0, 40.0, 0.2) + 5.0
+    late = (vehicle >= 15.0) & (vehicle < 25.0)
+    received = vehicle - 5.0 + np.where(late, 0.4, 0.02)
+    for i in range(1, received.size):
+        received[i] = max(received[i], received[i - 1] + 0.001)
+    t = on_vehicle_clock(received, vehicle)
+    assert np.all(t <= received)
+    assert np.all(t[1:] >= received[:-1] - 1e-9), (received - t).max()
+    assert np.all(np.diff(t) > 0)
