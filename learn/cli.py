@@ -4,8 +4,10 @@
                        [--task N] [--description TEXT] [--fps N] [--channel-map MAP]
                        [--cameras front,bottom|none] [--dataset-id ID] [--image-size WxH]
     fpv-station demos --task N --count K --out DIR [--seed S] [--cameras]
+                      [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
     fpv-station learn bc DATASET --out POLICY
-    fpv-station learn eval POLICY --task N --episodes E [--seed S]
+    fpv-station learn eval POLICY --task N [--episodes E] [--seed S] [--demos SESSION ...]
+                       [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
 
 SESSION is a session folder, a downloaded session zip, or a bare .tlog; each flight in
 it (armed, with a take-off) becomes one episode.
@@ -107,6 +109,41 @@ def add_demos_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the first flight")
     p.add_argument("--cameras", action="store_true", help="record both cameras")
     p.add_argument("--camera-fps", type=float, default=15.0)
+    add_air_arguments(p)
+
+
+def add_air_arguments(p: argparse.ArgumentParser) -> None:
+    """The twin's wind and start (default: the scene's; the default field is calm)."""
+    p.add_argument(
+        "--wind", type=_east_north, default=(0.0, 0.0), metavar="E,N", help="mean wind (m/s)"
+    )
+    p.add_argument("--gusts", type=float, default=0.0, metavar="STD", help="gust std (m/s)")
+    p.add_argument(
+        "--turbulence", type=float, default=0.0, metavar="STD", help="turbulence std (m/s)"
+    )
+    p.add_argument(
+        "--random-start",
+        type=float,
+        nargs="?",
+        const=180.0,
+        default=None,
+        metavar="DEG",
+        help="start anywhere on the pad, heading within DEG of east (default 180), seeded",
+    )
+
+
+def _east_north(text: str) -> tuple[float, float]:
+    try:
+        e, n = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not E,N in m/s (e.g. 2,0)") from None
+    return e, n
+
+
+def air_options(args: argparse.Namespace) -> dict:
+    from learn.evaluate import air_options as options
+
+    return options(args.wind, args.gusts, args.turbulence, args.random_start)
 
 
 def run_demos(args: argparse.Namespace) -> int:
@@ -115,7 +152,12 @@ def run_demos(args: argparse.Namespace) -> int:
     if args.count < 1:
         print("fpv-station demos: --count must be at least 1", file=sys.stderr)
         return 2
-    config = DemoConfig(task_id=args.task, cameras=args.cameras, camera_fps=args.camera_fps)
+    config = DemoConfig(
+        task_id=args.task,
+        cameras=args.cameras,
+        camera_fps=args.camera_fps,
+        env_options=air_options(args),
+    )
 
     def progress(done: int, total: int) -> None:
         print(f"demos: {done}/{total}", file=sys.stderr)
@@ -140,14 +182,17 @@ def add_learn_arguments(p: argparse.ArgumentParser) -> None:
     ev = sub.add_parser("eval", help="fly a policy in the twin; the paper's table for the task")
     ev.add_argument("policy", type=Path, metavar="POLICY")
     ev.add_argument("--task", type=int, required=True, help="the scene's task id (1-4)")
-    ev.add_argument("--episodes", type=int, default=10)
+    ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000, help="seed of the first episode")
     ev.add_argument(
         "--demos", type=Path, nargs="*", default=[], help="demonstration sessions to score too"
     )
     ev.add_argument(
-        "--no-baselines", action="store_true", help="without the scripted and random rows"
+        "--no-baselines",
+        action="store_true",
+        help="without the scripted, open-loop replay and random rows",
     )
+    add_air_arguments(ev)
     ev.set_defaults(func=run_eval)
 
 
@@ -181,28 +226,28 @@ def run_eval(args: argparse.Namespace) -> int:
             f"note: the policy learned task {policy.task_id}, evaluated on task {args.task}",
             file=sys.stderr,
         )
-    rows = [
-        ev.evaluate(
-            "behaviour cloning",
-            lambda s: ev.policy_act(policy),
+    if args.episodes < 1:
+        print("fpv-station learn eval: --episodes must be at least 1", file=sys.stderr)
+        return 2
+    options = air_options(args)
+    try:
+        rows = ev.benchmark(
+            policy,
             args.task,
             args.episodes,
             args.seed,
+            options,
+            args.demos,
+            baselines=not args.no_baselines,
         )
-    ]
-    if not args.no_baselines:
-        rows.append(
-            ev.evaluate(
-                "scripted pilot",
-                lambda s: ev.scripted_pilot(scene, args.task),
-                args.task,
-                args.episodes,
-                args.seed,
-            )
-        )
-        rows.append(ev.evaluate("random", ev.random_policy, args.task, args.episodes, args.seed))
-    if args.demos:
-        rows.append(ev.demonstrations(args.demos, args.task))
-    print(f"Task {args.task} ({ev.TASK_NAMES[args.task]}), twin, seeds {args.seed}+:")
+    except (ValueError, OSError) as exc:
+        print(f"fpv-station learn eval: {exc}", file=sys.stderr)
+        return 1
+    air = ", ".join(f"{k}: {v}" for k, v in options.items()) or "the scene's wind and start"
+    print(f"Task {args.task} ({ev.TASK_NAMES[args.task]}), twin, seeds {args.seed}+, {air}:")
     print(ev.table(rows, args.task))
+    by_name = {r.name: r for r in rows}
+    for other in ("open-loop replay", "random"):
+        if other in by_name:
+            print(ev.compare(by_name["behaviour cloning"], by_name[other]))
     return 0

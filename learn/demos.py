@@ -18,7 +18,7 @@ from __future__ import annotations
 import asyncio
 import socket
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -34,7 +34,8 @@ from fpv_station.companion.state_tracker import StateTracker
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.companion.video_frame import Frame
 from fpv_station.core.mavlink.framing import MavFramer
-from fpv_station.core.scene import Scene, load_scene
+from fpv_station.core.scene import Scene, SceneStart, load_scene
+from fpv_station.twin.dynamics import Wind
 from fpv_station.twin.pilot import Leg, Observation, Pilot, task_plan
 from fpv_station.twin.runner import Twin
 from fpv_station.twin.sim import SimConfig
@@ -62,6 +63,9 @@ class DemoConfig:
     timeout_s: float = 300.0
     variability: Variability = Variability()
     hold_s: float | None = None  # task 1: hover this long instead of the task's hold (long flights)
+    # The twin's wind and start, as `TwinEnv`'s reset options ({"wind": ..., "start": ...});
+    # empty: the scene's.
+    env_options: dict = field(default_factory=dict)
 
 
 def noisy_plan(scene: Scene, task_id: int, rng: np.random.Generator, err_m: float) -> list[Leg]:
@@ -108,7 +112,14 @@ def fly_demo(
             rate_hz=config.rate_hz,
             limits=WriterLimits(min_free_bytes=0),
             source="sim",
-            settings={"demo": {"task": config.task_id, "seed": seed, "lag_s": lag_ticks * TICK_S}},
+            settings={
+                "demo": {
+                    "task": config.task_id,
+                    "seed": seed,
+                    "lag_s": lag_ticks * TICK_S,
+                    **config.env_options,
+                }
+            },
             camera_fps=dict.fromkeys(cams, config.camera_fps),
         ),
         trigger="demos",
@@ -118,7 +129,11 @@ def fly_demo(
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.setblocking(False)
-    twin = Twin(scene, SimConfig(seed=seed), mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}")
+    twin = Twin(
+        scene,
+        sim_config(seed, config.env_options),
+        mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}",
+    )
     t0 = twin.sim.t_s
     framer, tracker = MavFramer(), StateTracker()
     seqs = dict.fromkeys(cams, 0)
@@ -187,6 +202,16 @@ def fly_demo(
         # The recorder's own stop: the last rows, the files closed, session.json final.
         asyncio.run(session.stop(reason))
     return session.folder
+
+
+def sim_config(seed: int, env_options: dict) -> SimConfig:
+    """The twin's configuration for a flight with `TwinEnv`'s reset options."""
+    start = env_options.get("start")
+    return SimConfig(
+        seed=seed,
+        wind=Wind.parse(env_options.get("wind")),
+        start=SceneStart.model_validate(start) if start is not None else None,
+    )
 
 
 def fly_demos(

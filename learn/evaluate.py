@@ -11,16 +11,27 @@ time. On top of the paper's table:
 - crashes: episodes the twin ended with a crash;
 - time: the episode's length (reset to landing, crash or the time limit).
 
-Rows: the behaviour-cloning policy, the twin's scripted pilot, a uniformly random policy,
-and the demonstrations (recorded sessions, scored the same way).
+Each figure comes with a 95 % interval: Wilson's score interval for the success rate,
+Student's t interval for the mean of each metric (over the episodes whose analysis holds).
+
+Rows: the behaviour-cloning policy, the twin's scripted pilot, an open-loop replay (a
+demonstration's recorded sticks replayed blind, frame by frame from the arming: what a
+policy that ignores its observations scores), a uniformly random policy, and the
+demonstrations (recorded sessions). Every flown row meets the same episodes (seeds
+`seed`, `seed + 1`, ...: the same wind, gusts, start and sensor noise), so rows are
+compared pair by pair; what must differ is seeded apart (the random sticks per task and
+episode). Each row says what it was scored on: flown rows the twin's true state, the
+demonstrations their recorded GPS and barometer.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +53,12 @@ TASK_NAMES = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
 # docs/ANALYSIS.md, "The twin flown by its scripted pilot"); every row uses the same.
 PARAMS = TaskParams(hover_height_tolerance_m=0.05)
 MAX_EPISODE_S = {1: 60.0, 2: 120.0, 3: 180.0, 4: 180.0}
+DEFAULT_EPISODES = 20
+CONFIDENCE = 0.95
+TRUE_STATE = "true state"
+RECORDED = "recorded GPS + baro"
+CONTROL_HZ = 10.0  # TwinEnv's default: one env step per recorded frame of a replay
+_RANDOM_STREAM = 0x52414E44  # keeps the random sticks' draws apart from the env's seeds
 
 Act = Callable[[np.ndarray, dict], np.ndarray]
 
@@ -59,19 +76,76 @@ class Outcome:
 class Row:
     name: str
     outcomes: tuple[Outcome, ...]
+    scored_on: str = TRUE_STATE
+
+    def values(self, field: str) -> np.ndarray:
+        v = [getattr(o.result, field) for o in self.outcomes if o.result is not None]
+        return np.array([x for x in v if x is not None], float)
 
     def mean(self, field: str) -> float:
-        v = [getattr(o.result, field) for o in self.outcomes if o.result is not None]
-        v = [x for x in v if x is not None]
-        return float(np.mean(v)) if v else math.nan
+        v = self.values(field)
+        return float(np.mean(v)) if v.size else math.nan
+
+    @property
+    def successes(self) -> int:
+        return sum(o.success for o in self.outcomes)
 
     @property
     def success_rate(self) -> float:
-        return sum(o.success for o in self.outcomes) / max(len(self.outcomes), 1)
+        return self.successes / max(len(self.outcomes), 1)
 
     @property
     def crashes(self) -> int:
         return sum(o.crashed for o in self.outcomes)
+
+
+# ---------------------------------------------------------------- intervals
+
+
+def _z(confidence: float) -> float:
+    from scipy.stats import norm
+
+    return float(norm.ppf(0.5 + confidence / 2))
+
+
+def wilson_interval(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Wilson's score interval for a success rate of k in n (nan, nan for n = 0). Unlike
+    p +- z sqrt(p (1 - p) / n) it stays within [0, 1] and is not empty at 0 or n."""
+    if n <= 0:
+        return math.nan, math.nan
+    z = _z(confidence)
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def mean_interval(values: Sequence[float], confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Student's t interval for the mean of `values` (nan, nan for fewer than two)."""
+    from scipy.stats import t
+
+    v = np.asarray(values, float)
+    if v.size < 2:
+        return math.nan, math.nan
+    half = float(t.ppf(0.5 + confidence / 2, v.size - 1)) * v.std(ddof=1) / math.sqrt(v.size)
+    m = float(v.mean())
+    return m - half, m + half
+
+
+def difference_interval(
+    k1: int, n1: int, k2: int, n2: int, confidence: float = CONFIDENCE
+) -> tuple[float, float, float]:
+    """(p1 - p2, low, high): Newcombe's hybrid score interval for the difference of two
+    success rates, from the two Wilson intervals."""
+    p1, p2 = k1 / n1, k2 / n2
+    l1, u1 = wilson_interval(k1, n1, confidence)
+    l2, u2 = wilson_interval(k2, n2, confidence)
+    d = p1 - p2
+    return (
+        d,
+        d - math.sqrt((p1 - l1) ** 2 + (u2 - p2) ** 2),
+        d + math.sqrt((u1 - p1) ** 2 + (p2 - l2) ** 2),
+    )
 
 
 def on_pad(scene: Scene, task_id: int, xy: np.ndarray) -> bool:
@@ -79,11 +153,18 @@ def on_pad(scene: Scene, task_id: int, xy: np.ndarray) -> bool:
     return bool(np.all(np.abs(np.asarray(xy) - pad.xy_m) <= pad.size_m / 2))
 
 
-def fly_episode(act: Act, task_id: int, seed: int, scene: Scene | None = None) -> Outcome:
-    """One seeded `TwinEnv` episode flown by `act(obs, info)`, scored."""
+def fly_episode(
+    act: Act,
+    task_id: int,
+    seed: int,
+    scene: Scene | None = None,
+    options: dict[str, Any] | None = None,
+) -> Outcome:
+    """One seeded `TwinEnv` episode flown by `act(obs, info)`, scored; `options` are the
+    env's reset options (wind, start)."""
     scene = scene or load_scene()
     env = TwinEnv(task=task_id, scene=scene, max_episode_s=MAX_EPISODE_S.get(task_id, 180.0))
-    obs, info = env.reset(seed=seed)
+    obs, info = env.reset(seed=seed, options=options)
     t, pos, armed = [info["t_s"]], [info["pos_enu_m"]], [True]
     terminated = truncated = False
     while not (terminated or truncated):
@@ -147,9 +228,36 @@ def scripted_pilot(scene: Scene, task_id: int) -> Act:
     return act
 
 
-def random_policy(seed: int) -> Act:
-    rng = np.random.default_rng(seed)
+def random_policy(seed: int, task_id: int = 0) -> Act:
+    """Uniform sticks, seeded by the episode and the task: tasks that start alike (3 and 4)
+    do not get the same flight."""
+    rng = np.random.default_rng([seed, task_id, _RANDOM_STREAM])
     return lambda obs, info: rng.uniform(-1, 1, 4).astype(np.float32)
+
+
+def open_loop(sticks: np.ndarray) -> Act:
+    """Recorded sticks (T, 4), one per env step from the arming, ignoring every
+    observation; after the last, the last is held."""
+    sticks = np.asarray(sticks, np.float32)
+    if not len(sticks):
+        raise ValueError("an open-loop replay needs at least one recorded stick")
+    step = itertools.count()
+
+    def act(obs: np.ndarray, info: dict) -> np.ndarray:
+        return sticks[min(next(step), len(sticks) - 1)]
+
+    return act
+
+
+def recorded_sticks(paths: Sequence[Path], task_id: int, fps: float) -> list[np.ndarray]:
+    """Each demonstration flight's sticks at `fps` (the env's control rate), from the
+    arming: the episodes `export` makes, read by the same code."""
+    scene = load_scene()
+    out = []
+    for path in paths:
+        with open_recording(path, COLUMNS) as rec:
+            out += [ep.action for ep in recording_episodes(rec, scene, task_id, fps)]
+    return out
 
 
 def policy_act(policy) -> Act:
@@ -157,12 +265,21 @@ def policy_act(policy) -> Act:
 
 
 def evaluate(
-    name: str, make_act: Callable[[int], Act], task_id: int, episodes: int, seed: int = 0
+    name: str,
+    make_act: Callable[[int], Act],
+    task_id: int,
+    episodes: int = DEFAULT_EPISODES,
+    seed: int = 0,
+    options: dict[str, Any] | None = None,
 ) -> Row:
+    """`episodes` episodes with env seeds `seed + k`, each flown by `make_act(seed + k)`."""
     scene = load_scene()
     return Row(
         name,
-        tuple(fly_episode(make_act(seed + k), task_id, seed + k, scene) for k in range(episodes)),
+        tuple(
+            fly_episode(make_act(seed + k), task_id, seed + k, scene, options)
+            for k in range(episodes)
+        ),
     )
 
 
@@ -183,11 +300,13 @@ def demonstrations(paths: Sequence[Path], task_id: int) -> Row:
         success = result is not None and landed and on_pad(scene, task_id, xy)
         time_s = last.duration_s if last else 0.0
         outcomes.append(Outcome(success, crashed, time_s, result, why))
-    return Row("demonstrations", tuple(outcomes))
+    return Row("demonstrations", tuple(outcomes), RECORDED)
 
 
-def table(rows: Sequence[Row], task_id: int) -> str:
-    """The paper's table for the task, one row per policy, in Markdown."""
+def table(rows: Sequence[Row], task_id: int, confidence: float = CONFIDENCE) -> str:
+    """The paper's table for the task, one row per policy, in Markdown: each figure with
+    its interval in brackets (a metric's mean over fewer episodes than the row's says
+    over how many)."""
     hover = task_id == 1
     metrics = (
         [("hover distance (m)", "hover_distance_m")]
@@ -195,23 +314,132 @@ def table(rows: Sequence[Row], task_id: int) -> str:
         else [("lateral dev. (m)", "lateral_deviation_m")]
     )
     metrics += [("height dev. (m)", "height_deviation_m"), ("trial time (s)", "trial_time_s")]
-    head = ["policy", "episodes", "success", "crashes", *(m[0] for m in metrics), "time (s)"]
+    pct = f"{confidence:.0%}"
+    head = [
+        "policy",
+        "scored on",
+        "episodes",
+        f"success [{pct}]",
+        "crashes",
+        *(f"{m[0]} [{pct}]" for m in metrics),
+        "time (s)",
+    ]
     lines = [
         "| " + " | ".join(head) + " |",
-        "| --- | " + " | ".join("---:" for _ in head[1:]) + " |",
+        "| --- | --- | " + " | ".join("---:" for _ in head[2:]) + " |",
     ]
     for r in rows:
+        n = len(r.outcomes)
+        lo, hi = wilson_interval(r.successes, n, confidence)
+        success = f"{r.success_rate:.0%} [{lo:.0%}, {hi:.0%}]" if n else "-"
         cells = [
             r.name,
-            str(len(r.outcomes)),
-            f"{r.success_rate:.0%}",
+            r.scored_on,
+            str(n),
+            success,
             str(r.crashes),
-            *(_fmt(r.mean(f)) for _, f in metrics),
+            *(_metric(r.values(f), n, confidence) for _, f in metrics),
             _fmt(float(np.mean([o.time_s for o in r.outcomes])) if r.outcomes else math.nan),
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
+def compare(a: Row, b: Row, confidence: float = CONFIDENCE) -> str:
+    """One line: a's success rate minus b's, with its interval, and whether a beats b by
+    more than the interval (its lower end above zero)."""
+    if not a.outcomes or not b.outcomes:
+        return f"{a.name} vs {b.name}: no episodes to compare"
+    d, lo, hi = difference_interval(
+        a.successes, len(a.outcomes), b.successes, len(b.outcomes), confidence
+    )
+    verdict = "beats" if lo > 0 else "does not beat"
+    return (
+        f"{a.name} - {b.name}, success: {d:+.0%} [{lo:+.0%}, {hi:+.0%}] "
+        f"({confidence:.0%}, Newcombe): {a.name} {verdict} {b.name}"
+    )
+
+
+def _metric(v: np.ndarray, n: int, confidence: float) -> str:
+    if not v.size:
+        return "-"
+    lo, hi = mean_interval(v, confidence)
+    cell = f"{v.mean():.3f}" + (f" [{lo:.3f}, {hi:.3f}]" if v.size > 1 else "")
+    return cell + (f" (n={v.size})" if v.size < n else "")
+
+
 def _fmt(v: float) -> str:
     return "-" if math.isnan(v) else f"{v:.3f}"
+
+
+def air_options(
+    wind_enu_mps: tuple[float, float] = (0.0, 0.0),
+    gust_std_mps: float = 0.0,
+    turbulence_std_mps: float = 0.0,
+    random_start_deg: float | None = None,
+) -> dict[str, Any]:
+    """`TwinEnv` reset options for a wind (mean east, north; gusts; turbulence) and, with
+    `random_start_deg`, a random start on the pad within that many degrees of east. Calm
+    and a fixed start give no options: the scene's."""
+    options: dict[str, Any] = {}
+    if any(wind_enu_mps) or gust_std_mps or turbulence_std_mps:
+        options["wind"] = {
+            "mean_enu_mps": [float(wind_enu_mps[0]), float(wind_enu_mps[1]), 0.0],
+            "gust_std_mps": float(gust_std_mps),
+            "turbulence_std_mps": float(turbulence_std_mps),
+        }
+    if random_start_deg is not None:
+        options["start"] = {"random": True, "heading_deg": float(random_start_deg)}
+    return options
+
+
+def benchmark(
+    policy,
+    task_id: int,
+    episodes: int = DEFAULT_EPISODES,
+    seed: int = 0,
+    options: dict[str, Any] | None = None,
+    demos: Sequence[Path] = (),
+    baselines: bool = True,
+) -> list[Row]:
+    """The rows of `learn eval`: the policy, then (with `baselines`) the scripted pilot,
+    the open-loop replay of `demos` (episode k replays flight k mod their count) and
+    random sticks, then the demonstrations; all flown rows on the same episodes."""
+    scene = load_scene()
+    rows = [
+        evaluate(
+            "behaviour cloning", lambda s: policy_act(policy), task_id, episodes, seed, options
+        )
+    ]
+    if baselines:
+        rows.append(
+            evaluate(
+                "scripted pilot",
+                lambda s: scripted_pilot(scene, task_id),
+                task_id,
+                episodes,
+                seed,
+                options,
+            )
+        )
+    sticks = recorded_sticks(demos, task_id, CONTROL_HZ) if demos else []
+    if baselines and sticks:
+        rows.append(
+            evaluate(
+                "open-loop replay",
+                lambda s: open_loop(sticks[(s - seed) % len(sticks)]),
+                task_id,
+                episodes,
+                seed,
+                options,
+            )
+        )
+    if baselines:
+        rows.append(
+            evaluate(
+                "random", lambda s: random_policy(s, task_id), task_id, episodes, seed, options
+            )
+        )
+    if demos:
+        rows.append(demonstrations(demos, task_id))
+    return rows

@@ -1,7 +1,8 @@
 """The learning loop on task 1 (hover), small enough for CI: `demos` flies the scripted
 pilot into sessions, `export` makes a LeRobot dataset of them, `learn bc` trains a policy,
-and `learn eval` flies it in the twin next to the scripted pilot, a random policy and the
-demonstrations, scored with the paper's metrics."""
+and `learn eval` flies it in the twin next to the scripted pilot, the open-loop replay of
+the demonstrations' sticks, a random policy and the demonstrations, scored with the
+paper's metrics and their intervals."""
 
 from __future__ import annotations
 
@@ -43,25 +44,32 @@ def test_demos_bc_eval_on_the_hover(tmp_path: Path, capsys):
 
     argv = ["learn", "eval", str(policy), "--task", "1", "--episodes", "3", "--seed", "1000"]
     assert cli_main([*argv, "--demos", *map(str, sessions)]) == 0
-    rows = _table(capsys.readouterr().out)
-    # columns: episodes, success, crashes, hover distance, height dev., trial time, time
+    out = capsys.readouterr().out
+    rows = _table(out)
+    # columns: scored on, episodes, success [95%], crashes, hover distance [95%],
+    # height dev. [95%], trial time [95%], time; a figure is "value [low, high]"
+    first = {k: [c.split(" ")[0] for c in v] for k, v in rows.items()}
     bc, scripted, rnd, demo = (
-        rows["behaviour cloning"],
-        rows["scripted pilot"],
-        rows["random"],
-        rows["demonstrations"],
+        first["behaviour cloning"],
+        first["scripted pilot"],
+        first["random"],
+        first["demonstrations"],
     )
-    assert bc[0] == "3" and demo[0] == "4"
-    success = {k: int(v[1].rstrip("%")) for k, v in rows.items()}
+    assert bc[1] == "3" and demo[1] == "4" and first["open-loop replay"][1] == "3"
+    assert rows["demonstrations"][0] == "recorded GPS + baro"
+    assert {v[0] for k, v in rows.items() if k != "demonstrations"} == {"true state"}
+    assert rows["scripted pilot"][2] == "100% [44%, 100%]"  # 3 of 3: Wilson's interval
+    success = {k: int(v[2].rstrip("%")) for k, v in first.items()}
     assert success["behaviour cloning"] >= 66  # at least 2 of 3 landed on the pad
     assert success["random"] == 0  # the clear margin
     assert success["scripted pilot"] == 100 and success["demonstrations"] == 100
-    assert bc[2] == "0"  # no crash
+    assert bc[3] == "0"  # no crash
     # The paper's hover metrics: the clone hovers over the pad, like its teachers.
-    assert float(bc[3]) < 0.5 and float(demo[3]) < 0.5
-    assert 10.0 < float(bc[5]) < 40.0  # trial time: climb, 10 s hold, descent
-    assert float(scripted[5]) == pytest.approx(19.0, abs=1.5)
+    assert float(bc[4]) < 0.5 and float(demo[4]) < 0.5
+    assert 10.0 < float(bc[6]) < 40.0  # trial time: climb, 10 s hold, descent
+    assert float(scripted[6]) == pytest.approx(19.0, abs=1.5)
     assert float(rnd[-1]) == pytest.approx(60.0)  # random never lands: the time limit
+    assert "behaviour cloning - random, success: +" in out
 
 
 def test_learn_errors_are_clear(tmp_path: Path, capsys):
