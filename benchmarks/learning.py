@@ -46,10 +46,10 @@ def unit(condition: str, task: int, demos: int, episodes: int) -> tuple[str, int
     import contextlib
     import io
 
-    from learn import evaluate as ev
-    from learn.bc import BcPolicy
-    from learn.cli import air_options
-    from server.cli import main as cli
+    from fpv_station.learn import evaluate as ev
+    from fpv_station.learn.bc import BcPolicy
+    from fpv_station.learn.cli import air_options
+    from fpv_station.server.cli import main as cli
 
     t0 = time.perf_counter()
     air = CONDITIONS[condition]
@@ -68,7 +68,7 @@ def unit(condition: str, task: int, demos: int, episodes: int) -> tuple[str, int
                 raise RuntimeError(f"learn bc failed: {quiet.getvalue()}")
         policy = BcPolicy.load(tmp / "policy.npz")
         parser = argparse.ArgumentParser()
-        from learn.cli import add_air_arguments
+        from fpv_station.learn.cli import add_air_arguments
 
         add_air_arguments(parser)
         options = air_options(parser.parse_args(air))

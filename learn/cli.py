@@ -141,7 +141,7 @@ def _east_north(text: str) -> tuple[float, float]:
 
 
 def air_options(args: argparse.Namespace) -> dict:
-    from learn.evaluate import air_options as options
+    from fpv_station.learn.evaluate import air_options as options
 
     return options(args.wind, args.gusts, args.turbulence, args.random_start)
 

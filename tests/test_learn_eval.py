@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.scene import load_scene
-from learn import evaluate as ev
-from learn.demos import DemoConfig, fly_demo
+from fpv_station.core.scene import load_scene
+from fpv_station.learn import evaluate as ev
+from fpv_station.learn.demos import DemoConfig, fly_demo
 
 
 def test_intervals_match_published_values() -> None:
