@@ -132,8 +132,10 @@ function track(msg) {
   }
   const task = taskInfo && taskInfo.selected;
   if (!task) return;
-  // Step indices as stepNames lists them; a step counts once reached, in any order the
-  // pilot flies them (an aborted trial leaves its skipped steps open).
+  // Step indices as stepNames lists them, in any order the pilot flies them (an aborted
+  // trial leaves its skipped steps open). An event counts once it happened (armed, took
+  // off, reached the height, held it for hold_s); a place holds only while the vehicle is
+  // there: past an obstacle, on the ground (a touch-and-go is not a landing).
   const done = flight.done;
   const airborne = alt != null && alt > TAKEOFF_M;
   let i = 1;
@@ -157,11 +159,15 @@ function track(msg) {
         const ux = b.x_m - a.x_m, uy = b.y_m - a.y_m, n = Math.hypot(ux, uy);
         const along = ((flight.pos.x - o.x_m) * ux + (flight.pos.y - o.y_m) * uy) / n;
         if (along > o.width_m / 2) done.add(i);
+        else done.delete(i);
       }
       i += 1;
     }
   }
-  if (tookOff && alt != null && !airborne) done.add(i); // back on the ground
+  if (tookOff && alt != null) {
+    if (!airborne) done.add(i); // back on the ground
+    else done.delete(i);
+  }
   i += 1;
   if (!armed) {
     done.add(i);
