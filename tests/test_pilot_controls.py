@@ -211,10 +211,10 @@ def test_a_refused_disarm_is_shown_with_its_reason(twin_station, browser):
     page = browser.new_page()
     sticks_on(page, url)
     arm_and_climb(page, app.state.station)
-    expect(page.locator("#ctl-toast")).to_be_hidden()
+    expect(page.locator("#toast")).to_be_hidden()
     page.click("#ctl-disarm")
     # The vehicle refuses (in the air): the toast says so and why, as does the OSD.
-    toast = page.locator("#ctl-toast")
+    toast = page.locator("#toast")
     expect(toast).to_be_visible(timeout=15_000)
     expect(toast).to_contain_text("disarm refused (DENIED)")
     expect(toast).to_contain_text("in the air")

@@ -90,12 +90,24 @@ def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None
         assert json.loads(ws.recv(timeout=5))["error"] == "BadRequest"
         ws.send(json.dumps({"type": "mode", "mode": "ACRO"}))
         assert "ACRO" in json.loads(ws.recv(timeout=5))["error_msg"]
-        # A second pilot is refused while the first has the sticks.
+        # A second page has no sticks while the first has them: its sticks and its arm
+        # are refused, its Land and its forced Disarm (emergencies) are carried out.
         with connect(ws_url + "/ws/control") as other:
+            hello = json.loads(other.recv(timeout=5))
+            assert hello["type"] == "hello" and hello["sticks"] is False
+            other.send(json.dumps({"type": "sticks", "throttle": 1.0}))
             assert json.loads(other.recv(timeout=5))["error"] == "Conflict"
-        ws.send(json.dumps({"type": "land"}))
-        assert json.loads(ws.recv(timeout=5))["ok"] is True
-        assert wait_until(lambda: state(app).heartbeat.mode == "LAND", timeout=5)
+            other.send(json.dumps({"type": "mode", "mode": "ALTCTL"}))
+            refused = json.loads(other.recv(timeout=5))
+            assert refused["error"] == "Conflict" and "Disarm, Land and RTL" in refused["error_msg"]
+            other.send(json.dumps({"type": "land"}))
+            assert json.loads(other.recv(timeout=5))["ok"] is True
+            assert wait_until(lambda: state(app).heartbeat.mode == "LAND", timeout=5)
+            assert twin.pose().pos_enu_m[2] > 1.0  # still in the air
+            other.send(json.dumps({"type": "disarm", "force": True}))
+            reply = json.loads(other.recv(timeout=5))
+            assert reply["cmd"] == "disarm" and reply["ok"] is True, reply
+            assert wait_until(lambda: not state(app).heartbeat.armed, timeout=5)
 
 
 def test_control_is_refused_without_the_twin(tmp_path) -> None:

@@ -108,9 +108,12 @@ def test_http_401_declined_shows_the_servers_error_and_changes_nothing(guarded, 
     page.locator("#rec-button").click()
     expect(page.locator("#rec-button")).to_have_text("REC")
     page.wait_for_function("document.getElementById('rec-button').disabled === false")
-    # the prompt (declined), then the refusal in the server's words
+    # the prompt (declined), then the refusal in the server's words, as a toast
     assert "token" in alerts[0]
-    assert alerts[1].startswith("Recording: This station requires a control token")
+    toast = page.locator("#toast")
+    expect(toast).to_be_visible()
+    expect(toast).to_contain_text("Recording: This station requires a control token")
+    assert len(alerts) == 1
     assert httpx.get(f"{guarded}/api/recording").json()["recording"] is False
 
 

@@ -14,14 +14,17 @@
 // ("fpv.control.gamepad"); default = Mode 2 on a standard pad (left: yaw/throttle,
 // right: roll/pitch).
 // A station with a control token refuses the socket (close 4401): lib.js asks for the
-// token and the socket opens again with it.
+// token and the socket opens again with it. The sticks are one page's at a time: a page
+// that connects while another has them is told so (a toast), and its commands other than
+// Disarm, Land and RTL are refused (server/routes/control.py).
 // The gamepad panel shows every axis of the pad and the four sticks sent, live (the send
-// rate). A command the vehicle refuses (COMMAND_ACK not accepted) shows as a toast with
-// the vehicle's reason.
+// rate). Every command's answer is a toast: done, or refused with the vehicle's (or the
+// station's) reason. The arming gesture on the keys turns the sticks on by itself.
 // Test hook: window.fpv.control = {enabled, sticks, input, lastReply}.
 import { $, el, svgEl, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
 import { feed } from "/telemetry.js";
 import { mountTouchSticks, touchDevice } from "/touch-sticks.js";
+import { toast } from "/toast.js";
 
 const RATE_MS = 20;
 const STORE_KEY = "fpv.control.gamepad";
@@ -31,7 +34,8 @@ const DEFAULT_MAP = {
   yaw: { index: 0, invert: false }, throttle: { index: 1, invert: true },
 };
 const fpv = (window.fpv = window.fpv || {});
-const ctl = (fpv.control = { enabled: false, sticks: null, input: "keyboard", lastReply: null });
+// enabled: the socket is open; held: this page has the sticks (another page may have them)
+const ctl = (fpv.control = { enabled: false, held: false, sticks: null, input: "keyboard", lastReply: null });
 
 let config = loadConfig();
 let socket = null;
@@ -40,9 +44,6 @@ let calibrating = null; // {min: [], max: []} while the user sweeps the sticks
 const keys = new Set();
 let sentRows = {}; // the gamepad panel's rows of the sticks sent, by function
 const touch = mountTouchSticks(document.body);
-const toast = el("div", { id: "ctl-toast", class: "toast", role: "status", hidden: true });
-document.body.append(toast);
-let toastTimer = null;
 
 // ---- widget in the toolbar ----
 const box = $("control-widget");
@@ -77,14 +78,21 @@ function start() {
     let msg;
     try { msg = JSON.parse(ev.data); } catch (err) { return; }
     ctl.lastReply = msg;
-    if (msg.type === "ack") showAck(msg);
-    if (msg.error) {
-      $("ctl-input").textContent = msg.error_msg.slice(0, 60);
-      $("ctl-input").className = "pill bad";
+    if (msg.type === "hello" && msg.sticks === false) {
+      // Another page has the sticks: this one sends none, its emergencies still go.
+      ctl.held = false;
+      clearInterval(timer);
+      timer = null;
+      touch.show(false);
+      $("ctl-toggle").textContent = "Sticks: taken";
+      $("ctl-toggle").classList.remove("on");
+      toast("Another page has the sticks: from here only Disarm, Land and RTL.", { bad: true });
     }
+    if (msg.type === "ack") showAck(msg);
+    if (msg.error) toast(msg.error_msg, { bad: true });
   };
   ws.onopen = () => {
-    ctl.enabled = true;
+    ctl.enabled = ctl.held = true;
     $("ctl-input").className = "pill";
     $("ctl-toggle").textContent = "Sticks: on";
     $("ctl-toggle").classList.add("on");
@@ -101,7 +109,7 @@ function start() {
 }
 
 function stop() {
-  ctl.enabled = false;
+  ctl.enabled = ctl.held = false;
   clearInterval(timer);
   timer = null;
   if (socket && socket.readyState <= 1) socket.close();
@@ -123,14 +131,11 @@ function command(msg, tries = 10) {
   }
 }
 
-// The vehicle's answer to arm, disarm, mode, land: a refusal says so, and why.
+// The vehicle's answer to arm, disarm, mode, land: done, or refused and why.
 function showAck(msg) {
-  if (msg.ok) return;
+  if (msg.ok) { toast(`${msg.cmd}: done`); return; }
   const why = msg.text ? `: ${msg.text}` : "";
-  toast.textContent = `${msg.cmd} refused (${msg.result ?? "no answer"})${why}`;
-  toast.hidden = false;
-  clearTimeout(toastTimer);
-  toastTimer = setTimeout(() => { toast.hidden = true; }, 8000);
+  toast(`${msg.cmd} refused (${msg.result ?? "no answer"})${why}`, { bad: true });
 }
 
 function tick() {
@@ -150,7 +155,7 @@ function tick() {
       : noPads ? "keyboard (gamepad needs https)" : "keyboard";
     if (pill.textContent !== text) pill.textContent = text;
   }
-  if (socket && socket.readyState === 1) socket.send(JSON.stringify({ type: "sticks", ...sticks }));
+  if (ctl.held && socket && socket.readyState === 1) socket.send(JSON.stringify({ type: "sticks", ...sticks }));
   if ($("ctl-pad").open) drawBars(pad, sticks);
 }
 
@@ -307,8 +312,17 @@ function drawBars(pad, sticks) {
 // Text fields keep their keys; a focused <select> (the task, a mode) does not get the
 // arrow keys while the sticks are active: they fly, they never change a selection.
 const typing = (e) => ["INPUT", "TEXTAREA"].includes(e.target.tagName) && e.target.type !== "checkbox";
+// Keys are followed with the sticks off too: the arming gesture (down + E) turns them on,
+// and the keys still held then arm.
+const ARM_GESTURE = () => (keys.has("ArrowDown") || keys.has("KeyF")) && keys.has("KeyE");
 window.addEventListener("keydown", (e) => {
-  if (typing(e) || !ctl.enabled) return;
+  if (typing(e)) return;
+  if (!ctl.enabled) {
+    if (box.hidden || e.target.tagName === "SELECT") return;
+    keys.add(e.code);
+    if (ARM_GESTURE() && !socket) start();
+    return;
+  }
   if (e.target.tagName === "SELECT" && !e.code.startsWith("Arrow")) return;
   keys.add(e.code);
   if (e.code.startsWith("Arrow")) e.preventDefault();
@@ -318,15 +332,16 @@ window.addEventListener("blur", () => keys.clear()); // released keys must not s
 
 // ---- the key legend ("?") ----
 const LEGEND = [
+  ["Sticks: off", "the button turns the sticks on (keys, gamepad, touch); the arming gesture \u2193 + E does too"],
   ["W / S", "pitch forward / back"], ["A / D", "roll left / right"], ["Q / E", "yaw left / right"],
   ["\u2191 / \u2193 (R / F)", "climb / descend"], ["Shift", "full deflection"],
-  ["\u2193 + E", "arm (throttle down, yaw right)"], ["\u2193 + Q", "disarm (throttle down, yaw left)"],
+  ["\u2193 + E", "arm (throttle down, yaw right); turns the sticks on when off"], ["\u2193 + Q", "disarm (throttle down, yaw left)"],
   ["touch", "left stick: throttle / yaw (throttle stays), right: pitch / roll"],
   ["touch \u2198", "left stick bottom-right: arm; bottom-left: disarm"],
   ["?", "this legend"],
 ];
 const legend = el("div", { id: "key-legend", class: "key-legend", role: "dialog", "aria-label": "keys", hidden: true },
-  el("h2", {}, "Keys (twin sticks on)"),
+  el("h2", {}, "Keys (flying the twin)"),
   el("table", {}, ...LEGEND.map(([key, what]) => el("tr", {}, el("th", {}, key), el("td", {}, what)))));
 legend.addEventListener("click", () => { legend.hidden = true; });
 document.body.append(legend);

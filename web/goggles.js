@@ -10,6 +10,8 @@
 // camera's frame), and the bottom camera's PiP takes its frames' shape.
 import { $, el } from "/lib.js";
 import { mountOsd } from "/osd.js";
+import { emergencyButtons } from "/emergency.js";
+import { nextAction } from "/task-panel.js";
 
 const fpv = (window.fpv = window.fpv || {});
 
@@ -28,8 +30,8 @@ window.addEventListener("keydown", (e) => {
   else return;
   e.preventDefault();
 });
-$("front-view").addEventListener("click", (e) => {
-  if (!e.target.closest(".osd-menu, .osd-menu-button")) toggleFullscreen();
+$("goggles").addEventListener("click", (e) => {
+  if (e.target.closest(".view") && !e.target.closest(".osd-menu, .osd-menu-button")) toggleFullscreen();
 });
 
 // Keep the screen on while the page is shown (goggles and phones sleep otherwise).
@@ -46,15 +48,6 @@ async function keepAwake() {
 }
 document.addEventListener("visibilitychange", keepAwake);
 keepAwake();
-
-// The task panel names each step as done ("Armed", "Reached 4 m"); the pilot in goggles
-// reads what to do next ("next: arm", "next: climb to 4 m").
-const NEXT = [[/^Armed$/, "arm"], [/^Took off$/, "take off"], [/^Reached (.+)$/, "climb to $1"],
-  [/^Held (.+)$/, "hold $1"], [/^Passed (.+)$/, "pass $1"], [/^Landed$/, "land"], [/^Disarmed$/, "disarm"]];
-function nextAction(step) {
-  const found = NEXT.find(([done]) => done.test(step));
-  return found ? step.replace(found[0], found[1]) : step;
-}
 
 // Both eyes show it in stereo; the right eye, mounted later, starts with the current one.
 let taskLine = "";
@@ -74,7 +67,9 @@ function toggleStereo() {
     right = el("section", { id: "front-view-right", class: "view", "aria-label": "front view, right eye" });
     right.append(el("img", { class: "video-stream", alt: "front camera, right eye" }));
     $("goggles").append(right);
-    fpv.osdRight = mountOsd(right, { menu: false });
+    // The same OSD and menu in the right eye (osd.js: one menu state for both eyes).
+    fpv.osdRight = mountOsd(right);
+    fpv.osdRight.menuBox.append(emergencyButtons());
     fpv.osdRight.setLine("task", taskLine);
   }
   fpv.osdRight.setRunning(on); // a hidden eye draws nothing

@@ -116,9 +116,11 @@ export function mountOsd(view, { menu = true } = {}) {
   }
   menuBox.append(nav);
   const menuButton = el("button", { type: "button", class: "osd-menu-button", title: "OSD elements (O)" }, "OSD");
-  menuButton.addEventListener("click", () => { menuBox.hidden = !menuBox.hidden; });
+  menuButton.addEventListener("click", () => setMenuOpen(!menuOpen));
   if (menu) root.append(menuButton);
   root.append(menuBox);
+  menus.push((open) => { menuBox.hidden = !open; });
+  menuBox.hidden = !menuOpen;
   function applyHidden() {
     for (const name of OSD_ELEMENTS) {
       nodes[name].hidden = hidden.has(name);
@@ -307,7 +309,8 @@ export function mountOsd(view, { menu = true } = {}) {
   raf = requestAnimationFrame(frame);
   return {
     stats,
-    toggleMenu() { menuBox.hidden = !menuBox.hidden; },
+    toggleMenu() { setMenuOpen(!menuOpen); },
+    menuBox, // a page adds its own controls (the emergency buttons) here
     // Stop drawing (a hidden view) or start again.
     setRunning(on) {
       if (on === (raf !== 0)) return;
@@ -329,6 +332,14 @@ export function mountOsd(view, { menu = true } = {}) {
 const hidden = new Set();
 try { for (const name of JSON.parse(localStorage.getItem(HIDDEN_KEY) || "[]")) hidden.add(name); } catch (err) { /* none */ }
 const mounted = [];
+// Whether the menu is open: one state for every OSD of the page, so that in stereo both
+// eyes show it (one menu seen by one eye only does not fuse). `menus`: each OSD's.
+let menuOpen = false;
+const menus = [];
+function setMenuOpen(open) {
+  menuOpen = open;
+  for (const apply of menus) apply(open);
+}
 function setHidden(name, off) {
   if (off) hidden.add(name); else hidden.delete(name);
   localStorage.setItem(HIDDEN_KEY, JSON.stringify([...hidden]));

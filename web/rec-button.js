@@ -4,6 +4,7 @@
 // for by lib.js).
 import { $, el, api } from "/lib.js";
 import { feed } from "/telemetry.js";
+import { toast } from "/toast.js";
 
 const POLL_MS = 1000;
 let status = null; // newest GET /api/recording reply
@@ -72,7 +73,7 @@ button.addEventListener("click", async () => {
     took(await api(status && status.recording ? "/api/recording/stop" : "/api/recording/start",
       { method: "POST" }));
   } catch (err) {
-    alert(`Recording: ${err.message}`);
+    toast(`Recording: ${err.message}`, { bad: true });
   } finally {
     busy = false;
     button.disabled = false;

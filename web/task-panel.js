@@ -17,6 +17,7 @@
 // are metres east/north of the scene's home, which is plenty exact over a 60 m field (an
 // equirectangular projection).
 import { $, el, api, ApiError } from "/lib.js";
+import { toast } from "/toast.js";
 
 const TAKEOFF_M = 0.5; // the analysis' airborne height (analysis.tasks.TaskParams)
 const HEIGHT_TOL_M = 0.3; // "reached 4 m" when within this of the task's height
@@ -58,7 +59,7 @@ select.addEventListener("change", async () => {
   try {
     taskInfo = await api("/api/task", { method: "POST", body: { task_id: id } });
   } catch (err) {
-    if (err instanceof ApiError) alert(`Task: ${err.message}`);
+    if (err instanceof ApiError) toast(`Task not chosen: ${err.message}`, { bad: true });
   }
   render();
 });
@@ -78,6 +79,15 @@ async function load() {
 }
 
 // -- the flight's steps ----------------------------------------------------------------
+
+// The panel names each step as done ("Armed", "Reached 4 m"); the goggles' OSD line and the
+// voice callouts say what to do next ("arm", "climb to 4 m").
+const NEXT = [[/^Armed$/, "arm"], [/^Took off$/, "take off"], [/^Reached (.+)$/, "climb to $1"],
+  [/^Held (.+)$/, "hold $1"], [/^Passed (.+)$/, "pass $1"], [/^Landed$/, "land"], [/^Disarmed$/, "disarm"]];
+export function nextAction(step) {
+  const found = NEXT.find(([done]) => done.test(step));
+  return found ? step.replace(found[0], found[1]) : step;
+}
 
 function stepNames(task) {
   if (!task) return [];

@@ -78,7 +78,12 @@ export function mountTouchSticks(parent) {
     release() {
       for (const s of [left, right]) { s.lift(); s.y = 0; s.draw(); }
     },
-    show(on) { box.hidden = !on; if (!on) api.release(); },
+    // body.sticks-shown: the page's layout keeps its controls clear of them (style.css)
+    show(on) {
+      box.hidden = !on;
+      document.body.classList.toggle("sticks-shown", on);
+      if (!on) api.release();
+    },
   };
   return api;
 }

@@ -3,16 +3,23 @@
 The browser sends its sticks at ~50 Hz; the station sends MANUAL_CONTROL to the twin
 through its ordinary MAVLink link at a steady 50 Hz from the newest sticks. Dead-man:
 no message for 0.5 s = sticks centred (Position mode then holds position and altitude).
-One pilot at a time. Refused unless the station runs the digital twin: the station never
-sends stick inputs to a real vehicle.
+One pilot at a time has the sticks: the first connection. Every other authorised page
+(a second pilot tab, the goggles, the sessions page) connects too, without the sticks,
+and its Disarm, Land and RTL (EMERGENCY) are always carried out: an emergency is never
+refused for want of the sticks. Anything else from such a page is refused with the error
+shape (the page shows it). Refused unless the station runs the digital twin: the station
+never sends stick inputs to a real vehicle.
 
 Client -> station, JSON:
     {"type": "sticks", "roll": r, "pitch": p, "yaw": y, "throttle": t}  r/p/y in [-1, 1],
                                                           throttle in [0, 1], 0.5 = centred
     {"type": "arm"} | {"type": "disarm"} | {"type": "mode", "mode": "POSCTL"}
-    {"type": "takeoff", "alt_m": 4} | {"type": "land"} | {"type": "reset"}
-Station -> client: {"type": "hello", ...}, {"type": "ack", "cmd": ..., "ok": ...} and the
-error shape {"error": Name, "error_msg": text} for anything refused.
+    {"type": "takeoff", "alt_m": 4} | {"type": "land"} | {"type": "rtl"} | {"type": "reset"}
+    {"type": "disarm", "force": true}   disarm in flight (PX4's and ArduPilot's force
+                                        magic): the motors stop; the page asks first
+Station -> client: {"type": "hello", "sticks": bool, ...} (whether this connection has
+the sticks), {"type": "ack", "cmd": ..., "ok": ...} and the error shape
+{"error": Name, "error_msg": text} for anything refused.
 
 Arm, disarm, mode, take-off and land are answered with what the vehicle said, not with
 what the station sent: the ack waits (without holding up the sticks) for the vehicle's
@@ -71,9 +78,16 @@ class Sticks(BaseModel):
 
 
 class Command(BaseModel):
-    type: Literal["arm", "disarm", "mode", "takeoff", "land", "reset"]
+    type: Literal["arm", "disarm", "mode", "takeoff", "land", "rtl", "reset"]
     mode: str | None = None
     alt_m: float | None = Field(None, gt=0, le=100)
+    force: bool = False  # disarm only: in flight too (the vehicle's force magic)
+
+
+# Carried out from any authorised page, whoever has the sticks.
+EMERGENCY = frozenset({"disarm", "land", "rtl"})
+# MAV_CMD_COMPONENT_ARM_DISARM param2 that makes PX4 and ArduPilot disarm in flight.
+FORCE_MAGIC = 21196.0
 
 
 def _error(name: str, message: str) -> str:
@@ -105,8 +119,9 @@ def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
         return None
     if cmd.type in ("arm", "disarm"):
         arm = 1.0 if cmd.type == "arm" else 0.0
+        force = FORCE_MAGIC if cmd.type == "disarm" and cmd.force else 0.0
         msg = mav.command_long_encode(
-            1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, arm, 0, 0, 0, 0, 0, 0
+            1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, arm, force, 0, 0, 0, 0, 0
         )
     elif cmd.type == "mode":
         name = PILOT_MODES.get((cmd.mode or "").upper())
@@ -125,6 +140,10 @@ def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
         msg = mav.command_long_encode(
             1, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, alt
         )
+    elif cmd.type == "rtl":
+        msg = mav.command_long_encode(
+            1, 1, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0
+        )
     else:
         nan = math.nan
         msg = mav.command_long_encode(1, 1, mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, nan, nan, nan, 0)
@@ -132,6 +151,7 @@ def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
     return msg.command
 
 
+ANOTHER_PAGE = "another page has the sticks; from here only Disarm, Land and RTL are carried out."
 ACK_TIMEOUT_S = 3.0
 REASON_GRACE_S = 0.3
 
@@ -195,12 +215,13 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
         )
         await ws.close(code=4409)
         return
-    if station.pilot is not None:
-        await ws.send_text(_error("Conflict", "Another pilot has the sticks; one at a time."))
-        await ws.close(code=4409)
-        return
-    pilot = station.pilot = Pilot()
-    sender = station.tasks.spawn("control-sticks", _send_sticks(link, pilot, 1))
+    # The first connection has the sticks; the others only their emergency commands.
+    pilot: Pilot | None = None
+    sender: asyncio.Task[None] | None = None
+    if station.pilot is None:
+        pilot = station.pilot = Pilot()
+        sender = station.tasks.spawn("control-sticks", _send_sticks(link, pilot, 1))
+    sticks_refused = False  # said once: a page sends sticks 50 times a second
     send_lock = asyncio.Lock()  # acks are sent from their own tasks
     answers: set[asyncio.Task[None]] = set()
 
@@ -215,7 +236,8 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
             await send(json.dumps({"type": "ack", "cmd": cmd.type, **reply}))
 
     try:
-        await send(json.dumps({"type": "hello", "rate_hz": RATE_HZ, "deadman_s": DEADMAN_S}))
+        hello = {"rate_hz": RATE_HZ, "deadman_s": DEADMAN_S, "sticks": pilot is not None}
+        await send(json.dumps({"type": "hello", **hello}))
         while True:
             message = await ws.receive()
             if message["type"] == "websocket.disconnect":
@@ -231,9 +253,19 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
                     raise ValueError("a message is a JSON object")
                 if data.get("type") == "sticks":
                     s = Sticks.model_validate(data)
-                    pilot.sticks, pilot.at = (s.roll, s.pitch, s.yaw, s.throttle), time.monotonic()
+                    if pilot is not None:
+                        pilot.sticks, pilot.at = (
+                            (s.roll, s.pitch, s.yaw, s.throttle),
+                            time.monotonic(),
+                        )
+                    elif not sticks_refused:
+                        sticks_refused = True
+                        await send(_error("Conflict", ANOTHER_PAGE))
                     continue
                 cmd = Command.model_validate(data)
+                if pilot is None and cmd.type not in EMERGENCY:
+                    await send(_error("Conflict", f"{cmd.type}: {ANOTHER_PAGE}"))
+                    continue
                 sent_at = time.monotonic()
                 command = _command(station, link, cmd)
                 if command is None:  # done by the station itself (reset)
@@ -251,10 +283,11 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
     finally:
         for task in answers:
             task.cancel()
-        sender.cancel()
-        with contextlib.suppress(asyncio.CancelledError, Exception):
-            await sender
-        # The pilot left: centre the sticks now rather than wait for the twin's timeout.
-        with contextlib.suppress(Exception):
-            link.send(link.mav.manual_control_encode(1, 0, 0, 500, 0, 0))
-        station.pilot = None
+        if sender is not None:
+            sender.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await sender
+            # The pilot left: centre the sticks now rather than wait for the twin's timeout.
+            with contextlib.suppress(Exception):
+                link.send(link.mav.manual_control_encode(1, 0, 0, 500, 0, 0))
+            station.pilot = None

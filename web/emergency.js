@@ -1,0 +1,104 @@
+// fpv-station: Disarm, Land and RTL on every page (pilot, goggles' OSD menu, sessions,
+// analysis, replay), for the digital twin (GET /api/status source "sim": the station
+// never commands a real vehicle from a page). They go through the pilot page's route and
+// token (WS /ws/control, server/routes/control.py), which carries them out whoever has
+// the sticks: an emergency is never refused for want of them. Disarm in flight (armed and
+// not on the ground) stops the motors: the page asks first, then forces it (the
+// vehicle's force magic). Each answer is a toast (toast.js): done, or refused and why.
+//
+//   import { emergencyButtons } from "/emergency.js";
+//   parent.append(emergencyButtons());   // another group (the goggles' right eye menu)
+// Loaded as a module it puts one group in the page's header bar, else its OSD menu.
+import { $, el, api, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
+import { toast } from "/toast.js";
+
+const AIRBORNE_M = 0.5; // above this (relative altitude) an armed vehicle is in flight
+const STATUS_MS = 5000; // whether the station flies the twin: asked this often
+const OPEN_WAIT_MS = 3000;
+
+const groups = [];
+let sim = false;
+let socket = null;
+let opening = null; // Promise of the open socket
+
+export function emergencyButtons() {
+  const group = el("span", { class: "emergency", role: "group", "aria-label": "emergency", hidden: !sim });
+  const button = (type, label, title) => {
+    const b = el("button", { type: "button", "data-emergency": type, title }, label);
+    b.addEventListener("click", (e) => { e.stopPropagation(); act(type); });
+    return b;
+  };
+  group.append(
+    button("disarm", "Disarm", "Disarm now (in flight: asks, then stops the motors)"),
+    button("land", "Land", "Land where it is"),
+    button("rtl", "RTL", "Return to launch and land"),
+  );
+  groups.push(group);
+  return group;
+}
+
+function open() {
+  if (socket && socket.readyState === WebSocket.OPEN) return Promise.resolve(socket);
+  if (opening) return opening;
+  opening = new Promise((resolve, reject) => {
+    const ws = new WebSocket(wsUrl("/ws/control", { auth: true }));
+    const timer = setTimeout(() => reject(new Error("the station did not answer")), OPEN_WAIT_MS);
+    ws.onmessage = (ev) => {
+      let msg;
+      try { msg = JSON.parse(ev.data); } catch (err) { return; }
+      if (msg.type === "hello") { clearTimeout(timer); socket = ws; resolve(ws); return; }
+      if (msg.type === "ack") {
+        const why = msg.text ? `: ${msg.text}` : "";
+        toast(msg.ok ? `${msg.cmd}: done` : `${msg.cmd} refused (${msg.result ?? "no answer"})${why}`, { bad: !msg.ok });
+      } else if (msg.error) {
+        toast(msg.error_msg, { bad: true });
+      }
+    };
+    ws.onclose = (ev) => {
+      clearTimeout(timer);
+      if (socket === ws) socket = null;
+      reject(Object.assign(new Error(ev.reason || "the control connection closed"), { code: ev.code }));
+    };
+  }).finally(() => { opening = null; });
+  return opening;
+}
+
+async function act(type) {
+  const msg = { type };
+  if (type === "disarm") {
+    let state = null;
+    try { state = (await api("/api/status")).state; } catch (err) { /* sent plain, below */ }
+    const armed = state && state.heartbeat.armed;
+    const alt = state && state.altitude.relative_alt_m;
+    const flying = Boolean(armed && !(alt !== null && alt !== undefined && alt < AIRBORNE_M));
+    if (flying) {
+      if (!confirm("Disarm in flight? The motors stop and the vehicle falls.")) return;
+      msg.force = true;
+    }
+  }
+  for (let attempt = 0; attempt < 2; attempt++) {
+    try {
+      (await open()).send(JSON.stringify(msg));
+      toast(`${type}: sent`);
+      return;
+    } catch (err) {
+      if (err.code === CLOSE_UNAUTHORIZED && attempt === 0 && askToken()) continue;
+      toast(`${type} not sent: ${err.message}`, { bad: true });
+      return;
+    }
+  }
+}
+
+async function poll() {
+  try {
+    sim = (await api("/api/status")).source === "sim";
+  } catch (err) {
+    return; // unreachable: the buttons stay as they were
+  }
+  for (const g of groups) g.hidden = !sim;
+}
+
+const home = $("toolbar") || $("replay-bar") || document.querySelector(".osd-menu");
+if (home) home.append(emergencyButtons());
+poll();
+setInterval(poll, STATUS_MS);
