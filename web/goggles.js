@@ -12,6 +12,7 @@ import { $, el } from "/lib.js";
 import { mountOsd } from "/osd.js";
 import { emergencyButtons } from "/emergency.js";
 import { nextAction } from "/task-panel.js";
+import { voiceControls } from "/voice.js";
 
 const fpv = (window.fpv = window.fpv || {});
 
@@ -69,7 +70,7 @@ function toggleStereo() {
     $("goggles").append(right);
     // The same OSD and menu in the right eye (osd.js: one menu state for both eyes).
     fpv.osdRight = mountOsd(right);
-    fpv.osdRight.menuBox.append(emergencyButtons());
+    fpv.osdRight.menuBox.append(emergencyButtons(), voiceControls());
     fpv.osdRight.setLine("task", taskLine);
   }
   fpv.osdRight.setRunning(on); // a hidden eye draws nothing

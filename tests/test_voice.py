@@ -1,0 +1,124 @@
+"""Voice callouts in headless Chromium against a real station following the test MAVLink
+vehicle: what the page hands the browser's speech synthesis (stubbed at the browser's
+boundary: there is no audio here) as the vehicle arms, changes mode, climbs, runs low on
+battery, is recorded, goes silent and comes back, and as the task's step changes. On in
+goggles, off on the pilot page until switched on; each callout can be switched off."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+
+from server.app import create_app
+from tests.helpers import chromium, run_uvicorn, station_settings
+from tests.mav_vehicle import MavVehicle
+
+# window.speechSynthesis replaced before the page's scripts run: what they speak is kept.
+STUB = """(() => {
+  window.__said = [];
+  const stub = { speak(u) { window.__said.push(u.text); }, cancel() {}, pause() {}, resume() {},
+    getVoices() { return []; }, pending: false, speaking: false, paused: false,
+    addEventListener() {}, removeEventListener() {} };
+  Object.defineProperty(window, "speechSynthesis", { value: stub, configurable: true });
+})()"""
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    with MavVehicle("udp") as vehicle:
+        settings = station_settings(vehicle.station_source, tmp_path_factory.mktemp("sessions"))
+        with run_uvicorn(create_app(settings)) as base:
+            yield vehicle, base
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with chromium() as b:
+        yield b
+
+
+def said(page) -> list[str]:
+    return page.evaluate("window.__said")
+
+
+def wait_said(page, text: str) -> None:
+    page.wait_for_function("(t) => window.__said.includes(t)", arg=text, timeout=30_000)
+
+
+def open_page(browser, url: str):
+    context = browser.new_context()
+    context.add_init_script(STUB)
+    page = context.new_page()
+    page.goto(url)
+    page.wait_for_function(
+        "window.fpv && window.fpv.feed && window.fpv.feed.flowing()", timeout=30_000
+    )
+    return page
+
+
+@pytest.mark.timeout(180)
+def test_goggles_say_what_happens(station, browser):
+    vehicle, base = station
+    vehicle.disarm()
+    vehicle.set_mode("POSCTL")
+    vehicle.relative_alt_m, vehicle.remaining_pct = 0.0, 87
+    assert httpx.post(f"{base}/api/task", json={"task_id": 1}).status_code == 200
+    page = open_page(browser, f"{base}/goggles.html")
+    wait_said(page, "Next: arm")  # the task's first step
+    vehicle.arm()
+    wait_said(page, "Armed")
+    wait_said(page, "Next: take off")
+    vehicle.set_mode("ALTCTL")
+    wait_said(page, "Altitude mode")
+    vehicle.relative_alt_m, vehicle.alt_m = 5.0, vehicle.alt_m + 5.0  # the default step: 5 m
+    wait_said(page, "5 metres")
+    vehicle.remaining_pct = 15
+    wait_said(page, "Battery low, 15 percent")
+    assert httpx.post(f"{base}/api/recording/start").status_code == 200
+    wait_said(page, "Recording started")
+    assert httpx.post(f"{base}/api/recording/stop").status_code == 200
+    wait_said(page, "Recording stopped")
+    vehicle.silent = True
+    wait_said(page, "Link lost")
+    vehicle.silent = False
+    wait_said(page, "Link regained")
+    vehicle.relative_alt_m, vehicle.alt_m = 0.0, vehicle.alt_m - 5.0
+    vehicle.disarm()
+    wait_said(page, "Disarmed")
+    # Each said once: a callout is a change, not a state.
+    for text in ("Armed", "Altitude mode", "5 metres", "Battery low, 15 percent", "Link lost"):
+        assert said(page).count(text) == 1, (text, said(page))
+    page.context.close()
+
+
+@pytest.mark.timeout(120)
+def test_pilot_page_is_quiet_until_switched_on_and_each_callout_switches_off(station, browser):
+    vehicle, base = station
+    vehicle.disarm()
+    vehicle.set_mode("POSCTL")
+    vehicle.relative_alt_m, vehicle.remaining_pct = 0.0, 87
+    httpx.post(f"{base}/api/task", json={"task_id": None})
+    page = open_page(browser, f"{base}/")
+    vehicle.arm()
+    page.wait_for_function(
+        "document.querySelector('[data-osd=armed]').textContent === 'ARMED'", timeout=30_000
+    )
+    vehicle.disarm()
+    page.wait_for_function(
+        "document.querySelector('[data-osd=armed]').textContent === 'DISARMED'", timeout=30_000
+    )
+    assert said(page) == []  # off by default on the pilot page
+    page.locator(".voice-menu summary").click()
+    page.locator("[data-voice=on]").check()
+    page.locator("[data-voice=mode]").uncheck()
+    vehicle.set_mode("ALTCTL")  # not said: switched off
+    vehicle.arm()
+    wait_said(page, "Armed")
+    assert "Altitude mode" not in said(page), said(page)
+    # The choice is kept for the next visit.
+    page.reload()
+    page.locator(".voice-menu summary").click()
+    assert page.locator("[data-voice=on]").is_checked()
+    assert not page.locator("[data-voice=mode]").is_checked()
+    vehicle.disarm()
+    page.context.close()
