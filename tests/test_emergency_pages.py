@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import chromium, run_uvicorn, wait_until
 from tests.twin_flights import twin_station_settings
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from server.app import create_app
+from fpv_station.server.app import create_app
 from tests.helpers import chromium, run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
 
