@@ -37,6 +37,13 @@ def browser():
         yield b
 
 
+def on_the_ground(vehicle) -> None:
+    """Disarmed on the ground in Position mode, with a full battery."""
+    vehicle.disarm()
+    vehicle.set_mode("POSCTL")
+    vehicle.relative_alt_m, vehicle.remaining_pct = 0.0, 87
+
+
 def said(page) -> list[str]:
     return page.evaluate("window.__said")
 
@@ -59,9 +66,7 @@ def open_page(browser, url: str):
 @pytest.mark.timeout(180)
 def test_goggles_say_what_happens(station, browser):
     vehicle, base = station
-    vehicle.disarm()
-    vehicle.set_mode("POSCTL")
-    vehicle.relative_alt_m, vehicle.remaining_pct = 0.0, 87
+    on_the_ground(vehicle)
     assert httpx.post(f"{base}/api/task", json={"task_id": 1}).status_code == 200
     page = open_page(browser, f"{base}/goggles.html")
     wait_said(page, "Next: arm")  # the task's first step
@@ -94,9 +99,7 @@ def test_goggles_say_what_happens(station, browser):
 @pytest.mark.timeout(120)
 def test_pilot_page_is_quiet_until_switched_on_and_each_callout_switches_off(station, browser):
     vehicle, base = station
-    vehicle.disarm()
-    vehicle.set_mode("POSCTL")
-    vehicle.relative_alt_m, vehicle.remaining_pct = 0.0, 87
+    on_the_ground(vehicle)
     httpx.post(f"{base}/api/task", json={"task_id": None})
     page = open_page(browser, f"{base}/")
     vehicle.arm()

@@ -15,11 +15,15 @@ import { toast } from "/toast.js";
 const AIRBORNE_M = 0.5; // above this (relative altitude) an armed vehicle is in flight
 const STATUS_MS = 5000; // whether the station flies the twin: asked this often
 const OPEN_WAIT_MS = 3000;
+// The socket stays open this long after the last command (for its answer and the next
+// emergency), then gives its place back: the station has few control places.
+const IDLE_CLOSE_MS = 30000;
 
 const groups = [];
 let sim = false;
 let socket = null;
 let opening = null; // Promise of the open socket
+let idleTimer = null;
 
 export function emergencyButtons() {
   const group = el("span", { class: "emergency", role: "group", "aria-label": "emergency", hidden: !sim });
@@ -78,8 +82,11 @@ async function act(type) {
   }
   for (let attempt = 0; attempt < 2; attempt++) {
     try {
-      (await open()).send(JSON.stringify(msg));
+      const ws = await open();
+      ws.send(JSON.stringify(msg));
       toast(`${type}: sent`);
+      clearTimeout(idleTimer);
+      idleTimer = setTimeout(() => ws.close(), IDLE_CLOSE_MS);
       return;
     } catch (err) {
       if (err.code === CLOSE_UNAUTHORIZED && attempt === 0 && askToken()) continue;
