@@ -16,7 +16,12 @@ Each answer is a round trip: sent at `s`, made at `v` on the vehicle, received a
 held up on either leg (a busy radio, the autopilot's scheduler, a loaded station) is off
 by up to its delay, so only the fastest trip of every `BIN_S` is kept, and of those the
 ones within twice their median round trip (a bin whose every trip was held up is not)
-are fitted with a line `station = offset_s + v * (1 + drift)`. A vehicle whose clock goes back has rebooted: the fit starts again.
+are fitted with a line `station = offset_s + v * (1 + drift)`. An autopilot's crystal
+keeps to such a line within its round trips; a clock that strays from it by more than
+its median round trip does not tick evenly (the twin's simulated clock, which drops
+time when a loaded machine holds it up), and is then mapped through the kept round
+trips themselves (`knots`, straight between them, the line beyond them). A vehicle
+whose clock goes back has rebooted: the fit starts again.
 
 Until an answer comes (or with the exchange off) there is no mapping, and vehicle times
 are placed on the session clock by their shortest delay (`analysis.vehicle_clock`);
@@ -70,19 +75,33 @@ class VehicleClock(BaseModel):
     # ours, or too slow to measure
     ignored: int = 0
     reboots: int = 0  # times the vehicle's clock went back (the fit started again)
+    # (vehicle s, station s) of the kept round trips when the clock strays from the line
+    # by more than its round trips explain; None: the line maps it.
+    knots: list[tuple[float, float]] | None = None
 
     def station_s(self, boot_s: np.ndarray | float) -> np.ndarray:
         """Station times of vehicle boot times (s); NaN without a measured mapping."""
         b = np.asarray(boot_s, dtype=np.float64)
         if self.offset_s is None or self.drift_ppm is None:
             return np.full(b.shape, np.nan)
-        return self.offset_s + b * (1.0 + self.drift_ppm * 1e-6)
+        rate = 1.0 + self.drift_ppm * 1e-6
+        line = self.offset_s + b * rate
+        if not self.knots:
+            return line
+        kv, ks = np.array(self.knots, dtype=np.float64).T
+        # Beyond the knots, the line's rate from the nearest one.
+        return np.where(
+            b < kv[0],
+            ks[0] + (b - kv[0]) * rate,
+            np.where(b > kv[-1], ks[-1] + (b - kv[-1]) * rate, np.interp(b, kv, ks)),
+        )
 
     def shifted(self, t0: float) -> VehicleClock:
         """The same mapping on a clock whose zero is at `t0` (a session's start)."""
         if self.offset_s is None:
             return self
-        return self.model_copy(update={"offset_s": round(self.offset_s - t0, 6)})
+        knots = None if self.knots is None else [(v, round(s - t0, 6)) for v, s in self.knots]
+        return self.model_copy(update={"offset_s": round(self.offset_s - t0, 6), "knots": knots})
 
 
 class TimeSync:
@@ -187,6 +206,12 @@ class TimeSync:
             offset = float(mid[k] - v[k])
             how = "the fastest round trip so far; drift not yet measured"
         residual = mid - (offset + rate * v)
+        rms = float(np.sqrt(np.mean(residual**2)))
+        knots = None
+        if v.size >= 3 and rms > max(float(np.median(rtt)), 1e-3):
+            order = np.argsort(v)
+            knots = [(round(float(v[k]), 6), round(float(mid[k]), 6)) for k in order]
+            how += f"; it strays {rms * 1e3:.0f} ms from a line, so mapped through them"
         return VehicleClock(
             method="timesync",
             reason=f"measured by TIMESYNC: {how}",
@@ -194,10 +219,11 @@ class TimeSync:
             drift_ppm=round((rate - 1.0) * 1e6, 3),
             rtt_min_ms=round(float(rtt.min()) * 1e3, 3),
             rtt_median_ms=round(float(np.median(rtt)) * 1e3, 3),
-            residual_ms=round(float(np.sqrt(np.mean(residual**2))) * 1e3, 3),
+            residual_ms=round(rms * 1e3, 3),
             span_s=round(span, 3),
             requests=self.requests,
             answers=self.answers,
             ignored=self.ignored,
             reboots=self.reboots,
+            knots=knots,
         )

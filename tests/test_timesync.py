@@ -185,3 +185,25 @@ def test_the_twin_answers_on_its_simulated_clock(tmp_path):
         sim = app.state.station.twin.sim
         err = float(r.station_s(sim.t_s)) - time.monotonic()
         assert abs(err) < 0.3 + 3 * r.residual_ms * 1e-3, (err, r)
+
+
+def test_a_clock_that_drops_time_is_mapped_through_its_round_trips():
+    """The twin's simulated clock on a loaded machine: it loses 0.25 s at a time. No line
+    fits it; the kept round trips map it, between them and beyond them."""
+    ts = TimeSync()
+    t, lost, v = 500.0, 0.0, 0.0
+    for k in range(300):  # 30 s at 10 Hz, 0.25 s lost every 5 s: its clock stands still
+        if k and k % 50 == 0:
+            lost += 0.25
+        ts.sent(k, t)
+        v = max(v, t + 0.0005 - 400.0 - lost)
+        assert ts.answered(int(v * 1e9), k, t + 0.001)
+        t += 0.1
+    r = ts.report()
+    assert r.knots and "strays" in r.reason
+    # 523 s: between two drops (at 520 and 525), between two kept trips (522, 524).
+    v_523 = 523.0005 - 400.0 - 1.0
+    assert float(r.station_s(v_523)) == pytest.approx(523.0, abs=0.005)
+    line = r.model_copy(update={"knots": None})
+    assert abs(float(line.station_s(v_523)) - 523.0) > 0.01  # which no line gets
+    assert float(r.shifted(500.0).station_s(v_523)) == pytest.approx(23.0, abs=0.005)
