@@ -1,6 +1,8 @@
-"""Export throughput and peak memory: LeRobot, Minari and MCAP on 10 minutes of twin flight.
+"""Export throughput and peak memory: LeRobot, Minari and MCAP on 10 minutes of twin flight,
+and LeRobot's throughput with 1 and 2 worker processes (and on a local Ray instance).
 
     python benchmarks/export.py [--minutes 10] [--camera-fps 15] [--keep DIR]
+                                [--workers 1,2] [--ray] [--no-formats]
 
 The flights are `fpv-station demos` sessions (the scripted pilot, real MAVLink, both
 cameras at 640x480): one long session of `--minutes` (a hover held that long), the same
@@ -9,6 +11,10 @@ show that memory does not grow with session length. Each export runs in its own 
 (resident memory sampled every 20 ms; the RSS after the imports, before the export,
 printed apart). Prints flight seconds per
 export second (x real time), episodes and camera frames per second, and peak memory.
+Then the ten sessions exported to LeRobot by `--workers` processes each (`fpv-station
+export --workers N`; the dataset is the same for any N) and, with `--ray`, as tasks on a
+new local Ray instance (`--ray local`, the `export-ray` extra), its start-up included:
+recordings and flight seconds per export second. Peak memory there is the parent's only.
 """
 
 from __future__ import annotations
@@ -41,9 +47,10 @@ def sample():  # the process's resident memory every 20 ms while it exports
     while not done.wait(0.02):
         peak[0] = max(peak[0], proc.memory_info().rss)
 threading.Thread(target=sample, daemon=True).start()
-fmt, out, *paths = sys.argv[1:]
+fmt, workers, ray, out, *paths = sys.argv[1:]
+opts = ExportOptions(task_id=1, workers=int(workers), ray_address=ray or None)
 t0 = time.perf_counter()
-s = export_recordings([Path(p) for p in paths], fmt, Path(out), ExportOptions(task_id=1))
+s = export_recordings([Path(p) for p in paths], fmt, Path(out), opts)
 dt = time.perf_counter() - t0
 done.set()
 peak[0] = max(peak[0], proc.memory_info().rss)
@@ -92,11 +99,26 @@ def sessions(root: Path, minutes: float, camera_fps: float) -> dict[str, list[Pa
     return out
 
 
+def run_child(fmt: str, paths: list[Path], workers: int = 1, ray: str = "") -> dict:
+    with tempfile.TemporaryDirectory(prefix="bench-out-") as out:
+        r = subprocess.run(
+            [sys.executable, "-c", CHILD, fmt, str(workers), ray, str(Path(out) / fmt)]
+            + [str(p) for p in paths],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--camera-fps", type=float, default=15.0)
     ap.add_argument("--keep", type=Path, help="folder for the flown sessions (reused if there)")
+    ap.add_argument("--workers", default="1,2", help="worker counts to compare (LeRobot)")
+    ap.add_argument("--ray", action="store_true", help="also on a local Ray instance")
+    ap.add_argument("--no-formats", action="store_true", help="only the workers' table")
     args = ap.parse_args()
     print(
         f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
@@ -105,6 +127,27 @@ def main() -> None:
     root.mkdir(parents=True, exist_ok=True)
     sets = sessions(root, args.minutes, args.camera_fps)
     print(f"load average before exports: {os.getloadavg()[0]:.2f}")
+    if not args.no_formats:
+        formats_table(sets)
+    paths = sets["ten"]
+    flown = sum(flight_s(p) for p in paths)
+    print(f"\nLeRobot, {len(paths)} sessions, {flown:.0f} s of flight")
+    print("| engine | export (s) | x real time | recordings/s | camera frames/s |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    engines = [(f"{n} worker(s)", int(n), "") for n in args.workers.split(",")]
+    if args.ray:
+        engines.append(("Ray (local instance)", 1, "local"))
+    for name, workers, ray in engines:
+        m = run_child("lerobot", paths, workers, ray)
+        print(
+            f"| {name} | {m['s']:.1f} | {flown / m['s']:.1f} | {len(paths) / m['s']:.2f} | "
+            f"{m['camera_frames'] / m['s']:.0f} |",
+            flush=True,
+        )
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+def formats_table(sets: dict[str, list[Path]]) -> None:
     print(
         "| sessions | flight (s) | format | export (s) | x real time | episodes/s | camera frames/s | peak RSS (MB) | RSS before export (MB) |"
     )
@@ -113,21 +156,13 @@ def main() -> None:
         paths = sets[name]
         flown = sum(flight_s(p) for p in paths)
         for fmt in ("lerobot", "minari", "mcap"):
-            with tempfile.TemporaryDirectory(prefix="bench-out-") as out:
-                r = subprocess.run(
-                    [sys.executable, "-c", CHILD, fmt, str(Path(out) / fmt), *map(str, paths)],
-                    capture_output=True,
-                    text=True,
-                    check=True,
-                )
-            m = json.loads(r.stdout.strip().splitlines()[-1])
+            m = run_child(fmt, paths)
             print(
                 f"| {name} ({len(paths)}) | {flown:.0f} | {fmt} | {m['s']:.1f} | {flown / m['s']:.1f} | "
                 f"{m['episodes'] / m['s']:.2f} | {m['camera_frames'] / m['s']:.0f} | "
                 f"{m['peak_kb'] / 1024:.0f} | {m['base_kb'] / 1024:.0f} |",
                 flush=True,
             )
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
     fpv-station export SESSION [SESSION ...] --format lerobot|minari|mcap --out DIR
                        [--task N] [--description TEXT] [--fps N] [--channel-map MAP]
                        [--cameras front,bottom|none] [--dataset-id ID] [--image-size WxH]
+                       [--workers N] [--ray ADDRESS]
     fpv-station demos --task N --count K --out DIR [--seed S] [--cameras]
                       [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
     fpv-station learn bc DATASET --out POLICY
@@ -54,6 +55,19 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
         choices=("ultrafast", "superfast", "veryfast", "faster", "fast", "medium"),
         help="x264 preset of LeRobot videos (slower = smaller files)",
     )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="processes exporting recordings in parallel (default: the cores); the "
+        "dataset is the same for any number",
+    )
+    p.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        help="run the recordings' jobs on a Ray cluster ('auto', ray://HOST:10001, or "
+        "'local' for a new local instance); --out must be storage every node sees",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -63,6 +77,7 @@ def run_export(args: argparse.Namespace) -> int:
     from fpv_station.learn.episodes import ChannelMap
     from fpv_station.learn.export import (
         ExportOptions,
+        default_workers,
         export_recordings,
         parse_image_size,
         tqdm_progress,
@@ -71,6 +86,8 @@ def run_export(args: argparse.Namespace) -> int:
     try:
         cmap = ChannelMap.parse(args.channel_map)
         size = parse_image_size(args.image_size) if args.image_size else None
+        if args.workers is not None and args.workers < 1:
+            raise ValueError("--workers must be at least 1")
     except ValueError as exc:
         print(f"fpv-station export: {exc}", file=sys.stderr)
         return 2
@@ -85,12 +102,14 @@ def run_export(args: argparse.Namespace) -> int:
         cameras=cams,
         video_preset=args.video_preset,
         image_size=size,
+        workers=args.workers or default_workers(),
+        ray_address=args.ray,
         **({"dataset_id": args.dataset_id} if args.dataset_id else {}),
     )
     progress = None if args.no_progress else tqdm_progress(len(args.sessions))
     try:
         s = export_recordings(args.sessions, args.format, args.out, opts, progress)
-    except (RecordingError, SceneError, ValueError, KeyError) as exc:
+    except (RecordingError, SceneError, ValueError, KeyError, ImportError) as exc:
         print(f"fpv-station export: {exc}", file=sys.stderr)
         return 1
     print(

@@ -1,25 +1,37 @@
 """`fpv-station export`: recordings to a learning format, one episode per flight.
 
-    export_recordings(paths, "lerobot", out_dir, ExportOptions(task_id=1))
+    export_recordings(paths, "lerobot", out_dir, ExportOptions(task_id=1, workers=4))
 
-Recordings are opened one at a time (`analysis.recording.open_recording`) and their episodes
-streamed into the format's writer, so memory stays flat in the number of sessions. The
-formats: `lerobot` (`learn.lerobot`), `minari` (`learn.minari_export`), `mcap`
-(`learn.mcap_export`).
+Each recording is one job (`export_recording`): opened (`analysis.recording.open_recording`),
+split into episodes, and each episode made into the format's part: for LeRobot its rows
+and its videos encoded to part files, for Minari its episode, for MCAP its finished file.
+Jobs run in this process, in `workers` processes, or as tasks on a Ray cluster
+(`learn.export_ray`); their results come back in the recordings' order, at most two per
+worker ahead, and one process adds them to the dataset (its metadata: indices, files,
+stats). The dataset is the same whichever ran the jobs, and memory stays flat in the
+number of recordings. The formats: `lerobot` (`learn.lerobot`), `minari`
+(`learn.minari_export`), `mcap` (`learn.mcap_export`).
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import re
 import sys
-from collections.abc import Callable, Sequence
+import tempfile
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from fpv_station.analysis.recording import Recording, RecordingError, open_recording, recording_meta
+from fpv_station.analysis.recording import RecordingError, open_recording, recording_meta
 from fpv_station.core.scene import Scene, load_scene
-from fpv_station.learn.episodes import COLUMNS, ChannelMap, episodes
-from fpv_station.learn.formats import DEFAULT_FPS, FORMATS
+from fpv_station.learn.episodes import COLUMNS, ChannelMap, Episode, episodes
+from fpv_station.learn.formats import DEFAULT_FPS, FORMATS, FileLimits
+
+JOBS_AHEAD = 2  # results a worker may run ahead of the one being added
 
 
 @dataclass(frozen=True)
@@ -36,6 +48,9 @@ class ExportOptions:
     # (width, height) every camera image is resized to, once, as it is exported (LeRobot
     # videos; MCAP images re-encoded as JPEG); None: as recorded (MCAP: the bytes as is).
     image_size: tuple[int, int] | None = None
+    lerobot_limits: FileLimits = field(default_factory=FileLimits)
+    workers: int = 1  # processes that run recordings' jobs; 1: this process
+    ray_address: str | None = None  # run the jobs on this Ray cluster instead
     scene: Scene | None = None
 
 
@@ -93,6 +108,81 @@ def recorded_task_id(paths: Sequence[Path]) -> int:
     return ids.pop()
 
 
+def default_workers() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class RecordingJob:
+    """One recording to export: all a worker process (or a Ray task) needs."""
+
+    index: int  # the recording's place in the export
+    path: Path
+    fmt: str
+    out: Path
+    parts: Path  # a folder for part files (on a cluster: storage every node sees)
+    options: ExportOptions  # with its task and scene resolved
+    cameras: tuple[str, ...]
+    sizes: dict[str, tuple[int, int]]  # camera -> (width, height) of LeRobot videos
+    task: str
+
+
+@dataclass
+class RecordingResult:
+    source: str
+    parts: list = field(default_factory=list)  # per episode, the format's part
+    frames: int = 0
+    camera_frames: int = 0
+
+
+def export_recording(job: RecordingJob) -> RecordingResult:
+    """A recording's episodes as the format's parts (runs in any process)."""
+    o = job.options
+    with open_recording(job.path, COLUMNS) as rec:
+        missing = [c for c in job.cameras if c not in rec.cameras]
+        if missing:
+            raise RecordingError(
+                f"'{rec.source}' has no frames of camera {', '.join(missing)}; export "
+                "recordings with the same cameras, or choose them with --cameras."
+            )
+        result = RecordingResult(rec.source)
+        for ep in episodes(rec, o.scene, o.task_id, o.fps, o.channel_map, job.cameras):
+            result.parts.append(_part(job, rec, ep))
+            result.frames += len(ep)
+            result.camera_frames += _camera_frames(job, rec, ep)
+    return result
+
+
+def _part(job: RecordingJob, rec, ep: Episode):
+    o = job.options
+    if job.fmt == "lerobot":
+        from fpv_station.learn.lerobot import episode_part
+
+        tag = f"{job.index:06d}_{ep.number:03d}"
+        return episode_part(ep, rec.frame_bytes, job.sizes, o.fps, o.video_preset, job.parts, tag)
+    if job.fmt == "minari":
+        return ep
+    from fpv_station.learn.mcap_export import mcap_name, write_episode_mcap
+
+    path = job.parts / f"{job.index:06d}_{ep.number:03d}.mcap"
+    write_episode_mcap(path, rec, ep, o.scene, o.task_id, job.cameras, job.task, o.image_size)
+    return path, mcap_name(rec, ep)
+
+
+def _camera_frames(job: RecordingJob, rec, ep: Episode) -> int:
+    if job.fmt == "lerobot":
+        return len(ep) * len(job.cameras)
+    if job.fmt == "mcap":
+        from fpv_station.learn.mcap_export import frame_window
+
+        return sum(int(frame_window(rec, c, ep).size) for c in job.cameras)
+    return 0
+
+
 def export_recordings(
     paths: Sequence[Path],
     fmt: str,
@@ -102,58 +192,109 @@ def export_recordings(
 ) -> ExportSummary:
     if fmt not in FORMATS:
         raise ValueError(f"unknown format '{fmt}'; use one of: {', '.join(FORMATS)}")
+    if not paths:
+        raise RecordingError("no recording to export")
+    if options.workers < 1:
+        raise ValueError(f"workers must be at least 1, not {options.workers}")
     scene = options.scene or load_scene()
     if options.task_id is None:
         options = replace(options, task_id=recorded_task_id(paths))
     scene.task(options.task_id)  # a wrong task fails before anything is written
+    options = replace(options, scene=scene)
     task = options.description or task_description(scene, options.task_id)
-    summary = ExportSummary(Path(out), fmt)
-    writer = None
-    cameras = options.cameras
-    for k, path in enumerate(paths):
-        with open_recording(path, COLUMNS) as rec:
-            if cameras is None:
-                cameras = tuple(rec.cameras)
-            missing = [c for c in cameras if c not in rec.cameras]
-            if missing:
-                raise RecordingError(
-                    f"'{rec.source}' has no frames of camera {', '.join(missing)}; export "
-                    "recordings with the same cameras, or choose them with --cameras."
-                )
-            if writer is None:
-                writer = _writer(fmt, Path(out), options, scene, rec, cameras, task)
-            found = 0
-            for ep in episodes(
-                rec, scene, options.task_id, options.fps, options.channel_map, cameras
-            ):
-                writer.add(rec, ep)
-                found += 1
-                summary.episodes += 1
-                summary.frames += len(ep)
-                summary.camera_frames += writer.camera_frames(rec, ep)
-            if not found:
-                summary.skipped.append(f"{rec.source}: no flight (armed with a take-off)")
+    cameras, sizes = _cameras(paths[0], options)
+    out = Path(out)
+    writer = _assembler(fmt, out, options, sizes, task)
+    summary = ExportSummary(out, fmt)
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".parts-", dir=out) as parts:
+        jobs = [
+            RecordingJob(k, Path(p), fmt, out, Path(parts), options, cameras, sizes, task)
+            for k, p in enumerate(paths)
+        ]
+        for k, result in enumerate(_results(jobs, options)):
+            for part in result.parts:
+                writer.add(part)
+            summary.episodes += len(result.parts)
+            summary.frames += result.frames
+            summary.camera_frames += result.camera_frames
+            if not result.parts:
+                summary.skipped.append(f"{result.source}: no flight (armed with a take-off)")
             summary.recordings += 1
-        if progress is not None:
-            progress(k + 1, len(paths), str(path))
-    if writer is None:
-        raise RecordingError("no recording to export")
+            if progress is not None:
+                progress(k + 1, len(paths), str(paths[k]))
     writer.close(summary)
     return summary
 
 
-def _writer(fmt, out, options, scene, rec: Recording, cameras, task):
+def _cameras(first: Path, options: ExportOptions):
+    """The cameras to export (given, or those of the first recording) and each one's
+    LeRobot video size (given, or as the first recording has it)."""
+    cameras = options.cameras
+    if cameras == () or (cameras is None and Path(first).suffix.lower() == ".tlog"):
+        return (), {}  # a tlog has no frames
+    with open_recording(first, frames=True) as rec:
+        if cameras is None:
+            cameras = tuple(rec.cameras)
+        missing = [c for c in cameras if c not in rec.cameras]
+        if missing:
+            raise RecordingError(
+                f"'{rec.source}' has no frames of camera {', '.join(missing)}; export "
+                "recordings with the same cameras, or choose them with --cameras."
+            )
+        sizes = {
+            c: options.image_size or (rec.cameras[c].width, rec.cameras[c].height) for c in cameras
+        }
+    return cameras, sizes
+
+
+def _results(jobs: list[RecordingJob], options: ExportOptions) -> Iterator[RecordingResult]:
+    """The jobs' results in the jobs' order."""
+    if options.ray_address:
+        from fpv_station.learn.export_ray import ray_results
+
+        yield from ray_results(jobs, options.ray_address)
+    elif options.workers == 1 or len(jobs) == 1:
+        yield from map(export_recording, jobs)
+    else:
+        yield from _pool_results(jobs, min(options.workers, len(jobs)))
+
+
+def _pool_results(jobs: list[RecordingJob], workers: int) -> Iterator[RecordingResult]:
+    # Fresh interpreters, not forks: the parent may hold threads (OpenCV's, PyAV's)
+    # whose locks a fork would copy held.
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=context) as pool:
+        pending = deque()
+        todo = iter(jobs)
+        try:
+            for job in todo:
+                pending.append(pool.submit(export_recording, job))
+                if len(pending) >= workers * JOBS_AHEAD:
+                    break
+            while pending:
+                result = pending.popleft().result()
+                for job in todo:
+                    pending.append(pool.submit(export_recording, job))
+                    break
+                yield result
+        finally:
+            for f in pending:
+                f.cancel()
+
+
+def _assembler(fmt, out, options, sizes, task):
     if fmt == "lerobot":
         from fpv_station.learn.lerobot import LeRobotExport
 
-        return LeRobotExport(out, options, scene, rec, cameras, task)
+        return LeRobotExport(out, options, sizes, task)
     if fmt == "minari":
         from fpv_station.learn.minari_export import MinariExport
 
-        return MinariExport(out, options, scene, task)
+        return MinariExport(out, options, options.scene, task)
     from fpv_station.learn.mcap_export import McapExport
 
-    return McapExport(out, options, scene, cameras, task)
+    return McapExport(out)
 
 
 def tqdm_progress(total: int):

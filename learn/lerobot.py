@@ -2,14 +2,15 @@
 
 The layout is LeRobot's v3.0 (`LeRobotDataset(repo_id, root=DIR)` loads it):
 
-    meta/info.json                       codebase_version "v3.0", fps, features, path templates
+    meta/info.json                       codebase_version "v3.0", fps, features, path templates,
+                                         chunks_size, data/video file size limits
     meta/stats.json                      per feature: min, max, mean, std, count, q01..q99
     meta/tasks.parquet                   task text (the pandas index) -> task_index
     meta/episodes/chunk-000/file-000.parquet   one row per episode: length, tasks, where its
                                          rows and video frames are, its own stats
-    data/chunk-000/file-000.parquet      one row per frame, one row group per episode
-    videos/observation.images.front/chunk-000/file-000.mp4   all episodes, back to back
-    videos/observation.images.bottom/chunk-000/file-000.mp4
+    data/chunk-CCC/file-FFF.parquet      one row per frame, one row group per episode
+    videos/observation.images.front/chunk-CCC/file-FFF.mp4   episodes back to back
+    videos/observation.images.bottom/chunk-CCC/file-FFF.mp4
     README.md                            the dataset card
 
 Rows: `observation.state` (the twin env's state vector, `twin.gym_env.STATE_NAMES`),
@@ -18,19 +19,32 @@ first frame, as LeRobot needs to find video frames: `from_timestamp + timestamp`
 `session_time_s` (the same instant on the recording's session clock), `frame_index`,
 `episode_index`, `index` (over the dataset), `task_index`, `next.done`.
 
-Video: each camera is one stream per file at the dataset's fps; frame k of the dataset
-is the recorded JPEG shown at that instant (`learn.episodes`), decoded once and encoded
-to H.264 (yuv420p, a keyframe every 2 frames as LeRobot's encoder uses, so random access
-stays cheap; x264 preset `--video-preset`, default ultrafast). Episodes stream through:
-one encoder per camera and one parquet writer stay open, so memory does not grow with
-the number of episodes. Files do not roll over at LeRobot's size limits (100 MB data,
-200 MB video): each stays `file-000`.
+Writing is in two steps, as LeRobot's own writer does it:
+- `episode_part` (any process): an episode's rows as arrays, and per camera its video
+  encoded alone to a part file. Frame k of the dataset is the recorded JPEG shown at that
+  instant (`learn.episodes`), decoded once (resized to the dataset's size if it differs)
+  and encoded to H.264 (yuv420p, a keyframe every 2 frames as LeRobot's encoder uses, so
+  random access stays cheap; x264 preset `--video-preset`, default ultrafast), with the
+  pixel histogram of every frame for the image stats.
+- `LeRobotWriter.add_episode` (one process, in the recordings' order): the rows appended
+  to the current data file and each part's packets to the camera's current video file,
+  unchanged (no re-encode). A file rolls over by LeRobot's rule: a new one when the
+  current file's size plus the episode's would reach `data_files_size_in_mb` (data:
+  the current file's bytes per frame times the episode's frames) or
+  `video_files_size_in_mb` (video: the part's bytes). File indices count up to
+  `chunks_size - 1`, then the chunk index moves on (LeRobot's
+  `update_chunk_file_indices`). An episode never spans two files; its video times start
+  at `from_timestamp`, the frames before it in its file over the fps.
+So the output is the same whichever process encoded which part. Memory does not grow
+with the number of episodes but for their metadata rows.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 
@@ -42,16 +56,15 @@ import pyarrow.parquet as pq
 
 from fpv_station.learn import stats as st
 from fpv_station.learn.episodes import Episode
+from fpv_station.learn.formats import FileLimits
 from fpv_station.learn.images import decode_fit
 from fpv_station.twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 CODEBASE_VERSION = "v3.0"
-CHUNKS_SIZE = 1000
-DATA_FILES_SIZE_IN_MB = 100
-VIDEO_FILES_SIZE_IN_MB = 200
+MB = 1024 * 1024  # LeRobot's megabyte (get_file_size_in_mb)
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
-EPISODES_PATH = "meta/episodes/chunk-000/file-000.parquet"
+EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_CODEC = "libx264"
 VIDEO_OPTIONS = {"g": "2", "crf": "23"}
 # x264's fastest preset keeps a two-camera export over 10x real time on a 2-core machine;
@@ -59,11 +72,98 @@ VIDEO_OPTIONS = {"g": "2", "crf": "23"}
 VIDEO_PRESET = "ultrafast"
 ROBOT_TYPE = "f450_quadcopter"
 
-FrameSource = Callable[[str, int], bytes]  # (camera, recorded frame index) -> JPEG bytes
+FrameSource = Callable[[int], bytes]  # recorded frame index -> JPEG bytes
 
 
 def video_key(camera: str) -> str:
     return f"observation.images.{camera}"
+
+
+def next_file(chunk: int, file: int, chunks_size: int) -> tuple[int, int]:
+    """The (chunk, file) index after this one, as LeRobot's `update_chunk_file_indices`."""
+    return (chunk + 1, 0) if file == chunks_size - 1 else (chunk, file + 1)
+
+
+@dataclass
+class EpisodeVideo:
+    """One camera's frames of one episode, encoded alone to a part file."""
+
+    path: Path
+    frames: int
+    hist: np.ndarray  # (3, 256) RGB pixel counts over every frame (`stats.image_histogram`)
+
+
+@dataclass
+class EpisodePart:
+    """An episode ready for `LeRobotWriter.add_episode`: rows as arrays, videos as parts.
+    Made wherever the work runs (`episode_part`); small but for the part files."""
+
+    recording: str
+    number: int
+    landed: bool
+    t_s: np.ndarray
+    state: np.ndarray
+    action: np.ndarray
+    videos: dict[str, EpisodeVideo] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+
+def episode_part(
+    ep: Episode,
+    frame_bytes: Callable[[str, int], bytes],
+    sizes: dict[str, tuple[int, int]],
+    fps: int,
+    preset: str,
+    parts: Path,
+    tag: str,
+) -> EpisodePart:
+    """Encode an episode's camera frames (`sizes`: camera -> (width, height)) to part
+    files `parts/{tag}_{camera}.mp4`."""
+    videos = {}
+    if len(ep):
+        for cam, size in sizes.items():
+            path = Path(parts) / f"{tag}_{cam}.mp4"
+            videos[cam] = encode_video(
+                path, ep.frames[cam], lambda k, c=cam: frame_bytes(c, k), size, fps, preset
+            )
+    return EpisodePart(ep.recording, ep.number, ep.landed, ep.t_s, ep.state, ep.action, videos)
+
+
+def encode_video(
+    path: Path,
+    picks: np.ndarray,
+    jpeg: FrameSource,
+    size: tuple[int, int],
+    fps: int,
+    preset: str = VIDEO_PRESET,
+) -> EpisodeVideo:
+    """The recorded frames `picks` (one per dataset frame) as an H.264 file at `size`."""
+    total = np.zeros((3, 256), np.int64)
+    time_base = Fraction(1, fps)
+    with av.open(str(path), mode="w") as container:
+        stream = container.add_stream(
+            VIDEO_CODEC, rate=fps, options={**VIDEO_OPTIONS, "preset": preset}
+        )
+        stream.width, stream.height = size
+        stream.pix_fmt = "yuv420p"
+        last, hist, frame = None, None, None
+        for i, k in enumerate(picks):
+            if k != last:  # a recorded frame held over several dataset frames: convert once
+                bgr = decode_fit(jpeg(int(k)), size)
+                # OpenCV's I420 conversion is BT.601 limited range, what an untagged H.264
+                # stream is decoded as, and several times faster than swscale from BGR.
+                i420 = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420)
+                frame = av.VideoFrame.from_ndarray(i420, format="yuv420p")
+                frame.time_base = time_base
+                hist = st.image_histogram(bgr)[::-1]  # BGR -> RGB
+                last = k
+            total += hist
+            frame.pts = i  # the encoder takes its own reference: reuse is safe
+            container.mux(stream.encode(frame))
+        container.mux(stream.encode(None))
+    return EpisodeVideo(Path(path), len(picks), total)
 
 
 class LeRobotWriter:
@@ -74,13 +174,15 @@ class LeRobotWriter:
         cameras: dict[str, tuple[int, int]],  # camera -> (width, height)
         robot_type: str = ROBOT_TYPE,
         task_id: int = 0,
-        video_preset: str = VIDEO_PRESET,
+        limits: FileLimits | None = None,
     ) -> None:
+        limits = limits or FileLimits()
         self.root = Path(root)
         self.task_id = task_id  # the scene's task, kept per episode for the baseline
         self.fps = int(fps)
         self.cameras = dict(cameras)
         self.robot_type = robot_type
+        self.limits = limits
         self.root.mkdir(parents=True, exist_ok=True)
         self.features = self._features()
         self._schema = pa.schema(
@@ -96,13 +198,8 @@ class LeRobotWriter:
                 ("next.done", pa.bool_()),
             ]
         )
-        path = self.root / DATA_PATH.format(chunk_index=0, file_index=0)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self._data = pq.ParquetWriter(path, self._schema, compression="snappy")
-        self._videos = {
-            c: _VideoFile(self.root, c, wh, self.fps, video_preset)
-            for c, wh in self.cameras.items()
-        }
+        self._data = _DataFiles(self.root, self._schema, limits)
+        self._videos = {c: _VideoFiles(self.root, c, self.fps, limits) for c in self.cameras}
         self.tasks: dict[str, int] = {}
         self.episodes: list[dict] = []
         self._episode_stats: list[dict[str, st.Stats]] = []
@@ -112,7 +209,9 @@ class LeRobotWriter:
 
     # ------------------------------------------------------------------ episodes
 
-    def add_episode(self, ep: Episode, task: str, frame_bytes: FrameSource) -> None:
+    def add_episode(self, ep: EpisodePart, task: str) -> None:
+        """Append an episode; its part files are moved into the dataset's videos (and
+        deleted)."""
         n = len(ep)
         if n == 0:
             return
@@ -133,7 +232,7 @@ class LeRobotWriter:
             "task_index": pa.array(np.full(n, task_index, np.int64)),
             "next.done": pa.array(done),
         }
-        self._data.write_table(pa.table(columns, schema=self._schema))
+        chunk, file = self._data.write(pa.table(columns, schema=self._schema))
         ep_stats = {
             "observation.state": st.vector_stats(ep.state),
             "action": st.vector_stats(ep.action),
@@ -149,22 +248,24 @@ class LeRobotWriter:
             "episode_index": index,
             "tasks": [task],
             "length": n,
-            "data/chunk_index": 0,
-            "data/file_index": 0,
+            "data/chunk_index": chunk,
+            "data/file_index": file,
             "dataset_from_index": self.total_frames,
             "dataset_to_index": self.total_frames + n,
         }
-        for cam, video in self._videos.items():
-            start = video.frames
-            hist = video.add(ep.frames[cam], lambda k, c=cam: frame_bytes(c, k))
-            self._image_hist[cam] += hist
-            ep_stats[video_key(cam)] = st.histogram_stats(hist, n)
+        for cam, files in self._videos.items():
+            part = ep.videos[cam]
+            if part.frames != n:
+                raise ValueError(f"{cam} video of {part.frames} frames for {n} rows")
+            chunk, file, start = files.append(part.path, n)
+            self._image_hist[cam] += part.hist
+            ep_stats[video_key(cam)] = st.histogram_stats(part.hist, n)
             meta.update(
                 {
-                    f"videos/{video_key(cam)}/chunk_index": 0,
-                    f"videos/{video_key(cam)}/file_index": 0,
+                    f"videos/{video_key(cam)}/chunk_index": chunk,
+                    f"videos/{video_key(cam)}/file_index": file,
                     f"videos/{video_key(cam)}/from_timestamp": start / self.fps,
-                    f"videos/{video_key(cam)}/to_timestamp": video.frames / self.fps,
+                    f"videos/{video_key(cam)}/to_timestamp": (start + n) / self.fps,
                 }
             )
         meta["meta/episodes/chunk_index"] = 0
@@ -189,12 +290,16 @@ class LeRobotWriter:
         meta = self.root / "meta"
         (meta / "episodes" / "chunk-000").mkdir(parents=True, exist_ok=True)
         if self.episodes:
-            pq.write_table(pa.Table.from_pylist(self.episodes), self.root / EPISODES_PATH)
+            pq.write_table(
+                pa.Table.from_pylist(self.episodes),
+                self.root / EPISODES_PATH.format(chunk_index=0, file_index=0),
+            )
         _write_tasks(meta / "tasks.parquet", self.tasks)
+        videos = {video_key(c) for c in self.cameras}
         merged = {
             f: st.merge([s[f] for s in self._episode_stats])
             for f in self.features
-            if self.episodes and f not in self._videos_by_key()
+            if self.episodes and f not in videos
         }
         for cam, hist in self._image_hist.items():
             if self.episodes:
@@ -203,9 +308,6 @@ class LeRobotWriter:
         (meta / "info.json").write_text(json.dumps(self.info(), indent=2))
         (self.root / "README.md").write_text(card)
 
-    def _videos_by_key(self) -> set[str]:
-        return {video_key(c) for c in self.cameras}
-
     def info(self) -> dict:
         return {
             "codebase_version": CODEBASE_VERSION,
@@ -213,9 +315,9 @@ class LeRobotWriter:
             "total_episodes": len(self.episodes),
             "total_frames": self.total_frames,
             "total_tasks": len(self.tasks),
-            "chunks_size": CHUNKS_SIZE,
-            "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
-            "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
+            "chunks_size": self.limits.chunks_size,
+            "data_files_size_in_mb": self.limits.data_files_size_in_mb,
+            "video_files_size_in_mb": self.limits.video_files_size_in_mb,
             "fps": self.fps,
             "splits": {"train": f"0:{len(self.episodes)}"},
             "data_path": DATA_PATH,
@@ -261,23 +363,17 @@ class LeRobotWriter:
 
 
 class LeRobotExport:
-    """`learn.export`'s adapter: recordings' episodes into one `LeRobotWriter`."""
+    """`learn.export`'s adapter: episode parts, in order, into one `LeRobotWriter`."""
 
-    def __init__(self, out: Path, options, scene, rec, cameras: tuple[str, ...], task: str):
+    def __init__(self, out: Path, options, sizes: dict[str, tuple[int, int]], task: str):
         self.task = task
         self.options = options
-        size = {
-            c: options.image_size or (rec.cameras[c].width, rec.cameras[c].height) for c in cameras
-        }
         self.writer = LeRobotWriter(
-            out, options.fps, size, task_id=options.task_id, video_preset=options.video_preset
+            out, options.fps, sizes, task_id=options.task_id, limits=options.lerobot_limits
         )
 
-    def add(self, rec, ep: Episode) -> None:
-        self.writer.add_episode(ep, self.task, rec.frame_bytes)
-
-    def camera_frames(self, rec, ep: Episode) -> int:
-        return len(ep) * len(self.writer.cameras)
+    def add(self, part: EpisodePart) -> None:
+        self.writer.add_episode(part, self.task)
 
     def close(self, summary) -> None:
         self.writer.close(dataset_card(self.writer, self.options, summary, self.task))
@@ -324,47 +420,97 @@ Load it with `LeRobotDataset("{options.dataset_id}", root=DIR)`.
 """
 
 
-class _VideoFile:
-    """One camera's video: every episode's frames appended to one H.264 stream."""
+class _DataFiles:
+    """data/chunk-CCC/file-FFF.parquet, one episode per row group, rolled over by
+    LeRobot's rule (module docstring)."""
 
-    def __init__(
-        self, root: Path, camera: str, size: tuple[int, int], fps: int, preset: str
-    ) -> None:
-        path = root / VIDEO_PATH.format(video_key=video_key(camera), chunk_index=0, file_index=0)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.size = size
-        self.container = av.open(str(path), mode="w")
-        options = {**VIDEO_OPTIONS, "preset": preset}
-        self.stream = self.container.add_stream(VIDEO_CODEC, rate=fps, options=options)
-        self.stream.width, self.stream.height = size
-        self.stream.pix_fmt = "yuv420p"
-        self.time_base = Fraction(1, fps)
-        self.frames = 0
+    def __init__(self, root: Path, schema: pa.Schema, limits: FileLimits) -> None:
+        self.root, self.schema, self.limits = root, schema, limits
+        self.index = (0, 0)
+        self.writer: pq.ParquetWriter | None = None
+        self.rows = 0  # in the current file
 
-    def add(self, picks: np.ndarray, jpeg: Callable[[int], bytes]) -> np.ndarray:
-        """Encode the recorded frames `picks` (one per dataset frame); returns the pixel
-        histogram (`stats.image_histogram`, RGB) of all the frames encoded."""
-        total = np.zeros((3, 256), np.int64)
-        last, hist, frame = None, None, None
-        for k in picks:
-            if k != last:  # a recorded frame held over several dataset frames: convert once
-                bgr = decode_fit(jpeg(int(k)), self.size)
-                # OpenCV's I420 conversion is BT.601 limited range, what an untagged H.264
-                # stream is decoded as, and several times faster than swscale from BGR.
-                i420 = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420)
-                frame = av.VideoFrame.from_ndarray(i420, format="yuv420p")
-                frame.time_base = self.time_base
-                hist = st.image_histogram(bgr)[::-1]  # BGR -> RGB
-                last = k
-            total += hist
-            frame.pts = self.frames  # the encoder takes its own reference: reuse is safe
-            self.container.mux(self.stream.encode(frame))
-            self.frames += 1
-        return total
+    def _path(self) -> Path:
+        return self.root / DATA_PATH.format(chunk_index=self.index[0], file_index=self.index[1])
+
+    def write(self, table: pa.Table) -> tuple[int, int]:
+        if self.writer is not None:
+            size_mb = _size_mb(self._path())
+            if size_mb + size_mb / self.rows * table.num_rows >= self.limits.data_files_size_in_mb:
+                self.writer.close()
+                self.writer = None
+                self.index = next_file(*self.index, self.limits.chunks_size)
+        if self.writer is None:
+            path = self._path()
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.writer = pq.ParquetWriter(path, self.schema, compression="snappy")
+            self.rows = 0
+        self.writer.write_table(table)
+        self.rows += table.num_rows
+        return self.index
 
     def close(self) -> None:
-        self.container.mux(self.stream.encode(None))
-        self.container.close()
+        if self.writer is None:  # no episode: an empty file, as the layout expects one
+            path = self._path()
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.writer = pq.ParquetWriter(path, self.schema, compression="snappy")
+        self.writer.close()
+
+
+class _VideoFiles:
+    """videos/KEY/chunk-CCC/file-FFF.mp4 of one camera: each episode's part file's
+    packets appended as they are (timestamps shifted by the frames already in the file),
+    rolled over by LeRobot's rule (module docstring)."""
+
+    def __init__(self, root: Path, camera: str, fps: int, limits: FileLimits) -> None:
+        self.root, self.camera, self.fps, self.limits = root, camera, fps, limits
+        self.index = (0, 0)
+        self.container = None
+        self.stream = None
+        self.frames = 0  # in the current file
+        self.bytes = 0  # packet bytes in the current file
+
+    def append(self, part: Path, frames: int) -> tuple[int, int, int]:
+        """Move a part file's frames in; returns (chunk, file, frames before them)."""
+        part_mb = os.path.getsize(part) / MB
+        limit = self.limits.video_files_size_in_mb
+        if self.container is not None and self.bytes / MB + part_mb >= limit:
+            self.close()
+            self.index = next_file(*self.index, self.limits.chunks_size)
+        with av.open(str(part)) as source:
+            src = source.streams.video[0]
+            if self.container is None:
+                path = self.root / VIDEO_PATH.format(
+                    video_key=video_key(self.camera),
+                    chunk_index=self.index[0],
+                    file_index=self.index[1],
+                )
+                path.parent.mkdir(parents=True, exist_ok=True)
+                self.container = av.open(str(path), mode="w")
+                self.stream = self.container.add_stream_from_template(src)
+                self.frames = self.bytes = 0
+            start = self.frames
+            shift = int(round(Fraction(start, self.fps) / src.time_base))
+            for packet in source.demux(src):
+                if packet.size == 0:  # the demuxer's end-of-stream marker
+                    continue
+                packet.pts += shift
+                packet.dts += shift
+                packet.stream = self.stream
+                self.bytes += packet.size
+                self.container.mux(packet)
+        os.unlink(part)
+        self.frames += frames
+        return (*self.index, start)
+
+    def close(self) -> None:
+        if self.container is not None:
+            self.container.close()
+            self.container = None
+
+
+def _size_mb(path: Path) -> float:
+    return os.path.getsize(path) / MB
 
 
 def _fixed_list(a: np.ndarray) -> pa.FixedSizeListArray:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -59,33 +60,23 @@ def mcap_name(rec: Recording, ep: Episode) -> str:
 
 
 class McapExport:
-    """`learn.export`'s adapter: one MCAP file per episode."""
+    """`learn.export`'s adapter: the jobs write each episode's file (`write_episode_mcap`)
+    as a part; this moves them, in order, to their names (`mcap_name`; a name that
+    recurs, as a recording exported twice, gets `_2`, `_3`, ...)."""
 
-    def __init__(self, out: Path, options, scene, cameras: tuple[str, ...], task: str):
+    def __init__(self, out: Path):
         self.out = Path(out)
-        self.out.mkdir(parents=True, exist_ok=True)
-        self.options = options
-        self.scene = scene
-        self.cameras = cameras
-        self.task = task
         self.files: list[Path] = []
+        self._names: dict[str, int] = {}
 
-    def camera_frames(self, rec: Recording, ep: Episode) -> int:
-        return sum(int(_frame_window(rec, c, ep).size) for c in self.cameras)
-
-    def add(self, rec: Recording, ep: Episode) -> None:
-        path = self.out / mcap_name(rec, ep)
-        write_episode_mcap(
-            path,
-            rec,
-            ep,
-            self.scene,
-            self.options.task_id,
-            self.cameras,
-            self.task,
-            self.options.image_size,
-        )
-        self.files.append(path)
+    def add(self, part: tuple[Path, str]) -> None:
+        path, name = part
+        seen = self._names[name] = self._names.get(name, 0) + 1
+        if seen > 1:
+            name = f"{name.removesuffix('.mcap')}_{seen}.mcap"
+        final = self.out / name
+        os.replace(path, final)
+        self.files.append(final)
 
     def close(self, summary) -> None:
         pass
@@ -191,14 +182,14 @@ def _row_events(rec: Recording, scene, task_id: int, i0: int, i1: int, wall0: fl
         yield t_ns, "row", (fix, pose, tf, row)
 
 
-def _frame_window(rec: Recording, cam: str, ep: Episode) -> np.ndarray:
+def frame_window(rec: Recording, cam: str, ep: Episode) -> np.ndarray:
     t = rec.cameras[cam].t_s
     return np.flatnonzero((t >= rec.t_s[ep.flight.arm]) & (t <= rec.t_s[ep.flight.disarm]))
 
 
 def _frame_events(rec: Recording, cam: str, ep: Episode, wall0: float, size):
     t = rec.cameras[cam].t_s
-    for k in _frame_window(rec, cam, ep):
+    for k in frame_window(rec, cam, ep):
         jpeg = rec.frame_bytes(cam, int(k))
         if size is not None:
             jpeg = resized_jpeg(jpeg, size)

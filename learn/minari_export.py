@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-from fpv_station.analysis.recording import Recording
 from fpv_station.learn.episodes import Episode, target_m
 from fpv_station.twin.gym_env import ENV_ID, TaskReward
 
@@ -80,10 +79,7 @@ class MinariExport:
         )
         self.buffers = []
 
-    def camera_frames(self, rec: Recording, ep: Episode) -> int:
-        return 0  # observations are the env's state vector, as TwinEnv gives it by default
-
-    def add(self, rec: Recording, ep: Episode) -> None:
+    def add(self, ep: Episode) -> None:
         if len(ep) >= 2:
             self.buffers.append(
                 episode_buffer(ep, self.scene, self.options.task_id, self.options.fps)

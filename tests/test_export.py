@@ -9,6 +9,7 @@ import csv
 import json
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import av
@@ -20,6 +21,7 @@ import pytest
 from fpv_station.learn.demos import DemoConfig, fly_demo
 from fpv_station.learn.episodes import ChannelMap
 from fpv_station.learn.export import ExportOptions, export_recordings, recorded_task_id
+from fpv_station.learn.formats import FileLimits
 from fpv_station.server.cli import main as cli_main
 from tests import synthetic as syn
 from tests.recording_fakes import as_format_1, recorded_frames
@@ -476,10 +478,27 @@ def test_a_session_of_unknown_task_is_refused_unless_the_task_is_given(session, 
 
 
 @pytest.fixture(scope="module")
-def small(session, tmp_path_factory) -> Path:
+def three(session, tmp_path_factory) -> list[Path]:
+    """The demo session and two copies under other session ids: three recordings whose
+    episodes differ in their source (so an export in another order shows)."""
+    import shutil
+
+    out = [session]
+    for name in ("b", "c"):
+        copy = tmp_path_factory.mktemp("three") / f"{session.name}{name}"
+        shutil.copytree(session, copy)
+        meta = json.loads((copy / "session.json").read_text())
+        meta["id"] = copy.name
+        (copy / "session.json").write_text(json.dumps(meta))
+        out.append(copy)
+    return out
+
+
+@pytest.fixture(scope="module")
+def small(three, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("small")
     opts = ExportOptions(task_id=1, fps=FPS, image_size=(160, 120))
-    export_recordings([session, session], "lerobot", out, opts)
+    export_recordings(three, "lerobot", out, opts)
     return out
 
 
@@ -554,3 +573,215 @@ def test_image_size_resizes_mcap_images(session, tmp_path, capsys):
     capsys.readouterr()
     assert cli_main([*argv, "--image-size", "160by120"]) == 2
     assert "WIDTHxHEIGHT" in capsys.readouterr().err
+
+
+def _read_like_lerobot(root: Path, cache: Path) -> tuple[dict, list[dict], dict]:
+    """LeRobot v3.0's reader steps (`LeRobotDatasetMetadata`, `load_nested_dataset`):
+    info; the episodes from every meta/episodes/*/*.parquet; the rows from every
+    data/*/*.parquet in sorted order, through Hugging Face `datasets` with the features
+    LeRobot derives from info.json; each episode's rows as rows[from:to]; its frames from
+    the video file its chunk and file indices name, at `from_timestamp + timestamp`
+    within LeRobot's tolerance (1e-4 s). Returns info, the episodes and, per episode and
+    camera, the (n, H, W, 3) frames."""
+    import datasets
+
+    info = json.loads((root / "meta/info.json").read_text())
+    features = {}
+    for key, ft in info["features"].items():
+        if ft["dtype"] == "video":
+            continue
+        if tuple(ft["shape"]) == (1,):
+            features[key] = datasets.Value(dtype=ft["dtype"])
+        else:
+            features[key] = datasets.Sequence(
+                length=ft["shape"][0], feature=datasets.Value(dtype=ft["dtype"])
+            )
+    episodes = datasets.Dataset.from_parquet(
+        [str(p) for p in sorted((root / "meta/episodes").glob("*/*.parquet"))],
+        cache_dir=str(cache),
+    ).to_list()
+    rows = datasets.Dataset.from_parquet(
+        [str(p) for p in sorted((root / "data").glob("*/*.parquet"))],
+        features=datasets.Features(features),
+        cache_dir=str(cache),
+    ).with_format("numpy")
+    assert len(rows) == info["total_frames"] and len(episodes) == info["total_episodes"]
+    frames: dict = {}
+    videos = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
+    for ep in episodes:
+        part = rows[ep["dataset_from_index"] : ep["dataset_to_index"]]
+        assert len(part["index"]) == ep["length"]
+        assert (part["episode_index"] == ep["episode_index"]).all()
+        data_file = root / info["data_path"].format(
+            chunk_index=ep["data/chunk_index"], file_index=ep["data/file_index"]
+        )
+        in_file = pq.read_table(data_file, columns=["index"]).column("index").to_pylist()
+        assert set(part["index"].tolist()) <= set(in_file)  # its rows are in the file named
+        for key in videos:
+            path = root / info["video_path"].format(
+                video_key=key,
+                chunk_index=ep[f"videos/{key}/chunk_index"],
+                file_index=ep[f"videos/{key}/file_index"],
+            )
+            query = [ep[f"videos/{key}/from_timestamp"] + float(t) for t in part["timestamp"]]
+            by_time = {}
+            with av.open(str(path)) as c:
+                s = c.streams.video[0]
+                for frame in c.decode(s):
+                    by_time[float(frame.pts * s.time_base)] = frame.to_ndarray(format="rgb24")
+            times = np.array(sorted(by_time))
+            got = []
+            for q in query:
+                j = int(np.argmin(np.abs(times - q)))
+                assert abs(times[j] - q) < 1e-4, (key, q, times[j])
+                got.append(by_time[times[j]])
+            assert ep[f"videos/{key}/to_timestamp"] == pytest.approx(query[-1] + 1 / info["fps"])
+            frames[(ep["episode_index"], key)] = np.stack(got)
+        frames[(ep["episode_index"], "rows")] = part
+    return info, episodes, frames
+
+
+ROLLED = FileLimits(chunks_size=2, data_files_size_in_mb=0.001, video_files_size_in_mb=0.001)
+
+
+@pytest.fixture(scope="module")
+def rolled(three, small, tmp_path_factory) -> Path:
+    """The `small` export (three episodes) with LeRobot's file limits lowered: a video
+    file holds two episodes (2.5 episodes' bytes), data files roll over at every episode,
+    and two files make a chunk."""
+    front = small / "videos/observation.images.front/chunk-000/file-000.mp4"
+    per_episode_mb = front.stat().st_size / 3 / 2**20
+    limits = replace(ROLLED, video_files_size_in_mb=2.5 * per_episode_mb)
+    out = tmp_path_factory.mktemp("rolled")
+    opts = ExportOptions(task_id=1, fps=FPS, image_size=(160, 120), lerobot_limits=limits)
+    export_recordings(three, "lerobot", out, opts)
+    return out
+
+
+def test_lerobot_files_roll_over_and_read_back_whole(small, rolled, tmp_path):
+    """Files roll over at the limits with LeRobot's chunk and file indices, and the
+    dataset reads back through LeRobot's reader steps exactly as the one-file export:
+    every row, and every frame of every episode from the file its indices name."""
+    info, episodes, frames = _read_like_lerobot(rolled, tmp_path / "a")
+    _, ref_episodes, ref_frames = _read_like_lerobot(small, tmp_path / "b")
+    assert info["chunks_size"] == 2 and info["data_files_size_in_mb"] == 0.001
+    where = [
+        (
+            (e["data/chunk_index"], e["data/file_index"]),
+            (
+                e["videos/observation.images.front/chunk_index"],
+                e["videos/observation.images.front/file_index"],
+            ),
+            e["videos/observation.images.front/from_timestamp"],
+        )
+        for e in episodes
+    ]
+    n0 = episodes[0]["length"]
+    assert where == [
+        ((0, 0), (0, 0), 0.0),
+        ((0, 1), (0, 0), pytest.approx(n0 / FPS)),
+        ((1, 0), (0, 1), 0.0),
+    ]
+    assert sorted(p.relative_to(rolled).as_posix() for p in rolled.glob("data/*/*")) == [
+        "data/chunk-000/file-000.parquet",
+        "data/chunk-000/file-001.parquet",
+        "data/chunk-001/file-000.parquet",
+    ]
+    for cam in ("front", "bottom"):  # every video file is one the episodes name
+        key = f"observation.images.{cam}"
+        named = {
+            info["video_path"].format(
+                video_key=key,
+                chunk_index=e[f"videos/{key}/chunk_index"],
+                file_index=e[f"videos/{key}/file_index"],
+            )
+            for e in episodes
+        }
+        on_disk = {p.relative_to(rolled).as_posix() for p in rolled.glob(f"videos/{key}/*/*")}
+        assert on_disk == named and len(named) >= 2 - (cam == "bottom"), cam
+    assert not list(rolled.glob(".parts-*"))  # the part files are gone
+    assert len(episodes) == len(ref_episodes) == 3
+    for k in range(3):
+        rows, ref = frames[(k, "rows")], ref_frames[(k, "rows")]
+        for col in ("observation.state", "action", "session_time_s", "index", "timestamp"):
+            assert np.array_equal(rows[col], ref[col]), col
+        for cam in ("front", "bottom"):
+            key = f"observation.images.{cam}"
+            assert np.array_equal(frames[(k, key)], ref_frames[(k, key)]), (k, cam)
+    assert json.loads((rolled / "meta/stats.json").read_text()) == json.loads(
+        (small / "meta/stats.json").read_text()
+    )
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(root).as_posix(): p.read_bytes()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_workers_export_the_same_dataset_as_one_process(three, rolled, tmp_path):
+    """Recordings exported by two worker processes, and the results assembled in order:
+    the same files, byte for byte, as one process writes (LeRobot with rolled files,
+    MCAP); Minari's episodes the same."""
+    import minari
+
+    limits = json.loads((rolled / "meta/info.json").read_text())
+    opts = ExportOptions(
+        task_id=1,
+        fps=FPS,
+        image_size=(160, 120),
+        lerobot_limits=FileLimits(
+            limits["chunks_size"], limits["data_files_size_in_mb"], limits["video_files_size_in_mb"]
+        ),
+        workers=2,
+    )
+    out = tmp_path / "lerobot2"
+    s = export_recordings(three, "lerobot", out, opts)
+    assert s.episodes == 3
+    assert _tree(out) == _tree(rolled)
+    one, two = tmp_path / "mcap1", tmp_path / "mcap2"
+    export_recordings(three, "mcap", one, replace(opts, workers=1))
+    export_recordings(three, "mcap", two, opts)
+    assert len(_tree(one)) == 3 and _tree(one) == _tree(two)
+    m1, m2 = tmp_path / "minari1", tmp_path / "minari2"
+    export_recordings(three, "minari", m1, replace(opts, workers=1))
+    export_recordings(three, "minari", m2, opts)
+    eps = []
+    for root in (m1, m2):
+        os.environ["MINARI_DATASETS_PATH"] = str(root)
+        try:
+            ds = minari.load_dataset("fpv-station/twin-task1/demos-v0")
+            eps.append([(e.observations, e.actions, e.rewards) for e in ds.iterate_episodes()])
+        finally:
+            os.environ.pop("MINARI_DATASETS_PATH")
+    assert len(eps[0]) == 3
+    for x, y in zip(*eps):
+        assert all(np.array_equal(u, v) for u, v in zip(x, y))
+
+
+def test_cli_workers_report_a_bad_recording(three, tmp_path, capsys):
+    """`--workers 2`: a recording that fails in a worker process stops the export with
+    its own message, as it does in one process."""
+    import shutil
+
+    broken = tmp_path / f"{three[0].name}x"
+    shutil.copytree(three[0], broken)
+    shutil.rmtree(broken / "bottom")
+    argv = ["export", str(three[0]), str(broken), "--format", "mcap", "--no-progress"]
+    assert cli_main([*argv, "--out", str(tmp_path / "out"), "--workers", "2"]) == 1
+    assert f"'{broken}' has no frames of camera bottom" in capsys.readouterr().err
+    assert cli_main([*argv, "--out", str(tmp_path / "out"), "--workers", "0"]) == 2
+
+
+def test_ray_exports_the_same_dataset_as_one_process(tmp_path):
+    """`--ray local`: the recordings' jobs as tasks on a new local Ray instance (the
+    `export-ray` extra; about a minute and 1 GB to start here, so not in CI's install)."""
+    pytest.importorskip("ray")
+    tlogs = [syn.write_tlog(_sorties(), tmp_path / f"s{k}.tlog") for k in range(3)]
+    opts = ExportOptions(task_id=2, fps=5)
+    export_recordings(tlogs, "lerobot", tmp_path / "one", opts)
+    s = export_recordings(tlogs, "lerobot", tmp_path / "ray", replace(opts, ray_address="local"))
+    assert s.episodes == 9
+    assert _tree(tmp_path / "one") == _tree(tmp_path / "ray")
