@@ -29,7 +29,9 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+PYTHONPATH = os.environ.get("PYTHONPATH", "")  # the exports run this tree, and what else is set
 
 from fpv_station.learn.demos import DemoConfig, fly_demo  # noqa: E402
 
@@ -63,40 +65,31 @@ def flight_s(folder: Path) -> float:
     return float(json.loads((folder / "session.json").read_text())["duration_s"])
 
 
-def sessions(root: Path, minutes: float, camera_fps: float) -> dict[str, list[Path]]:
+def sessions(root: Path, minutes: float, camera_fps: float, names) -> dict[str, list[Path]]:
+    """The sets named (`long`, `short`, `ten`), flown once and kept under `root`."""
     marker = root / "sessions.json"
-    if marker.is_file():
-        return {k: [Path(p) for p in v] for k, v in json.loads(marker.read_text()).items()}
+    have = json.loads(marker.read_text()) if marker.is_file() else {}
     cfg = DemoConfig(task_id=1, cameras=True, camera_fps=camera_fps, timeout_s=minutes * 60 + 120)
     climb_land_s = 18.0  # the hover task without its hold: climb to 4 m, descend, disarm
-    t0 = time.perf_counter()
-    out = {
-        "long": [
-            fly_demo(
-                root / "long",
-                1,
-                DemoConfig(**{**cfg.__dict__, "hold_s": minutes * 60 - climb_land_s}),
-            )
-        ],
-        "short": [
-            fly_demo(
-                root / "short",
-                2,
-                DemoConfig(**{**cfg.__dict__, "hold_s": minutes * 12 - climb_land_s}),
-            )
-        ],
-        "ten": [
-            fly_demo(
-                root / "ten",
-                10 + k,
-                DemoConfig(**{**cfg.__dict__, "hold_s": minutes * 6 - climb_land_s}),
-            )
-            for k in range(10)
-        ],
+    plans = {  # seed, hover hold (s), count
+        "long": (1, minutes * 60 - climb_land_s, 1),
+        "short": (2, minutes * 12 - climb_land_s, 1),
+        "ten": (10, minutes * 6 - climb_land_s, 10),
     }
+    t0 = time.perf_counter()
+    for name in names:
+        if name in have:
+            continue
+        seed, hold_s, count = plans[name]
+        if hold_s <= 0:
+            raise SystemExit(f"--minutes {minutes} is too short for the '{name}' sessions")
+        have[name] = [
+            str(fly_demo(root / name, seed + k, DemoConfig(**{**cfg.__dict__, "hold_s": hold_s})))
+            for k in range(count)
+        ]
+        marker.write_text(json.dumps(have))
     print(f"flew the sessions in {time.perf_counter() - t0:.0f} s", flush=True)
-    marker.write_text(json.dumps({k: [str(p) for p in v] for k, v in out.items()}))
-    return out
+    return {k: [Path(p) for p in v] for k, v in have.items()}
 
 
 def run_child(fmt: str, paths: list[Path], workers: int = 1, ray: str = "") -> dict:
@@ -107,6 +100,10 @@ def run_child(fmt: str, paths: list[Path], workers: int = 1, ray: str = "") -> d
             capture_output=True,
             text=True,
             check=True,
+            env={
+                **os.environ,
+                "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), PYTHONPATH])),
+            },
         )
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -125,7 +122,8 @@ def main() -> None:
     )
     root = args.keep or Path(tempfile.mkdtemp(prefix="bench-export-"))
     root.mkdir(parents=True, exist_ok=True)
-    sets = sessions(root, args.minutes, args.camera_fps)
+    names = ("ten",) if args.no_formats else ("long", "ten", "short")
+    sets = sessions(root, args.minutes, args.camera_fps, names)
     print(f"load average before exports: {os.getloadavg()[0]:.2f}")
     if not args.no_formats:
         formats_table(sets)

@@ -253,7 +253,7 @@ def _results(jobs: list[RecordingJob], options: ExportOptions) -> Iterator[Recor
     if options.ray_address:
         from fpv_station.learn.export_ray import ray_results
 
-        yield from ray_results(jobs, options.ray_address)
+        yield from ray_results(export_recording, jobs, options.ray_address, JOBS_AHEAD)
     elif options.workers == 1 or len(jobs) == 1:
         yield from map(export_recording, jobs)
     else:

@@ -12,12 +12,14 @@ remote cluster's client port), or `local` (a new instance on this machine).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
 
-from fpv_station.learn.export import JOBS_AHEAD, RecordingJob, RecordingResult, export_recording
 
-
-def ray_results(jobs: list[RecordingJob], address: str) -> Iterator[RecordingResult]:
+def ray_results(
+    run: Callable[[Any], Any], jobs: Iterable[Any], address: str, ahead_per_cpu: int
+) -> Iterator[Any]:
+    """`run(job)` for each job as a Ray task, the results in the jobs' order."""
     try:
         import ray
     except ImportError:
@@ -30,8 +32,8 @@ def ray_results(jobs: list[RecordingJob], address: str) -> Iterator[RecordingRes
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
     pending: deque = deque()
     try:
-        task = ray.remote(export_recording)
-        ahead = max(1, int(ray.cluster_resources().get("CPU", 1))) * JOBS_AHEAD
+        task = ray.remote(run)
+        ahead = max(1, int(ray.cluster_resources().get("CPU", 1))) * ahead_per_cpu
         todo = iter(jobs)
         for job in todo:
             pending.append(task.remote(job))
