@@ -159,7 +159,7 @@ def test_emergency_from_another_page_while_one_has_the_sticks(station, browser):
     assert wait_until(lambda: armed(app), timeout=15), "the twin did not arm"
     expect(pilot.locator("#toast")).to_contain_text("arm: done")
     pilot.keyboard.down("ArrowUp")
-    assert wait_until(lambda: twin.pose().pos_enu_m[2] > 4.0, timeout=30)
+    assert wait_until(lambda: twin.pose().pos_enu_m[2] > 6.0, timeout=30)
     pilot.keyboard.up("ArrowUp")
 
     # A second pilot page: the sticks are taken, and its Arm is refused, visibly.
@@ -171,11 +171,18 @@ def test_emergency_from_another_page_while_one_has_the_sticks(station, browser):
     second.click("#ctl-arm")
     expect(second.locator("#toast")).to_contain_text("arm: another page has the sticks")
 
-    # The sessions page: Land is carried out, though another page has the sticks.
+    # The sessions page: RTL and Land are carried out, though another page has the sticks.
     sessions = browser.new_page()
     sessions.goto(url + "/sessions.html")
+    rtl = sessions.locator("#toolbar .emergency [data-emergency=rtl]")
+    expect(rtl).to_be_visible(timeout=30_000)
+    rtl.click()
+    expect(sessions.locator("#toast")).to_contain_text("rtl: done")
+    # Home is where it took off: it lands there at once.
+    assert wait_until(lambda: state(app).heartbeat.mode == "LAND", timeout=15)
+    pilot.locator("#ctl-mode").select_option("POSCTL")
+    assert wait_until(lambda: state(app).heartbeat.mode == "POSCTL", timeout=15)
     land = sessions.locator("#toolbar .emergency [data-emergency=land]")
-    expect(land).to_be_visible(timeout=30_000)
     land.click()
     expect(sessions.locator("#toast")).to_contain_text("land: done")
     assert wait_until(lambda: state(app).heartbeat.mode == "LAND", timeout=15)
