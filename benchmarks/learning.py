@@ -5,7 +5,7 @@
 Per condition and task, the documented commands, in process: `fpv-station demos` flies
 `--demos` demonstrations (seeds 0, 1, ...) in the condition's air, `fpv-station export`
 makes a LeRobot dataset of them (no cameras), `fpv-station learn bc` trains the clone, and
-`learn eval`'s rows fly `--episodes` episodes (seeds 1000, 1001, ...): behaviour cloning,
+`learn eval`'s rows fly `--episodes` episodes (one batch, seed 1000): behaviour cloning,
 the scripted pilot, the open-loop replay of the demonstrations' sticks, random sticks,
 and the demonstrations themselves. Prints the Markdown tables with 95 % intervals, the
 clone against the replay and random (Newcombe's interval of the success difference),
@@ -76,7 +76,7 @@ def unit(condition: str, task: int, demos: int, episodes: int) -> tuple[str, int
     by_name = {r.name: r for r in rows}
     lines = [
         f"Task {task} ({ev.TASK_NAMES[task]}), {condition}: {demos} demonstrations "
-        f"({len(policy.inputs)} frames), {episodes} episodes per flown row, seeds 1000+.",
+        f"({len(policy.inputs)} frames), {episodes} episodes per flown row, batch seed 1000.",
         "",
         ev.table(rows, task),
         "",

@@ -202,7 +202,7 @@ def add_learn_arguments(p: argparse.ArgumentParser) -> None:
     ev.add_argument("policy", type=Path, metavar="POLICY")
     ev.add_argument("--task", type=int, required=True, help="the scene's task id (1-4)")
     ev.add_argument("--episodes", type=int, default=20)
-    ev.add_argument("--seed", type=int, default=1000, help="seed of the first episode")
+    ev.add_argument("--seed", type=int, default=1000, help="seed of the episodes' batch")
     ev.add_argument(
         "--demos", type=Path, nargs="*", default=[], help="demonstration sessions to score too"
     )
@@ -263,7 +263,7 @@ def run_eval(args: argparse.Namespace) -> int:
         print(f"fpv-station learn eval: {exc}", file=sys.stderr)
         return 1
     air = ", ".join(f"{k}: {v}" for k, v in options.items()) or "the scene's wind and start"
-    print(f"Task {args.task} ({ev.TASK_NAMES[args.task]}), twin, seeds {args.seed}+, {air}:")
+    print(f"Task {args.task} ({ev.TASK_NAMES[args.task]}), twin, batch seed {args.seed}, {air}:")
     print(ev.table(rows, args.task))
     by_name = {r.name: r for r in rows}
     for other in ("open-loop replay", "random"):

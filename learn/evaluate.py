@@ -17,8 +17,9 @@ Student's t interval for the mean of each metric (over the episodes whose analys
 Rows: the behaviour-cloning policy, the twin's scripted pilot, an open-loop replay (a
 demonstration's recorded sticks replayed blind, frame by frame from the arming: what a
 policy that ignores its observations scores), a uniformly random policy, and the
-demonstrations (recorded sessions). Every flown row meets the same episodes (seeds
-`seed`, `seed + 1`, ...: the same wind, gusts, start and sensor noise), so rows are
+demonstrations (recorded sessions). A row's episodes fly together, one batch of
+`TwinVectorEnv` seeded `seed`, and every flown row meets the same episodes (episode k
+has the same wind, gusts, turbulence, start and sensor noise in every row), so rows are
 compared pair by pair; what must differ is seeded apart (the random sticks per task and
 episode). Each row says what it was scored on: flown rows the twin's true state, the
 demonstrations their recorded GPS and barometer.
@@ -45,7 +46,7 @@ from fpv_station.core.geodesy import enu_to_geodetic
 from fpv_station.core.scene import Scene, load_scene
 from fpv_station.learn.episodes import COLUMNS
 from fpv_station.learn.episodes import episodes as recording_episodes
-from fpv_station.twin.gym_env import TwinEnv
+from fpv_station.twin.gym_vector import TwinVectorEnv
 from fpv_station.twin.pilot import Observation, Pilot, task_plan
 
 TASK_NAMES = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
@@ -153,31 +154,60 @@ def on_pad(scene: Scene, task_id: int, xy: np.ndarray) -> bool:
     return bool(np.all(np.abs(np.asarray(xy) - pad.xy_m) <= pad.size_m / 2))
 
 
-def fly_episode(
-    act: Act,
+def fly_episodes(
+    acts: Sequence[Act],
     task_id: int,
     seed: int,
     scene: Scene | None = None,
     options: dict[str, Any] | None = None,
-) -> Outcome:
-    """One seeded `TwinEnv` episode flown by `act(obs, info)`, scored; `options` are the
-    env's reset options (wind, start)."""
+) -> tuple[Outcome, ...]:
+    """Episode k flown by `acts[k](obs, info)`, all together in one `TwinVectorEnv`
+    batch seeded `seed` (no autoreset: vehicle k's air, start and sensor noise are the
+    same whatever flies it), each scored; `options` are the env's reset options."""
     scene = scene or load_scene()
-    env = TwinEnv(task=task_id, scene=scene, max_episode_s=MAX_EPISODE_S.get(task_id, 180.0))
-    obs, info = env.reset(seed=seed, options=options)
-    t, pos, armed = [info["t_s"]], [info["pos_enu_m"]], [True]
-    terminated = truncated = False
-    while not (terminated or truncated):
-        obs, _, terminated, truncated, info = env.step(act(obs, info))
-        t.append(info["t_s"])
-        pos.append(info["pos_enu_m"])
-        armed.append(bool(env.sim.commander.armed[0]))
-    crashed = bool(env.sim.state.crash[0])
-    track = _track(scene, np.array(t), np.array(pos), np.array(armed), f"seed {seed}")
-    result, why = _score(track, task_id)
-    landed = terminated and not crashed
-    success = result is not None and landed and on_pad(scene, task_id, pos[-1][:2])
-    return Outcome(success, crashed, float(t[-1]), result, why)
+    n = len(acts)
+    env = TwinVectorEnv(
+        num_envs=n,
+        task=task_id,
+        scene=scene,
+        max_episode_s=MAX_EPISODE_S.get(task_id, 180.0),
+        autoreset=False,
+    )
+    obs, _ = env.reset(seed=seed, options=options)
+    t_s = np.zeros(n)
+    t, pos, armed = [t_s], [env.sim.state.pos_m.copy()], [env.sim.commander.armed.copy()]
+    done = np.zeros(n, bool)
+    end = np.zeros(n, int)  # the step each episode ended at
+    landed = np.zeros(n, bool)  # ... disarmed on the ground (terminated, no crash)
+    crashed = np.zeros(n, bool)
+    idle = np.zeros(4, np.float32)
+    while not done.all():
+        actions = np.stack(
+            [
+                idle if done[k] else acts[k](obs[k], {"t_s": t_s[k], "pos_enu_m": pos[-1][k]})
+                for k in range(n)
+            ]
+        )
+        obs, _, terminated, truncated, info = env.step(actions)
+        t_s = info["t_s"]
+        t.append(t_s)
+        pos.append(env.sim.state.pos_m.copy())
+        armed.append(env.sim.commander.armed.copy())
+        new = (terminated | truncated) & ~done
+        end[new] = len(t) - 1
+        crashed[new] = env.sim.state.crash[new] != 0
+        landed[new] = terminated[new] & ~crashed[new]
+        done |= new
+    T, P, A = np.array(t), np.array(pos), np.array(armed)
+    outcomes = []
+    for k in range(n):
+        e = end[k]
+        label = f"seed {seed}, episode {k}"
+        track = _track(scene, T[: e + 1, k], P[: e + 1, k], A[: e + 1, k], label)
+        result, why = _score(track, task_id)
+        success = result is not None and landed[k] and on_pad(scene, task_id, P[e, k, :2])
+        outcomes.append(Outcome(bool(success), bool(crashed[k]), float(T[e, k]), result, why))
+    return tuple(outcomes)
 
 
 def _track(scene: Scene, t, pos, armed, label: str) -> Track:
@@ -272,15 +302,10 @@ def evaluate(
     seed: int = 0,
     options: dict[str, Any] | None = None,
 ) -> Row:
-    """`episodes` episodes with env seeds `seed + k`, each flown by `make_act(seed + k)`."""
-    scene = load_scene()
-    return Row(
-        name,
-        tuple(
-            fly_episode(make_act(seed + k), task_id, seed + k, scene, options)
-            for k in range(episodes)
-        ),
-    )
+    """`episodes` episodes of one batch seeded `seed` (`fly_episodes`), episode k flown by
+    `make_act(seed + k)`."""
+    acts = [make_act(seed + k) for k in range(episodes)]
+    return Row(name, fly_episodes(acts, task_id, seed, load_scene(), options))
 
 
 def demonstrations(paths: Sequence[Path], task_id: int) -> Row:

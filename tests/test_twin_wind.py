@@ -113,3 +113,26 @@ def test_station_twin_is_calm_unless_configured() -> None:
         TwinSettings(wind_east_mps=2.0, gust_std_mps=0.5, turbulence_std_mps=0.3), mavlink=None
     )
     assert windy.sim.wind == Wind((2.0, 0.0, 0.0), gust_std_mps=0.5, turbulence_std_mps=0.3)
+
+
+def test_batch_without_autoreset_gives_every_policy_the_same_episodes() -> None:
+    """What `learn eval` relies on to compare rows pair by pair: in a batch that does not
+    autoreset, what vehicle 0 does (here: fly it into the net) changes nothing for the
+    others; an autoreset of it would have drawn its fresh start from the shared streams."""
+    from fpv_station.twin.gym_vector import TwinVectorEnv
+
+    def run(first: list[float]) -> np.ndarray:
+        env = TwinVectorEnv(num_envs=3, task=2, autoreset=False, max_episode_s=30.0)
+        env.reset(seed=9, options={"wind": WINDY, "start": {"random": True}})
+        crashed = False
+        for k in range(80):
+            up = [0.0, 0.0, 0.0, 1.0 if k < 15 else 0.0]
+            _, _, term, _, _ = env.step(np.array([first if k > 15 else up, up, up], np.float32))
+            crashed |= bool(term[0])
+        assert crashed == (first[1] < 0)
+        s = env.sim.state
+        return np.concatenate([s.pos_m, s.wind_mps, s.turbulence_mps], axis=1)
+
+    a, b = run([0.0, 0.0, 0.0, 0.0]), run([0.0, -1.0, 0.0, 0.0])  # backwards: the net
+    assert not np.allclose(a[0], b[0])
+    np.testing.assert_array_equal(a[1:], b[1:])

@@ -98,7 +98,7 @@ class TwinEnv(gym.Env):
     ) -> None:
         self.scene = scene or load_scene()
         self.wind = Wind.parse(wind)
-        self.start = _start(start)
+        self.start = parse_start(start)
         self.task = self.scene.task(task)
         self.config = config or SimConfig()
         self.max_episode_s = max_episode_s
@@ -127,17 +127,7 @@ class TwinEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         sim_seed = int(self.np_random.integers(0, 2**31 - 1))
-        options = options or {}
-        unknown = set(options) - {"wind", "start"}
-        if unknown:
-            raise ValueError(f"unknown reset options: {', '.join(sorted(unknown))}")
-        config = replace(self.config, seed=sim_seed)
-        wind = Wind.parse(options["wind"]) if "wind" in options else self.wind
-        start = _start(options["start"]) if "start" in options else self.start
-        if wind is not None:
-            config = replace(config, wind=wind)
-        if start is not None:
-            config = replace(config, start=start)
+        config = episode_config(self.config, sim_seed, self.wind, self.start, options)
         self.sim = Sim(self.scene, config)
         self.sim.run_for(self.sim.config.sensors.gps_fix_delay_s + 0.5)
         ok, why = self.sim.arm()
@@ -219,7 +209,30 @@ class TwinEnv(gym.Env):
         }
 
 
-def _start(value: SceneStart | dict | None) -> SceneStart | None:
+def episode_config(
+    config: SimConfig,
+    seed: int,
+    wind: Wind | None,
+    start: SceneStart | None,
+    options: dict[str, Any] | None,
+) -> SimConfig:
+    """The sim's configuration for an episode: `config` with the seed, and the wind and
+    start of the reset `options` if given, else of the env (None: the scene's)."""
+    options = options or {}
+    unknown = set(options) - {"wind", "start"}
+    if unknown:
+        raise ValueError(f"unknown reset options: {', '.join(sorted(unknown))}")
+    config = replace(config, seed=seed)
+    wind = Wind.parse(options["wind"]) if "wind" in options else wind
+    start = parse_start(options["start"]) if "start" in options else start
+    if wind is not None:
+        config = replace(config, wind=wind)
+    if start is not None:
+        config = replace(config, start=start)
+    return config
+
+
+def parse_start(value: SceneStart | dict | None) -> SceneStart | None:
     if value is None or isinstance(value, SceneStart):
         return value
     return SceneStart.model_validate(value)

@@ -8,11 +8,15 @@ the same seed it reproduces `TwinEnv` exactly.
 Autoreset: next-step (Gymnasium's default). The step after an episode ends puts that
 vehicle back on the start pad, armed, and returns its fresh observation with reward 0;
 its action for that step is ignored (it idles on the pad for one control period).
+With `autoreset=False` an ended vehicle is not reset and flies on (what follows its end
+means nothing); every vehicle then draws its noise, gusts and turbulence from the batch's
+streams exactly as at the reset, whatever the others do, so one seed gives the same N
+episodes' air and starts to every policy (`learn.evaluate` compares policies so).
+Wind and start: as `TwinEnv`'s (constructor or reset options).
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -20,8 +24,9 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from fpv_station.core.scene import Scene, load_scene
-from fpv_station.twin.gym_env import STATE_SIZE
+from fpv_station.core.scene import Scene, SceneStart, load_scene
+from fpv_station.twin.dynamics import Wind
+from fpv_station.twin.gym_env import STATE_SIZE, episode_config, parse_start
 from fpv_station.twin.sim import Sim, SimConfig
 
 
@@ -36,8 +41,14 @@ class TwinVectorEnv(VectorEnv):
         config: SimConfig | None = None,
         max_episode_s: float = 180.0,
         control_hz: float = 10.0,
+        wind: Wind | dict | None = None,
+        start: SceneStart | dict | None = None,
+        autoreset: bool = True,
     ) -> None:
         self.num_envs = num_envs
+        self.wind = Wind.parse(wind)
+        self.start = parse_start(start)
+        self.autoreset = autoreset
         self.scene = scene or load_scene()
         self.task = self.scene.task(task)
         self.config = config or SimConfig()
@@ -55,7 +66,8 @@ class TwinVectorEnv(VectorEnv):
         super().reset(seed=seed)
         n = self.num_envs
         sim_seed = int(self.np_random.integers(0, 2**31 - 1))
-        self.sim = sim = Sim(self.scene, replace(self.config, seed=sim_seed), n=n)
+        config = episode_config(self.config, sim_seed, self.wind, self.start, options)
+        self.sim = sim = Sim(self.scene, config, n=n)
         sim.run_for(sim.config.sensors.gps_fix_delay_s + 0.5)
         self._arm(np.arange(n))
         self._t0 = np.full(n, sim.t_s)
@@ -95,7 +107,8 @@ class TwinVectorEnv(VectorEnv):
         reward[again] = 0.0
         terminated[again] = False
         truncated[again] = False
-        self._autoreset = terminated | truncated
+        if self.autoreset:
+            self._autoreset = terminated | truncated
         info = {"crash": sim.state.crash.copy(), "t_s": sim.t_s - self._t0}
         return self._observation(), reward.astype(np.float64), terminated, truncated, info
 
