@@ -190,24 +190,53 @@ def station_settings(source: str, sessions_dir: Path | None = None, **overrides)
     return load_settings(environ={}, overrides={**base, **overrides})
 
 
+def panel_station_settings(sessions_dir: Path, token: str, **overrides) -> Settings:
+    """A test station with no link and both 3D panels on (viser on free loopback ports,
+    drawing at 60 Hz), whose control token is `token`."""
+    panels = {"viser.enabled": True, "viser.port": 0, "viser.update_hz": 60, "server.token": token}
+    return station_settings("none", sessions_dir, **{**panels, **overrides})
+
+
+def ws_upgrade(
+    port: int,
+    path: str,
+    *,
+    host: str | None = None,
+    subprotocol: str | None = None,
+    rcvbuf: int | None = None,
+    timeout: float = 20.0,
+) -> tuple[socket.socket, bytes]:
+    """A WebSocket upgrade on a bare socket to 127.0.0.1:`port`: (the socket, the status
+    line it was answered with). The answer's head is read byte by byte, so the frames
+    after it stay in the socket; `rcvbuf` shrinks its receive buffer (a slow reader)."""
+    sock = socket.socket()
+    sock.settimeout(timeout)
+    if rcvbuf is not None:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+    sock.connect(("127.0.0.1", port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    offer = f"Sec-WebSocket-Protocol: {subprotocol}\r\n" if subprotocol else ""
+    sock.sendall(
+        f"GET {path} HTTP/1.1\r\nHost: {host or f'127.0.0.1:{port}'}\r\n"
+        f"Upgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+        f"Sec-WebSocket-Version: 13\r\n{offer}\r\n".encode()
+    )
+    head = b""
+    while b"\r\n\r\n" not in head:
+        chunk = sock.recv(1)
+        if not chunk:
+            break
+        head += chunk
+    return sock, head.split(b"\r\n")[0]
+
+
 class RawWsClient:
     """A WebSocket client on a bare socket: it can stop reading (a stalled browser)."""
 
     def __init__(self, base: str, path: str, rcvbuf: int = 4096):
         host, port = base.removeprefix("http://").split(":")
-        self.sock = socket.socket()
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
-        self.sock.connect((host, int(port)))
-        key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall(
-            f"GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\n"
-            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
-            "Sec-WebSocket-Version: 13\r\n\r\n".encode()
-        )
-        self.buf = b""
-        while b"\r\n\r\n" not in self.buf:
-            self.buf += self.sock.recv(1)  # byte by byte: leave the frames in the socket
-        assert b" 101 " in self.buf.split(b"\r\n")[0]
+        self.sock, status = ws_upgrade(int(port), path, host=host, rcvbuf=rcvbuf, timeout=None)
+        assert b" 101 " in status, status
         self.buf = b""
 
     def _need(self, n):

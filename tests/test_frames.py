@@ -4,9 +4,7 @@
 
 from __future__ import annotations
 
-import base64
 import json
-import os
 import socket
 import struct
 import threading
@@ -14,6 +12,7 @@ import threading
 import psutil
 from websockets.sync.client import connect
 
+from tests.helpers import ws_upgrade
 from tests.station_process import serve_station
 
 FRAME = 16 * 1024 * 1024
@@ -21,19 +20,8 @@ CLIENTS = 30
 
 
 def _handshake(port: int, path: str) -> socket.socket:
-    s = socket.create_connection(("127.0.0.1", port), timeout=20)
-    key = base64.b64encode(os.urandom(16)).decode()
-    s.sendall(
-        f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
-        "Sec-WebSocket-Version: 13\r\n\r\n".encode()
-    )
-    head = b""
-    while b"\r\n\r\n" not in head:
-        chunk = s.recv(1)
-        assert chunk, head
-        head += chunk
-    assert head.split(b" ")[1] == b"101", head
+    s, status = ws_upgrade(port, path)
+    assert status.split(b" ")[1] == b"101", status
     return s
 
 

@@ -159,14 +159,13 @@ def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
     """1,050 sockets once made the recorder fail with EMFILE under the Pi's default limit.
     With 256 descriptors for the whole process, a flood of telemetry clients is capped
     (503 beyond the cap), and recording still starts, writes and stops cleanly."""
-    import base64
     import os
     import resource
     import subprocess
     import sys
     import time
 
-    from tests.helpers import free_port, wait_until
+    from tests.helpers import free_port, wait_until, ws_upgrade
 
     port = free_port()
 
@@ -187,25 +186,14 @@ def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
         assert wait_until(lambda: _up(base), 60)
         statuses = []
         for _ in range(300):
-            s = socket.create_connection(("127.0.0.1", port), timeout=5)
-            key = base64.b64encode(os.urandom(16)).decode()
-            s.sendall(
-                f"GET /ws/telemetry HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
-                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
-                "Sec-WebSocket-Version: 13\r\n\r\n".encode()
-            )
-            statuses.append(s.recv(64).split(b" ")[1])
+            s, status = ws_upgrade(port, "/ws/telemetry", timeout=5)
+            statuses.append(status.split(b" ")[1])
             sockets.append(s)
         assert statuses.count(b"101") >= 1 and statuses.count(b"503") >= 100, set(statuses)
         # The pilot is not locked out: the control socket has places of its own.
-        s = socket.create_connection(("127.0.0.1", port), timeout=5)
+        s, status = ws_upgrade(port, "/ws/control", timeout=5)
         sockets.append(s)
-        s.sendall(
-            f"GET /ws/control HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
-            "Sec-WebSocket-Version: 13\r\n\r\n".encode()
-        )
-        assert s.recv(64).split(b" ")[1] == b"101"
+        assert status.split(b" ")[1] == b"101", status
         # The recorder still has its descriptors while the flood holds its sockets.
         r = httpx.post(f"{base}/api/recording/start", timeout=10)
         assert r.status_code == 200, r.text

@@ -4,7 +4,6 @@ Origin headers, real malformed msgpack and a real share request."""
 
 from __future__ import annotations
 
-import base64
 import contextlib
 import os
 import resource
@@ -24,9 +23,8 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 
 from fpv_station.server.app import create_app
-from fpv_station.server.settings import load_settings
 from fpv_station.server.trajectory3d.gate import MESSAGES_BURST, MESSAGES_PER_S, gui_uuid
-from tests.helpers import free_port, run_uvicorn, wait_until
+from tests.helpers import free_port, panel_station_settings, run_uvicorn, wait_until, ws_upgrade
 from tests.helpers import viser_camera as camera
 from tests.station_process import serve_station
 from tests.test_connections import LOW_LIMIT
@@ -102,19 +100,7 @@ def viewer(base: str, path: str = "/3d/live", *, origin: str | None = None, toke
 
 @pytest.fixture
 def station(tmp_path) -> Iterator[tuple[str, object]]:
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
-            "server.token": TOKEN,
-            "viser.port": 0,
-            "viser.update_hz": 60,
-            "server.max_3d_viewers": 3,
-            "recording.sessions_dir": str(tmp_path),
-            "recording.auto_record_on_arm": False,
-        },
-    )
-    app = create_app(settings)
+    app = create_app(panel_station_settings(tmp_path, TOKEN, **{"server.max_3d_viewers": 3}))
     with run_uvicorn(app) as base:
         assert httpx.get(f"{base}/api/viser").json()["enabled"]  # starts the panels
         yield base, app.state.station
@@ -295,20 +281,7 @@ def raw_viewer(
     port: int, path: str = "/3d/live", timeout: float = 30.0, host: str | None = None
 ) -> tuple[socket.socket, bytes]:
     """A viewer's upgrade on a bare socket: (the socket, the status line it was answered)."""
-    sock = socket.create_connection(("127.0.0.1", port), timeout=timeout)
-    key = base64.b64encode(os.urandom(16)).decode()
-    sock.sendall(
-        f"GET {path} HTTP/1.1\r\nHost: {host or f'127.0.0.1:{port}'}\r\nUpgrade: websocket\r\n"
-        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-        f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n\r\n".encode()
-    )
-    head = b""
-    while b"\r\n\r\n" not in head:
-        chunk = sock.recv(1)  # byte by byte: leave the frames in the socket
-        if not chunk:
-            break
-        head += chunk
-    return sock, head.split(b"\r\n")[0]
+    return ws_upgrade(port, path, host=host, subprotocol=SUBPROTOCOL, timeout=timeout)
 
 
 def big_frame(sock: socket.socket, size: int, send: int | None = None) -> None:

@@ -15,8 +15,7 @@ import pytest
 from fpv_station.companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
 from fpv_station.core.geodesy import enu_to_geodetic
 from fpv_station.server.app import create_app
-from fpv_station.server.settings import load_settings
-from tests.helpers import chromium, run_uvicorn, wait_until
+from tests.helpers import chromium, panel_station_settings, run_uvicorn, wait_until
 from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
 
 ORIGIN = (43.0021, -78.7875, 180.0)
@@ -63,18 +62,7 @@ def open_offline(browser, outside: list[str]):
 
 @pytest.fixture
 def station(sessions_dir):  # noqa: F811
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
-            "server.token": TOKEN,
-            "viser.port": 0,
-            "viser.update_hz": 60,
-            "recording.sessions_dir": str(sessions_dir),
-            "recording.auto_record_on_arm": False,
-        },
-    )
-    app = create_app(settings)
+    app = create_app(panel_station_settings(sessions_dir, TOKEN))
     with run_uvicorn(app) as base:
         yield base, app
 
