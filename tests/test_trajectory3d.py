@@ -185,6 +185,31 @@ def test_trail_reprojects_on_a_new_origin_and_drops_old_chunks():
     np.testing.assert_allclose(trail.last_enu_m, [19.9 - 10.0, 0.0, 3.0], atol=1e-3)
 
 
+def test_a_trail_point_costs_a_few_dozen_bytes():
+    """The live trail gains `update_hz` points a second for as long as the station runs
+    (up to `max_points`): each point, drawn or not, holds about 60 bytes of arrays (a
+    tuple, a float and an array view per point held about five times that)."""
+    import tracemalloc
+
+    trail = Trail(chunk_segments=50, gap_s=1.0)
+    samples = [
+        _sample(i / 15, i * 0.05, math.sin(i / 40), 3.0 + (i % 7) * 0.1) for i in range(6000)
+    ]
+    tracemalloc.start()
+    try:
+        for i, s in enumerate(samples):
+            chunk, _ = trail.append(s)
+            if i % 4 == 0:  # drawn as a watched panel draws it: projected as it comes
+                chunk.segments()
+        for chunk in trail.chunks:
+            chunk.segments()
+        held, _ = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert trail.n_points == 6000
+    assert held / trail.n_points < 100, held / trail.n_points
+
+
 # -- the scene on a real viser server ----------------------------------------------------
 
 
@@ -327,11 +352,14 @@ def test_an_unwatched_panel_keeps_the_trail_without_waking_the_loop_for_each_sta
             await asyncio.sleep(1.2)  # the last second's states are taken
             kept = service.trail.n_points
             with viser_viewer(service.port):
+                # viser's loop adds the chunks' handles one by one (a redraw of a few per
+                # turn): wait for the whole trail, up to a hang guard.
                 for _ in range(200):
                     await asyncio.sleep(0.05)
-                    if service.scene.chunk_handles:
+                    handles = list(service.scene.chunk_handles.values())
+                    drawn = sum(len(h.points) for h in handles)
+                    if drawn >= kept - 1:
                         break
-                drawn = sum(len(h.points) for h in service.scene.chunk_handles.values())
             return quiet_turns, kept, drawn
         finally:
             service.state.close()

@@ -65,15 +65,10 @@ class ReplayPath:
         n = len(self.t_s)
         for k, start in enumerate(range(0, max(n - 1, 1), _CHUNK_SEGMENTS)):
             stop = min(start + _CHUNK_SEGMENTS + 1, n)
-            runs = self.starts_run[start:stop].tolist()
+            runs = self.starts_run[start:stop].copy()
             runs[0] = True  # a chunk's first point joins nothing before it
             out.append(
-                TrailChunk(
-                    id=k,
-                    speed_mps=self.speed_mps[start:stop].tolist(),
-                    starts_run=runs,
-                    enu_m=list(self.enu_m[start:stop]),
-                )
+                TrailChunk.from_enu(k, self.enu_m[start:stop], self.speed_mps[start:stop], runs)
             )
         return out
 

@@ -15,7 +15,7 @@ new ones of a chunk in one vectorized call: a panel nobody watches projects noth
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,40 +34,92 @@ class TrailSample:
     speed_mps: float  # NaN when unknown
 
 
-@dataclass(slots=True)
 class TrailChunk:
-    """Consecutive samples; point i is joined to point i-1 unless `starts_run[i]`."""
+    """Consecutive samples; point i is joined to point i-1 unless `starts_run[i]`.
 
-    id: int
-    geo: list[tuple[float, float, float]] = field(default_factory=list)
-    speed_mps: list[float] = field(default_factory=list)
-    starts_run: list[bool] = field(default_factory=list)
-    # ENU about `origin` of the first len(enu_m) points of `geo` (`project` does the rest);
-    # a chunk built from ENU alone (the replay's) has no geo and is always complete.
-    enu_m: list[NDArray[np.float64]] = field(default_factory=list)
-    origin: Origin | None = None
+    The samples live in a few numpy arrays per chunk, grown by doubling, not in Python
+    objects per point: the live trail gains `update_hz` points a second for as long as
+    the station runs (up to `max_points`), and the Pi's memory pays for each."""
 
-    @property
-    def n_segments(self) -> int:
-        return sum(1 for s in self.starts_run[1:] if not s)
+    __slots__ = ("id", "origin", "n", "n_segments", "_geo", "_speed", "_starts", "_enu", "_done")
+
+    def __init__(self, id: int, origin: Origin | None = None, capacity: int = 16) -> None:
+        self.id = id
+        self.origin = origin  # of the ENU points; a chunk without geo (the replay's) has none
+        self.n = 0  # points
+        self.n_segments = 0  # points joined to the one before
+        capacity = max(capacity, 2)
+        self._geo = np.empty((capacity, 3))
+        self._speed = np.empty(capacity)
+        self._starts = np.empty(capacity, bool)
+        self._enu = np.empty((capacity, 3))
+        self._done = 0  # points projected to ENU about `origin` (`project` does the rest)
+
+    @classmethod
+    def from_enu(
+        cls, id: int, enu_m: NDArray[np.float64], speed_mps: NDArray, starts_run: NDArray
+    ) -> TrailChunk:
+        """A chunk built from ENU alone (the replay's): no geo, always projected."""
+        n = len(enu_m)
+        chunk = cls(id, capacity=n)
+        chunk._enu[:n] = enu_m
+        chunk._speed[:n] = speed_mps
+        chunk._starts[:n] = starts_run
+        chunk.n = chunk._done = n
+        chunk.n_segments = int(n - np.count_nonzero(chunk._starts[1:n]) - 1) if n else 0
+        return chunk
+
+    def add(self, geo: tuple[float, float, float], speed_mps: float, starts_run: bool) -> None:
+        if self.n == len(self._geo):
+            self._grow()
+        i = self.n
+        self._geo[i] = geo
+        self._speed[i] = speed_mps
+        self._starts[i] = starts_run
+        self.n += 1
+        if i > 0 and not starts_run:
+            self.n_segments += 1
+
+    def _grow(self) -> None:
+        size = 2 * len(self._geo)
+        for name in ("_geo", "_speed", "_starts", "_enu"):
+            old = getattr(self, name)
+            new = np.empty((size, *old.shape[1:]), old.dtype)
+            new[: self.n] = old[: self.n]
+            setattr(self, name, new)
+
+    def last(self) -> tuple[tuple[float, float, float], float]:
+        """The newest point: its (lat, lon, alt) and speed."""
+        lat, lon, alt = self._geo[self.n - 1].tolist()
+        return (lat, lon, alt), float(self._speed[self.n - 1])
+
+    def reproject(self, origin: Origin) -> None:
+        """Points about a new origin: projected again when next drawn."""
+        self.origin = origin
+        self._done = 0
 
     def project(self) -> None:
-        """Bring `enu_m` up to `geo`: every point not projected yet, in one call."""
-        done = len(self.enu_m)
-        if done < len(self.geo) and self.origin is not None:
-            g = np.asarray(self.geo[done:])
-            self.enu_m.extend(geodetic_to_enu(g[:, 0], g[:, 1], g[:, 2], *self.origin))
+        """Bring the ENU points up to the samples: every point not projected yet, in one call."""
+        done, n = self._done, self.n
+        if done < n and self.origin is not None:
+            g = self._geo[done:n]
+            self._enu[done:n] = geodetic_to_enu(g[:, 0], g[:, 1], g[:, 2], *self.origin)
+            self._done = n
+
+    @property
+    def last_enu_m(self) -> NDArray[np.float64] | None:
+        self.project()
+        return self._enu[self._done - 1].copy() if self._done else None
 
     def segments(self) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]:
         """(N, 2, 3) segment end points in ENU, (N, 2) heights, (N, 2) speeds."""
         self.project()
-        if len(self.enu_m) < 2:
+        n = self._done
+        if n < 2:
             empty = np.zeros((0, 2))
             return np.zeros((0, 2, 3), np.float32), empty, empty
-        p = np.asarray(self.enu_m)
-        v = np.asarray(self.speed_mps)
-        joined = ~np.asarray(self.starts_run[1:], bool)
-        idx = np.nonzero(joined)[0] + 1
+        p, v = self._enu[:n], self._speed[:n]
+        idx = np.nonzero(~self._starts[1:n])[0] + 1
         pts = np.stack([p[idx - 1], p[idx]], axis=1)
         return (
             pts.astype(np.float32),
@@ -112,9 +164,8 @@ class Trail:
         ):
             return False
         self.origin = origin
-        for chunk in self.chunks:  # re-projected when next drawn
-            chunk.origin = origin
-            chunk.enu_m = []
+        for chunk in self.chunks:
+            chunk.reproject(origin)
         return True
 
     def append(self, s: TrailSample) -> tuple[TrailChunk, list[TrailChunk]]:
@@ -132,29 +183,22 @@ class Trail:
         self._last_t_s = s.t_s
         chunk = self.chunks[-1] if self.chunks else None
         if chunk is None or chunk.n_segments >= self.chunk_segments:
-            new = TrailChunk(next(self._ids), origin=self.origin)
-            if chunk is not None and chunk.geo and not starts_run:
+            # Room for a chunk's segments and the point it starts from.
+            new = TrailChunk(next(self._ids), self.origin, capacity=self.chunk_segments + 1)
+            if chunk is not None and chunk.n and not starts_run:
                 # Repeat the last point so the line is continuous across chunks.
-                new.geo.append(chunk.geo[-1])
-                new.speed_mps.append(chunk.speed_mps[-1])
-                new.starts_run.append(True)
+                new.add(*chunk.last(), starts_run=True)
             self.chunks.append(new)
             chunk = new
-        chunk.geo.append((s.lat_deg, s.lon_deg, s.alt_m))
-        chunk.speed_mps.append(s.speed_mps)
-        chunk.starts_run.append(starts_run)
+        chunk.add((s.lat_deg, s.lon_deg, s.alt_m), s.speed_mps, starts_run)
         self.n_points += 1
         dropped = []
         while self.n_points > self.max_points and len(self.chunks) > 1:
             old = self.chunks.pop(0)
-            self.n_points -= len(old.geo)
+            self.n_points -= old.n
             dropped.append(old)
         return chunk, dropped
 
     @property
     def last_enu_m(self) -> NDArray[np.float64] | None:
-        if not self.chunks:
-            return None
-        chunk = self.chunks[-1]
-        chunk.project()
-        return chunk.enu_m[-1] if chunk.enu_m else None
+        return self.chunks[-1].last_enu_m if self.chunks else None
