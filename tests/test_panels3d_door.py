@@ -170,47 +170,78 @@ def camera_x(service, x: float) -> bool:
     return any(c.camera.position[0] == x for c in service.server.get_clients().values())
 
 
-def test_anonymous_viewers_watch_and_only_the_token_changes_what_all_see(station):
+CONTROLS = ("Follow vehicle", "Colour by", "Show field", "Clear trail")
+
+
+def controls_of(v: Viewer) -> dict[str, str]:
+    """The live panel's controls a viewer was given: their uuids by label."""
+    return {
+        m["props"]["label"]: m["uuid"]
+        for m in list(v.received)
+        if str(m.get("type")).startswith("Gui")
+        and isinstance(m.get("props"), dict)
+        and m["props"].get("label") in CONTROLS
+    }
+
+
+def replayed(v: Viewer) -> bool:
+    """Whether the viewer has the whole scene and GUI that were there when it came."""
+    return "ReplayDoneMessage" in v.types()
+
+
+def test_anonymous_viewers_watch_without_controls_and_only_the_token_changes_all(station):
     base, st = station
     live = st.trajectory3d
     for i in range(30):
         st.state.publish(state_at(i * 0.1))
     controls = live.controls
-    clear, color_by = gui_uuid(controls.clear), gui_uuid(controls.color_by)
-    follow, show_field = gui_uuid(controls.follow), gui_uuid(controls.show_field)
-    with viewer(base) as anonymous, viewer(base, token="wrong") as wrong:
+    with viewer(base, token=TOKEN) as pilot, viewer(base, token=TOKEN) as copilot:
+        assert wait_until(lambda: len(controls_of(pilot)) == len(controls_of(copilot)) == 4, 30)
+        ids = controls_of(pilot)
         assert wait_until(lambda: live.trail.n_points > 0, 30)
-        for v in (anonymous, wrong):
-            for frame in (
-                gui_update(clear, True),
-                gui_update(color_by, "speed"),
-                gui_update(follow, True),
-                gui_update(show_field, False),
-            ):
-                v.ws.send(frame)
-        # Each viewer's messages reach viser in order: once their last camera is there,
-        # the GUI changes before it were passed on, or dropped.
-        anonymous.ws.send(camera(-11.0))
-        wrong.ws.send(camera(-12.0))
-        assert wait_until(lambda: camera_x(live, -11.0) and camera_x(live, -12.0), 30)
-        time.sleep(0.2)  # the update loop applies GUI requests each tick
-        assert live.trail.n_points > 0
-        assert (controls.color_by.value, controls.follow.value) == ("height", False)
-        assert controls.show_field.value is True
+        for x, token in ((-11.0, None), (-12.0, "wrong")):
+            with viewer(base, token=token) as watcher:
+                # A watcher gets the scene and the status line, and no control to click.
+                assert wait_until(lambda w=watcher: replayed(w), 30)
+                assert "GuiMarkdownMessage" in watcher.types()
+                assert controls_of(watcher) == {}
+                assert len(controls.pilots) == 2
+                # One that sends a pilot's inputs anyway changes nothing.
+                for frame in (
+                    gui_update(ids["Clear trail"], True),
+                    gui_update(ids["Colour by"], "speed"),
+                    gui_update(ids["Follow vehicle"], True),
+                    gui_update(ids["Show field"], False),
+                ):
+                    watcher.ws.send(frame)
+                # A viewer's messages reach viser in order: once its last camera is
+                # there, the GUI changes before it were passed on, or dropped.
+                watcher.ws.send(camera(x))
+                assert wait_until(lambda x=x: camera_x(live, x), 30)
+                time.sleep(0.2)  # the update loop applies GUI requests each tick
+                assert live.trail.n_points > 0
+                settings = (controls.color_by, controls.follow, controls.show_field)
+                assert settings == ("height", False, True)
 
-        with viewer(base, token=TOKEN) as pilot:
-            pilot.ws.send(gui_update(color_by, "speed"))
-            pilot.ws.send(gui_update(clear, True))
-            assert wait_until(lambda: controls.color_by.value == "speed", 30)
+        with viewer(base) as anonymous:
+            assert wait_until(lambda: replayed(anonymous), 30)
+            pilot.ws.send(gui_update(ids["Colour by"], "speed"))
+            pilot.ws.send(gui_update(ids["Clear trail"], True))
+            assert wait_until(lambda: controls.color_by == "speed", 30)
             assert wait_until(lambda: live.trail.n_points == 0, 30)
-            # What the pilot changed, the others see.
+            # What one pilot changed, the other's controls show; the watcher has none.
+            theirs = controls_of(copilot)["Colour by"]
             assert wait_until(
                 lambda: any(
-                    m.get("type") == "GuiUpdateMessage" and m.get("updates") == {"value": "speed"}
-                    for m in list(anonymous.received)
+                    m.get("type") == "GuiUpdateMessage"
+                    and m.get("uuid") == theirs
+                    and m.get("updates") == {"value": "speed"}
+                    for m in list(copilot.received)
                 ),
                 30,
             )
+            assert controls_of(anonymous) == {}
+    assert wait_until(lambda: not controls.pilots and not live.viewer_inputs(), 10)
 
 
 def test_no_request_makes_a_panel_open_a_share_tunnel_nor_shows_share(station, monkeypatch):
@@ -247,7 +278,6 @@ def test_no_request_makes_a_panel_open_a_share_tunnel_nor_shows_share(station, m
 def test_malformed_messages_are_dropped_without_a_traceback(station, capfd, caplog):
     base, st = station
     live = st.trajectory3d
-    clear = gui_uuid(live.controls.clear)
     junk = [
         os.urandom(64),
         b"\xc1",  # a msgpack byte that is never valid
@@ -256,15 +286,19 @@ def test_malformed_messages_are_dropped_without_a_traceback(station, capfd, capl
         msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": "abcd"}),
         msgspec.msgpack.encode({"type": "ViewerCameraMessage", "position": [float("nan")] * 3}),
         msgspec.msgpack.encode(
-            {"type": "GuiUpdateMessage", "uuid": clear, "updates": {"bogus": 1}}
-        ),
-        msgspec.msgpack.encode(
             {"type": "GuiUpdateMessage", "uuid": "nope", "updates": {"value": 1}}
         ),
         msgspec.msgpack.encode({"type": "FileTransferStartUpload", "transfer_uuid": "x"}),
         b"\x91" * 4000 + b"\x90",  # lists nested four thousand deep
     ]
     with viewer(base, token=TOKEN) as pilot:
+        assert wait_until(lambda: len(live.controls.pilots) == 1, 30)
+        clear = gui_uuid(next(iter(live.controls.pilots.values())).clear)
+        junk.append(
+            msgspec.msgpack.encode(
+                {"type": "GuiUpdateMessage", "uuid": clear, "updates": {"bogus": 1}}
+            )
+        )
         for frame in junk:
             pilot.ws.send(frame)
         pilot.ws.send("a text frame")

@@ -35,7 +35,6 @@ from fpv_station.server.trajectory3d.pose import (
 )
 from fpv_station.server.trajectory3d.service import Trajectory3D
 from fpv_station.server.trajectory3d.trail import Trail, TrailSample
-from fpv_station.server.trajectory3d.viser_loop import on_viser_loop_blocking
 from tests.helpers import (
     CountingSelector,
     run_uvicorn,
@@ -397,11 +396,11 @@ def test_gui_requests_clear_and_recolour(service):
         service.step(make_state(i * 0.1, (i * 0.1, 0.0, i * 0.2)))
     chunk = next(iter(service.scene.chunk_handles.values()))
     by_height = chunk.colors.copy()
-    service.controls.color_by.value = "speed"  # as a viewer picking it in the panel
+    service.controls._requests.color_by = "speed"  # what a pilot's pick records
     service.step(make_state(3.0, (3.0, 0.0, 6.0)))
     assert not np.array_equal(chunk.colors, by_height)
-    service.controls.show_field.value = False
-    service.controls.clear.value  # noqa: B018 (the button has no value to set)
+    assert service.controls.color_by == "speed"
+    service.controls._requests.field_visible = False
     service.controls._requests.clear = True  # what the button's click callback records
     service.step(make_state(3.1, (3.1, 0.0, 6.0)))
     assert not service.scene._field_frame.visible
@@ -603,7 +602,7 @@ def test_the_scene_is_changed_only_on_vipers_own_loop_thread(monkeypatch):
                 viewers.enter_context(viser_viewer(svc.port))
             assert wait_until(lambda: len(svc.server.get_clients()) == 12)
             # Each viewer's camera moves too (set where a viewer's change lands).
-            on_viser_loop_blocking(svc.server, lambda: setattr(svc.controls.follow, "value", True))
+            svc.controls.follow = True
 
             async def fly() -> None:
                 task = asyncio.create_task(svc.run())

@@ -123,7 +123,7 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
         # Follow: the viewer's camera is moved onto the vehicle as it flies.
         frame.get_by_text("Follow vehicle").click()
         service = app.state.station.trajectory3d
-        assert wait_until(lambda: service.controls.follow.value, 5.0)
+        assert wait_until(lambda: service.controls.follow, 5.0)
         for i in range(400, 420):
             slot.publish(state_at(i * 0.1))
             time.sleep(0.03)

@@ -127,7 +127,7 @@ async def _serve_viewer(ws: WebSocket, which: Panel) -> None:
                 await deny_websocket(ws, 404, "NotFound", "The 3D panels are off (--no-3d).")
                 return
             rules = ViewerRules(panel.viewer_inputs(), authorized=_has_token(ws))
-            await relay(ws, panel.port, rules)
+            await relay(ws, panel.port, rules, panel.upstream_path(rules.authorized))
     except Unavailable as exc:
         await deny_websocket(ws, 503, "Unavailable", exc.message)
     except OSError as exc:  # raised before the viewer was accepted

@@ -29,9 +29,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import secrets
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated
 
 import msgspec
@@ -162,13 +163,35 @@ def _no_share_url(verbose: bool = True) -> None:
     return None
 
 
+@dataclass(frozen=True, slots=True)
+class PilotPath:
+    """The path on a panel's viser server by which the relay opens the connection of a
+    viewer that presented the control token, so that the panel can give that client
+    alone the controls (viser's per-client GUI). Random per panel: only the relay
+    knows it, and any other connection (`/`) is a watcher's."""
+
+    path: str = field(default_factory=lambda: "/pilot/" + secrets.token_urlsafe(18))
+
+    def upstream(self, authorized: bool) -> str:
+        return self.path if authorized else "/"
+
+    def marks(self, server: viser.ViserServer, client: viser.ClientHandle) -> bool:
+        """Whether viser's `client` came in by this path. viser keeps each client's
+        websockets connection, and the request it opened with, in its server's
+        `_live_connections` (no public name)."""
+        conn = server._websock_server._live_connections.get(client.client_id)  # type: ignore[attr-defined]
+        request = getattr(conn, "request", None)
+        return request is not None and request.path == self.path
+
+
 # -- the relay --------------------------------------------------------------------------
 
 
-async def relay(ws: WebSocket, port: int, rules: ViewerRules) -> None:
-    """Serve one viewer: open its connection to the viser server on `port` (loopback),
-    accept the viewer with the subprotocol viser chose, and pass frames both ways until
-    either side leaves. Raises OSError (before accepting) when viser cannot be reached."""
+async def relay(ws: WebSocket, port: int, rules: ViewerRules, path: str = "/") -> None:
+    """Serve one viewer: open its connection to the viser server on `port` (loopback) at
+    `path` (a `PilotPath` for a viewer with the token), accept the viewer with the
+    subprotocol viser chose, and pass frames both ways until either side leaves. Raises
+    OSError (before accepting) when viser cannot be reached."""
     from websockets.asyncio.client import connect
     from websockets.exceptions import ConnectionClosed
     from websockets.typing import Subprotocol
@@ -176,7 +199,7 @@ async def relay(ws: WebSocket, port: int, rules: ViewerRules) -> None:
     offered = [Subprotocol(p) for p in ws.scope.get("subprotocols", []) if p.startswith("viser-")]
     try:
         upstream = await connect(
-            f"ws://{LOOPBACK}:{port}",
+            f"ws://{LOOPBACK}:{port}{path}",
             subprotocols=offered[:4] or None,
             compression=None,  # as viser serves it: compressing costs the Pi per viewer
             max_size=None,  # frames from the station's own viser: its scene, not a stranger's

@@ -148,6 +148,11 @@ class Replay3D:
         """The GUI inputs viewers may change (server/trajectory3d/gate.py), by uuid."""
         return self._inputs
 
+    def upstream_path(self, authorized: bool) -> str:
+        """Where the relay opens a viewer's connection: the replay's one input is
+        every viewer's own, so every viewer alike."""
+        return "/"
+
     @property
     def port(self) -> int:
         if self.server is None:

@@ -27,7 +27,7 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
@@ -37,7 +37,7 @@ from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.core.geodesy import geodetic_to_enu
 from fpv_station.core.scene import Scene
 from fpv_station.server.settings import ViserSettings
-from fpv_station.server.trajectory3d.gate import LOOPBACK, ViewerInput, open_viser
+from fpv_station.server.trajectory3d.gate import LOOPBACK, PilotPath, ViewerInput, open_viser
 from fpv_station.server.trajectory3d.pose import (
     R_enu_flu_from_euler,
     bottom_footprint_enu,
@@ -132,6 +132,7 @@ class Trajectory3D:
         self.host = host  # loopback: viewers come through the relay (gate.py)
         self.field = field
         self.trail = Trail(settings.chunk_segments, settings.gap_s, settings.max_points)
+        self.pilot_path = PilotPath()
         self.server: viser.ViserServer | None = None
         self.scene: LiveScene | None = None
         self.controls: Controls | None = None
@@ -179,7 +180,15 @@ class Trajectory3D:
 
         self.scene, self.controls = on_viser_loop_blocking(server, build)
         self._stale = True
-        server.on_client_connect(lambda _client: self._viewer_came.wake())
+        controls = self.controls
+
+        @server.on_client_connect
+        def _(client: viser.ClientHandle) -> None:  # on viser's loop
+            if self.pilot_path.marks(server, client):
+                controls.add_pilot(client)
+            self._viewer_came.wake()
+
+        server.on_client_disconnect(controls.remove_pilot)
         self.server = server
         log.info("3D panel (viser) on port %d", self.port)
 
@@ -194,9 +203,14 @@ class Trajectory3D:
             self.server.stop()
             self.server = None
 
-    def viewer_inputs(self) -> dict[str, ViewerInput]:
+    def viewer_inputs(self) -> Mapping[str, ViewerInput]:
         """The GUI inputs viewers may change (server/trajectory3d/gate.py), by uuid."""
         return self.controls.inputs() if self.controls is not None else {}
+
+    def upstream_path(self, authorized: bool) -> str:
+        """Where the relay opens a viewer's connection to viser: a viewer with the
+        token gets the controls (controls.py), any other watches."""
+        return self.pilot_path.upstream(authorized)
 
     async def run(self) -> None:
         """Apply the states to the trail, `update_hz` of them a second, until the slot
@@ -355,7 +369,7 @@ class Trajectory3D:
                 ground_up_m=self._ground_up_m(),
             )
         )
-        if self.controls.follow.value:
+        if self.controls.follow:
             self._follow(pos)
         self._status(
             state,
