@@ -4,6 +4,7 @@ panel viewers, for N minutes.
 
     python benchmarks/soak.py [--minutes 10] [--telemetry 100] [--viewers 20]
                               [--idle 400] [--slow 30] [--viewers-3d 10]
+                              [--trail-points N]
 
 Idle sockets connect and send nothing; slow-header clients send a request's headers a
 byte a second and never finish. The station closes both (server/listen.py); each comes
@@ -15,8 +16,9 @@ read every frame of the scene.
 Runs `fpv-station serve --source sim` in a subprocess (both cameras on image folders, so
 the viewers cost what a USB camera's would), starts a recording, and holds the load from
 this process over loopback. Prints at the start and at the end of the load: the server's
-RSS, file descriptors and asyncio tasks (from /api/health and /proc), per-client telemetry
-message and MJPEG frame rates, and the session's rows against its rate (dropped rows).
+RSS, file descriptors and asyncio tasks (from /api/health and /proc), the live 3D trail's
+points (the panel keeps `update_hz` a second, up to `--trail-points`), per-client
+telemetry message and MJPEG frame rates, and the session's rows against its rate.
 Figures and load average go in docs/PERFORMANCE.md.
 """
 
@@ -203,7 +205,9 @@ async def churn(url: str, counts: Counts, stop: asyncio.Event) -> None:
 def server_figures(base: str, proc: psutil.Process) -> dict:
     health = httpx.get(f"{base}/api/health", timeout=10).json()
     rec = httpx.get(f"{base}/api/recording", timeout=10).json()
+    panel = httpx.get(f"{base}/api/viser", timeout=10).json()
     return {
+        "trail": panel["points"],
         "rss_mb": proc.memory_info().rss / 1e6,
         "fds": proc.num_fds(),
         "tasks": health["asyncio_tasks"],
@@ -274,7 +278,8 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
             f"health {fig['status']}, rows {fig['rows']}, frames {fig['frames']} "
             f"(dropped {fig['frames_dropped']}), churned {counts.churned} "
             f"(refused {counts.churn_refused}), idle closed {counts.idle_closed}, slow "
-            f"closed {counts.slow_closed}, load {os.getloadavg()[0]:.2f}",
+            f"closed {counts.slow_closed}, 3D trail {fig['trail']} points, load "
+            f"{os.getloadavg()[0]:.2f}",
             flush=True,
         )
         return {**fig, "msgs": msgs, "parts": parts, "frames_3d": frames_3d}
@@ -345,6 +350,8 @@ def run(args: argparse.Namespace) -> None:
         "FPV_RECORDING__SESSIONS_DIR": json.dumps(str(tmp / "sessions")),
         "FPV_RECORDING__RATE_HZ": str(args.rate_hz),
     }
+    if args.trail_points is not None:
+        env["FPV_VISER__MAX_POINTS"] = str(args.trail_points)
     with serve_station(cmd, env, log_path=tmp / "server.log") as station:
         base, proc = station.base, station.process
         print(
@@ -375,6 +382,13 @@ def main() -> None:
     ap.add_argument("--idle", type=int, default=400, help="sockets that never send")
     ap.add_argument("--slow", type=int, default=30, help="clients sending headers slowly")
     ap.add_argument("--viewers-3d", type=int, default=10, help="3D panel viewers (0: no viser)")
+    ap.add_argument(
+        "--trail-points",
+        type=int,
+        default=None,
+        help="the live 3D trail's max_points (default: the station's); a small one fills "
+        "within the run, to see the memory once the trail is full",
+    )
     ap.add_argument("--rate-hz", type=float, default=50.0)
     ap.add_argument("--warmup", type=float, default=10.0)
     run(ap.parse_args())
