@@ -222,6 +222,8 @@ def test_anonymous_viewers_watch_without_controls_and_only_the_token_changes_all
                 assert live.trail.n_points > 0
                 settings = (controls.color_by, controls.follow, controls.show_field)
                 assert settings == ("height", False, True)
+            # Its place under the cap (three here) is free once its relay has closed.
+            assert wait_until(lambda: st.client_limits.viewers3d.active == 2, 10)
 
         with viewer(base) as anonymous:
             assert wait_until(lambda: replayed(anonymous), 30)
