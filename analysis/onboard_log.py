@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
-from fpv_station.analysis.recording import Recording, open_recording
+from fpv_station.analysis.recording import Recording, open_recording, read_columns
 from fpv_station.analysis.vehicle_clock import on_vehicle_clock, vehicle_boot_clock
 from fpv_station.companion.recording import layout
 from fpv_station.companion.recording.meta import read_meta, write_meta
@@ -357,16 +357,16 @@ class SessionOnboard:
 
 
 def session_onboard(rec: Recording) -> SessionOnboard | None:
-    """The recording's onboard log on its session clock; None when it has none. `rec`
-    opened with `ATTITUDE_COLUMNS` (else the tlog check is left out)."""
+    """The recording's onboard log on its session clock; None when it has none."""
     path = find_onboard_log(rec.folder)
     if path is None:
         return None
     log = read_onboard_log(path)
     if all(c in rec.columns for c in ATTITUDE_COLUMNS):
-        att = tlog_attitude(rec.t_s, *(rec.column(c) for c in ATTITUDE_COLUMNS))
+        t_s, cols = rec.t_s, rec.columns
     else:
-        att = tlog_attitude(*(np.zeros(0),) * 4)
+        t_s, _, cols = read_columns(rec.telemetry_csv, ATTITUDE_COLUMNS, rec.source)
+    att = tlog_attitude(t_s, *(cols[c] for c in ATTITUDE_COLUMNS))
     boot = session_vehicle_clock(rec.meta, att)
     return SessionOnboard(log, boot, align(log, boot, att))
 

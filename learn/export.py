@@ -161,15 +161,21 @@ def _part(job: RecordingJob, rec, ep: Episode):
     o = job.options
     if job.fmt == "lerobot":
         from fpv_station.learn.lerobot import episode_part
+        from fpv_station.learn.onboard_export import series_part
 
         tag = f"{job.index:06d}_{ep.number:03d}"
-        return episode_part(ep, rec.frame_bytes, job.sizes, o.fps, o.video_preset, job.parts, tag)
+        part = episode_part(ep, rec.frame_bytes, job.sizes, o.fps, o.video_preset, job.parts, tag)
+        return replace(part, onboard=series_part(rec, ep.t_s, job.parts, tag))
     if job.fmt == "minari":
         return ep
     from fpv_station.learn.mcap_export import mcap_name, write_episode_mcap
+    from fpv_station.learn.onboard_export import onboard_of
 
     path = job.parts / f"{job.index:06d}_{ep.number:03d}.mcap"
-    write_episode_mcap(path, rec, ep, o.scene, o.task_id, job.cameras, job.task, o.image_size)
+    onboard = onboard_of(rec)
+    write_episode_mcap(
+        path, rec, ep, o.scene, o.task_id, job.cameras, job.task, o.image_size, onboard
+    )
     return path, mcap_name(rec, ep)
 
 

@@ -58,6 +58,7 @@ from fpv_station.learn import stats as st
 from fpv_station.learn.episodes import Episode
 from fpv_station.learn.formats import FileLimits
 from fpv_station.learn.images import decode_fit
+from fpv_station.learn.onboard_export import OnboardSeries, lerobot_card_section, place_series
 from fpv_station.twin.gym_env import ACTION_NAMES, STATE_NAMES
 
 CODEBASE_VERSION = "v3.0"
@@ -105,6 +106,7 @@ class EpisodePart:
     state: np.ndarray
     action: np.ndarray
     videos: dict[str, EpisodeVideo] = field(default_factory=dict)
+    onboard: OnboardSeries | None = None  # the autopilot log's series (learn.onboard_export)
 
     def __len__(self) -> int:
         return int(self.t_s.size)
@@ -371,12 +373,17 @@ class LeRobotExport:
         self.writer = LeRobotWriter(
             out, options.fps, sizes, task_id=options.task_id, limits=options.lerobot_limits
         )
+        self.onboard_hz: dict[str, float] = {}  # the onboard streams exported, their rates
 
     def add(self, part: EpisodePart) -> None:
         self.writer.add_episode(part, self.task)
+        if part.onboard is not None and len(part):
+            place_series(self.writer.root, len(self.writer.episodes) - 1, part.onboard)
+            self.onboard_hz.update(part.onboard.rates_hz)
 
     def close(self, summary) -> None:
-        self.writer.close(dataset_card(self.writer, self.options, summary, self.task))
+        card = dataset_card(self.writer, self.options, summary, self.task)
+        self.writer.close(card + lerobot_card_section(self.onboard_hz))
 
 
 def dataset_card(w: LeRobotWriter, options, summary, task: str) -> str:

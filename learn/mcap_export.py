@@ -11,6 +11,7 @@ message on log time (Unix ns), so Foxglove plays it back with both cameras:
 | `/tf` | `foxglove.FrameTransform` | telemetry row: `field` -> `base_link` (the same pose) |
 | `/telemetry` | JSON | telemetry row: `t_s` and the columns the exporters read (NaN as null) |
 | `/mavlink` | raw bytes, encoding `mavlink` | MAVLink packet in the tlog |
+| `/onboard/<stream>` | JSON | sample of the autopilot's own log (`learn.onboard_export`): IMU, attitude, rates, rate setpoints, motors, RC at their native rates |
 
 Rows, frames and MAVLink packets go on the session clock shifted to Unix time (the
 session's start): a packet is cut and placed by its time on the session clock
@@ -46,9 +47,11 @@ from foxglove.messages import (
     Vector3,
 )
 
+from fpv_station.analysis.onboard_log import SessionOnboard
 from fpv_station.analysis.recording import Recording
 from fpv_station.learn.episodes import COLUMNS, Episode, carry_forward, scene_xyz
 from fpv_station.learn.images import resized_jpeg
+from fpv_station.learn.onboard_export import onboard_events
 
 WORLD_FRAME = "field"
 BODY_FRAME = "base_link"
@@ -91,6 +94,7 @@ def write_episode_mcap(
     cameras: tuple[str, ...],
     task: str,
     image_size: tuple[int, int] | None = None,
+    onboard: SessionOnboard | None = None,
 ) -> None:
     ctx = foxglove.Context()
     images = {c: CompressedImageChannel(f"/{c}/image/compressed", context=ctx) for c in cameras}
@@ -106,6 +110,8 @@ def write_episode_mcap(
         context=ctx,
         metadata={"format": "MAVLink 1/2 packets as received, one per message"},
     )
+    streams_of_log = onboard.log.streams if onboard is not None else {}
+    onboard_ch = {n: foxglove.Channel(f"/onboard/{n}", context=ctx) for n in streams_of_log}
     i0, i1 = ep.flight.arm, ep.flight.disarm
     wall0 = _wall_offset(rec)
     with foxglove.open_mcap(path, allow_overwrite=True, context=ctx) as writer:
@@ -123,12 +129,16 @@ def write_episode_mcap(
         streams += [_frame_events(rec, c, ep, wall0, image_size) for c in cameras]
         if rec.tlog is not None:
             streams.append(_packet_events(rec, rec.t_s[i0], rec.t_s[i1], wall0))
+        if onboard is not None:
+            streams.append(onboard_events(onboard, rec.t_s[i0], rec.t_s[i1], wall0))
         for t_ns, kind, payload in heapq.merge(*streams, key=lambda e: e[0]):
             if kind == "row":
                 for channel, msg in zip((gps, pose, tf, telemetry), payload):
                     channel.log(msg, log_time=t_ns)
             elif kind == "packet":
                 raw.log(payload, log_time=t_ns)
+            elif kind == "onboard":
+                onboard_ch[payload[0]].log(payload[1], log_time=t_ns)
             else:
                 cam, jpeg = payload
                 images[cam].log(

@@ -57,15 +57,15 @@ def test_neither_format_is_a_clear_error(tmp_path):
         read_onboard_log(other)
 
 
-def test_a_twin_flight_log_lies_on_the_session_clock(tmp_path):
-    """The station records a twin flight (TIMESYNC on); the twin's ULog of it, put in the
-    session as a download would, is read onto the session clock: the log's attitude
-    matches the tlog's ATTITUDE at no shift, and each ATTITUDE arrived after the log says
-    it was made."""
-    sd_card = tmp_path / "sd"
+@pytest.fixture(scope="module")
+def twin_session(tmp_path_factory):
+    """A twin flight the station recorded (TIMESYNC on), with the twin's ULog of it in
+    the session as a download puts it: the session folder and the link's clock report."""
+    tmp = tmp_path_factory.mktemp("twin")
+    sd_card = tmp / "sd"
     settings = station_settings(
         "sim",
-        tmp_path / "sessions",
+        tmp / "sessions",
         **{
             "link.timesync_hz": 5.0,
             "twin.flight_log_dir": str(sd_card),
@@ -97,8 +97,15 @@ def test_a_twin_flight_log_lies_on_the_session_clock(tmp_path):
         assert wait_until(lambda: twin.flight_log.logs and not twin.flight_log.writing, 10)
         ulog = twin.flight_log.logs[-1].path
         clock = status()["vehicle_clock"]
-    folder = tmp_path / "sessions" / sid
+    folder = tmp / "sessions" / sid
     shutil.copy(ulog, folder / "onboard.ulg")
+    return folder, clock
+
+
+def test_a_twin_flight_log_lies_on_the_session_clock(twin_session):
+    """The twin's ULog is read onto the session clock: the log's attitude matches the
+    tlog's ATTITUDE at no shift, and each ATTITUDE arrived about when the log made it."""
+    folder, clock = twin_session
     got = write_alignment(folder)
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
     assert meta["onboard_alignment"] == got.model_dump()
@@ -119,3 +126,55 @@ def test_a_twin_flight_log_lies_on_the_session_clock(tmp_path):
     # the station hears it armed) to disarm.
     assert -1.5 - slack_ms / 1e3 < got.start_s < meta["arming"]["t_s"] + slack_ms / 1e3
     assert got.end_s <= meta["duration_s"] + slack_ms / 1e3
+
+
+def test_export_adds_the_high_rate_streams(twin_session, tmp_path):
+    from mcap.reader import make_reader
+
+    from fpv_station.learn.export import ExportOptions, export_recordings
+
+    folder, _ = twin_session
+    meta = json.loads((folder / layout.SESSION_JSON).read_text())
+    arm = meta["arming"]["t_s"]
+    export_recordings([folder], "mcap", tmp_path / "mcap", ExportOptions(task_id=1))
+    (path,) = sorted((tmp_path / "mcap").glob("*.mcap"))
+    times: dict[str, list[int]] = {}
+    with open(path, "rb") as f:
+        for _schema, channel, message in make_reader(f).iter_messages():
+            times.setdefault(channel.topic, []).append(message.log_time)
+            if channel.topic == "/onboard/imu":
+                last_imu = json.loads(message.data)
+                if len(times[channel.topic]) == 1:
+                    first_imu = last_imu
+    imu = np.array(times["/onboard/imu"]) * 1e-9 - meta["start_wall"]  # session clock
+    assert {f"/onboard/{s}" for s in ("imu", "rates", "rates_setpoint", "motors", "rc")} <= set(
+        times
+    )
+    # At the log's native rate (of the vehicle's clock: the twin's runs slow when the
+    # machine is loaded), inside the flight, on the frames' clock.
+    assert (imu.size - 1) / (last_imu["boot_s"] - first_imu["boot_s"]) >= 249.0
+    frames = np.array(times["/front/image/compressed"]) * 1e-9 - meta["start_wall"]
+    assert frames[0] - 0.1 <= imu[0] and imu[-1] <= frames[-1] + 0.1
+    assert imu[0] == pytest.approx(max(arm, imu[0]), abs=0.5)
+    assert set(first_imu) >= {"t_s", "boot_s", "gyro_x_rad_s", "accel_z_m_s2"}
+    assert first_imu["t_s"] == pytest.approx(imu[0], abs=1e-3)
+
+    import pyarrow.parquet as pq
+
+    out = tmp_path / "lerobot"
+    export_recordings([folder], "lerobot", out, ExportOptions(task_id=1, fps=10))
+    series = out / "onboard" / "chunk-000" / "episode_000000"
+    imu_t = pq.read_table(series / "imu.parquet").to_pandas()
+    windows = pq.read_table(series / "frame_windows.parquet").to_pandas()
+    data = pq.read_table(next((out / "data").rglob("*.parquet"))).to_pandas()
+    assert len(windows) == len(data)
+    # The windows split the series among the frames, each ending at its frame.
+    assert windows["imu.from"].iloc[0] == 0 and windows["imu.to"].iloc[-1] == len(imu_t)
+    assert (windows["imu.from"].iloc[1:].to_numpy() == windows["imu.to"].iloc[:-1].to_numpy()).all()
+    k = len(data) // 2
+    w = imu_t.iloc[windows["imu.from"][k] : windows["imu.to"][k]]
+    assert len(w) >= 20  # 250 Hz over a 10 fps frame
+    assert (w["session_time_s"] <= data["session_time_s"][k] + 1e-9).all()
+    assert (w["session_time_s"] > data["session_time_s"][k - 1]).all()
+    card = (out / "README.md").read_text()
+    assert "frame_windows.parquet" in card and "| `imu` |" in card
