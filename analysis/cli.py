@@ -110,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         )
         out = args.out or Path(f"analysis-{args.task}")
         files = analysis.write(out)
+        files += write_onboard_figures(args.sessions, out)
     except (AnalysisError, OSError) as exc:
         print(f"fpv-station analyze: {exc}", file=sys.stderr)
         return 2
@@ -119,3 +120,29 @@ def run(args: argparse.Namespace) -> int:
     for f in files:
         print(f"wrote {f}")
     return 0
+
+
+def write_onboard_figures(sessions: list[Path], out: Path) -> list[Path]:
+    """`<session>_onboard.png` for each session folder that holds the autopilot's log."""
+    from fpv_station.analysis.onboard_log import OnboardLogError, find_onboard_log, session_onboard
+    from fpv_station.analysis.onboard_plots import onboard_figure
+    from fpv_station.analysis.recording import open_recording
+
+    files = []
+    for path in map(Path, sessions):
+        if not path.is_dir() or find_onboard_log(path) is None:
+            continue
+        try:
+            with open_recording(path, frames=False) as rec:
+                onboard = session_onboard(rec)
+                name = rec.name
+            if onboard is None or onboard.clock is None:
+                continue
+            png = onboard_figure(onboard, name)
+        except (OnboardLogError, ValueError) as exc:
+            print(f"fpv-station analyze: {path}: no onboard figure: {exc}", file=sys.stderr)
+            continue
+        target = out / f"{name}_onboard.png"
+        target.write_bytes(png)
+        files.append(target)
+    return files

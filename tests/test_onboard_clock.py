@@ -178,3 +178,19 @@ def test_export_adds_the_high_rate_streams(twin_session, tmp_path):
     assert (w["session_time_s"] > data["session_time_s"][k - 1]).all()
     card = (out / "README.md").read_text()
     assert "frame_windows.parquet" in card and "| `imu` |" in card
+
+
+def test_analysis_plots_imu_and_rate_tracking(twin_session, tmp_path):
+    from PIL import Image
+
+    from fpv_station.analysis.cli import write_onboard_figures
+    from fpv_station.analysis.plots import SIZE_PX
+
+    folder, _ = twin_session
+    (png,) = write_onboard_figures([folder], tmp_path)
+    assert png.name.endswith("_onboard.png")
+    with Image.open(png) as im:
+        assert im.size == SIZE_PX
+        # Drawn, not blank: the traces' colours are in it.
+        assert len(im.convert("RGB").getcolors(1 << 20)) > 50
+    assert write_onboard_figures([DATAFLASH.parent], tmp_path) == []  # no session there
