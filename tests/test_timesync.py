@@ -1,7 +1,6 @@
 """The vehicle's boot clock measured with TIMESYNC: real packets over real sockets, a
 vehicle whose clock drifts, a link shared with other answerers, one that never answers."""
 
-import contextlib
 import csv
 import json
 import time
@@ -11,24 +10,17 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fpv_station.companion.link import MavlinkLink
-from fpv_station.companion.link_settings import LinkSettings
 from fpv_station.companion.recording import layout
 from fpv_station.companion.timesync import TimeSync, VehicleClock
 from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle, timesync_v2
+from tests.test_link import running_link as link_running
 
 
-@contextlib.contextmanager
 def running_link(source, **kw):
     kw.setdefault("timesync_hz", 10.0)
-    link = MavlinkLink(LinkSettings(source=source, **kw))
-    link.start()
-    try:
-        yield link
-    finally:
-        link.stop()
+    return link_running(source, **kw)
 
 
 class SharedLink(MavVehicle):
