@@ -214,14 +214,11 @@ def run_job(job: AnalysisJob) -> dict | bytes:
 def _analysis(job: AnalysisJob):  # -> analysis.report.Analysis
     # The figures of one table come one request each: their analysis is made once.
     from fpv_station.analysis.field_layout import load_field_layout
-    from fpv_station.analysis.recording import parse_meta
     from fpv_station.analysis.report import analyze_tracks
     from fpv_station.analysis.track import load_track
 
-    tracks = []
-    for session_id, (data, _, _), meta in job.files:
-        track = load_track(Path(data), label=session_id)
-        m = parse_meta(Path(meta[0]).read_bytes()) if meta else {}
-        tracks.append(replace(track, meta=m, source=str(Path(data).parent)))
+    # The session folder (its files sit at its top), read as the CLI and the score at
+    # disarm read it: its session.json's measured vehicle clock places the samples.
+    tracks = [load_track(Path(data).parent, label=sid) for sid, (data, _, _), _ in job.files]
     field_ = load_field_layout(job.scene)
     return analyze_tracks(tracks, job.task, job.reference, field_, job.params, job.flight)
