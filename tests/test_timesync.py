@@ -150,6 +150,18 @@ def test_status_and_session_json_report_the_measured_clock(tmp_path):
     )
     late = t - made
     assert late.min() > -0.01 and np.median(late) < 0.15, (late.min(), np.median(late))
+    # A replay of the session's tlog reads the same exchange back (our requests were
+    # recorded with the answers), on the log's own clock.
+    tlog = tmp_path / meta["id"] / layout.MAVLINK_TLOG
+    with running_link(f"replay:{tlog}?speed=0") as replay:
+        assert wait_until(lambda: replay.health().replay_done, 30)
+        again = replay.timesync.report()
+    assert again.method == "timesync" and again.answers >= 5, again
+    # Its times are the log's (the station's Unix time): less the session's start, the
+    # session clock, where both mappings put the session's ATTITUDE alike.
+    b = np.array([float(r["attitude.time_boot_ms"]) for r in rows]) * 1e-3
+    replayed = again.station_s(b) - meta["start_wall"]
+    assert np.abs(replayed - made).max() < 0.03, np.abs(replayed - made).max()
 
 
 def test_status_and_session_json_say_when_the_vehicle_never_answers(tmp_path):
