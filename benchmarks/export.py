@@ -14,7 +14,10 @@ export second (x real time), episodes and camera frames per second, and peak mem
 Then the ten sessions exported to LeRobot by `--workers` processes each (`fpv-station
 export --workers N`; the dataset is the same for any N) and, with `--ray`, as tasks on a
 new local Ray instance (`--ray local`, the `export-ray` extra), its start-up included:
-recordings and flight seconds per export second. Peak memory there is the parent's only.
+recordings and flight seconds per export second, and the CPU seconds of the process
+that assembles the dataset and of its worker processes (Ray's own processes are not
+counted): the assembling process's share bounds the speed-up more workers can give, and
+CPU seconds hold on a loaded machine where wall times do not.
 """
 
 from __future__ import annotations
@@ -56,8 +59,11 @@ s = export_recordings([Path(p) for p in paths], fmt, Path(out), opts)
 dt = time.perf_counter() - t0
 done.set()
 peak[0] = max(peak[0], proc.memory_info().rss)
+import resource
+me, kids = (resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
 print(json.dumps({"s": dt, "episodes": s.episodes, "frames": s.frames,
-                  "camera_frames": s.camera_frames, "base_kb": base / 1024, "peak_kb": peak[0] / 1024}))
+                  "camera_frames": s.camera_frames, "base_kb": base / 1024, "peak_kb": peak[0] / 1024,
+                  "cpu_self_s": me.ru_utime + me.ru_stime, "cpu_workers_s": kids.ru_utime + kids.ru_stime}))
 """
 
 
@@ -116,6 +122,7 @@ def main() -> None:
     ap.add_argument("--workers", default="1,2", help="worker counts to compare (LeRobot)")
     ap.add_argument("--ray", action="store_true", help="also on a local Ray instance")
     ap.add_argument("--no-formats", action="store_true", help="only the workers' table")
+    ap.add_argument("--repeat", type=int, default=1, help="rounds of the workers' table")
     args = ap.parse_args()
     print(
         f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
@@ -130,18 +137,24 @@ def main() -> None:
     paths = sets["ten"]
     flown = sum(flight_s(p) for p in paths)
     print(f"\nLeRobot, {len(paths)} sessions, {flown:.0f} s of flight")
-    print("| engine | export (s) | x real time | recordings/s | camera frames/s |")
-    print("| --- | ---: | ---: | ---: | ---: |")
+    print(
+        "| engine | export (s) | x real time | recordings/s | camera frames/s "
+        "| CPU s, assembling process | CPU s, worker processes | load before |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     engines = [(f"{n} worker(s)", int(n), "") for n in args.workers.split(",")]
     if args.ray:
         engines.append(("Ray (local instance)", 1, "local"))
-    for name, workers, ray in engines:
-        m = run_child("lerobot", paths, workers, ray)
-        print(
-            f"| {name} | {m['s']:.1f} | {flown / m['s']:.1f} | {len(paths) / m['s']:.2f} | "
-            f"{m['camera_frames'] / m['s']:.0f} |",
-            flush=True,
-        )
+    for _ in range(args.repeat):
+        for name, workers, ray in engines:
+            load = os.getloadavg()[0]
+            m = run_child("lerobot", paths, workers, ray)
+            print(
+                f"| {name} | {m['s']:.1f} | {flown / m['s']:.1f} | {len(paths) / m['s']:.2f} | "
+                f"{m['camera_frames'] / m['s']:.0f} | {m['cpu_self_s']:.1f} | "
+                f"{m['cpu_workers_s']:.1f} | {load:.1f} |",
+                flush=True,
+            )
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

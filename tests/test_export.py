@@ -322,37 +322,45 @@ def test_telemetry_read_in_small_blocks_is_the_same(session, monkeypatch):
     assert whole.t_s.size > 500
 
 
+def _lerobot_tables(root: Path, cache: Path):
+    """info.json, and the episodes and the rows of every file in sorted order as LeRobot
+    loads them (`load_nested_dataset`): Hugging Face `datasets`, the rows with the
+    features LeRobot derives from info.json."""
+    import datasets
+
+    info = json.loads((root / "meta/info.json").read_text())
+    features = {}
+    for key, ft in info["features"].items():
+        if ft["dtype"] == "video":
+            continue
+        if tuple(ft["shape"]) == (1,):
+            features[key] = datasets.Value(dtype=ft["dtype"])
+        else:
+            features[key] = datasets.Sequence(
+                length=ft["shape"][0], feature=datasets.Value(dtype=ft["dtype"])
+            )
+    episodes = datasets.Dataset.from_parquet(
+        [str(p) for p in sorted((root / "meta/episodes").glob("*/*.parquet"))],
+        cache_dir=str(cache),  # datasets caches arrow copies: not in the home folder
+    )
+    rows = datasets.Dataset.from_parquet(
+        [str(p) for p in sorted((root / "data").glob("*/*.parquet"))],
+        features=datasets.Features(features),
+        cache_dir=str(cache),
+    ).with_format("numpy")
+    return info, episodes, rows
+
+
 def test_lerobot_reads_back_the_way_lerobot_reads_it(lerobot, tmp_path):
     """LeRobot's v3.0 reader, step by step, without LeRobot (it pulls in PyTorch): info
     with tuple shapes, tasks through pandas indexed by the task text, episodes and rows
     through Hugging Face `datasets` with the features LeRobot derives from info.json, and
     video frames found at `from_timestamp + timestamp` within LeRobot's 1e-4 s."""
-    import datasets
     import pandas as pd
 
-    info = json.loads((lerobot / "meta/info.json").read_text())
-    features = {}
-    for key, ft in info["features"].items():
-        shape = tuple(ft["shape"])
-        if ft["dtype"] == "video":
-            continue
-        if shape == (1,):
-            features[key] = datasets.Value(dtype=ft["dtype"])
-        else:
-            features[key] = datasets.Sequence(
-                length=shape[0], feature=datasets.Value(dtype=ft["dtype"])
-            )
+    info, episodes, rows = _lerobot_tables(lerobot, tmp_path)
     tasks = pd.read_parquet(lerobot / "meta/tasks.parquet")
     tasks.index.name = "task"
-    episodes = datasets.Dataset.from_parquet(
-        [str(p) for p in sorted((lerobot / "meta/episodes").glob("*/*.parquet"))],
-        cache_dir=str(tmp_path),  # datasets caches arrow copies: not in the home folder
-    )
-    rows = datasets.Dataset.from_parquet(
-        [str(p) for p in sorted((lerobot / "data").glob("*/*.parquet"))],
-        features=datasets.Features(features),
-        cache_dir=str(tmp_path),
-    ).with_format("numpy")
     assert len(rows) == info["total_frames"] and len(episodes) == info["total_episodes"]
     ep = episodes[0]
     assert int(tasks.loc[ep["tasks"][0]].task_index) == 0
@@ -583,28 +591,9 @@ def _read_like_lerobot(root: Path, cache: Path) -> tuple[dict, list[dict], dict]
     the video file its chunk and file indices name, at `from_timestamp + timestamp`
     within LeRobot's tolerance (1e-4 s). Returns info, the episodes and, per episode and
     camera, the (n, H, W, 3) frames."""
-    import datasets
 
-    info = json.loads((root / "meta/info.json").read_text())
-    features = {}
-    for key, ft in info["features"].items():
-        if ft["dtype"] == "video":
-            continue
-        if tuple(ft["shape"]) == (1,):
-            features[key] = datasets.Value(dtype=ft["dtype"])
-        else:
-            features[key] = datasets.Sequence(
-                length=ft["shape"][0], feature=datasets.Value(dtype=ft["dtype"])
-            )
-    episodes = datasets.Dataset.from_parquet(
-        [str(p) for p in sorted((root / "meta/episodes").glob("*/*.parquet"))],
-        cache_dir=str(cache),
-    ).to_list()
-    rows = datasets.Dataset.from_parquet(
-        [str(p) for p in sorted((root / "data").glob("*/*.parquet"))],
-        features=datasets.Features(features),
-        cache_dir=str(cache),
-    ).with_format("numpy")
+    info, episodes, rows = _lerobot_tables(root, cache)
+    episodes = episodes.to_list()
     assert len(rows) == info["total_frames"] and len(episodes) == info["total_episodes"]
     frames: dict = {}
     videos = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
