@@ -109,8 +109,11 @@ def load_track(
     min_fix_type: int = MIN_FIX_3D,
 ) -> Track:
     """Load a session folder, a session zip, a `.tlog` (all through
-    `analysis.recording.open_recording`) or a bare `telemetry.csv`."""
+    `analysis.recording.open_recording`) or a bare `telemetry.csv`. A session's own
+    `telemetry.csv` is read as its session, on the session's measured vehicle clock."""
     p = Path(path)
+    if p.name == layout.TELEMETRY_CSV and (p.parent / layout.SESSION_JSON).is_file():
+        p = p.parent
     if p.suffix.lower() == ".csv" and p.is_file():
         name = label or p.parent.name
         track = load_telemetry_csv(p.read_bytes(), name, str(p), position, min_fix_type)

@@ -86,10 +86,12 @@ def test_the_score_at_disarm_is_what_rest_the_cli_and_the_sessions_page_give(tmp
     rest = r.json()["results"]
     assert len(rest) == 1 and _figures(rest[0]) == _figures(scored)  # every figure, every bit
 
-    out = tmp_path / "cli"
-    assert cli_main(["analyze", "--task", "hover", str(folder), "--out", str(out)]) == 0
-    cli = json.loads((out / "hover_table.json").read_text())["results"]
-    assert len(cli) == 1 and _figures(cli[0]) == _figures(scored)
+    # The CLI on the session, and on its rows alone.
+    for i, path in enumerate((folder, folder / layout.TELEMETRY_CSV)):
+        out = tmp_path / f"cli{i}"
+        assert cli_main(["analyze", "--task", "hover", str(path), "--out", str(out)]) == 0
+        cli = json.loads((out / "hover_table.json").read_text())["results"]
+        assert len(cli) == 1 and _figures(cli[0]) == _figures(scored), path.name
 
     row = next(s for s in listed if s["id"] == SESSION)
     assert row["score"]["ok"] and _figures(row["score"]["result"]) == _figures(scored)
