@@ -22,6 +22,7 @@ from fpv_station.analysis.onboard_log import (
 from fpv_station.companion.recording import layout
 from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
+from tests.mav_vehicle import MavVehicle
 
 pytestmark = pytest.mark.timeout(600)  # the twin flight, on a loaded machine
 
@@ -198,3 +199,43 @@ def test_analysis_plots_imu_and_rate_tracking(twin_session, tmp_path):
         # Drawn, not blank: the traces' colours are in it.
         assert len(im.convert("RGB").getcolors(1 << 20)) > 50
     assert write_onboard_figures([DATAFLASH.parent], tmp_path) == []  # no session there
+
+
+class LoggingArduCopter(MavVehicle):
+    """An ArduCopter whose boot clock and ATTITUDE are those of the real DataFlash log:
+    it sends, at its boot time, the attitude the log's ATT says it had then."""
+
+    def __init__(self, att, **kw):
+        super().__init__(autopilot="ardupilot", **kw)
+        self.att = att
+        self.boot_mono = time.monotonic() - (att.boot_s[0] - 4.0)  # boots 4 s before ATT
+
+    def build(self, name):
+        if name == "ATTITUDE":
+            b = self.boot_s()
+            roll = float(np.interp(b, self.att.boot_s, self.att.columns["roll_rad"]))
+            pitch = float(np.interp(b, self.att.boot_s, self.att.columns["pitch_rad"]))
+            return self.mav.attitude_encode(int(b * 1000), roll, pitch, 0.0, 0.0, 0.0, 0.0)
+        return super().build(name)
+
+
+def test_a_dataflash_log_agrees_with_the_tlog_within_20_ms(tmp_path):
+    """The real ArduCopter log's ATT against the ATTITUDE the vehicle sent on the link,
+    through TIMESYNC: the same instants, to within 20 ms."""
+    att = read_onboard_log(DATAFLASH).streams["attitude"]
+    root = tmp_path / "sessions"
+    with LoggingArduCopter(att) as v:
+        settings = station_settings(
+            v.station_source, root, **{"link.timesync_hz": 10.0, "recording.rate_hz": 50}
+        )
+        with run_uvicorn(create_app(settings)) as base:
+            assert httpx.post(f"{base}/api/recording/start").status_code == 200
+            assert wait_until(lambda: v.boot_s() > att.boot_s[-1] + 1.0, 60)
+            sid = httpx.post(f"{base}/api/recording/stop").json()["last_stop"]["id"]
+    folder = root / sid
+    shutil.copy(DATAFLASH, folder / "onboard.bin")
+    got = write_alignment(folder)
+    assert got.format == "dataflash" and got.clock == "timesync", got
+    assert got.attitude_samples >= 20, got
+    assert abs(got.attitude_lag_ms) <= 20.0, got
+    assert got.attitude_rms_deg < 1.0, got
