@@ -213,7 +213,6 @@ class LogDownload:
         session: str | None = None,
         log_id: int | None = None,
         flight_end_utc: float | None = None,
-        on_done: Callable[[DownloadStatus], None] | None = None,
     ) -> None:
         self.link = link
         self.target = target
@@ -221,7 +220,6 @@ class LogDownload:
         self.settings = settings
         self.log_id = log_id  # None: the log that covers the flight
         self.flight_end_utc = flight_end_utc
-        self.on_done = on_done
         self.status: Latest[DownloadStatus] = Latest(DownloadStatus(session=session))
         self._queue: queue.Queue[bytes] = queue.Queue(_QUEUE_PACKETS)
         self._cancel = threading.Event()
@@ -271,12 +269,11 @@ class LogDownload:
 
     def _run(self) -> None:
         t0 = time.monotonic()
-        final: DownloadStatus
         try:
-            final = self._download(t0)
+            self._download(t0)
         except Exception as exc:  # a bug or a full disk must show in the status, not vanish
             log.exception("onboard log download failed")
-            final = self._publish(
+            self._publish(
                 state="failed",
                 message=f"{type(exc).__name__}: {exc}",
                 download_s=round(time.monotonic() - t0, 3),
@@ -287,8 +284,6 @@ class LogDownload:
                 self.link.send(self.link.mav.log_request_end_encode(*self.target))
             except Exception:  # the link is stopping: nothing to end
                 pass
-        if self.on_done is not None:
-            self.on_done(final)
 
     def _next(self, timeout: float) -> mavlink.MAVLink_message | None:
         try:

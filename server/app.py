@@ -15,6 +15,7 @@ from fpv_station.server.routes import (
     analysis,
     control,
     health,
+    onboard_log,
     recording,
     replay3d,
     sessions,
@@ -77,5 +78,6 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(replay3d.router)
     app.include_router(control.router)
     app.include_router(task.router)
+    app.include_router(onboard_log.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

@@ -22,6 +22,7 @@ from pydantic import Field, ValidationError
 
 from fpv_station.companion.cameras.settings import CameraSettings
 from fpv_station.companion.link_settings import LinkSettings
+from fpv_station.companion.onboard_log import OnboardLogSettings
 from fpv_station.companion.recording.settings import RecordingSettings
 from fpv_station.core.settings_section import Section
 from fpv_station.twin.settings import TwinSettings
@@ -97,6 +98,7 @@ class Settings(Section):
     cameras: CameraSettings = Field(default_factory=CameraSettings)
     viser: ViserSettings = Field(default_factory=ViserSettings)
     twin: TwinSettings = Field(default_factory=TwinSettings)
+    onboard_log: OnboardLogSettings = Field(default_factory=OnboardLogSettings)
 
 
 class SettingsError(ValueError):

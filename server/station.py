@@ -21,6 +21,7 @@ from fpv_station.companion.recording.recorder import Recorder
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.server.analysis_worker import AnalysisWorker
 from fpv_station.server.client_limits import ClientCap, ClientLimits, raise_nofile_limit
+from fpv_station.server.onboard_logs import OnboardLogs
 from fpv_station.server.pilot import Pilot
 from fpv_station.server.settings import Settings
 from fpv_station.server.tasks import TaskSupervisor
@@ -71,6 +72,8 @@ class Station:
     # REST analyses and figures: a worker process, bounded and cached (analysis_worker.py).
     analysis_worker: AnalysisWorker = field(default_factory=AnalysisWorker)
     trials: Trials | None = None  # the flight task chosen and its trials' scores
+    # The autopilot's own log of each flight, fetched into its session (server.onboard_logs).
+    onboard_logs: OnboardLogs | None = None
     # Caps on streaming clients, fitted under the descriptor limit (server/client_limits.py).
     client_limits: ClientLimits = field(
         default_factory=lambda: ClientLimits(ClientCap("websocket", 200), ClientCap("video", 40))
@@ -147,6 +150,12 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.tasks.spawn,
             station.analysis_limiter,
         )
+
+        # -- the autopilot's own log, fetched after each flight (before the link stops)
+        station.onboard_logs = OnboardLogs(
+            settings.onboard_log, station.link, station.recorder, station.tasks.spawn
+        )
+        stack.push_async_callback(asyncio.to_thread, station.onboard_logs.close)
 
         # -- 3D trajectory panel (after the link whose state it draws) ----------------
         if settings.viser.enabled:

@@ -59,13 +59,13 @@ def served(
 
 def _download(link: MavlinkLink, folder: Path, timeout_s: float = 90.0, **kwargs) -> DownloadStatus:
     settings = OnboardLogSettings(**{**FAST, **kwargs.pop("settings", {})})
-    done: list[DownloadStatus] = []
-    dl = LogDownload(link, (1, 1), folder, settings, on_done=done.append, **kwargs)
+    dl = LogDownload(link, (1, 1), folder, settings, **kwargs)
     dl.start()
     dl.join(timeout_s)  # a hang guard: every path ends by itself
-    assert not dl.running, f"the download hangs: {dl.status.get().value}"
-    assert done and done[0] == dl.status.get().value
-    return done[0]
+    status = dl.status.get().value
+    assert not dl.running, f"the download hangs: {status}"
+    assert status.done
+    return status
 
 
 def test_served_dataflash_downloads_byte_identical(

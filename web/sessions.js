@@ -5,7 +5,9 @@
 // (companion/recording/flags.py: a crash, a failsafe, telemetry gaps, link loss, dropped
 // frames; each with its reason and threshold) or "ok" with the counts. A crashed flight's
 // row is marked. Each session links to its analysis (which opens as the task it was flown as), and
-// its score says whether the trial counts.
+// its score says whether the trial counts. Its onboard log column shows the autopilot's
+// own log fetched into it (server/onboard_logs.py): the file, the progress of the download
+// under way (GET /api/onboard_log, every second while one runs), or a button to fetch it.
 import { $, el, api } from "/lib.js";
 
 const tbody = document.querySelector("#sessions tbody");
@@ -90,6 +92,67 @@ async function remove(id) {
   load();
 }
 
+// The autopilot's log as session.json has it, or the download under way.
+const ACTIVE = new Set(["listing", "downloading"]);
+let progressTimer = null;
+
+function onboardCell(td, s, live) {
+  td.replaceChildren();
+  td.title = "";
+  if (live && live.session === s.id && ACTIVE.has(live.state)) {
+    const pct = live.size_bytes ? Math.floor((100 * live.received_bytes) / live.size_bytes) : 0;
+    td.append(el("progress", { max: 100, value: pct }), ` ${live.state === "listing" ? "listing" : `${pct} %`}`);
+    td.title = live.message;
+    return;
+  }
+  const o = s.onboard_log;
+  if (o && o.file) {
+    const id = encodeURIComponent(s.id);
+    td.append(el("a", { href: `/api/sessions/${id}/files/${o.file}` }, o.file), ` ${fmtSize(o.bytes)}`);
+    if (!o.complete) td.append(" ", el("span", { class: "quality-bad" }, "incomplete"));
+    td.title = o.message;
+  } else if (o) {
+    td.append(el("span", { class: "quality-bad" }, o.state.replace("_", " ")));
+    td.title = o.message;
+  }
+  if ((!o || !o.complete) && !s.recording_now && live && live.available && !ACTIVE.has(live.state)) {
+    const fetch = el("button", { type: "button", class: "fetch-onboard" }, o ? "fetch again" : "fetch");
+    fetch.addEventListener("click", () => fetchOnboard(s.id));
+    td.append(" ", fetch);
+  }
+}
+
+async function fetchOnboard(id) {
+  try {
+    await api(`/api/sessions/${encodeURIComponent(id)}/onboard_log`, { method: "POST", body: {} });
+  } catch (err) {
+    alert(`Cannot fetch the onboard log: ${err.message}`);
+  }
+  load();
+}
+
+async function onboardStatus() {
+  try {
+    return await api("/api/onboard_log");
+  } catch {
+    return null;
+  }
+}
+
+// While a download runs, its row's cell follows it every second.
+async function followProgress(sessions) {
+  clearTimeout(progressTimer);
+  const live = await onboardStatus();
+  for (const s of sessions) {
+    const td = tbody.querySelector(`tr[data-id="${CSS.escape(s.id)}"] td.onboard`);
+    if (td) onboardCell(td, s, live);
+  }
+  if (live && ACTIVE.has(live.state)) progressTimer = setTimeout(() => followProgress(sessions), 1000);
+  else if (live && live.session && sessions.some((s) => s.id === live.session && !s.onboard_log)) {
+    progressTimer = setTimeout(load, 1000); // just ended: its session.json is being written
+  }
+}
+
 async function load() {
   let sessions;
   try {
@@ -118,6 +181,7 @@ async function load() {
     cell(tr, s.task ? `${s.task.id}. ${s.task.name}` : "--", "task");
     const bad = s.score && (!s.score.ok || (s.score.result && s.score.result.valid === false));
     cell(tr, scoreText(s), bad ? "quality-bad score" : "score").title = scoreTitle(s);
+    cell(tr, s.onboard_log ? "" : "--", "onboard");
     const id = encodeURIComponent(s.id);
     const del = el("button", { type: "button", class: "delete", disabled: s.recording_now }, "delete");
     del.addEventListener("click", () => remove(s.id));
@@ -129,6 +193,7 @@ async function load() {
     );
     tbody.appendChild(tr);
   }
+  followProgress(sessions);
 }
 
 load();

@@ -185,6 +185,24 @@ class SessionClock(_Model):
     vehicle_boot: VehicleClock | None = None
 
 
+class OnboardLog(_Model):
+    """The autopilot's own flight log, downloaded into the session (companion.onboard_log)."""
+
+    state: str  # complete, incomplete, no_log, failed, cancelled
+    file: str | None = None  # onboard.ulg (PX4 ULog), onboard.bin (DataFlash); None: none
+    bytes: int = 0  # in the file (the listed size when complete)
+    complete: bool = False  # every byte of the vehicle's listed size came
+    download_s: float | None = None
+    log_id: int | None = None  # the vehicle's id of the log
+    message: str = ""  # in plain words: what came, or why nothing did
+    # Its first and last IMU sample on the vehicle's boot clock and on the session clock
+    # (analysis.onboard_span), and the mapping used: "timesync" or "delay".
+    boot_s: list[float] | None = None
+    t_s: list[float] | None = None
+    clock: str | None = None
+    fetched_utc: str | None = None
+
+
 class SessionMeta(_Model):
     format_version: int = FORMAT_VERSION
     id: str
@@ -207,6 +225,7 @@ class SessionMeta(_Model):
     score: TrialScore | None = None
     recovery: Recovery | None = None  # set when the counts were taken from the files
     clock: SessionClock | None = None  # None: written before the station chose clocks
+    onboard_log: OnboardLog | None = None  # the autopilot's own log, once fetched
 
 
 def write_meta(path: Path, meta: SessionMeta) -> None:
