@@ -2,14 +2,17 @@
 
 The station asks for the list (LOG_REQUEST_LIST, answered by one LOG_ENTRY per log),
 picks the log that covers the flight and asks for its bytes a window at a time
-(LOG_REQUEST_DATA for `window_bytes` from the first byte still missing; answered by
-LOG_DATA packets of 90 bytes each), until every byte of the listed size is in, then
-says LOG_REQUEST_END. A window lost on the way (a radio fade, a dropped link) is asked
-for again from its first missing byte after `request_timeout_s` without data; after
-`give_up_s` without one new byte the download stops as incomplete. Only one window is
-outstanding, so what the vehicle sends for us is bounded, and its telemetry goes on
-between our windows and beside them. A vehicle that does not answer the list, has no
-logs, or does not have the log asked for ends in a state that says so, never in a wait.
+(LOG_REQUEST_DATA from the first byte still missing; answered by LOG_DATA packets of 90
+bytes each), until every byte of the listed size is in, then says LOG_REQUEST_END. The
+window starts small and grows up to `window_bytes` while the link loses none of the
+autopilot's packets (their sequence numbers), and halves, with a pause, when it does:
+the download gives way to the flight state. A window lost on the way (a radio fade, a
+dropped link) is asked for again from its first missing byte after `request_timeout_s`
+without data; after `give_up_s` without one new byte the download stops as incomplete.
+Only one window is outstanding, so what the vehicle sends for us is bounded, and its
+telemetry goes on between our windows and beside them (docs/PERFORMANCE.md measures
+it). A vehicle that does not answer the list, has no logs, or does not have the log
+asked for ends in a state that says so, never in a wait.
 
 Threads: the link's packet listener (its reader thread) only picks LOG_ENTRY and
 LOG_DATA of the followed autopilot by their header and puts the raw packets into a
@@ -53,6 +56,11 @@ _LOG_IDS = frozenset({mavlink.MAVLINK_MSG_ID_LOG_ENTRY, mavlink.MAVLINK_MSG_ID_L
 # packet that finds it full is dropped, counted, and its bytes asked for again.
 _QUEUE_PACKETS = 1024
 _LIST_TRIES = 3
+# The request window, in LOG_DATA packets: where it starts and grows by, its least, and
+# the longest pause after a window in which the link lost packets.
+_START_CHUNKS = 16
+_MIN_CHUNKS = 4
+_MAX_PAUSE_S = 1.0
 # A log's start (LOG_ENTRY time_utc) may lie this far after the flight's end and still be
 # its log: the vehicle's GPS clock against the station's.
 CLOCK_SLACK_S = 60.0
@@ -76,8 +84,9 @@ class OnboardLogSettings(Section):
         CHUNK_BYTES * 128,
         ge=CHUNK_BYTES,
         le=CHUNK_BYTES * 4096,
-        description="Bytes asked for per LOG_REQUEST_DATA: the most the vehicle sends for "
-        "us at once, so its telemetry keeps its place on the link.",
+        description="The most bytes asked for per LOG_REQUEST_DATA (the window grows to "
+        "it while the link loses nothing): the most the vehicle sends for us at once, so "
+        "its telemetry keeps its place on the link.",
     )
     request_timeout_s: float = Field(
         1.0,
@@ -122,6 +131,7 @@ class DownloadStatus:
     download_s: float = 0.0
     re_requests: int = 0
     dropped_packets: int = 0
+    lost_packets: int = 0  # the vehicle's packets the link lost meanwhile (sequence gaps)
     logs_listed: int = 0
 
     @property
@@ -226,6 +236,8 @@ class LogDownload:
         self._thread: threading.Thread | None = None
         self._decoder = mavlink.MAVLink(None)
         self._dropped = 0
+        self._last_seq: int | None = None
+        self.lost_packets = 0  # the autopilot's packets the link lost during the download
 
     # -- any thread -------------------------------------------------------------------
 
@@ -250,10 +262,21 @@ class LogDownload:
     # -- the link's thread ------------------------------------------------------------
 
     def _on_packet(self, t_wall: float, packet: bytes) -> None:
-        if message_id(packet) not in _LOG_IDS:
+        # Sender and sequence: bytes 3, 4 and 2 of a MAVLink 1 header, 5, 6 and 4 of a
+        # MAVLink 2 one.
+        v1 = packet[0] == MAGIC_V1
+        if packet[3 if v1 else 5] != self.target[0]:
             return
-        # The sender's system id: byte 3 of a MAVLink 1 header, byte 5 of a MAVLink 2 one.
-        if packet[3 if packet[0] == MAGIC_V1 else 5] != self.target[0]:
+        if packet[4 if v1 else 6] == self.target[1]:
+            # The autopilot's packets lost on the way (telemetry and ours alike): the
+            # download thread backs off when the link drops what the vehicle sends.
+            seq = packet[2 if v1 else 4]
+            if self._last_seq is not None:
+                gap = (seq - self._last_seq - 1) & 0xFF
+                if gap < 128:  # more is a packet repeated or reordered, not lost
+                    self.lost_packets += gap
+            self._last_seq = seq
+        if message_id(packet) not in _LOG_IDS:
             return
         try:
             self._queue.put_nowait(packet)
@@ -263,7 +286,12 @@ class LogDownload:
     # -- the download thread ----------------------------------------------------------
 
     def _publish(self, **changes: object) -> DownloadStatus:
-        status = replace(self.status.get().value, dropped_packets=self._dropped, **changes)
+        status = replace(
+            self.status.get().value,
+            dropped_packets=self._dropped,
+            lost_packets=self.lost_packets,
+            **changes,
+        )
         self.status.publish(status)
         return status
 
@@ -369,7 +397,11 @@ class LogDownload:
         self.folder.mkdir(parents=True, exist_ok=True)
         part = self.folder / PART_NAME
         ranges = _Ranges(entry.size_bytes)
-        window_chunks = max(1, s.window_bytes // CHUNK_BYTES)
+        max_chunks = max(1, s.window_bytes // CHUNK_BYTES)
+        # The window grows while the link loses nothing and halves when it loses the
+        # vehicle's packets (a receive buffer overflowing, a radio full), pausing as
+        # long as the window took: the flight state's packets go first.
+        window_chunks = min(max_chunks, _START_CHUNKS)
         mav = self.link.mav
         fd = os.open(part, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         re_requests = 0
@@ -386,7 +418,9 @@ class LogDownload:
                 count = min(chunks * CHUNK_BYTES, entry.size_bytes - ofs)
                 self.link.send(mav.log_request_data_encode(*self.target, entry.id, ofs, count))
                 window_end = ofs + count
-                deadline = time.monotonic() + s.request_timeout_s
+                window_t0 = time.monotonic()
+                lost_before = self.lost_packets
+                deadline = window_t0 + s.request_timeout_s
                 progressed = False
                 while not self._cancel.is_set():
                     msg = self._next(max(deadline - time.monotonic(), 0.0))
@@ -420,6 +454,11 @@ class LogDownload:
                         break  # the window is in: the next one
                 if ranges.complete or self._cancel.is_set():
                     break
+                if self.lost_packets > lost_before:
+                    window_chunks = max(_MIN_CHUNKS, window_chunks // 2)
+                    self._cancel.wait(min(time.monotonic() - window_t0, _MAX_PAUSE_S))
+                else:
+                    window_chunks = min(max_chunks, window_chunks + _START_CHUNKS)
                 nxt = ranges.first_missing(first)
                 if not progressed or (nxt is not None and nxt * CHUNK_BYTES < window_end):
                     re_requests += 1

@@ -10,7 +10,9 @@ the range asked from its own thread (`rate_bps`: bytes a second, None as fast as
 socket takes them), stops on LOG_REQUEST_END or a newer request, and answers nothing for
 a log it does not have (ArduPilot's way). `drop_after_bytes` and `drop_s`: once that many
 log bytes went out, the link goes dead both ways for `drop_s` seconds (a radio fade),
-and what was being sent is lost. `log_protocol=False`: a vehicle that ignores it all.
+and what was being sent is lost. `lose_every`: every that many LOG_DATA a packet of the
+vehicle's goes missing on the way (its sequence number skips one, as the station sees a
+loss). `log_protocol=False`: a vehicle that ignores it all.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ class LogResponder(MavVehicle):
         drop_after_bytes: int | None = None,
         drop_s: float = 0.0,
         log_protocol: bool = True,
+        lose_every: int | None = None,
         **kwargs: Any,
     ) -> None:
         kwargs.setdefault("autopilot", "ardupilot")
@@ -46,6 +49,7 @@ class LogResponder(MavVehicle):
         self.drop_after_bytes = drop_after_bytes
         self.drop_s = drop_s
         self.log_protocol = log_protocol
+        self.lose_every = lose_every
         self.deaf_until = 0.0
         self.log_bytes_sent = 0
         self.data_requests: list[tuple[int, int, int]] = []  # (id, ofs, count) as asked
@@ -130,6 +134,8 @@ class LogResponder(MavVehicle):
                 self.mav.log_data_encode(log_id, ofs, len(chunk), chunk.ljust(CHUNK, b"\0"))
             )
             self.log_bytes_sent += len(chunk)
+            if self.lose_every and (ofs // CHUNK) % self.lose_every == self.lose_every - 1:
+                self.skip_seq(1)  # a packet of its own lost on the way (a full buffer)
             if self.drop_after_bytes is not None and self.log_bytes_sent >= self.drop_after_bytes:
                 self.drop_after_bytes = None
                 self.deaf_until = time.monotonic() + self.drop_s

@@ -100,6 +100,33 @@ def test_dropped_link_mid_download_resumes(served, tmp_path: Path, dataflash: by
     assert vehicle.data_requests.count((2, 0, vehicle.data_requests[0][2])) == 1
 
 
+@pytest.mark.parametrize("served", [{"lose_every": 40}], indirect=True)
+def test_window_shrinks_when_the_link_loses_packets(
+    served, tmp_path: Path, dataflash: bytes
+) -> None:
+    """While the link loses the vehicle's packets, the download asks for less at a time
+    (and still gets every byte); on a clean link the window grows."""
+    vehicle, link = served
+    status = _download(link, tmp_path)
+    assert status.state == "complete", status
+    assert (tmp_path / "onboard.bin").read_bytes() == dataflash
+    assert status.lost_packets > 0
+    # A window of 40 packets or more loses one and is halved: it never reaches the
+    # largest one, which a clean link does (below).
+    counts = [count for log_id, _, count in vehicle.data_requests if log_id == 2]
+    assert max(counts) <= 64 * 90
+
+
+def test_window_grows_on_a_clean_link(served, tmp_path: Path) -> None:
+    """The vehicle sends one window at a time, so its packets fit the socket buffer: none
+    is lost, and the window grows from a small start to `window_bytes`."""
+    vehicle, link = served
+    status = _download(link, tmp_path)
+    assert status.state == "complete" and status.lost_packets == 0, status
+    counts = [count for log_id, _, count in vehicle.data_requests if log_id == 2]
+    assert counts[0] < max(counts) == OnboardLogSettings().window_bytes
+
+
 @pytest.mark.parametrize("served", [{"drop_after_bytes": 20_000, "drop_s": 3600.0}], indirect=True)
 def test_link_that_stays_down_ends_incomplete(served, tmp_path: Path) -> None:
     _, link = served

@@ -41,7 +41,8 @@ class OnboardLogStatusModel(BaseModel):
     file: str | None = None
     message: str = ""
     download_s: float = 0.0
-    re_requests: int = 0
+    re_requests: int = 0  # windows asked for again (lost on the way)
+    lost_packets: int = 0  # the vehicle's packets the link lost during the download
 
 
 def get_onboard_logs(request: Request) -> OnboardLogs:
