@@ -58,7 +58,7 @@ _QUEUE_PACKETS = 1024
 _LIST_TRIES = 3
 # The request window, in LOG_DATA packets: where it starts and grows by, its least, and
 # the longest pause after a window in which the link lost packets.
-_START_CHUNKS = 16
+_START_CHUNKS = 32
 _MIN_CHUNKS = 4
 _MAX_PAUSE_S = 1.0
 # A log's start (LOG_ENTRY time_utc) may lie this far after the flight's end and still be

@@ -4,8 +4,9 @@ After a session that the vehicle's disarm ended (`onboard_log.after_disarm`), an
 asked (`POST /api/sessions/{id}/onboard_log`), one `companion.onboard_log.LogDownload`
 fetches the flight's log over the link into the session folder. One download at a time:
 the link is shared with the flight. When it ends, session.json gets `onboard_log` (file,
-bytes, complete, download seconds, the log's span on the session clock:
-`analysis.onboard_span`), amended as the trial score is (`read_meta`, then `write_meta`).
+bytes, complete, download seconds, the log's span on the session clock as
+`analysis.onboard_log` reads it), amended as the trial score is (`read_meta`, then
+`write_meta`).
 A replay has no vehicle to ask, so it never downloads.
 """
 
@@ -115,15 +116,20 @@ class OnboardLogs:
 
 
 def _store(folder: Path, status: DownloadStatus) -> None:
-    """Blocking: amend session.json with what the download brought."""
-    from fpv_station.analysis.onboard_span import span_on_session_clock  # numpy, pyulog: only now
+    """Blocking: amend session.json with what the download brought, and where the log
+    lies on the session clock (`analysis.onboard_log`, which also records its
+    `onboard_alignment`)."""
+    from fpv_station.analysis.onboard_log import write_alignment  # numpy, pyulog: only now
 
-    span: dict | None = None
+    span: dict = {}
     if status.file is not None:
         try:
-            span = span_on_session_clock(folder, folder / status.file)
+            aligned = write_alignment(folder)
         except Exception as exc:  # a cut-off log, a session without telemetry: still stored
-            log.warning("onboard log of %s: no time span: %s", folder.name, exc)
+            log.warning("onboard log of %s: not on the session clock: %s", folder.name, exc)
+            aligned = None
+        if aligned is not None and aligned.start_s is not None and aligned.end_s is not None:
+            span = {"t_s": [aligned.start_s, aligned.end_s], "clock": aligned.clock}
     entry = OnboardLog(
         state=status.state,
         file=status.file,
@@ -133,7 +139,7 @@ def _store(folder: Path, status: DownloadStatus) -> None:
         log_id=status.log_id,
         message=status.message,
         fetched_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        **(span or {}),
+        **span,
     )
     path = folder / layout.SESSION_JSON
     try:

@@ -195,9 +195,8 @@ class OnboardLog(_Model):
     download_s: float | None = None
     log_id: int | None = None  # the vehicle's id of the log
     message: str = ""  # in plain words: what came, or why nothing did
-    # Its first and last IMU sample on the vehicle's boot clock and on the session clock
-    # (analysis.onboard_span), and the mapping used: "timesync" or "delay".
-    boot_s: list[float] | None = None
+    # Its first and last sample on the session clock and the vehicle clock's mapping
+    # used, "timesync" or "delay" (analysis.onboard_log, session.json onboard_alignment).
     t_s: list[float] | None = None
     clock: str | None = None
     fetched_utc: str | None = None
