@@ -111,10 +111,11 @@ def test_window_shrinks_when_the_link_loses_packets(
     assert status.state == "complete", status
     assert (tmp_path / "onboard.bin").read_bytes() == dataflash
     assert status.lost_packets > 0
-    # A window of 40 packets or more loses one and is halved: it never reaches the
-    # largest one, which a clean link does (below).
+    # A window of 40 packets or more loses one and is halved (after it, or after the
+    # next one when the loss shows only in a later packet): it never grows to the
+    # largest window, which a clean link reaches (below).
     counts = [count for log_id, _, count in vehicle.data_requests if log_id == 2]
-    assert max(counts) <= 64 * 90
+    assert max(counts) < OnboardLogSettings().window_bytes
 
 
 def test_window_grows_on_a_clean_link(served, tmp_path: Path) -> None:
