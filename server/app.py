@@ -24,6 +24,7 @@ from fpv_station.server.routes import (
     telemetry,
     trajectory,
     video,
+    video_ws,
     viser_panel,
 )
 from fpv_station.server.sd_notify import Notifier, notify_loop, notify_stopping
@@ -55,6 +56,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.ws_frame_limits = {
         "/ws/telemetry": telemetry.MAX_FRAME_BYTES,
         "/ws/control": control.MAX_FRAME_BYTES,
+        "/ws/video": video_ws.MAX_FRAME_BYTES,
         **dict.fromkeys(viser_panel.VIEWER_PATHS, viser_panel.MAX_FRAME_BYTES),
     }
     install_error_handlers(app)
@@ -73,6 +75,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(sessions.router)
     app.include_router(analysis.router)
     app.include_router(video.router)
+    app.include_router(video_ws.router)
     app.include_router(viser_panel.router)
     app.include_router(trajectory.router)
     app.include_router(replay3d.router)

@@ -1,19 +1,25 @@
-"""Fan one camera's frames out to every MJPEG viewer on the event loop.
+"""Fan one camera's frames out to every viewer on the event loop.
 
 The capture thread wakes one waiter per camera (this pump), not one per viewer: the
-pump takes each new frame from the camera's `Latest[Frame]`, builds its multipart part
-once, and wakes the viewers with an in-loop event (no thread hop, no syscall per
-viewer). A viewer that is busy writing misses events and, when it comes back, gets the
-newest part: latest value wins, nothing queues. The pump runs only while someone
-watches (pikvm's streamer rule) and is supervised by the station's task supervisor.
+pump takes each new frame from the camera's `Latest[Frame]` and wakes the viewers with
+in-loop events (no thread hop, no syscall per viewer). Each kind of message is built
+once per frame, when the first viewer of that kind asks for it, and shared: the MJPEG
+multipart part (`part()`) and the binary WebSocket message of `/ws/video`
+(`ws_message()`). A viewer that is busy writing misses events and, when it comes back,
+gets the newest message: latest value wins, nothing queues. The pump runs only while
+someone watches (pikvm's streamer rule) and is supervised by the station's task
+supervisor.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator, Awaitable, Callable
+import struct
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from typing import Any
+
+import orjson
 
 from fpv_station.companion.latest import Latest
 from fpv_station.companion.video_frame import Frame
@@ -46,6 +52,15 @@ def multipart_part(frame: Frame) -> bytes:
     return b"".join((head, frame.jpeg, _CLOSING))  # one copy of the JPEG, not three
 
 
+def ws_message(camera: str, frame: Frame) -> bytes:
+    """One binary `/ws/video` message: a 2-byte big-endian header length, the header
+    (JSON: camera, seq, capture time `t` in Unix seconds, signal) and the JPEG."""
+    head = orjson.dumps(
+        {"camera": camera, "seq": frame.seq, "t": round(frame.t_wall, 6), "signal": frame.signal}
+    )
+    return b"".join((struct.pack(">H", len(head)), head, frame.jpeg))
+
+
 class FrameFanout:
     """The newest multipart part of one camera, with an event that fires per new frame.
     `spawn` starts its pump (the station's supervised `tasks.spawn`)."""
@@ -55,8 +70,10 @@ class FrameFanout:
         self.frames = frames
         self._spawn = spawn
         self.version = 0
-        self.part = b""
+        self.frame: Frame | None = None
+        self._built: dict[str, tuple[int, bytes]] = {}  # kind -> (version, message)
         self.viewers = 0
+        self._listeners: set[asyncio.Event] = set()  # /ws/video clients' wake-ups
         self._event = asyncio.Event()
         self._task: asyncio.Task[Any] | None = None
         self.closed = False  # the server is shutting down: every stream ends
@@ -66,6 +83,48 @@ class FrameFanout:
         that their responses complete instead of being cancelled mid-stream."""
         self.closed = True
         self._event.set()
+        self._wake_listeners()
+
+    def _wake_listeners(self) -> None:
+        for wake in self._listeners:
+            wake.set()
+
+    def _message(self, kind: str, build: Callable[[Frame], bytes]) -> bytes:
+        """The newest frame as `kind`, built once per frame for every viewer."""
+        built = self._built.get(kind)
+        if built is not None and built[0] == self.version:
+            return built[1]
+        if self.frame is None:
+            return b""
+        message = build(self.frame)
+        self._built[kind] = (self.version, message)
+        return message
+
+    def part(self) -> bytes:
+        """The newest frame's MJPEG multipart part."""
+        return self._message("mjpeg", multipart_part)
+
+    def ws_message(self) -> bytes:
+        """The newest frame's binary `/ws/video` message."""
+        return self._message("ws", lambda frame: ws_message(self.name, frame))
+
+    @contextlib.contextmanager
+    def listen(
+        self, wake: asyncio.Event, watching: contextlib.AbstractContextManager[Any]
+    ) -> Iterator[None]:
+        """Count a `/ws/video` client as a viewer while the block runs: `wake` is set on
+        every new frame (and when the camera or the server closes). It is set at once,
+        so that a frame the camera already has is sent without waiting for the next."""
+        self.viewers += 1
+        self._listeners.add(wake)
+        try:
+            with watching:
+                self._ensure_pump()
+                wake.set()
+                yield
+        finally:
+            self._listeners.discard(wake)
+            self.viewers -= 1
 
     def _ensure_pump(self) -> None:
         if self._task is None or self._task.done():
@@ -79,7 +138,8 @@ class FrameFanout:
             while not self.frames.closed and not self.closed and self.viewers > 0:
                 item = await self.frames.wait_newer(self.version, timeout=_SILENCE_CHECK_S)
                 if item is not None and item.version > self.version:
-                    self.part, self.version = multipart_part(item.value), item.version
+                    self.frame, self.version = item.value, item.version
+                    self._wake_listeners()
                 # A new part, or a silence: either way the viewers wake (after a silence,
                 # to see whether their clients are still there). One timer here instead
                 # of one per viewer per frame.
@@ -87,6 +147,7 @@ class FrameFanout:
                 event.set()
         finally:
             self._event.set()  # release the viewers (camera closed, nobody left, cancelled)
+            self._wake_listeners()
 
     async def stream(
         self,
@@ -107,7 +168,7 @@ class FrameFanout:
                 while not self.frames.closed and not self.closed:
                     if self.version > sent:
                         sent = self.version
-                        yield self.part
+                        yield self.part()
                         continue
                     self._ensure_pump()
                     await self._event.wait()

@@ -1,7 +1,7 @@
 """Both cameras keep their aspect ratio and a usable size on the pilot and goggles pages,
 for 4:3 and 16:9 cameras, at a laptop's 1280x800 and goggles' 1920x1080 (stereo too), in
 real headless chromium against a real station whose cameras are folders of frames of that
-size. What is measured is the picture as drawn: the img element's box, its object-fit and
+size. What is measured is the picture as drawn: the video canvas's box, its object-fit and
 the frames' size, clipped by its view and the window."""
 
 from __future__ import annotations
@@ -38,12 +38,12 @@ def browser():
         yield b
 
 
-# Each shown camera picture: its frames' size, the img's box, the picture drawn in it
+# Each shown camera picture: its frames' size, the canvas's box, the picture drawn in it
 # (object-fit and object-position's default centre) and what of it is visible: inside its
 # view and the window, at the page's first scroll position.
-PICTURES = """() => [...document.querySelectorAll('img.video-stream')]
+PICTURES = """() => [...document.querySelectorAll('.video-stream')]
   .filter((img) => img.offsetParent !== null).map((img) => {
-  const nw = img.naturalWidth, nh = img.naturalHeight;
+  const nw = img.width, nh = img.height;  // a canvas, its frames' size
   const box = img.getBoundingClientRect(), view = img.closest('.view').getBoundingClientRect();
   const fit = getComputedStyle(img).objectFit;
   let sx = box.width / nw, sy = box.height / nh;
@@ -61,8 +61,8 @@ PICTURES = """() => [...document.querySelectorAll('img.video-stream')]
 
 def pictures(page) -> dict:
     page.wait_for_function(
-        """() => [...document.querySelectorAll('img.video-stream')]
-          .filter((img) => img.offsetParent !== null).every((img) => img.naturalWidth > 0)""",
+        """() => [...document.querySelectorAll('.video-stream')]
+          .filter((img) => img.offsetParent !== null).every((img) => img.dataset.frames > 0)""",
         timeout=30_000,
     )
     return {p["view"]: p for p in page.evaluate(PICTURES)}

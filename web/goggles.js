@@ -58,16 +58,18 @@ window.addEventListener("fpv:task-step", (e) => {
 });
 
 // Side-by-side stereo for phone headsets: the same front picture and OSD for each eye.
-// The right eye is a second viewer of the same MJPEG stream (the station encodes once per
-// camera, not per viewer), stopped, with its OSD, when stereo is switched off.
+// The right eye draws the same decoded frames as the left (video.js: one subscription per
+// camera and page); it and its OSD stop when stereo is switched off.
 let right = null;
 function toggleStereo() {
   const on = !document.body.classList.contains("stereo");
   document.body.classList.toggle("stereo", on);
   if (on && !right) {
     right = el("section", { id: "front-view-right", class: "view", "aria-label": "front view, right eye" });
-    right.append(el("img", { class: "video-stream", alt: "front camera, right eye" }));
+    const canvas = el("canvas", { class: "video-stream", role: "img", "aria-label": "front camera, right eye", width: 4, height: 3 });
+    right.append(canvas);
     $("goggles").append(right);
+    if (fpv.video) fpv.video.addTarget("front", canvas); // drawn from the left eye's frames
     // The same OSD and menu in the right eye (osd.js: one menu state for both eyes).
     fpv.osdRight = mountOsd(right);
     fpv.osdRight.menuBox.append(emergencyButtons(), voiceControls());
@@ -75,5 +77,4 @@ function toggleStereo() {
   }
   fpv.osdRight.setRunning(on); // a hidden eye draws nothing
   right.hidden = !on;
-  right.querySelector("img").src = on ? `/video/front.mjpg?t=${Date.now()}` : "";
 }

@@ -132,7 +132,7 @@ export function mountOsd(view, { menu = true } = {}) {
 
   let attitudeKey = "", headingKey = "", dirty = true;
   let resized = true, sizeDpr = 0;
-  // How the picture sits in the view: its <img>'s object-fit, read after a resize.
+  // How the picture sits in the view: its canvas's object-fit, read after a resize.
   let fit = "contain", opticsKey = "";
   new ResizeObserver(() => { resized = true; }).observe(view);
 
@@ -181,13 +181,13 @@ export function mountOsd(view, { menu = true } = {}) {
         c.height = Math.round(c.clientHeight * dpr);
         canvasFont.delete(c); // a resized canvas has lost its drawing state
       }
-      const img = view.querySelector("img.video-stream");
+      const img = view.querySelector(".video-stream");
       fit = img ? getComputedStyle(img).objectFit : "contain";
       dirty = true;
     }
     // The picture's optics, in the horizon canvas' pixels: focal length and where the nose is.
     const cam = (fpv.cameras || {}).front;
-    const optics = pictureOptics(cam, view.querySelector("img.video-stream"), fit, horizon);
+    const optics = pictureOptics(cam, view.querySelector(".video-stream"), fit, horizon);
     if (optics.key !== opticsKey) { opticsKey = optics.key; dirty = true; }
     if (!s) { setText(nodes.warning, feed.socketOpen ? "NO TELEMETRY" : "STATION UNREACHABLE"); return; }
     // Horizon and pitch ladder.
@@ -274,10 +274,13 @@ export function mountOsd(view, { menu = true } = {}) {
     const loss = link.loss === null ? "" : `LQ ${fixed(100 * (1 - link.loss), 0)}%`;
     setText(nodes.link, `${loss}${rssi}`.trim() || "LQ --");
 
-    // Ages: the newest vehicle telemetry and the front camera's newest frame.
+    // Ages: the newest vehicle telemetry and the front camera's newest frame on screen
+    // (video.js: its age when drawn, and the time since).
     const tAge = ageOfNewest();
-    const vAge = cam && cam.last_frame_age_s !== null && cam.last_frame_age_s !== undefined
-      ? cam.last_frame_age_s + (performance.now() - (fpv.camerasAt || performance.now())) / 1000 : null;
+    const shownFrame = fpv.video && fpv.video.frames.front;
+    const vAge = shownFrame ? shownFrame.ageAtDrawS + (performance.now() - shownFrame.drawnAt) / 1000
+      : cam && cam.last_frame_age_s !== null && cam.last_frame_age_s !== undefined
+        ? cam.last_frame_age_s + (performance.now() - (fpv.camerasAt || performance.now())) / 1000 : null;
     setText(nodes.age, `TLM ${tAge === null ? "--" : tAge.toFixed(1) + "s"} VID ${vAge === null ? "--" : vAge.toFixed(1) + "s"}`);
 
     // Messages line and centre warnings (how long each shows: in the source's time).
@@ -419,13 +422,15 @@ function outlinedStroke(ctx, path, colour, width, dpr) {
 }
 
 // The camera's tilt and vertical field of view (its settings, else none and the default),
-// and from them, in `c`'s pixels, the focal length of the picture as the <img> shows it
+// and from them, in `c`'s pixels, the focal length of the picture as its canvas shows it
 // (object-fit contain or cover, centred; `cam.width`/`height`: the frames' size).
 function pictureOptics(cam, img, fit, c) {
   const tiltDeg = cam && cam.tilt_up_deg != null ? cam.tilt_up_deg : 0;
   const vfovDeg = cam && cam.vfov_deg != null ? cam.vfov_deg : DEFAULT_VFOV_DEG;
-  const iw = (img && img.naturalWidth) || (cam && cam.width) || 0;
-  const ih = (img && img.naturalHeight) || (cam && cam.height) || 0;
+  // A canvas (video.js) has the frames' size once it has drawn one (data-frames).
+  const drawn = img && (img.naturalWidth !== undefined || img.dataset.frames);
+  const iw = (drawn && (img.naturalWidth ?? img.width)) || (cam && cam.width) || 0;
+  const ih = (drawn && (img.naturalHeight ?? img.height)) || (cam && cam.height) || 0;
   const W = c.width, H = c.height;
   let picH = H;
   if (iw > 0 && ih > 0) {

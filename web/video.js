@@ -1,49 +1,265 @@
-// fpv-station pilot page: the front and bottom camera streams (MJPEG) in their views,
-// each with its delivered fps and a latency readout.
+// fpv-station pages: the front and bottom cameras in their views, each with its delivered
+// fps and a latency readout.
 //
-// The streams are plain <img> elements on /video/{camera}.mjpg: the browser decodes the
-// JPEGs natively, and the server skips frames for a viewer that falls behind. Once a
-// second one cheap GET /api/cameras gives every camera's delivered fps and the capture
-// time of its newest frame; latency = browser clock at arrival - that capture time (the
-// age of the newest frame as the browser gets it: capture, encode, network, up to one
-// frame interval of waiting), shown only when the browser's and station's clocks agree
-// (the reply's server_time checked against the request's round trip). Others read the
-// figures from window.fpv.cameras (and window.fpv.camerasAt: performance.now() of the
-// reply). A camera whose newest frame is older than STALLED_S reads "0 fps · stalled".
+// A page's frames come over one WebSocket, /ws/video (server/routes/video_ws.py), not one
+// MJPEG <img> per camera: Chromium gives a host six HTTP/1.1 connections, an MJPEG stream
+// holds one for good, and a few pages' streams then starve every page's /api requests.
+// The page subscribes to the cameras it shows (a hidden view, the goggles' hidden
+// picture-in-picture or a hidden tab is not streamed). Each binary message is one JPEG,
+// decoded off the main thread (createImageBitmap) and drawn onto the view's canvas in the
+// next animation frame; a newer frame of the same camera replaces one not yet drawn. The
+// page acknowledges every second frame drawn (?ack=4): at most four frames are on their
+// way, so a busy page falls behind by frames skipped, never by a queue.
+//
+// Once a second one cheap GET /api/cameras gives every camera's delivered fps and settings,
+// and the station's clock (the reply's server_time checked against the request's round
+// trip). Others read the figures from window.fpv.cameras (and
+// window.fpv.camerasAt: performance.now() of the reply), and each camera's newest drawn
+// frame from window.fpv.video.frames[camera]: {seq, t, signal, drawnAt (performance.now()),
+// ageAtDrawS (its age when drawn, when clocks agree), width, height, drawn (count)}.
+// Another canvas showing a camera (the goggles' right eye) is added with
+// fpv.video.addTarget(camera, canvas). A camera whose newest frame is older than STALLED_S
+// reads "0 fps · stalled".
+//
+// Latency to the screen: the twin's frames carry their render time in a corner code
+// (companion/cameras/frame_stamp.py), read from the decoded picture when it is drawn:
+// render-to-screen ("R2S"). Other cameras' frames carry their capture time (the header's
+// `t`): capture-to-screen ("C2S"). "Screen" is the animation frame the picture is drawn
+// in; the display shows it at its next refresh. p50 and p99 over the last WINDOW_MS, and
+// the station's share (render or capture until the message arrived), are in
+// fpv.video.latency[camera], on the camera's readout and, for the front camera, an OSD line.
+// Times are on the station's clock (the browser's, corrected by the offset /api/cameras
+// measures, when the two differ by more than its round trip).
 import { $, el, api } from "/lib.js";
 
 const CAMERAS = ["front", "bottom"];
 const POLL_MS = 1000;
 const CLOCK_SLACK_S = 0.02; // clocks "agree" if the offset is within RTT/2 + this
 const STALLED_S = 1.0; // no new frame for this long: the stream is stalled, whatever fps says
+const ACK_WINDOW = 4; // frames on their way at most (the station's ?ack=)
+const WINDOW_MS = 5000; // latency figures over this long
 const fpv = (window.fpv = window.fpv || {});
 fpv.cameras = {};
 
 const views = {};
 for (const name of CAMERAS) {
-  const img = el("img", { class: "video-stream", alt: `${name} camera`, "data-camera": name });
+  const canvas = videoCanvas(`${name} camera`, name);
   const readout = el("div", { class: "video-readout", id: `${name}-readout` }, "-- fps");
-  $(`${name}-view`).append(img, readout);
-  views[name] = { img, readout, retry: null };
+  $(`${name}-view`).append(canvas, readout);
+  views[name] = { targets: [canvas], readout, pending: null, drawnSeq: -1 };
 }
-// Streams start after the page's load event: an endless MJPEG image would otherwise
-// hold that event (and whatever waits for it) forever.
-const start = () => Object.keys(views).forEach(attach);
-if (document.readyState === "complete") start();
-else window.addEventListener("load", start, { once: true });
+const frames = {};
+const samples = {}; // camera -> [{at, totalMs, stationMs}] over the last WINDOW_MS
+const latency = {}; // camera -> {kind, p50, p99, stationP50, stationP99, n}
+// `log`: when an array (benchmarks/glass_to_glass.py), every sample is appended to it too.
+fpv.video = { frames, latency, log: null, addTarget, refresh: () => subscribe() };
 
-// (Re)connect a stream; a broken stream (station restarted) retries once a second.
-function attach(name) {
+function videoCanvas(label, name) {
+  // 4x3 until the first frame: the view keeps a camera's usual shape while it waits.
+  const canvas = el("canvas", { class: "video-stream", "aria-label": label, role: "img", width: 4, height: 3 });
+  if (name) canvas.dataset.camera = name;
+  return canvas;
+}
+
+function addTarget(name, canvas) {
   const v = views[name];
-  v.img.onerror = () => {
-    if (v.retry) return;
-    v.retry = setTimeout(() => { v.retry = null; attach(name); }, 1000);
-  };
-  v.img.src = `/video/${name}.mjpg?t=${Date.now()}`;
+  if (!v) return;
+  v.targets.push(canvas);
+  if (frames[name] && v.last) drawOn(canvas, v.last);
+  watchSize(canvas);
+  subscribe();
 }
 
-let stationDown = false;
+// ---- the connection and the subscription ---------------------------------------------
+let ws = null;
+let handled = 0; // frames drawn or replaced by a newer one (what the acks count)
+let subscribed = "";
+let clockOffset = { agree: false, offsetS: 0 };
 
+function shown(v) {
+  return document.visibilityState === "visible" && v.targets.some((c) => c.getClientRects().length > 0);
+}
+
+function subscribe() {
+  const want = Object.keys(views).filter((n) => shown(views[n]));
+  const key = want.join(",");
+  if (!ws || ws.readyState !== WebSocket.OPEN || key === subscribed) return;
+  subscribed = key;
+  ws.send(JSON.stringify({ subscribe: want }));
+}
+
+function connect() {
+  const proto = location.protocol === "https:" ? "wss:" : "ws:";
+  const sock = new WebSocket(`${proto}//${location.host}/ws/video?ack=${ACK_WINDOW}`);
+  sock.binaryType = "arraybuffer";
+  ws = sock;
+  handled = 0;
+  subscribed = "";
+  sock.onopen = () => subscribe();
+  sock.onmessage = (e) => { if (typeof e.data !== "string") receive(e.data); };
+  sock.onclose = () => {
+    if (ws === sock) ws = null;
+    setTimeout(connect, 1000); // the station restarted, or the page was refused: retry
+  };
+}
+
+const decoder = new TextDecoder();
+function receive(buf) {
+  const headLen = new DataView(buf).getUint16(0);
+  const head = JSON.parse(decoder.decode(new Uint8Array(buf, 2, headLen)));
+  const v = views[head.camera];
+  if (!v) { done(1); return; }
+  head.receivedMs = stationNowMs();
+  const blob = new Blob([new Uint8Array(buf, 2 + headLen)], { type: "image/jpeg" });
+  createImageBitmap(blob).then((bitmap) => {
+    // The newest frame wins (decodes may finish out of order).
+    if (head.seq <= v.drawnSeq || (v.pending && v.pending.head.seq >= head.seq)) {
+      bitmap.close();
+      done(1);
+      return;
+    }
+    if (v.pending) { v.pending.bitmap.close(); done(1); }
+    v.pending = { head, bitmap };
+    requestAnimationFrame(draw);
+  }, () => done(1));
+}
+
+function done(n) {
+  const before = handled;
+  handled += n;
+  // Every second frame: the station reads half the acks for two more frames in flight.
+  if (Math.floor(before / 2) !== Math.floor(handled / 2) && ws && ws.readyState === WebSocket.OPEN) {
+    ws.send(JSON.stringify({ ack: handled }));
+  }
+}
+
+function draw() {
+  const drawnAt = performance.now();
+  for (const [name, v] of Object.entries(views)) {
+    const p = v.pending;
+    if (!p) continue;
+    v.pending = null;
+    for (const canvas of v.targets) if (canvas.getClientRects().length > 0) drawOn(canvas, p.bitmap);
+    if (v.last) v.last.close();
+    v.last = p.bitmap;
+    v.drawnSeq = p.head.seq;
+    const wall = (performance.timeOrigin + drawnAt) / 1000;
+    noteLatency(name, p.head, p.bitmap, drawnAt);
+    const prev = frames[name];
+    frames[name] = {
+      seq: p.head.seq, t: p.head.t, signal: p.head.signal, drawnAt,
+      ageAtDrawS: clockOffset.agree ? Math.max(0, wall - p.head.t) : 0,
+      width: p.bitmap.width, height: p.bitmap.height, drawn: (prev ? prev.drawn : 0) + 1,
+    };
+    for (const canvas of v.targets) canvas.dataset.frames = String(frames[name].drawn);
+    window.dispatchEvent(new CustomEvent("fpv:frame", { detail: { camera: name, bitmap: p.bitmap, drawnAt, wall } }));
+    done(1);
+  }
+}
+
+// ---- latency to the screen -----------------------------------------------------------
+function stationNowMs(at = performance.now()) {
+  return performance.timeOrigin + at + (clockOffset.agree ? 0 : clockOffset.offsetS * 1000);
+}
+
+// The corner code of companion/cameras/frame_stamp.py: COLS x ROWS cells, each 1/64 of
+// the width and 1/48 of the height; marker, counter, render ms mod 2^32, check nibble.
+const STAMP = { cols: 14, rows: 4, perWidth: 64, perHeight: 48, marker: 0b1010 };
+const TIME_MODULUS_MS = 2 ** 32;
+let probe = null;
+function readStamp(bitmap) {
+  const W = bitmap.width, H = bitmap.height;
+  const xs = [], ys = [];
+  for (let c = 0; c <= STAMP.cols; c++) xs.push(Math.round((c * W) / STAMP.perWidth));
+  for (let r = 0; r <= STAMP.rows; r++) ys.push(Math.round((r * H) / STAMP.perHeight));
+  const w = xs[STAMP.cols], h = ys[STAMP.rows];
+  if (w < STAMP.cols || h < STAMP.rows) return null;
+  if (!probe) probe = document.createElement("canvas").getContext("2d", { willReadFrequently: true });
+  if (probe.canvas.width !== w || probe.canvas.height !== h) { probe.canvas.width = w; probe.canvas.height = h; }
+  probe.drawImage(bitmap, 0, 0, w, h, 0, 0, w, h);
+  const data = probe.getImageData(0, 0, w, h).data;
+  const nibbles = [];
+  let nibble = 0;
+  for (let r = 0; r < STAMP.rows; r++) {
+    for (let c = 0; c < STAMP.cols; c++) {
+      // The middle half of the cell: its edges are where JPEG and resizing blur.
+      const qx = Math.floor((xs[c + 1] - xs[c]) / 4), qy = Math.floor((ys[r + 1] - ys[r]) / 4);
+      let sum = 0, n = 0;
+      for (let y = ys[r] + qy; y < ys[r + 1] - qy; y++) {
+        for (let x = xs[c] + qx; x < xs[c + 1] - qx; x++) {
+          const i = (y * w + x) * 4;
+          sum += data[i] + data[i + 1] + data[i + 2];
+          n += 3;
+        }
+      }
+      nibble = nibble * 2 + (n && sum / n > 128 ? 1 : 0);
+      if ((r * STAMP.cols + c) % 4 === 3) { nibbles.push(nibble); nibble = 0; }
+    }
+  }
+  let check = 0;
+  for (const x of nibbles.slice(0, -1)) check ^= x;
+  if (nibbles[0] !== STAMP.marker || check !== nibbles[nibbles.length - 1]) return null;
+  let t = 0;
+  for (const x of nibbles.slice(5, -1)) t = t * 16 + x;
+  const counter = nibbles.slice(1, 5).reduce((a, x) => a * 16 + x, 0);
+  return { counter, tMs32: t };
+}
+
+function unwrapMs(tMs32, nearMs) {
+  const base = nearMs - (nearMs % TIME_MODULUS_MS);
+  let best = base + tMs32;
+  for (const t of [best - TIME_MODULUS_MS, best + TIME_MODULUS_MS]) {
+    if (Math.abs(t - nearMs) < Math.abs(best - nearMs)) best = t;
+  }
+  return best;
+}
+
+function noteLatency(name, head, bitmap, drawnAt) {
+  const shownMs = stationNowMs(drawnAt);
+  const code = readStamp(bitmap);
+  const kind = code ? "render" : "capture";
+  const fromMs = code ? unwrapMs(code.tMs32, shownMs) : head.t * 1000;
+  const sample = { at: drawnAt, totalMs: shownMs - fromMs, stationMs: head.receivedMs - fromMs, kind };
+  const list = (samples[name] = samples[name] || []);
+  list.push(sample);
+  while (list.length && list[0].at < drawnAt - WINDOW_MS) list.shift();
+  if (fpv.video.log) fpv.video.log.push({ camera: name, seq: head.seq, counter: code ? code.counter : null, ...sample });
+}
+
+function percentile(sorted, q) {
+  return sorted.length ? sorted[Math.min(sorted.length - 1, Math.floor(q * sorted.length))] : null;
+}
+
+function summarise(name) {
+  const now = performance.now();
+  const list = (samples[name] || []).filter((x) => x.at >= now - WINDOW_MS);
+  if (!list.length) { delete latency[name]; return null; }
+  const total = list.map((x) => x.totalMs).sort((a, b) => a - b);
+  const station = list.map((x) => x.stationMs).sort((a, b) => a - b);
+  return (latency[name] = {
+    kind: list[list.length - 1].kind, n: list.length,
+    p50: percentile(total, 0.5), p99: percentile(total, 0.99),
+    stationP50: percentile(station, 0.5), stationP99: percentile(station, 0.99),
+  });
+}
+
+function drawOn(canvas, bitmap) {
+  if (canvas.width !== bitmap.width || canvas.height !== bitmap.height) {
+    canvas.width = bitmap.width;
+    canvas.height = bitmap.height;
+  }
+  canvas.getContext("2d").drawImage(bitmap, 0, 0);
+}
+
+// A view shown or hidden (the PiP, stereo's right eye, a phone turned) changes its
+// canvas's size; a tab put in the background changes its visibility.
+const resizes = new ResizeObserver(() => subscribe());
+function watchSize(canvas) { resizes.observe(canvas); }
+for (const v of Object.values(views)) v.targets.forEach(watchSize);
+document.addEventListener("visibilitychange", () => subscribe());
+connect();
+
+// ---- figures -----------------------------------------------------------------------
 async function poll() {
   const sentAt = Date.now();
   let reply;
@@ -51,25 +267,23 @@ async function poll() {
     reply = await api("/api/cameras");
   } catch (err) {
     for (const v of Object.values(views)) setReadout(v, "0 fps · station unreachable", "bad");
-    stationDown = true;
     return;
   }
-  if (stationDown) {
-    // The station is back (restarted): a stream that ended quietly will not error,
-    // so reconnect every stream.
-    stationDown = false;
-    Object.keys(views).forEach(attach);
-  }
+  subscribe();
   const now = Date.now();
   fpv.camerasAt = performance.now(); // when last_frame_age_s was true (the OSD ages it on)
   const rttS = (now - sentAt) / 1000;
   // Station clock minus browser clock, best estimate: server_time was taken mid-request.
   const offsetS = reply.server_time - (sentAt + now) / 2000;
   const clocksAgree = Math.abs(offsetS) <= rttS / 2 + CLOCK_SLACK_S;
+  clockOffset = { agree: clocksAgree, offsetS };
+  const front = summarise("front");
+  const line = front ? `${front.kind === "render" ? "R2S" : "C2S"} ${front.p50.toFixed(0)}/${front.p99.toFixed(0)}ms` : "";
+  for (const osd of [fpv.osd, fpv.osdRight]) if (osd) osd.setLine("latency", line);
   for (const cam of reply.cameras) {
-    const latencyMs = cam.last_frame_time != null ? now - cam.last_frame_time * 1000 : null;
-    fpv.cameras[cam.name] = { ...cam, latency_ms: clocksAgree ? latencyMs : null,
-      clock_offset_s: offsetS };
+    const lat = cam.name === "front" ? front : summarise(cam.name);
+    const latencyMs = lat ? lat.p50 : null;
+    fpv.cameras[cam.name] = { ...cam, latency_ms: latencyMs, clock_offset_s: offsetS };
     const v = views[cam.name];
     if (!v) continue;
     if (!cam.signal) {
@@ -84,8 +298,8 @@ async function poll() {
       continue;
     }
     let text = `${cam.delivered_fps.toFixed(1)} fps`;
-    if (clocksAgree && latencyMs != null) text += ` · ${Math.max(0, latencyMs).toFixed(0)} ms`;
-    else text += ` · clocks differ ${offsetS >= 0 ? "+" : ""}${offsetS.toFixed(2)} s`;
+    if (lat) text += ` · ${lat.p50.toFixed(0)} ms · p99 ${lat.p99.toFixed(0)}`;
+    if (!clocksAgree) text += ` · clock ${offsetS >= 0 ? "+" : ""}${offsetS.toFixed(2)} s`;
     const slow = cam.delivered_fps < 0.8 * cam.configured_fps;
     setReadout(v, text, slow ? "warn" : "");
   }
