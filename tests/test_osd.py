@@ -286,7 +286,7 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     vehicle.yaw_rad = math.radians(45)
     expect(page.locator("[data-osd=heading]")).to_have_text("045", timeout=15_000)
     box = page.evaluate(
-        """() => { const r = document.querySelector('#front-view img').getBoundingClientRect();
+        """() => { const r = document.querySelector('#front-view .video-stream').getBoundingClientRect();
         const d = document.documentElement;
         return {area: r.width * r.height, view: innerWidth * innerHeight,
                 sw: d.scrollWidth, cw: d.clientWidth, sh: d.scrollHeight, ch: d.clientHeight,
@@ -305,7 +305,7 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     expect(bottom).to_be_hidden()
     page.keyboard.press("b")
     expect(bottom).to_be_visible()
-    expect(bottom.locator("img")).to_have_count(1)
+    expect(bottom.locator(".video-stream")).to_have_count(1)
     page.keyboard.press("b")
     expect(bottom).to_be_hidden()
 
@@ -390,7 +390,7 @@ def test_pilot_page_has_no_horizontal_scroll_on_a_phone(station, browser, size):
     assert sw <= cw, (sw, cw)
     assert page.evaluate(OVERLAPS, "#front-view") == []
     page.locator("#bottom-view").scroll_into_view_if_needed()
-    expect(page.locator("#bottom-view img")).to_be_in_viewport()
+    expect(page.locator("#bottom-view .video-stream")).to_be_in_viewport()
 
 
 def test_not_recording_shows_while_armed_without_a_recording(tmp_path, browser):
