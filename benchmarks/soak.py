@@ -17,7 +17,8 @@ Runs `fpv-station serve --source sim` in a subprocess (both cameras on image fol
 the viewers cost what a USB camera's would), starts a recording, and holds the load from
 this process over loopback. Prints at the start and at the end of the load: the server's
 RSS, file descriptors and asyncio tasks (from /api/health and /proc), the live 3D trail's
-points (the panel keeps `update_hz` a second, up to `--trail-points`), per-client
+points (`update_hz` a second while the vehicle moves, none while it sits, up to
+`--trail-points`), per-client
 telemetry message and MJPEG frame rates, and the session's rows against its rate.
 Figures and load average go in docs/PERFORMANCE.md.
 """

@@ -73,6 +73,16 @@ class ViserSettings(Section):
     chunk_segments: int = Field(50, ge=2, le=1000)  # trail segments per scene handle
     gap_s: float = Field(1.0, gt=0)  # a fix older than this breaks the trail
     max_points: int = Field(200_000, ge=100)  # oldest chunks are dropped beyond this
+    trail_min_step_m: float = Field(
+        0.05,
+        ge=0,
+        le=5,
+        description="A new trail point only once the vehicle is this far (m) from the "
+        "trail's last point: a parked vehicle (its jitter included) adds none, so the "
+        "trail's memory grows with the distance flown, not with the station's uptime. "
+        "Under the distance a moving vehicle covers in 1 / update_hz s; 0 keeps every "
+        "sample.",
+    )
     color_by: Literal["height", "speed"] = "height"
     height_range_m: tuple[float, float] = (0.0, 10.0)
     speed_range_mps: tuple[float, float] = (0.0, 5.0)

@@ -184,9 +184,61 @@ def test_trail_reprojects_on_a_new_origin_and_drops_old_chunks():
     np.testing.assert_allclose(trail.last_enu_m, [19.9 - 10.0, 0.0, 3.0], atol=1e-3)
 
 
+def _n_segments(trail: Trail) -> int:
+    return sum(c.n_segments for c in trail.chunks)
+
+
+@pytest.mark.parametrize("jitter_m", [0.0, 0.01])
+def test_a_parked_vehicle_adds_no_trail_points(jitter_m):
+    """A vehicle on its pad, exactly still (the twin) or jittering by a centimetre, for
+    10 minutes of states at 15 Hz: one point, however long it sits."""
+    trail = Trail(chunk_segments=50, gap_s=1.0, min_step_m=0.05)
+    rng = np.random.default_rng(1)
+    for i in range(9000):
+        e, n, u = rng.uniform(-jitter_m, jitter_m, 3) if jitter_m else (0.0, 0.0, 0.0)
+        changed, dropped = trail.append(_sample(i / 15, e, n, 3.0 + u))
+        assert dropped == [] and (i == 0 or changed == [])  # nothing to redraw either
+    assert trail.n_points == 1 and len(trail.chunks) == 1
+
+
+def test_a_moving_vehicle_adds_every_state():
+    trail = Trail(chunk_segments=50, gap_s=1.0, min_step_m=0.05)
+    for i in range(300):  # 1.5 m/s at 15 Hz: 10 cm a state
+        trail.append(_sample(i / 15, i * 0.1))
+    assert trail.n_points == 300 and _n_segments(trail) == 299
+
+
+def test_a_vehicle_that_sat_still_continues_its_run_and_ends_it_where_it_was():
+    """Parked for 60 s (no point added, but every sample heard) then moving again: the
+    same run, no gap drawn. When the run ends (a lost fix), the line ends at the last
+    position heard, not at the last point added before it."""
+    trail = Trail(chunk_segments=20, gap_s=1.0, min_step_m=0.05)
+    t = 0.0
+    for i in range(10):  # flying east 10 cm a state
+        trail.append(_sample(t, i * 0.1))
+        t += 1 / 15
+    for _ in range(900):  # sits at 0.9 m for 60 s, creeping 4 cm in all
+        trail.append(_sample(t, 0.9 + 0.04 * _ / 900))
+        t += 1 / 15
+    assert trail.n_points == 10
+    for i in range(1, 11):  # flies on east
+        trail.append(_sample(t, 0.94 + i * 0.1))
+        t += 1 / 15
+    assert trail.n_points == 20 and _n_segments(trail) == 19  # one run: no gap
+    for _ in range(30):  # sits again, creeping 3 cm
+        trail.append(_sample(t, 1.94 + 0.03 * _ / 29))
+        t += 1 / 15
+    trail.mark_gap()  # the fix is lost
+    changed, _ = trail.append(_sample(t + 5.0, 50.0))  # and comes back far away
+    pts = np.concatenate([c.segments()[0] for c in trail.chunks])
+    assert len(pts) == 20  # the held end joined its run; the new run's first point alone
+    np.testing.assert_allclose(pts[-1, 1, 0], 1.97, atol=1e-3)
+    assert trail.chunks[-1] in changed and len(changed) == 2  # the full chunk, a new one
+
+
 def test_a_trail_point_costs_a_few_dozen_bytes():
-    """The live trail gains `update_hz` points a second for as long as the station runs
-    (up to `max_points`): each point, drawn or not, holds about 60 bytes of arrays (a
+    """A moving vehicle gives the live trail `update_hz` points a second (up to
+    `max_points`): each point, drawn or not, holds about 60 bytes of arrays (a
     tuple, a float and an array view per point held about five times that)."""
     import tracemalloc
 
@@ -197,9 +249,10 @@ def test_a_trail_point_costs_a_few_dozen_bytes():
     tracemalloc.start()
     try:
         for i, s in enumerate(samples):
-            chunk, _ = trail.append(s)
+            changed, _ = trail.append(s)
             if i % 4 == 0:  # drawn as a watched panel draws it: projected as it comes
-                chunk.segments()
+                for chunk in changed:
+                    chunk.segments()
         for chunk in trail.chunks:
             chunk.segments()
         held, _ = tracemalloc.get_traced_memory()
@@ -243,6 +296,23 @@ def test_scene_gains_segments_while_the_vehicle_moves(service):
     np.testing.assert_allclose(service.scene.vehicle.position[0], pts[:, :, 0].max(), atol=0.3)
     # the scene's own node tree holds them too
     assert all(h.name.startswith("/trail/c") for h in handles.values())
+
+
+def test_a_parked_vehicle_does_not_grow_the_panel(service):
+    """The station's default settings, a viewer watching, 20 s of states of a vehicle on
+    its pad jittering by a centimetre: one trail point, nothing more drawn, and the
+    vehicle drawn where it is, not at the trail's last point."""
+    rng = np.random.default_rng(2)
+    for i in range(300):
+        e, n, u = rng.uniform(-0.01, 0.01, 3) if i else (0.0, 0.0, 0.0)
+        service.step(make_state(i / 15, (5.0 + e, 2.0 + n, 3.0 + u)))
+    assert service.trail.n_points == 1 and service.scene.chunk_handles == {}
+    service.step(make_state(20.0, (5.04, 2.0, 3.0)))  # 4 cm east: still parked
+    assert service.trail.n_points == 1
+    first = service.trail.chunks[0]
+    np.testing.assert_allclose(
+        service.scene.vehicle.position - first.last_enu_m, (0.04, 0, 0), atol=2e-3
+    )
 
 
 def test_an_unwatched_panel_keeps_the_trail_and_draws_it_for_the_first_viewer(

@@ -131,7 +131,9 @@ class Trajectory3D:
         self.state = state
         self.host = host  # loopback: viewers come through the relay (gate.py)
         self.field = field
-        self.trail = Trail(settings.chunk_segments, settings.gap_s, settings.max_points)
+        self.trail = Trail(
+            settings.chunk_segments, settings.gap_s, settings.max_points, settings.trail_min_step_m
+        )
         self.pilot_path = PilotPath()
         self.server: viser.ViserServer | None = None
         self.scene: LiveScene | None = None
@@ -344,18 +346,19 @@ class Trajectory3D:
         if self._last_sample_t is None or sample.t_s > self._last_sample_t:
             self._last_sample_t = sample.t_s
             new_origin = self.trail.origin is None
-            chunk, dropped = self.trail.append(sample)
+            changed, dropped = self.trail.append(sample)
             if draw:
                 if new_origin:
                     self.scene.set_origin(self.trail.origin)  # type: ignore[arg-type]
                 self.scene.drop_chunks(dropped)
-                self.scene.sync_chunk(chunk)
+                for chunk in changed:
+                    self.scene.sync_chunk(chunk)
         if not draw:
             return
         assert self.scene is not None and self.controls is not None
         assert self.trail.origin is not None
-        pos = self.trail.last_enu_m
-        if pos is None:  # the trail was just cleared and this fix is not new
+        pos = self.trail.last_enu_m if self.trail.held is None else None
+        if pos is None:  # a sample held (not a point), or the trail cleared since this fix
             pos = geodetic_to_enu(sample.lat_deg, sample.lon_deg, sample.alt_m, *self.trail.origin)
         R = self._attitude(state)
         self.scene.set_vehicle_pose(pos, wxyz_from_matrix(R))

@@ -7,9 +7,14 @@ update is therefore bounded by the chunk size, whatever the length of the flight
 
 Gaps: a sample flagged `starts_run` (after a lost fix or a silence longer than the gap
 threshold) is not joined to the point before it, so a dropout is drawn as a gap, never as
-a straight jump. Samples are kept geodetic, so that a new origin (the arming point)
-re-projects the whole path exactly. They are projected to ENU when first drawn, all the
-new ones of a chunk in one vectorized call: a panel nobody watches projects nothing.
+a straight jump. A sample less than `min_step_m` from the trail's last point is held, not
+added: a parked vehicle adds no points however long the station runs, and its jitter
+draws nothing. A held sample still counts as heard for the gap threshold (a vehicle that
+sat still and flies again continues its run), and the newest one held becomes a point
+when its run ends, so the line ends where the vehicle last was. Samples are kept
+geodetic, so that a new origin (the arming point) re-projects the whole path exactly.
+They are projected to ENU when first drawn, all the new ones of a chunk in one vectorized
+call: a panel nobody watches projects nothing.
 """
 
 from __future__ import annotations
@@ -38,8 +43,8 @@ class TrailChunk:
     """Consecutive samples; point i is joined to point i-1 unless `starts_run[i]`.
 
     The samples live in a few numpy arrays per chunk, grown by doubling, not in Python
-    objects per point: the live trail gains `update_hz` points a second for as long as
-    the station runs (up to `max_points`), and the Pi's memory pays for each."""
+    objects per point: a moving vehicle gives the live trail `update_hz` points a second
+    (up to `max_points`), and the Pi's memory pays for each."""
 
     __slots__ = ("id", "origin", "n", "n_segments", "_geo", "_speed", "_starts", "_enu", "_done")
 
@@ -131,18 +136,26 @@ class TrailChunk:
 class Trail:
     """Samples in chunks, with gap detection and an origin that may move."""
 
-    def __init__(self, chunk_segments: int = 50, gap_s: float = 1.0, max_points: int = 200_000):
+    def __init__(
+        self,
+        chunk_segments: int = 50,
+        gap_s: float = 1.0,
+        max_points: int = 200_000,
+        min_step_m: float = 0.0,
+    ):
         if chunk_segments < 1:
             raise ValueError("chunk_segments must be at least 1.")
         self.chunk_segments = chunk_segments
         self.gap_s = gap_s
         self.max_points = max_points
+        self.min_step_m = min_step_m
         self.origin: Origin | None = None
         self.chunks: list[TrailChunk] = []
         self.n_points = 0
         self._ids = itertools.count()
-        self._last_t_s: float | None = None
+        self._last_t_s: float | None = None  # of the newest sample, added or held
         self._gap_pending = True  # the first point starts a run
+        self.held: TrailSample | None = None  # the newest sample, when not added
 
     def clear(self) -> list[TrailChunk]:
         """Forget the path (the origin stays); returns the chunks that were dropped."""
@@ -150,6 +163,7 @@ class Trail:
         self.n_points = 0
         self._last_t_s = None
         self._gap_pending = True
+        self.held = None
         return dropped
 
     def mark_gap(self) -> None:
@@ -168,8 +182,9 @@ class Trail:
             chunk.reproject(origin)
         return True
 
-    def append(self, s: TrailSample) -> tuple[TrailChunk, list[TrailChunk]]:
-        """Add one sample. Returns the chunk that changed (possibly a new one) and the old
+    def append(self, s: TrailSample) -> tuple[list[TrailChunk], list[TrailChunk]]:
+        """Add one sample. Returns the chunks that changed (none when the sample is held,
+        two when a held sample closes a run and the new one opens a chunk) and the old
         chunks dropped to stay under `max_points`."""
         if self.origin is None:
             self.origin = (s.lat_deg, s.lon_deg, s.alt_m)
@@ -181,9 +196,35 @@ class Trail:
         )
         self._gap_pending = False
         self._last_t_s = s.t_s
+        changed: list[TrailChunk] = []
+        if not starts_run and self.chunks and self._near_last_point(s):
+            self.held = s
+            return changed, []
+        if starts_run and self.held is not None:
+            changed.append(self._add(self.held, starts_run=False))  # the run's true end
+        self.held = None
+        chunk = self._add(s, starts_run)
+        if not changed or changed[-1] is not chunk:
+            changed.append(chunk)
+        dropped = []
+        while self.n_points > self.max_points and len(self.chunks) > 1:
+            old = self.chunks.pop(0)
+            self.n_points -= old.n
+            dropped.append(old)
+        return [c for c in changed if c not in dropped], dropped
+
+    def _near_last_point(self, s: TrailSample) -> bool:
+        if self.min_step_m <= 0:
+            return False
+        geo, _ = self.chunks[-1].last()
+        step = geodetic_to_enu(s.lat_deg, s.lon_deg, s.alt_m, *geo)
+        return float(np.linalg.norm(step)) < self.min_step_m
+
+    def _add(self, s: TrailSample, starts_run: bool) -> TrailChunk:
         chunk = self.chunks[-1] if self.chunks else None
         if chunk is None or chunk.n_segments >= self.chunk_segments:
             # Room for a chunk's segments and the point it starts from.
+            assert self.origin is not None
             new = TrailChunk(next(self._ids), self.origin, capacity=self.chunk_segments + 1)
             if chunk is not None and chunk.n and not starts_run:
                 # Repeat the last point so the line is continuous across chunks.
@@ -192,12 +233,7 @@ class Trail:
             chunk = new
         chunk.add((s.lat_deg, s.lon_deg, s.alt_m), s.speed_mps, starts_run)
         self.n_points += 1
-        dropped = []
-        while self.n_points > self.max_points and len(self.chunks) > 1:
-            old = self.chunks.pop(0)
-            self.n_points -= old.n
-            dropped.append(old)
-        return chunk, dropped
+        return chunk
 
     @property
     def last_enu_m(self) -> NDArray[np.float64] | None:
