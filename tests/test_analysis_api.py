@@ -55,7 +55,7 @@ def test_rest_and_cli_give_the_same_numbers(server, tmp_path):
     r = httpx.get(
         f"{base}/api/sessions/{PHYSICAL}/analysis",
         params={"task": "a-to-b", "reference": ref},
-        timeout=30,
+        timeout=120,
     )
     assert r.status_code == 200, r.text
     rest = r.json()
@@ -91,7 +91,7 @@ def test_plots_as_png(server):
         r = httpx.get(
             f"{base}/api/sessions/{PHYSICAL}/analysis/{plot}.png",
             params={"task": "a-to-b", "reference": ref},
-            timeout=30,
+            timeout=120,
         )
         assert r.status_code == 200 and r.headers["content-type"] == "image/png"
         assert _png_size(r.content) == SIZE_PX
@@ -100,12 +100,12 @@ def test_plots_as_png(server):
 def test_comparison_of_physical_and_twin(server):
     base, _, ref = server
     params = {"task": "a-to-b", "reference": ref, "sessions": [TWIN, PHYSICAL]}
-    r = httpx.get(f"{base}/api/analysis", params=params, timeout=30)
+    r = httpx.get(f"{base}/api/analysis", params=params, timeout=120)
     assert r.status_code == 200, r.text
     results = r.json()["results"]
     assert [x["platform"] for x in results] == ["physical", "twin"]
     assert results[1]["lateral_deviation_m"] == pytest.approx(1 / 2**0.5, rel=0.01)
-    png = httpx.get(f"{base}/api/analysis/history.png", params=params, timeout=30)
+    png = httpx.get(f"{base}/api/analysis/history.png", params=params, timeout=120)
     assert png.status_code == 200 and _png_size(png.content) == SIZE_PX
 
 
@@ -174,7 +174,7 @@ def test_comparison_of_physical_and_twin(server):
 )
 def test_clear_errors(server, path, params, status, error, words):
     base, _, _ = server
-    r = httpx.get(f"{base}{path}", params=params, timeout=30)
+    r = httpx.get(f"{base}{path}", params=params, timeout=120)
     assert r.status_code == status, r.text
     body = r.json()
     assert body["error"] == error and words in body["error_msg"]
@@ -186,7 +186,7 @@ def test_thresholds_are_parameters(server):
     r = httpx.get(
         f"{base}/api/sessions/{PHYSICAL}/analysis",
         params={"task": "hover", "hover_height_m": 2.5, "hover_window_s": 5},
-        timeout=30,
+        timeout=120,
     )
     assert r.status_code == 200, r.text
     assert r.json()["results"][0]["time_in_window_s"] == pytest.approx(5.0, abs=0.11)

@@ -27,7 +27,7 @@ def test_health_and_openapi_on_real_server():
     with run_uvicorn(app) as base:
         r = httpx.get(f"{base}/api/health")
         assert r.status_code == 200 and r.json()["ok"] is True
-        spec = httpx.get(f"{base}/openapi.json").json()
+        spec = httpx.get(f"{base}/openapi.json", timeout=60).json()  # built on first ask
         assert "/api/health" in spec["paths"]
         missing = httpx.get(f"{base}/api/does-not-exist")
         assert missing.status_code == 404 and missing.json()["error"] == "HTTPError"
