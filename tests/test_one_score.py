@@ -15,10 +15,9 @@ from fpv_station.companion.recording.meta import SessionMeta, session_task
 from fpv_station.core.scene import load_scene
 from fpv_station.server.app import create_app
 from fpv_station.server.cli import main as cli_main
-from fpv_station.server.settings import load_settings
 from fpv_station.server.trials import _score_and_store
 from tests import synthetic as syn
-from tests.helpers import run_uvicorn
+from tests.helpers import run_uvicorn, station_settings
 
 SESSION = "20261122T060000Z_sim"
 WALL_T0 = 1.7e9
@@ -70,13 +69,7 @@ def test_the_score_at_disarm_is_what_rest_the_cli_and_the_sessions_page_give(tmp
     scored = score.result
     assert scored["source"] == SESSION and scored["trial_time_s"] != by_arrival["trial_time_s"]
 
-    overrides = {
-        "link.source": "none",
-        "recording.sessions_dir": str(root),
-        "recording.auto_record_on_arm": False,
-        "recording.min_free_mb": 0,
-    }
-    app = create_app(load_settings(environ={}, overrides=overrides))
+    app = create_app(station_settings("none", root))
     with run_uvicorn(app) as base:
         r = httpx.get(
             f"{base}/api/sessions/{SESSION}/analysis", params={"task": "hover"}, timeout=60
