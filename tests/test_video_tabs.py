@@ -2,7 +2,8 @@
 real headless Chromium against the real twin. Each page's frames advance, its OSD's VID
 reads the age of the frame drawn, and its `/api` requests answer: the pages take their video over one
 WebSocket each, not one HTTP connection per MJPEG stream (Chromium has six per host).
-A camera no page shows is not streamed: the goggles' hidden picture-in-picture."""
+A camera no page shows is not streamed: the goggles' hidden picture-in-picture. The OSD
+shows the twin's render-to-screen latency, read from the code in each frame's corner."""
 
 from __future__ import annotations
 
@@ -89,6 +90,13 @@ def test_six_tabs_in_one_browser_stay_live(station):
         assert wait_until(lambda: clients(station)["bottom"] == 3, timeout=30)
         for page in pages:  # still live after all that
             api_answers(page)
+        # The twin's frames carry their render time: the pages read it as they draw them.
+        for page in (pages[0], pages[3]):
+            expect(page.locator(".osd-lines").first).to_contain_text(
+                re.compile(r"R2S \d+/\d+ms"), timeout=GUARD_MS
+            )
+        lat = pages[0].evaluate("() => window.fpv.video.latency.front")
+        assert lat["kind"] == "render" and 0 < lat["stationP50"] <= lat["p50"] <= lat["p99"], lat
         context.close()
 
 
