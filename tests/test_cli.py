@@ -68,13 +68,13 @@ def test_serve_with_flags_config_env_and_forwarding(tmp_path):
 
             def status():
                 try:
-                    return httpx.get(f"{base}/api/status", timeout=1).json()
+                    return httpx.get(f"{base}/api/status", timeout=10).json()
                 except httpx.HTTPError:
                     return None
 
             assert wait_until(
                 lambda: (s := status()) and s["state"] and s["state"]["heartbeat"]["sysid"] == 9,
-                timeout=20,
+                timeout=90,  # a station process starting on a loaded machine
             )
             data, _ = qgc.recvfrom(65535)  # the forward copy arrives
             assert data[0] in (0xFD, 0xFE)
