@@ -14,7 +14,7 @@ shared out:
     └── connections    every TCP connection of the main server, of which at most
         ├── control      CONTROL_CLIENTS places of the pilot's own
         ├── websocket    /ws/telemetry
-        ├── video        MJPEG viewers
+        ├── video        MJPEG viewers and `/ws/video` pages (one place per page)
         └── viewers3d    3D viewers (both panels together)
         and at least HTTP_ROOM always free for plain requests (`/api/health`, pages).
 

@@ -57,6 +57,7 @@ class ServerSettings(Section):
     # pages and the goggles. 50 draws the horizon as often as ATTITUDE comes; a small Pi
     # takes 25 (the commented lines of deploy/config.toml; docs/PERFORMANCE.md).
     telemetry_rate_hz: float = Field(50.0, ge=1, le=1000)
+    # MJPEG streams and `/ws/video` pages together (a page takes one place for its cameras).
     max_video_clients: int = Field(40, ge=1, le=10_000)
     # Viewers of the 3D panels, both viser servers together, under the same budget.
     max_3d_viewers: int = Field(20, ge=1, le=10_000)
