@@ -62,6 +62,10 @@ class ServerSettings(Section):
     # Viewers of the 3D panels, both viser servers together, under the same budget.
     max_3d_viewers: int = Field(20, ge=1, le=10_000)
     fd_reserve: int = Field(128, ge=32, le=100_000)
+    # Seconds between handing the heap's free pages back to the system (glibc's
+    # malloc_trim, server/memory_trim.py); 0 never does. Keeps a long-running station's
+    # resident memory from creeping up with buffers freed by its threads.
+    malloc_trim_s: float = Field(60.0, ge=0, le=86_400)
 
 
 class ViserSettings(Section):

@@ -21,6 +21,7 @@ from fpv_station.companion.recording.recorder import Recorder
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.server.analysis_worker import AnalysisWorker
 from fpv_station.server.client_limits import ClientCap, ClientLimits, raise_nofile_limit
+from fpv_station.server.memory_trim import MemoryTrimmer, glibc_malloc_trim
 from fpv_station.server.onboard_logs import OnboardLogs
 from fpv_station.server.pilot import Pilot
 from fpv_station.server.settings import Settings
@@ -72,6 +73,7 @@ class Station:
     # REST analyses and figures: a worker process, bounded and cached (analysis_worker.py).
     analysis_worker: AnalysisWorker = field(default_factory=AnalysisWorker)
     trials: Trials | None = None  # the flight task chosen and its trials' scores
+    memory_trimmer: MemoryTrimmer | None = None  # None where malloc_trim is off or absent
     # The autopilot's own log of each flight, fetched into its session (server.onboard_logs).
     onboard_logs: OnboardLogs | None = None
     # Caps on streaming clients, fitted under the descriptor limit (server/client_limits.py).
@@ -122,6 +124,10 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
         if (vehicle_link := station.link) is not None:
             station.tasks.watch("mavlink link thread", lambda: vehicle_link.crashed)
             station.telemetry_json.clock = vehicle_link.clock  # a replay's ages: its time
+
+        if settings.server.malloc_trim_s > 0 and (trim := glibc_malloc_trim()) is not None:
+            station.memory_trimmer = MemoryTrimmer(settings.server.malloc_trim_s, trim)
+            station.tasks.spawn("malloc-trim", station.memory_trimmer.run())
 
         # -- telemetry: one pump for the WebSocket clients, running while any is there
         station.telemetry = TelemetryPump(
