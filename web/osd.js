@@ -275,10 +275,11 @@ export function mountOsd(view, { menu = true } = {}) {
     setText(nodes.link, `${loss}${rssi}`.trim() || "LQ --");
 
     // Ages: the newest vehicle telemetry and the front camera's newest frame on screen
-    // (video.js: its age when drawn, and the time since).
+    // (video.js: its age when drawn, and the time since). A NO SIGNAL card is no frame:
+    // then the camera's own figure from /api/cameras (none for a camera never seen).
     const tAge = ageOfNewest();
     const shownFrame = fpv.video && fpv.video.frames.front;
-    const vAge = shownFrame ? shownFrame.ageAtDrawS + (performance.now() - shownFrame.drawnAt) / 1000
+    const vAge = shownFrame && shownFrame.signal ? shownFrame.ageAtDrawS + (performance.now() - shownFrame.drawnAt) / 1000
       : cam && cam.last_frame_age_s !== null && cam.last_frame_age_s !== undefined
         ? cam.last_frame_age_s + (performance.now() - (fpv.camerasAt || performance.now())) / 1000 : null;
     setText(nodes.age, `TLM ${tAge === null ? "--" : tAge.toFixed(1) + "s"} VID ${vAge === null ? "--" : vAge.toFixed(1) + "s"}`);
