@@ -197,6 +197,12 @@ class MavlinkLink:
         self._outbox.append(msg)
         self._wake()
 
+    def autopilot(self) -> tuple[int, int] | None:
+        """The followed autopilot's (sysid, compid), the target of our commands to it; None
+        before one is heard."""
+        sysid, compid = self._tracker.sysid, self._tracker.compid
+        return None if sysid is None or compid is None else (sysid, compid)
+
     def health(self) -> LinkHealth:
         return self._meter.report(
             self._framer.counters,

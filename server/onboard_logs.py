@@ -76,10 +76,9 @@ class OnboardLogs:
         if self.current is not None and self.current.running:
             busy = self.current.status.get().value.session
             raise Conflict(f"The onboard log of session '{busy}' is being downloaded; wait.")
-        health = self.link.health()
-        if health.autopilot_sysid is None or health.autopilot_compid is None:
+        target = self.link.autopilot()
+        if target is None:
             raise Unavailable("No autopilot heard on the link yet.")
-        target = (health.autopilot_sysid, health.autopilot_compid)
         download = LogDownload(
             self.link,
             target,

@@ -17,6 +17,9 @@ As an autopilot (component 1) it answers TIMESYNC as PX4 and ArduPilot do (`tc1`
 boot clock in ns, `ts1` mirrored, addressed to the asker; signed, MAVLink 1 or
 `timesync="untargeted"`: as older firmware, to no one; "none": never), on a boot clock that runs `clock_rate` vehicle seconds per second of
 this host's monotonic clock (every `time_boot_ms`/`time_usec` it sends is on that clock).
+`command_results`: the COMMAND_ACK result it answers other COMMAND_LONGs with, by
+MAV_CMD (a command not in it, or mapped to None, is not answered), each after a
+STATUSTEXT of `command_texts[command]` if there is one, as PX4 says why it refuses.
 `signing_key`: MAVLink 2 signing as pymavlink (and so MAVProxy) does it: everything sent
 is signed with the key; what arrives is checked by pymavlink and `signed(msg)` says
 whether it carried a good signature.
@@ -186,6 +189,8 @@ class MavVehicle:
         self.rc_pwm = [1500] * 8 + [0] * 10
         self.servo_pwm = [1100] * 4 + [0] * 12
         self.silent = False  # True: sends nothing (a vehicle gone out of range)
+        self.command_results: dict[int, int | None] = {}
+        self.command_texts: dict[int, str] = {}
         self.received: collections.deque[mavlink.MAVLink_message] = collections.deque(maxlen=2000)
         self.sent: collections.Counter[str] = collections.Counter()
         self._lock = threading.Lock()
@@ -603,7 +608,10 @@ class MavVehicle:
             self.send_message(self.mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_ACCEPTED))
             self.send_message(self.autopilot_version())
             return
-        if msg.get_type() != "COMMAND_LONG" or msg.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+        if msg.get_type() == "COMMAND_LONG" and msg.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self._answer_command(msg)
+            return
+        if msg.get_type() != "COMMAND_LONG":
             return
         if self.interval_reply == "ignore":
             return
@@ -615,3 +623,18 @@ class MavVehicle:
             if msg.param2 > 0:
                 self.rates_hz[name] = 1e6 / msg.param2
         self.send_message(self.mav.command_ack_encode(msg.command, result))
+
+    def _answer_command(self, msg: mavlink.MAVLink_message) -> None:
+        result = self.command_results.get(msg.command)
+        if result is None:
+            return
+        text = self.command_texts.get(msg.command)
+        if text:
+            self.send_message(
+                self.mav.statustext_encode(mavlink.MAV_SEVERITY_WARNING, text.encode())
+            )
+        self.send_message(
+            self.mav.command_ack_encode(
+                msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+            )
+        )

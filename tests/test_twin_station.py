@@ -110,7 +110,7 @@ def test_station_follows_the_twin_and_browser_sticks_fly_it(station_url) -> None
             assert wait_until(lambda: not state(app).heartbeat.armed, timeout=5)
 
 
-def test_control_is_refused_without_the_twin(tmp_path) -> None:
+def test_control_is_refused_without_a_vehicle(tmp_path) -> None:
     app = create_app(
         load_settings(
             None,
@@ -124,7 +124,7 @@ def test_control_is_refused_without_the_twin(tmp_path) -> None:
     )
     with run_uvicorn(app) as url, connect(url.replace("http", "ws") + "/ws/control") as ws:
         reply = json.loads(ws.recv(timeout=5))
-        assert reply["error"] == "Conflict" and "real vehicle" in reply["error_msg"]
+        assert reply["error"] == "Conflict" and "No vehicle to command" in reply["error_msg"]
 
 
 def test_browser_keyboard_flies_the_twin(tmp_path) -> None:

@@ -1,8 +1,9 @@
 // fpv-station: Disarm, Land and RTL on every page (pilot, goggles' OSD menu, sessions,
-// analysis, replay), for the digital twin (GET /api/status source "sim": the station
-// never commands a real vehicle from a page). They go through the pilot page's route and
-// token (WS /ws/control, server/routes/control.py), which carries them out whoever has
-// the sticks: an emergency is never refused for want of them. Disarm in flight (armed and
+// analysis, replay), for the digital twin and for a real vehicle on a live link (GET
+// /api/status `control` "twin" or "emergency"; not for a replay or no link). They go
+// through the pilot page's route and token (WS /ws/control, server/routes/control.py) to
+// the followed vehicle, carried out whoever has the twin's sticks: an emergency is never
+// refused for want of them. Disarm in flight (armed and
 // not on the ground) stops the motors: the page asks first, then forces it (the
 // vehicle's force magic). Each answer is a toast (toast.js): done, or refused and why.
 //
@@ -20,13 +21,13 @@ const OPEN_WAIT_MS = 3000;
 const IDLE_CLOSE_MS = 30000;
 
 const groups = [];
-let sim = false;
+let commandable = false; // the station has a vehicle to command
 let socket = null;
 let opening = null; // Promise of the open socket
 let idleTimer = null;
 
 export function emergencyButtons() {
-  const group = el("span", { class: "emergency", role: "group", "aria-label": "emergency", hidden: !sim });
+  const group = el("span", { class: "emergency", role: "group", "aria-label": "emergency", hidden: !commandable });
   const button = (type, label, title) => {
     const b = el("button", { type: "button", "data-emergency": type, title }, label);
     b.addEventListener("click", (e) => { e.stopPropagation(); act(type); });
@@ -53,7 +54,10 @@ function open() {
       if (msg.type === "hello") { clearTimeout(timer); socket = ws; resolve(ws); return; }
       if (msg.type === "ack") {
         const why = msg.text ? `: ${msg.text}` : "";
-        toast(msg.ok ? `${msg.cmd}: done` : `${msg.cmd} refused (${msg.result ?? "no answer"})${why}`, { bad: !msg.ok });
+        let text = `${msg.cmd}: done`;
+        if (msg.result === "NO_ANSWER") text = `${msg.cmd}: no answer from the vehicle${why}`;
+        else if (!msg.ok) text = `${msg.cmd} refused (${msg.result ?? "no answer"})${why}`;
+        toast(text, { bad: !msg.ok });
       } else if (msg.error) {
         toast(msg.error_msg, { bad: true });
       }
@@ -98,11 +102,11 @@ async function act(type) {
 
 async function poll() {
   try {
-    sim = (await api("/api/status")).source === "sim";
+    commandable = ["twin", "emergency"].includes((await api("/api/status")).control);
   } catch (err) {
     return; // unreachable: the buttons stay as they were
   }
-  for (const g of groups) g.hidden = !sim;
+  for (const g of groups) g.hidden = !commandable;
 }
 
 const home = $("toolbar") || $("replay-bar") || document.querySelector(".osd-menu");

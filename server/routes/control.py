@@ -1,30 +1,37 @@
-"""`WS /ws/control`: the pilot's sticks from the browser (gamepad or keyboard) to the twin.
+"""`WS /ws/control`: the pilot's sticks and commands from the browser to the vehicle.
 
-The browser sends its sticks at ~50 Hz; the station sends MANUAL_CONTROL to the twin
-through its ordinary MAVLink link at a steady 50 Hz from the newest sticks. Dead-man:
-no message for 0.5 s = sticks centred (Position mode then holds position and altitude).
-One pilot at a time has the sticks: the first connection. Every other authorised page
-(a second pilot tab, the goggles, the sessions page) connects too, without the sticks,
-and its Disarm, Land and RTL (EMERGENCY) are always carried out: an emergency is never
-refused for want of the sticks. Anything else from such a page is refused with the error
-shape (the page shows it). Refused unless the station runs the digital twin: the station
-never sends stick inputs to a real vehicle.
+With the digital twin (`--source sim`) the browser sends its sticks (gamepad or keyboard) at
+~50 Hz; the station sends MANUAL_CONTROL to the twin through its ordinary MAVLink link at a
+steady 50 Hz from the newest sticks. Dead-man: no message for 0.5 s = sticks centred
+(Position mode then holds position and altitude). One pilot at a time has the sticks: the
+first connection. Every other authorised page (a second pilot tab, the goggles, the
+sessions page) connects too, without the sticks, and its Disarm, Land and RTL (EMERGENCY)
+are always carried out: an emergency is never refused for want of the sticks. Anything
+else from such a page is refused with the error shape (the page shows it).
+
+With a real vehicle (a live link: serial, UDP or TCP) every authorised page may send
+Disarm, Land and RTL, and nothing else: the station never sends stick inputs, arming,
+take-off or mode changes from a browser to a real vehicle (the pilot's radio flies it).
+No link, or a replay, refuses the connection. `control_level` says which applies
+(`GET /api/status` `control`).
 
 Client -> station, JSON:
     {"type": "sticks", "roll": r, "pitch": p, "yaw": y, "throttle": t}  r/p/y in [-1, 1],
                                                           throttle in [0, 1], 0.5 = centred
     {"type": "arm"} | {"type": "disarm"} | {"type": "mode", "mode": "POSCTL"}
     {"type": "takeoff", "alt_m": 4} | {"type": "land"} | {"type": "rtl"} | {"type": "reset"}
-    {"type": "disarm", "force": true}   disarm in flight (PX4's and ArduPilot's force
-                                        magic): the motors stop; the page asks first
-Station -> client: {"type": "hello", "sticks": bool, ...} (whether this connection has
-the sticks), {"type": "ack", "cmd": ..., "ok": ...} and the error shape
+    {"type": "disarm", "force": true}   disarm in flight (param2 21196, the force value
+                                        PX4 and ArduPilot take): the motors stop; the page
+                                        asks first
+Station -> client: {"type": "hello", "sticks": bool, "control": level} (whether this
+connection has the sticks), {"type": "ack", "cmd": ..., "ok": ...} and the error shape
 {"error": Name, "error_msg": text} for anything refused.
 
-Arm, disarm, mode, take-off and land are answered with what the vehicle said, not with
-what the station sent: the ack waits (without holding up the sticks) for the vehicle's
-COMMAND_ACK, at most ACK_TIMEOUT_S, and carries its result and the vehicle's own words
-(STATUSTEXT since the command, e.g. PX4's "Arming denied: ..."):
+Every command goes to the followed autopilot (its sysid and compid as heard on the link)
+and is answered with what the vehicle said, not with what the station sent: the ack waits
+(without holding up the sticks) for the vehicle's COMMAND_ACK, at most ACK_TIMEOUT_S, and
+carries its result and the vehicle's own words (STATUSTEXT since the command, e.g. PX4's
+"Arming denied: ..."):
     {"type": "ack", "cmd": "disarm", "ok": false, "result": "DENIED",
      "text": "Disarming denied: not landed"}
 `result` is "NO_ANSWER" when the vehicle did not answer in time.
@@ -45,7 +52,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fpv_station.core.mavlink.px4_modes import PX4_MODES
 from fpv_station.server.auth import require_control_token
-from fpv_station.server.errors import ApiError, BadRequest, Unavailable, deny_websocket
+from fpv_station.server.errors import (
+    ApiError,
+    BadRequest,
+    Conflict,
+    Unavailable,
+    deny_websocket,
+)
 from fpv_station.server.guard import loads_message
 from fpv_station.server.pilot import DEADMAN_S, Pilot
 
@@ -84,8 +97,20 @@ class Command(BaseModel):
     force: bool = False  # disarm only: in flight too (the vehicle's force magic)
 
 
-# Carried out from any authorised page, whoever has the sticks.
+# Carried out from any authorised page, whoever has the sticks, and for a real vehicle.
 EMERGENCY = frozenset({"disarm", "land", "rtl"})
+# What the pages may do: "twin" (sticks and every command), "emergency" (a real vehicle:
+# Disarm, Land and RTL only), "none" (no link, or a replay: nothing to command).
+ControlLevel = Literal["twin", "emergency", "none"]
+
+
+def control_level(station: Station) -> ControlLevel:
+    link = station.link
+    if link is None or link.spec.kind == "replay":
+        return "none"
+    return "twin" if station.twin is not None else "emergency"
+
+
 # MAV_CMD_COMPONENT_ARM_DISARM param2 that makes PX4 and ArduPilot disarm in flight.
 FORCE_MAGIC = 21196.0
 
@@ -110,18 +135,23 @@ async def _send_sticks(link: MavlinkLink, pilot: Pilot, target: int) -> None:
 
 
 def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
-    """Arm, mode, take-off and land go through the link as for any vehicle; returns the
-    MAV_CMD sent (None for a reset, which the twin does at once)."""
+    """Send `cmd` to the followed autopilot as a COMMAND_LONG through the link, as for
+    any vehicle; returns the MAV_CMD sent (None for the twin's reset, done at once).
+    Only EMERGENCY commands come here for a real vehicle (the route refuses the rest)."""
     twin, mav = station.twin, link.mav
-    assert twin is not None  # the route refuses a station without the twin
     if cmd.type == "reset":
+        if twin is None:
+            raise Conflict("reset is the digital twin's.")
         twin.reset()
         return None
+    target = link.autopilot()
+    if target is None:
+        raise Unavailable("No autopilot heard on the link yet: nothing to command.")
     if cmd.type in ("arm", "disarm"):
         arm = 1.0 if cmd.type == "arm" else 0.0
         force = FORCE_MAGIC if cmd.type == "disarm" and cmd.force else 0.0
         msg = mav.command_long_encode(
-            1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, arm, force, 0, 0, 0, 0, 0
+            *target, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, arm, force, 0, 0, 0, 0, 0
         )
     elif cmd.type == "mode":
         name = PILOT_MODES.get((cmd.mode or "").upper())
@@ -132,26 +162,32 @@ def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
         main, sub = PX4_MODES[name]
         custom = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         msg = mav.command_long_encode(
-            1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, custom, main, sub, 0, 0, 0, 0
+            *target, mavlink.MAV_CMD_DO_SET_MODE, 0, custom, main, sub, 0, 0, 0, 0
         )
     elif cmd.type == "takeoff":
+        assert twin is not None  # the route sends a real vehicle no take-off
         alt = twin.scene.home.alt_m + (cmd.alt_m or 2.5)
         nan = math.nan
         msg = mav.command_long_encode(
-            1, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, alt
+            *target, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, alt
         )
     elif cmd.type == "rtl":
         msg = mav.command_long_encode(
-            1, 1, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0
+            *target, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0
         )
-    else:
+    else:  # land where it is (NaN latitude and longitude: the current position)
         nan = math.nan
-        msg = mav.command_long_encode(1, 1, mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, nan, nan, nan, 0)
+        msg = mav.command_long_encode(
+            *target, mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, nan, nan, nan, 0
+        )
     link.send(msg)
     return msg.command
 
 
 ANOTHER_PAGE = "another page has the sticks; from here only Disarm, Land and RTL are carried out."
+REAL_VEHICLE = (
+    "the station sends a real vehicle only Disarm, Land and RTL from a page; fly it with its radio."
+)
 ACK_TIMEOUT_S = 3.0
 REASON_GRACE_S = 0.3
 
@@ -204,21 +240,22 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
         await ws.send_text(_error(type(exc).__name__, exc.message))
         await ws.close(code=4401)
         return
-    link = station.link
-    if station.twin is None or link is None:
+    link, level = station.link, control_level(station)
+    if link is None or level == "none":
         await ws.send_text(
             _error(
                 "Conflict",
-                "Stick control exists only for the digital twin (--source sim); "
-                "the station never sends stick inputs to a real vehicle.",
+                "No vehicle to command: the station has no live link (none, or a replay).",
             )
         )
         await ws.close(code=4409)
         return
-    # The first connection has the sticks; the others only their emergency commands.
+    # The twin's first connection has the sticks; the others, and every page of a real
+    # vehicle, only the emergency commands.
+    refusal = ANOTHER_PAGE if level == "twin" else REAL_VEHICLE
     pilot: Pilot | None = None
     sender: asyncio.Task[None] | None = None
-    if station.pilot is None:
+    if level == "twin" and station.pilot is None:
         pilot = station.pilot = Pilot()
         sender = station.tasks.spawn("control-sticks", _send_sticks(link, pilot, 1))
     sticks_refused = False  # said once: a page sends sticks 50 times a second
@@ -236,7 +273,12 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
             await send(json.dumps({"type": "ack", "cmd": cmd.type, **reply}))
 
     try:
-        hello = {"rate_hz": RATE_HZ, "deadman_s": DEADMAN_S, "sticks": pilot is not None}
+        hello = {
+            "rate_hz": RATE_HZ,
+            "deadman_s": DEADMAN_S,
+            "sticks": pilot is not None,
+            "control": level,
+        }
         await send(json.dumps({"type": "hello", **hello}))
         while True:
             message = await ws.receive()
@@ -260,11 +302,11 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
                         )
                     elif not sticks_refused:
                         sticks_refused = True
-                        await send(_error("Conflict", ANOTHER_PAGE))
+                        await send(_error("Conflict", refusal))
                     continue
                 cmd = Command.model_validate(data)
                 if pilot is None and cmd.type not in EMERGENCY:
-                    await send(_error("Conflict", f"{cmd.type}: {ANOTHER_PAGE}"))
+                    await send(_error("Conflict", f"{cmd.type}: {refusal}"))
                     continue
                 sent_at = time.monotonic()
                 command = _command(station, link, cmd)
@@ -277,7 +319,7 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
             except (ValueError, ValidationError) as exc:
                 await send(_error("BadRequest", f"Bad control message: {exc}"[:500]))
             except ApiError as exc:
-                await send(_error("BadRequest", exc.message))
+                await send(_error(type(exc).__name__, exc.message))
     except (WebSocketDisconnect, RuntimeError, ConnectionError):
         pass
     finally:

@@ -12,6 +12,7 @@ from fpv_station.companion.link_health import LinkHealth
 from fpv_station.companion.timesync import VehicleClock
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.server import __version__
+from fpv_station.server.routes.control import ControlLevel, control_level
 
 router = APIRouter(tags=["telemetry"])
 
@@ -33,6 +34,9 @@ class RecordingNow(BaseModel):
 class StatusReply(BaseModel):
     source: str  # the configured MAVLink source (connection string, "sim" or "none")
     link: LinkHealth | None  # None when there is no vehicle link (source "none")
+    # What the pages may command (WS /ws/control): "twin" sticks and every command,
+    # "emergency" a real vehicle's Disarm, Land and RTL, "none" nothing (no live link)
+    control: ControlLevel = "none"
     # The vehicle's boot clock on the station's monotonic clock (TIMESYNC), or why not
     vehicle_clock: VehicleClock | None = None
     recording: RecordingNow | None = None  # None: the station has no recorder
@@ -68,6 +72,7 @@ async def get_status(request: Request) -> StatusReply:
     return StatusReply(
         source=station.settings.link.source,
         link=station.link.health() if station.link is not None else None,
+        control=control_level(station),
         vehicle_clock=station.link.timesync.report() if station.link is not None else None,
         recording=None
         if rec is None
