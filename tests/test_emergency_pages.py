@@ -178,8 +178,8 @@ def test_emergency_from_another_page_while_one_has_the_sticks(station, browser):
     expect(rtl).to_be_visible(timeout=30_000)
     rtl.click()
     expect(sessions.locator("#toast")).to_contain_text("rtl: done")
-    # Home is where it took off: it lands there at once.
-    assert wait_until(lambda: state(app).heartbeat.mode == "LAND", timeout=15)
+    # Home is where it took off: it descends there at once, in Return mode (AUTO.RTL).
+    assert wait_until(lambda: state(app).heartbeat.mode == "RTL", timeout=15)
     pilot.locator("#ctl-mode").select_option("POSCTL")
     assert wait_until(lambda: state(app).heartbeat.mode == "POSCTL", timeout=15)
     land = sessions.locator("#toolbar .emergency [data-emergency=land]")

@@ -1,6 +1,8 @@
 """The twin's return to launch (MAV_CMD_NAV_RETURN_TO_LAUNCH, the pages' RTL button): from
 a pymavlink ground station on a real UDP socket, refused on the ground, and in flight
-flown home above the field's obstacles and landed there."""
+flown home above the field's obstacles and landed there, its HEARTBEAT saying PX4's
+AUTO.RTL from the command to the touchdown, the descent too (PX4's Return mode lands in
+that mode)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import math
 import numpy as np
 from pymavlink import mavutil
 
+from fpv_station.core.mavlink.px4_modes import PX4_MODES, px4_custom_mode
 from tests.test_twin_mission import REL, latlon, take_off, wait_for
 from tests.test_twin_vehicle import drain
 
@@ -39,12 +42,58 @@ def test_return_to_launch_flies_home_and_lands(twin_and_gcs) -> None:
     assert np.hypot(*(twin.pose().pos_enu_m[:2] - home)) > 5.0  # away from home
     assert rtl(twin, gcs) == mav.MAV_RESULT_ACCEPTED
     top = 0.0
-    for _ in range(60):  # a hang guard: 60 s of sim time
-        twin.step_for(1.0)
-        top = max(top, twin.pose().pos_enu_m[2])
+    # (custom_mode, distance from home, height) of each HEARTBEAT until the touchdown
+    beats: list[tuple[int, float, float]] = []
+    for _ in range(120):  # a hang guard: 60 s of sim time
+        twin.step_for(0.5)
+        pos = twin.pose().pos_enu_m
+        top = max(top, pos[2])
         if twin.sim.commander.landed[0]:
             break
+        for hb in drain(gcs, "HEARTBEAT", timeout=0.1):
+            beats.append((hb.custom_mode, float(np.hypot(*(pos[:2] - home))), float(pos[2])))
     pos = twin.pose().pos_enu_m
     assert twin.sim.commander.landed[0], pos
     assert np.hypot(*(pos[:2] - home)) < 1.5, pos
     assert top > 2.7  # climbed from 2 m towards the return height (3 m) on the way
+    rtl_mode = px4_custom_mode("RTL")
+    assert beats and {mode for mode, _, _ in beats} == {rtl_mode}, beats
+    assert any(d > 5.0 for _, d, _ in beats)  # on the way home
+    assert any(d < 1.5 and z < 2.0 for _, d, z in beats), beats  # and in the descent there
+
+
+def test_choosing_return_mode_starts_the_return(twin_and_gcs) -> None:
+    """DO_SET_MODE AUTO.RTL, as QGroundControl's mode menu sends it, flies home as the
+    command does; the pilot's POSCTL then ends the return where it is."""
+    twin, gcs = twin_and_gcs
+
+    def takeoff(g, home_amsl: float) -> None:
+        g.mav.command_long_send(1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 2.0)
+
+    take_off(twin, gcs, takeoff)
+    x, y = latlon(twin, -14.0, 0.0)
+    gcs.mav.command_int_send(1, 1, REL, mav.MAV_CMD_DO_REPOSITION, 0, 0, -1, 1, 0, math.nan,
+                             x, y, 2.0)  # fmt: skip
+    twin.step_for(12.0)
+    drain(gcs, timeout=0.1)
+    custom = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    main, sub = PX4_MODES["RTL"]
+    gcs.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, custom, main, sub, 0, 0, 0, 0)
+    acks = [a for a in wait_for(twin, gcs, "COMMAND_ACK", 3.0) if a.command == 176]
+    assert acks and acks[0].result == mav.MAV_RESULT_ACCEPTED
+    start = twin.pose().pos_enu_m.copy()
+    home = twin.scene.start_xy_m
+    twin.step_for(3.0)
+    hb = wait_for(twin, gcs, "HEARTBEAT", 2.0)
+    assert hb and hb[-1].custom_mode == px4_custom_mode("RTL")
+    now = twin.pose().pos_enu_m
+    assert np.hypot(*(now[:2] - home)) < np.hypot(*(start[:2] - home)) - 1.0  # homeward
+    main, sub = PX4_MODES["POSCTL"]
+    gcs.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, custom, main, sub, 0, 0, 0, 0)
+    twin.step_for(4.0)
+    drain(gcs, timeout=0.1)
+    hb = wait_for(twin, gcs, "HEARTBEAT", 2.0)
+    assert hb and hb[-1].custom_mode == px4_custom_mode("POSCTL")
+    held = twin.pose().pos_enu_m.copy()
+    twin.step_for(3.0)
+    assert np.hypot(*(twin.pose().pos_enu_m[:2] - held[:2])) < 0.5  # holds, not homeward

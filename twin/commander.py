@@ -7,6 +7,10 @@ Land detector: ground contact with no climb demand for 0.5 s. Auto-disarm 2 s af
 landing (COM_DISARM_LAND) and 10 s after arming without a take-off (COM_DISARM_PRFLT).
 Battery below 10 % in the air switches to LAND; a crash disarms. Messages for people
 (STATUSTEXT) collect in `events`.
+
+Return (AUTO.RTL, `request_return`): climb to RTL_MIN_ALT_M if lower, fly home, then
+descend there and land, all in one mode, as PX4 reports its Return mode from the climb to
+the touchdown; a pilot's mode change ends it.
 """
 
 from __future__ import annotations
@@ -20,12 +24,17 @@ from fpv_station.twin.control import (
     AUTO_LAND,
     AUTO_LOITER,
     AUTO_MISSION,
+    AUTO_RTL,
     AUTO_TAKEOFF,
     MODE_NAMES,
     POSCTL,
     STABILIZED,
 )
 from fpv_station.twin.dynamics import CRASH_REASONS
+
+ACCEPT_RADIUS_M = 1.0  # arrived over a place (PX4 NAV_ACC_RAD is 2 m; a netted field needs less)
+RTL_MIN_ALT_M = 3.0  # above the field's 3 m obstacles on the way home
+LAND_LEAD_M = 0.7  # the descent target's lead below the vehicle: 0.7 m/s, PX4's MPC_LAND_SPEED
 
 LANDED_STATE_ON_GROUND, LANDED_STATE_IN_AIR, LANDED_STATE_TAKEOFF, LANDED_STATE_LANDING = (
     1,
@@ -68,6 +77,7 @@ class Commander:
         self._ever_flew = np.zeros(n, bool)
         self._crash_reported = np.zeros(n, bool)
         self._battery_failsafe = np.zeros(n, bool)
+        self._rtl_landing = np.zeros(n, bool)  # AUTO.RTL: home reached, descending
         self.events: list[Event] = []
 
     def reset_vehicles(self, idx: np.ndarray) -> None:
@@ -77,7 +87,12 @@ class Commander:
         self.target_m[idx] = 0.0
         for arr in (self._gesture_s, self._land_s, self._since_arm_s):
             arr[idx] = 0.0
-        for arr in (self._ever_flew, self._crash_reported, self._battery_failsafe):
+        for arr in (
+            self._ever_flew,
+            self._crash_reported,
+            self._battery_failsafe,
+            self._rtl_landing,
+        ):
             arr[idx] = False
 
     def mode_name(self, i: int = 0) -> str:
@@ -88,7 +103,7 @@ class Commander:
             return LANDED_STATE_ON_GROUND
         if self.mode[i] == AUTO_TAKEOFF:
             return LANDED_STATE_TAKEOFF
-        if self.mode[i] == AUTO_LAND:
+        if self.mode[i] == AUTO_LAND or (self.mode[i] == AUTO_RTL and self._rtl_landing[i]):
             return LANDED_STATE_LANDING
         return LANDED_STATE_IN_AIR
 
@@ -129,6 +144,8 @@ class Commander:
             return False, f"{MODE_NAMES[mode]} refused: no GPS fix"
         if mode == AUTO_TAKEOFF:
             return self.request_takeoff(i, pos_m, None)
+        if mode == AUTO_RTL:
+            return False, "RTL needs home: request_return"
         if mode in (AUTO_LOITER, AUTO_LAND, AUTO_MISSION):  # hold until told where to go
             self.target_m[i] = pos_m
         self._switch(i, mode)
@@ -142,6 +159,19 @@ class Commander:
         alt = self.p.default_takeoff_alt_m if alt_m is None or not np.isfinite(alt_m) else alt_m
         self.target_m[i] = [pos_m[0], pos_m[1], max(alt, 0.5)]
         self._switch(i, AUTO_TAKEOFF)
+        return True, ""
+
+    def request_return(
+        self, i: int, pos_m: np.ndarray, home_xy_m: np.ndarray, gps_fix: bool
+    ) -> tuple[bool, str]:
+        """AUTO.RTL: home at RTL_MIN_ALT_M or the current height if higher, then land."""
+        if not self.armed[i] or self.landed[i]:
+            return False, "return refused: not flying"
+        if not gps_fix:
+            return False, "RTL refused: no GPS fix"
+        self.target_m[i] = [home_xy_m[0], home_xy_m[1], max(pos_m[2], RTL_MIN_ALT_M)]
+        self._rtl_landing[i] = False
+        self._switch(i, AUTO_RTL)
         return True, ""
 
     def request_land(self, i: int, pos_m: np.ndarray) -> tuple[bool, str]:
@@ -198,6 +228,13 @@ class Commander:
             # Hold here, at the take-off altitude (not the 0.2 m short of it we are at).
             self.target_m[i, :2] = pos_m[i, :2]
             self._switch(int(i), AUTO_LOITER)
+        rtl = self.mode == AUTO_RTL
+        if rtl.any():  # home reached: descend there (the z loop turns the lead into a rate)
+            off = pos_m[:, :2] - self.target_m[:, :2]
+            home = np.hypot(off[:, 0], off[:, 1]) <= ACCEPT_RADIUS_M
+            self._rtl_landing |= rtl & home
+            landing = rtl & self._rtl_landing
+            self.target_m[:, 2] = np.where(landing, pos_m[:, 2] - LAND_LEAD_M, self.target_m[:, 2])
 
         # Auto-disarm and failsafes.
         self._since_arm_s = np.where(self.armed, self._since_arm_s + dt, 0.0)
@@ -255,4 +292,5 @@ __all__ = [
     "AUTO_LOITER",
     "AUTO_LAND",
     "AUTO_MISSION",
+    "AUTO_RTL",
 ]

@@ -17,6 +17,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fpv_station.core.geodesy import geodetic_to_enu
+from fpv_station.twin.commander import ACCEPT_RADIUS_M, LAND_LEAD_M, RTL_MIN_ALT_M
 from fpv_station.twin.control import AUTO_LOITER, AUTO_MISSION
 from fpv_station.twin.sim import Sim
 
@@ -40,10 +41,7 @@ COMMANDS = frozenset(
         mavlink.MAV_CMD_NAV_TAKEOFF,
     }
 )
-ACCEPT_RADIUS_M = 1.0  # PX4 NAV_ACC_RAD is 2 m; a small netted field needs less
 ACCEPT_ALT_M = 0.5
-RTL_MIN_ALT_M = 3.0  # above the field's 3 m obstacles on the way home
-LAND_LEAD_M = 0.7  # the descent target's lead below the vehicle: 0.7 m/s, PX4's MPC_LAND_SPEED
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ MODE_BY_NAME.update(
         "AUTO.LOITER": MODE_BY_NAME["LOITER"],
         "AUTO.LAND": MODE_BY_NAME["LAND"],
         "AUTO.MISSION": MODE_BY_NAME["MISSION"],
+        "AUTO.RTL": MODE_BY_NAME["RTL"],
     }
 )
 
@@ -195,6 +196,8 @@ class Sim:
         code = MODE_BY_NAME.get(name.upper())
         if code is None:
             return False, f"unknown mode '{name}'; known: {', '.join(sorted(MODE_BY_NAME))}"
+        if code == MODE_BY_NAME["RTL"]:
+            return self.return_to_launch(i)
         return self.commander.request_mode(
             i, code, self.est_pos_m[i], self.sensors.has_fix(self.t_s)
         )
@@ -204,6 +207,12 @@ class Sim:
 
     def land(self, i: int = 0) -> tuple[bool, str]:
         return self.commander.request_land(i, self.est_pos_m[i])
+
+    def return_to_launch(self, i: int = 0) -> tuple[bool, str]:
+        """AUTO.RTL to the scene's start pad (the twin's home), landing there."""
+        return self.commander.request_return(
+            i, self.est_pos_m[i], self.scene.start_xy_m, self.sensors.has_fix(self.t_s)
+        )
 
     # ---- stepping ----
     def step(self, n_steps: int = 1) -> None:

@@ -40,10 +40,8 @@ from fpv_station.core.mavlink.signing import SignatureCheck, enable_signing
 from fpv_station.twin.control import AUTO_LOITER, AUTO_MISSION
 from fpv_station.twin.log_server import LOG_MESSAGES, LogServer
 from fpv_station.twin.mission import (
-    ACCEPT_RADIUS_M,
     AMSL_FRAMES,
     RELATIVE_FRAMES,
-    RTL_MIN_ALT_M,
     MissionRunner,
     target_enu,
     up_m,
@@ -150,7 +148,6 @@ class MavlinkVehicle:
         self.params: ParamServer | None = None  # built from the sim's config on first use
         self.logs: LogServer | None = None  # the flight logs' server, when the twin logs
         self._pending_once: list[str] = []
-        self._returning = False  # MAV_CMD_NAV_RETURN_TO_LAUNCH: on the way home (_return)
         self._last_poll_s = 0.0
         self.mission = MissionRunner(
             reached=lambda seq: self.mav.mission_item_reached_send(seq),
@@ -234,8 +231,6 @@ class MavlinkVehicle:
         if self.logs is not None:
             self.logs.poll()
         self.mission.update(sim, now_s, self._home_alt_m(sim))
-        if self._returning:
-            self._return_step(sim)
         for event in sim.drain_events():
             self.mav.statustext_send(event.severity, event.text.encode()[:50])
         if now_s < self._last_poll_s:  # the sim clock went back: restart the schedule
@@ -319,6 +314,8 @@ class MavlinkVehicle:
             return False, f"unsupported mode {main}/{sub}"
         if mode == AUTO_MISSION and not self.mission.items:
             return False, "mission mode refused: no mission"
+        if mode == MODE_BY_NAME["RTL"]:  # PX4: choosing Return mode starts the return
+            return sim.return_to_launch()
         return sim.commander.request_mode(0, mode, sim.est_pos_m[0], sim.sensors.has_fix(sim.t_s))
 
     def _home_alt_m(self, sim: Sim) -> float:
@@ -336,34 +333,6 @@ class MavlinkVehicle:
         if args.frame in AMSL_FRAMES or alt >= home:
             return alt - home
         return alt
-
-    def _return(self, sim: Sim) -> tuple[bool, str]:
-        """MAV_CMD_NAV_RETURN_TO_LAUNCH: fly home at the mission's return height or higher,
-        then land there, as PX4's RTL does (and the mission's return item). The twin has no
-        RTL mode of its own: the way home is flown in AUTO.LOITER, the landing in
-        AUTO.LAND (_return_step), and a pilot's mode change ends it."""
-        com = sim.commander
-        if not com.armed[0] or com.landed[0]:
-            return False, "return refused: not flying"
-        pos = sim.est_pos_m[0]
-        ok, why = com.request_mode(0, AUTO_LOITER, pos, sim.sensors.has_fix(sim.t_s))
-        if ok:
-            target = pos.copy()
-            target[:2] = sim.scene.start_xy_m
-            target[2] = max(pos[2], RTL_MIN_ALT_M)
-            com.target_m[0] = target
-            self._returning = True
-        return ok, why
-
-    def _return_step(self, sim: Sim) -> None:
-        com = sim.commander
-        if not com.armed[0] or com.mode[0] != AUTO_LOITER:
-            self._returning = False  # disarmed, or the pilot took over
-            return
-        pos, home = sim.est_pos_m[0], sim.scene.start_xy_m
-        if math.hypot(pos[0] - home[0], pos[1] - home[1]) <= ACCEPT_RADIUS_M:
-            self._returning = False
-            sim.land()
 
     def _reposition(self, sim: Sim, args: CommandArgs) -> tuple[bool, str]:
         """MAV_CMD_DO_REPOSITION: hold (AUTO.LOITER) at the given place, as PX4 does; an
@@ -385,7 +354,6 @@ class MavlinkVehicle:
         ok, why = com.request_mode(0, AUTO_LOITER, pos, sim.sensors.has_fix(sim.t_s))
         if ok:
             com.target_m[0] = target
-            self._returning = False  # a new place to hold: no longer on the way home
         return ok, why
 
     def _command(self, sim: Sim, args: CommandArgs) -> tuple[int, str]:
@@ -398,7 +366,7 @@ class MavlinkVehicle:
         elif c == mavlink.MAV_CMD_NAV_LAND:
             ok, why = sim.land()
         elif c == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            ok, why = self._return(sim)
+            ok, why = sim.return_to_launch()  # AUTO.RTL, as PX4 (twin.commander)
         elif c == mavlink.MAV_CMD_DO_REPOSITION:
             ok, why = self._reposition(sim, args)
         elif c == mavlink.MAV_CMD_MISSION_START:
