@@ -26,18 +26,23 @@ def rtl(twin, gcs) -> int:
     return acks[0].result
 
 
-def test_return_to_launch_flies_home_and_lands(twin_and_gcs) -> None:
-    twin, gcs = twin_and_gcs
-    assert rtl(twin, gcs) == mav.MAV_RESULT_DENIED  # on the ground
+def fly_away(twin, gcs, east_m: float, north_m: float) -> None:
+    """Take off to 2 m and go to a point of the field (DO_REPOSITION), 15 s of sim time."""
 
     def takeoff(g, home_amsl: float) -> None:
         g.mav.command_long_send(1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 2.0)
 
     take_off(twin, gcs, takeoff)
-    x, y = latlon(twin, -12.0, 5.0)
+    x, y = latlon(twin, east_m, north_m)
     gcs.mav.command_int_send(1, 1, REL, mav.MAV_CMD_DO_REPOSITION, 0, 0, -1, 1, 0, math.nan,
                              x, y, 2.0)  # fmt: skip
     twin.step_for(15.0)
+
+
+def test_return_to_launch_flies_home_and_lands(twin_and_gcs) -> None:
+    twin, gcs = twin_and_gcs
+    assert rtl(twin, gcs) == mav.MAV_RESULT_DENIED  # on the ground
+    fly_away(twin, gcs, -12.0, 5.0)
     home = twin.scene.start_xy_m
     assert np.hypot(*(twin.pose().pos_enu_m[:2] - home)) > 5.0  # away from home
     assert rtl(twin, gcs) == mav.MAV_RESULT_ACCEPTED
@@ -66,15 +71,7 @@ def test_choosing_return_mode_starts_the_return(twin_and_gcs) -> None:
     """DO_SET_MODE AUTO.RTL, as QGroundControl's mode menu sends it, flies home as the
     command does; the pilot's POSCTL then ends the return where it is."""
     twin, gcs = twin_and_gcs
-
-    def takeoff(g, home_amsl: float) -> None:
-        g.mav.command_long_send(1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 2.0)
-
-    take_off(twin, gcs, takeoff)
-    x, y = latlon(twin, -14.0, 0.0)
-    gcs.mav.command_int_send(1, 1, REL, mav.MAV_CMD_DO_REPOSITION, 0, 0, -1, 1, 0, math.nan,
-                             x, y, 2.0)  # fmt: skip
-    twin.step_for(12.0)
+    fly_away(twin, gcs, -14.0, 0.0)
     drain(gcs, timeout=0.1)
     custom = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     main, sub = PX4_MODES["RTL"]
