@@ -31,10 +31,9 @@ from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from fpv_station.server.errors import Unavailable, deny_websocket
 from fpv_station.server.station import Station
 from fpv_station.server.telemetry_pump import TelemetryClient, TelemetryPump
+from fpv_station.server.ws_acks import ack_of, ack_window_query, read_until_disconnect
 
 router = APIRouter(tags=["telemetry"])
-# The largest `?ack=` window: a larger one would not bound a slow client's staleness.
-MAX_ACK_WINDOW = 16
 # The largest frame a client may send: an ack is a few bytes (server/listen.py closes the
 # socket with 1009 on a larger frame, before reading it).
 MAX_FRAME_BYTES = 1024
@@ -51,24 +50,19 @@ class _ClientAcks:
 
     async def read_until_disconnect(self, ws: WebSocket) -> None:
         try:
-            with contextlib.suppress(WebSocketDisconnect, RuntimeError):
-                while True:
-                    msg = await ws.receive()
-                    if msg["type"] == "websocket.disconnect":
-                        return
-                    if self._client.ack_window:
-                        self._note(msg.get("text"))
+            await read_until_disconnect(ws, self._note)
         finally:
             self._client.leave()  # a coroutine waiting for its next message ends now
 
     def _note(self, text: str | None) -> None:
-        if not text or len(text) > 100:  # an ack is tiny; anything else is ignored
+        # Without a window nothing is read; an ack is tiny, anything else is ignored.
+        if not self._client.ack_window or not text or len(text) > 100:
             return
         try:
-            ack = orjson.loads(text).get("ack")  # 50 a second for two pages: in C
-        except (ValueError, AttributeError):
+            ack = ack_of(orjson.loads(text))  # 50 a second for two pages: in C
+        except ValueError:
             return
-        if isinstance(ack, int) and not isinstance(ack, bool):
+        if ack is not None:
             self._pump.acked(self._client, ack)
 
 
@@ -80,13 +74,7 @@ async def ws_telemetry(
     max_rate: float | None = Query(
         None, ge=1, le=1000, description="messages per second, at most (default: the station's)"
     ),
-    ack: int = Query(
-        0,
-        ge=0,
-        le=MAX_ACK_WINDOW,
-        description='0: no acks; N: at most N messages unacknowledged, {"ack": version} '
-        "acknowledges every message up to version",
-    ),
+    ack: int = ack_window_query('{"ack": version} acknowledges every message up to version'),
 ) -> None:
     station = ws.app.state.station
     try:

@@ -31,17 +31,17 @@ from __future__ import annotations
 import asyncio
 import contextlib
 
-from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from fpv_station.server.errors import Unavailable, deny_websocket
 from fpv_station.server.guard import loads_message
 from fpv_station.server.station import Station
+from fpv_station.server.ws_acks import ack_of, ack_window_query, read_until_disconnect
 
 router = APIRouter(tags=["video"])
 # A subscription or an ack is a few bytes (server/listen.py closes the socket with 1009
 # on a larger frame, before reading it).
 MAX_FRAME_BYTES = 1024
-MAX_ACK_WINDOW = 16
 
 
 class _VideoClient:
@@ -66,19 +66,14 @@ class _VideoClient:
         subscribe = msg.get("subscribe")
         if isinstance(subscribe, list):
             self.cameras = {c for c in subscribe if isinstance(c, str) and c in self.known}
-        ack = msg.get("ack")
-        if isinstance(ack, int) and not isinstance(ack, bool) and ack > self.acked:
+        ack = ack_of(msg)
+        if ack is not None and ack > self.acked:
             self.acked = ack
         self.wake.set()
 
     async def read_until_disconnect(self, ws: WebSocket) -> None:
         try:
-            with contextlib.suppress(WebSocketDisconnect, RuntimeError):
-                while True:
-                    msg = await ws.receive()
-                    if msg["type"] == "websocket.disconnect":
-                        return
-                    self.note(msg.get("text"))
+            await read_until_disconnect(ws, self.note)
         finally:
             self.gone = True
             self.wake.set()
@@ -87,13 +82,7 @@ class _VideoClient:
 @router.websocket("/ws/video")
 async def ws_video(
     ws: WebSocket,
-    ack: int = Query(
-        0,
-        ge=0,
-        le=MAX_ACK_WINDOW,
-        description='0: no acks; N: at most N messages unacknowledged, {"ack": n} says n '
-        "messages were handled",
-    ),
+    ack: int = ack_window_query('{"ack": n} says n messages were handled'),
 ) -> None:
     station = ws.app.state.station
     try:
