@@ -5,7 +5,9 @@ Everything goes the way the station records a real flight: the twin sends real M
 over a loopback UDP socket, the link's framer and `StateTracker` make the vehicle state
 from those bytes, and the recorder's `RecordingSession` writes telemetry.csv, the tlog,
 the camera frames and session.json (with the flown task, as the pilot page's choice is
-written into a recorded session). Only the clock differs: the twin runs on its own (sim)
+written into a recorded session, and `demonstration` saying the scripted pilot flew it),
+and the flight is scored as the station scores a trial at the disarm
+(`analysis.trial_score`), so a selection of sessions treats both alike. Only the clock differs: the twin runs on its own (sim)
 clock, and the session is recorded on it as a replayed log is (`wall = start + sim time`).
 
 Pilot variability, seeded per flight: a reaction lag (sticks reach the vehicle
@@ -24,9 +26,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fpv_station.analysis.trial_score import score_and_store
 from fpv_station.companion.latest import Latest
 from fpv_station.companion.recording import layout
-from fpv_station.companion.recording.meta import session_task
+from fpv_station.companion.recording.meta import PILOT_SCRIPTED, Demonstration, session_task
 from fpv_station.companion.recording.session import RecordingSession, SessionConfig
 from fpv_station.companion.recording.writer import WriterLimits
 from fpv_station.companion.source_clock import SourceClock
@@ -84,11 +87,18 @@ def noisy_plan(scene: Scene, task_id: int, rng: np.random.Generator, err_m: floa
 
 
 def fly_demo(
-    root: Path, seed: int, config: DemoConfig = DemoConfig(), scene: Scene | None = None
+    root: Path,
+    seed: int,
+    config: DemoConfig = DemoConfig(),
+    scene: Scene | None = None,
+    attempt: tuple[int, int, str] | None = None,
 ) -> Path:
-    """Fly one demonstration and record it as a session under `root`; returns its folder."""
+    """Fly one demonstration and record it as a session under `root`, tagged `scripted`
+    and scored as the station scores a trial at the disarm; returns its folder.
+    `attempt`: (k, of n, run) within a batch; None: a run of its own."""
     scene = scene or load_scene()
     task = scene.task(config.task_id)
+    recorded_task = session_task(scene, None, task)
     rng = np.random.default_rng(seed)
     v = config.variability
     lag_ticks = int(round(rng.uniform(*v.lag_s) / TICK_S))
@@ -98,6 +108,7 @@ def fly_demo(
     pilot = Pilot(legs)
     cams = layout.CAMERAS if config.cameras else ()
     wall0 = WALL_T0 + 3600.0 * seed
+    k, n, run = attempt or (1, 1, layout.utc_label(wall0))
     # The recorder records the twin as it records a replayed log: on the source's own
     # clock (the sim's, from wall0), its rows and frames sampled from this thread.
     clock = SourceClock(own=True)
@@ -124,7 +135,10 @@ def fly_demo(
         ),
         trigger="demos",
         clock=clock,
-        task=session_task(scene, None, task),
+        task=recorded_task,
+        demonstration=Demonstration(
+            kind=PILOT_SCRIPTED, pilot=PILOT_SCRIPTED, run=run, attempt=k, attempts=n
+        ),
     )
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
@@ -201,6 +215,7 @@ def fly_demo(
         rx.close()
         # The recorder's own stop: the last rows, the files closed, session.json final.
         asyncio.run(session.stop(reason))
+    score_and_store(session.folder, recorded_task)
     return session.folder
 
 
@@ -219,9 +234,10 @@ def fly_demos(
 ) -> list[Path]:
     """`count` demonstrations with seeds `seed`, `seed + 1`, ..."""
     scene = load_scene()
+    run = layout.utc_label(WALL_T0 + 3600.0 * seed)
     out = []
     for k in range(count):
-        out.append(fly_demo(root, seed + k, config, scene))
+        out.append(fly_demo(root, seed + k, config, scene, (k + 1, count, run)))
         if progress is not None:
             progress(k + 1, count)
     return out

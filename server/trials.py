@@ -4,8 +4,8 @@ each session, and the trial scored the moment the vehicle disarms.
 The scene is the station's one field (`core.scene`): `viser.field_file` when set, else the
 twin's scene when flying the twin, else the default field (the paper's four tasks; its
 pads only count for flights that start on them, as in `fpv-station analyze`). Scoring
-runs `analysis.report.analyze_paths` on the finished session, the same call as
-`fpv-station analyze --task T SESSION [--scene FILE]`, in a worker thread behind the
+runs `analysis.trial_score.score_and_store` on the finished session (the same call as
+`fpv-station analyze --task T SESSION [--scene FILE]`) in a worker thread behind the
 station's analysis limiter, and stores the result in the session's `session.json`.
 The result says whether the trial is `valid` (no crash, no obstacle touched, landed on the
 pad) and how far from the pad's centre it landed. The score is read by anonymous pages:
@@ -28,17 +28,14 @@ from typing import Any
 
 import anyio
 
-from fpv_station.analysis.errors import AnalysisError, without_dirs
-from fpv_station.analysis.report import analyze_paths
+from fpv_station.analysis.errors import without_dirs
 from fpv_station.analysis.tasks import PAPER_RESULTS
-from fpv_station.companion.recording import layout
+from fpv_station.analysis.trial_score import score_and_store
 from fpv_station.companion.recording.meta import (
     SessionMeta,
     SessionTask,
     TrialScore,
-    read_meta,
     session_task,
-    write_meta,
 )
 from fpv_station.companion.recording.recorder import Recorder, Spawn
 from fpv_station.core.scene import Scene, SceneError, load_scene
@@ -48,21 +45,6 @@ log = logging.getLogger(__name__)
 
 MAX_ATTEMPTS_SHOWN = 20
 CHOSEN_TASK_FILE = "chosen_task.json"  # in the sessions folder: {"scene": name, "task_id": n}
-
-
-def score_session(folder: Path, task: SessionTask) -> TrialScore:
-    """Blocking: the task's analysis of one finished session, as `fpv-station analyze`."""
-    now = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
-    if task.analysis is None:
-        return TrialScore(task="none", ok=False, reason="This task has no scoring.", scored_utc=now)
-    scene = Path(task.scene_file) if task.scene_file else True
-    try:
-        analysis = analyze_paths([folder], task.analysis, scene=scene)
-    except AnalysisError as exc:  # never reached the window, no GPS fix, too short ...
-        reason = without_dirs(str(exc))
-        return TrialScore(task=task.analysis, ok=False, reason=reason, scored_utc=now)
-    result = {**analysis.results[0].to_dict(), "source": folder.name}
-    return TrialScore(task=task.analysis, ok=True, scored_utc=now, result=result)
 
 
 def public_score(score: TrialScore | None) -> TrialScore | None:
@@ -126,11 +108,8 @@ class Trials:
         if self._chosen_file is None:
             return
         task_id = None if self.selected is None else self.selected.id
-        tmp = self._chosen_file.with_suffix(".tmp")
         try:
-            self._chosen_file.parent.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(json.dumps({"scene": self.scene.name, "task_id": task_id}))
-            os.replace(tmp, self._chosen_file)
+            write_json(self._chosen_file, {"scene": self.scene.name, "task_id": task_id})
         except OSError as exc:  # the choice still holds until the station stops
             log.error("cannot keep the chosen task in %s: %s", self._chosen_file, exc)
 
@@ -158,7 +137,7 @@ class Trials:
     async def _score(self, session_id: str, task: SessionTask, folder: Path) -> None:
         try:
             score = await anyio.to_thread.run_sync(
-                _score_and_store, folder, task, limiter=self._limiter
+                score_and_store, folder, task, limiter=self._limiter
             )
             self.last = (session_id, score)
             log.info("session %s scored: %s", session_id, score.reason or "ok")
@@ -192,15 +171,13 @@ class Trials:
         return PAPER_RESULTS.get(analysis) if analysis else None
 
 
-def _score_and_store(folder: Path, task: SessionTask) -> TrialScore:
-    score = score_session(folder, task)
-    path = folder / layout.SESSION_JSON
-    try:
-        meta = read_meta(path)
-        write_meta(path, meta.model_copy(update={"score": score}))
-    except (OSError, ValueError) as exc:  # the score is still shown on the page
-        log.error("cannot store the score in %s: %s", path, exc)
-    return score
+def write_json(path: Path, data: Any) -> None:
+    """Blocking: a small state file of the sessions folder, written whole then renamed
+    (a reader never sees half of it); raises OSError."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)
 
 
 def station_scene(settings: Settings) -> tuple[Scene, Path | None, bool]:

@@ -10,12 +10,12 @@ from pathlib import Path
 import httpx
 
 from fpv_station.analysis.report import analyze_paths
+from fpv_station.analysis.trial_score import score_and_store
 from fpv_station.companion.recording import layout
 from fpv_station.companion.recording.meta import SessionMeta, session_task
 from fpv_station.core.scene import load_scene
 from fpv_station.server.app import create_app
 from fpv_station.server.cli import main as cli_main
-from fpv_station.server.trials import _score_and_store
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, station_settings
 
@@ -64,7 +64,7 @@ def test_the_score_at_disarm_is_what_rest_the_cli_and_the_sessions_page_give(tmp
     by_arrival = unmeasured.results[0].to_dict()
 
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
-    score = _score_and_store(folder, SessionMeta.model_validate(meta).task)  # the disarm hook's
+    score = score_and_store(folder, SessionMeta.model_validate(meta).task)  # the disarm hook's
     assert score.ok, score.reason
     scored = score.result
     assert scored["source"] == SESSION and scored["trial_time_s"] != by_arrival["trial_time_s"]

@@ -14,9 +14,9 @@ import httpx
 import pytest
 from playwright.sync_api import expect
 
+from fpv_station.analysis.trial_score import score_and_store
 from fpv_station.companion.recording.meta import session_task
 from fpv_station.core.scene import load_scene
-from fpv_station.server.trials import _score_and_store
 from tests import synthetic as syn
 from tests.station_process import serve_station
 
@@ -78,7 +78,7 @@ def crashed_a_to_b_session(root):
     (folder / "messages.csv").write_text(
         f"t_s,t_wall,severity,kind,text\n{crash_at:.3f},,2,statustext,CRASH: obstacle\n"
     )
-    score = _score_and_store(folder, task)
+    score = score_and_store(folder, task)
     assert score.ok and score.result["valid"] is False, score
     return score
 

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from fpv_station.analysis.tasks import TaskParams, analyze
+from fpv_station.analysis.trial_score import score_session
 from fpv_station.companion.recording.meta import SessionTask
 from fpv_station.server.app import create_app
 from fpv_station.server.settings import load_settings
-from fpv_station.server.trials import score_session
 from fpv_station.twin.pilot import Leg
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, wait_until

@@ -11,6 +11,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -154,6 +155,38 @@ def session_task(scene: Scene, scene_file: Path | None, task: Task) -> SessionTa
     )
 
 
+PILOT_HUMAN = "human"
+PILOT_SCRIPTED = "scripted"
+PILOT_KINDS = (PILOT_HUMAN, PILOT_SCRIPTED)
+PILOT_NAME_MAX = 40
+# Letters (any script), digits, and inner spaces, dots, apostrophes and hyphens: no comma
+# or '=' (a selection's separators), no path or markup characters.
+_PILOT_NAME = re.compile(r"\w(?:[\w .'-]*\w)?")
+
+
+def check_pilot_name(text: str) -> str:
+    """A pilot's name as kept in session.json (stripped), or ValueError saying why not."""
+    name = " ".join(str(text).split())
+    if not name or len(name) > PILOT_NAME_MAX or not _PILOT_NAME.fullmatch(name):
+        raise ValueError(
+            f"a pilot's name is 1 to {PILOT_NAME_MAX} letters or digits, with inner spaces, "
+            f"dots, apostrophes or hyphens (not {str(text)[:60]!r})"
+        )
+    return name
+
+
+class Demonstration(_Model):
+    """Who flew the session as a demonstration, so that every session used for learning
+    says where it came from: a person in the pilot page's demonstration mode
+    (server.demo_mode), or the twin's scripted pilot (learn.demos)."""
+
+    kind: str  # PILOT_HUMAN or PILOT_SCRIPTED
+    pilot: str  # the person's name as entered; "scripted" for the scripted pilot
+    run: str  # the run of attempts this session belongs to (its start, UTC)
+    attempt: int  # 1-based, within the run
+    attempts: int  # the run's planned number of attempts
+
+
 class TrialScore(_Model):
     """The task's analysis of this session, done when the vehicle disarmed."""
 
@@ -222,6 +255,7 @@ class SessionMeta(_Model):
     quality: Quality = Field(default_factory=Quality)
     task: SessionTask | None = None
     score: TrialScore | None = None
+    demonstration: Demonstration | None = None  # None: not flown as a demonstration
     recovery: Recovery | None = None  # set when the counts were taken from the files
     clock: SessionClock | None = None  # None: written before the station chose clocks
     onboard_log: OnboardLog | None = None  # the autopilot's own log, once fetched

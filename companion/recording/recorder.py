@@ -30,7 +30,7 @@ from typing import Any
 
 from fpv_station.companion.latest import Latest, Wakeup
 from fpv_station.companion.recording import diskspace
-from fpv_station.companion.recording.meta import SessionMeta, SessionTask
+from fpv_station.companion.recording.meta import Demonstration, SessionMeta, SessionTask
 from fpv_station.companion.recording.recovery import mark_interrupted
 from fpv_station.companion.recording.session import RecordingSession, SessionConfig
 from fpv_station.companion.recording.store import SessionStore
@@ -115,6 +115,8 @@ class Recorder:
         self._lock = asyncio.Lock()
         # The flight task written into each new session (server.trials sets it).
         self.task: SessionTask | None = None
+        # Who flies the next session as a demonstration (server.demo_mode sets it).
+        self.demonstration: Demonstration | None = None
         # Called on the event loop with each finished session (its final metadata and
         # folder); must not block (server.trials spawns the scoring off the loop).
         self.session_end_hooks: list[Callable[[SessionMeta, Path], None]] = []
@@ -210,6 +212,7 @@ class Recorder:
                 self._on_writer_failure,
                 self.clock,
                 task=self.task,
+                demonstration=self.demonstration,
                 timesync=self.timesync,
                 recorded_until_wall=self.last_stop.end_wall if self.last_stop else None,
                 # why the flight went unrecorded until this retry (a stale one otherwise)

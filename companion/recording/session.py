@@ -42,6 +42,7 @@ from fpv_station.companion.recording.flags import QUALITY_THRESHOLDS
 from fpv_station.companion.recording.meta import (
     Arming,
     CameraQuality,
+    Demonstration,
     Missed,
     Quality,
     SessionClock,
@@ -130,6 +131,7 @@ class RecordingSession:
         on_failure: Callable[[str, str], None] | None = None,
         clock: SourceClock | None = None,
         task: SessionTask | None = None,
+        demonstration: Demonstration | None = None,
         recorded_until_wall: float | None = None,
         missed_reason: str | None = None,
         timesync: TimeSync | None = None,
@@ -140,6 +142,7 @@ class RecordingSession:
         self.config = config
         self.trigger = trigger
         self.task = task  # the flight task chosen when the session started
+        self.demonstration = demonstration  # who flew it, when flown as a demonstration
         self._timesync = timesync  # the vehicle's boot clock, measured by the link
         self._state = state
         self._camera_slots = dict(cameras)
@@ -561,6 +564,7 @@ class RecordingSession:
             missed=self._missed,
             quality=quality,
             task=self.task,
+            demonstration=self.demonstration,
             clock=utc,
         )
 
