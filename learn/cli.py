@@ -1,6 +1,8 @@
 """`fpv-station export`, `fpv-station demos` and `fpv-station learn` (the `learn` extra).
 
     fpv-station export SESSION [SESSION ...] --format lerobot|minari|mcap --out DIR
+    fpv-station export --select task=1,pilot=NAME [--include-failed] [--sessions-dir DIR]
+                       [--list] --format ... --out DIR
                        [--task N] [--description TEXT] [--fps N] [--channel-map MAP]
                        [--cameras front,bottom|none] [--dataset-id ID] [--image-size WxH]
                        [--workers N] [--ray ADDRESS]
@@ -11,7 +13,9 @@
                        [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
 
 SESSION is a session folder, a downloaded session zip, or a bare .tlog; each flight in
-it (armed, with a take-off) becomes one episode.
+it (armed, with a take-off) becomes one episode. `--select` takes the sessions of a
+sessions folder by task, pilot and score instead (`analysis.selection`, the rule of the
+sessions page), leaving out failed trials unless `--include-failed`.
 """
 
 from __future__ import annotations
@@ -22,11 +26,34 @@ from pathlib import Path
 
 
 def add_export_arguments(p: argparse.ArgumentParser) -> None:
+    from fpv_station.analysis.selection import METRICS
+    from fpv_station.companion.recording.settings import RecordingSettings
     from fpv_station.learn.formats import DEFAULT_FPS, FORMATS
 
-    p.add_argument("sessions", nargs="+", type=Path, metavar="SESSION")
-    p.add_argument("--format", required=True, choices=FORMATS)
-    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("sessions", nargs="*", type=Path, metavar="SESSION")
+    p.add_argument(
+        "--select",
+        metavar="TERMS",
+        help="export the sessions of --sessions-dir chosen by task=N, pilot=NAME, "
+        f"kind=human|scripted and METRIC<=X ({', '.join(METRICS)}), comma-separated; "
+        "failed trials (by the score stored at the disarm) are left out",
+    )
+    p.add_argument(
+        "--include-failed",
+        action="store_true",
+        help="with --select: keep crashed, invalid and unscored trials too",
+    )
+    p.add_argument(
+        "--sessions-dir",
+        type=Path,
+        default=RecordingSettings.model_fields["sessions_dir"].default,
+        help="with --select: the sessions folder (default: the station's, ./sessions)",
+    )
+    p.add_argument(
+        "--list", action="store_true", help="with --select: print the sessions, export nothing"
+    )
+    p.add_argument("--format", choices=FORMATS, help="required unless --list")
+    p.add_argument("--out", type=Path, help="output folder (required unless --list)")
     p.add_argument(
         "--task",
         type=int,
@@ -84,6 +111,11 @@ def run_export(args: argparse.Namespace) -> int:
     )
 
     try:
+        paths = selected_paths(args)
+        if paths is None:
+            return 0  # --list
+        if args.format is None or args.out is None:
+            raise ValueError("--format and --out are required")
         cmap = ChannelMap.parse(args.channel_map)
         size = parse_image_size(args.image_size) if args.image_size else None
         if args.workers is not None and args.workers < 1:
@@ -106,9 +138,9 @@ def run_export(args: argparse.Namespace) -> int:
         ray_address=args.ray,
         **({"dataset_id": args.dataset_id} if args.dataset_id else {}),
     )
-    progress = None if args.no_progress else tqdm_progress(len(args.sessions))
+    progress = None if args.no_progress else tqdm_progress(len(paths))
     try:
-        s = export_recordings(args.sessions, args.format, args.out, opts, progress)
+        s = export_recordings(paths, args.format, args.out, opts, progress)
     except (RecordingError, SceneError, ValueError, KeyError, ImportError) as exc:
         print(f"fpv-station export: {exc}", file=sys.stderr)
         return 1
@@ -119,6 +151,35 @@ def run_export(args: argparse.Namespace) -> int:
     for why in s.skipped:
         print(f"skipped {why}", file=sys.stderr)
     return 0
+
+
+def selected_paths(args: argparse.Namespace) -> list[Path] | None:
+    """The recordings to export: the SESSION arguments, or the sessions `--select` takes
+    (printed with what it left out); None after `--list`. ValueError on a bad request."""
+    from fpv_station.analysis.selection import Selection, select_sessions
+    from fpv_station.companion.recording.store import SessionStore
+
+    if args.select is None:
+        if args.include_failed or args.list:
+            raise ValueError("--include-failed and --list go with --select")
+        if not args.sessions:
+            raise ValueError("give the sessions to export, or --select")
+        return list(args.sessions)
+    if args.sessions:
+        raise ValueError("--select takes sessions from --sessions-dir; give no SESSION too")
+    if not args.sessions_dir.is_dir():
+        raise ValueError(f"no sessions folder '{args.sessions_dir}'; give --sessions-dir")
+    store = SessionStore(args.sessions_dir)
+    chosen = select_sessions(store, Selection.parse(args.select, args.include_failed))
+    for sid, why in chosen.failed.items():
+        print(f"left out {sid}: {why}", file=sys.stderr)
+    if args.list:
+        for sid in chosen.sessions:
+            print(sid)
+        return None
+    if not chosen.sessions:
+        raise ValueError(f"no session of '{args.sessions_dir}' is selected by '{args.select}'")
+    return [store.resolve(sid) for sid in chosen.sessions]
 
 
 def add_demos_arguments(p: argparse.ArgumentParser) -> None:
@@ -265,8 +326,7 @@ def run_eval(args: argparse.Namespace) -> int:
     air = ", ".join(f"{k}: {v}" for k, v in options.items()) or "the scene's wind and start"
     print(f"Task {args.task} ({ev.TASK_NAMES[args.task]}), twin, batch seed {args.seed}, {air}:")
     print(ev.table(rows, args.task))
-    by_name = {r.name: r for r in rows}
-    for other in ("open-loop replay", "random"):
-        if other in by_name:
-            print(ev.compare(by_name["behaviour cloning"], by_name[other]))
+    for other in rows[1:]:
+        if other.name in ("open-loop replay", "random") or other.name.startswith("human"):
+            print(ev.compare(rows[0], other))
     return 0

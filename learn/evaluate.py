@@ -17,7 +17,8 @@ Student's t interval for the mean of each metric (over the episodes whose analys
 Rows: the behaviour-cloning policy, the twin's scripted pilot, an open-loop replay (a
 demonstration's recorded sticks replayed blind, frame by frame from the arming: what a
 policy that ignores its observations scores), a uniformly random policy, and the
-demonstrations (recorded sessions). A row's episodes fly together, one batch of
+demonstrations (recorded sessions), a row for each kind of pilot that flew them as
+session.json's `demonstration` says: human (per pilot when several), scripted. A row's episodes fly together, one batch of
 `TwinVectorEnv` seeded `seed`, and every flown row meets the same episodes (episode k
 has the same wind, gusts, turbulence, start and sensor noise in every row), so rows are
 compared pair by pair; what must differ is seeded apart (the random sticks per task and
@@ -38,10 +39,11 @@ import numpy as np
 
 from fpv_station.analysis.errors import AnalysisError
 from fpv_station.analysis.field_layout import load_field_layout as load_field
-from fpv_station.analysis.recording import open_recording
+from fpv_station.analysis.recording import open_recording, recording_meta
 from fpv_station.analysis.report import analyze_tracks
 from fpv_station.analysis.tasks import TaskParams, TaskResult
 from fpv_station.analysis.track import Track, load_track
+from fpv_station.companion.recording.meta import PILOT_HUMAN, PILOT_KINDS, PILOT_SCRIPTED
 from fpv_station.core.geodesy import enu_to_geodetic
 from fpv_station.core.scene import Scene, load_scene
 from fpv_station.learn.episodes import COLUMNS
@@ -308,7 +310,7 @@ def evaluate(
     return Row(name, fly_episodes(acts, task_id, seed, load_scene(), options))
 
 
-def demonstrations(paths: Sequence[Path], task_id: int) -> Row:
+def demonstrations(paths: Sequence[Path], task_id: int, name: str = "demonstrations") -> Row:
     """Recorded sessions scored the same way (their flights' last frames say where they
     landed)."""
     scene = load_scene()
@@ -325,7 +327,29 @@ def demonstrations(paths: Sequence[Path], task_id: int) -> Row:
         success = result is not None and landed and on_pad(scene, task_id, xy)
         time_s = last.duration_s if last else 0.0
         outcomes.append(Outcome(success, crashed, time_s, result, why))
-    return Row("demonstrations", tuple(outcomes), RECORDED)
+    return Row(name, tuple(outcomes), RECORDED)
+
+
+def demonstration_rows(paths: Sequence[Path], task_id: int) -> list[Row]:
+    """The recorded sessions' rows, by who flew them (session.json `demonstration`):
+    "human demonstrations" (one row per pilot, "human demonstrations (NAME)", when
+    several flew), "scripted demonstrations", and "demonstrations" for sessions that do
+    not say; in that order."""
+    groups: dict[tuple[str, str], list[Path]] = {}
+    for path in paths:
+        demo = recording_meta(path).get("demonstration")
+        kind = demo.get("kind") if isinstance(demo, dict) else None
+        pilot = str(demo.get("pilot", "")) if kind == PILOT_HUMAN else ""
+        groups.setdefault((kind if kind in PILOT_KINDS else "", pilot), []).append(Path(path))
+    pilots = {p for k, p in groups if k == PILOT_HUMAN}
+    order = {PILOT_HUMAN: 0, PILOT_SCRIPTED: 1, "": 2}
+    rows = []
+    for kind, pilot in sorted(groups, key=lambda g: (order[g[0]], g[1].casefold())):
+        name = f"{kind} demonstrations" if kind else "demonstrations"
+        if kind == PILOT_HUMAN and len(pilots) > 1:
+            name += f" ({pilot})"
+        rows.append(demonstrations(groups[kind, pilot], task_id, name))
+    return rows
 
 
 def table(rows: Sequence[Row], task_id: int, confidence: float = CONFIDENCE) -> str:
@@ -429,7 +453,8 @@ def benchmark(
 ) -> list[Row]:
     """The rows of `learn eval`: the policy, then (with `baselines`) the scripted pilot,
     the open-loop replay of `demos` (episode k replays flight k mod their count) and
-    random sticks, then the demonstrations; all flown rows on the same episodes."""
+    random sticks, then the demonstrations (by who flew them, `demonstration_rows`); all
+    flown rows on the same episodes."""
     scene = load_scene()
     rows = [
         evaluate(
@@ -466,5 +491,5 @@ def benchmark(
             )
         )
     if demos:
-        rows.append(demonstrations(demos, task_id))
+        rows += demonstration_rows(demos, task_id)
     return rows

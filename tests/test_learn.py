@@ -53,16 +53,16 @@ def test_demos_bc_eval_on_the_hover(tmp_path: Path, capsys):
         first["behaviour cloning"],
         first["scripted pilot"],
         first["random"],
-        first["demonstrations"],
+        first["scripted demonstrations"],
     )
     assert bc[1] == "3" and demo[1] == "4" and first["open-loop replay"][1] == "3"
-    assert rows["demonstrations"][0] == "recorded GPS + baro"
-    assert {v[0] for k, v in rows.items() if k != "demonstrations"} == {"true state"}
+    assert rows["scripted demonstrations"][0] == "recorded GPS + baro"
+    assert {v[0] for k, v in rows.items() if k != "scripted demonstrations"} == {"true state"}
     assert rows["scripted pilot"][2] == "100% [44%, 100%]"  # 3 of 3: Wilson's interval
     success = {k: int(v[2].rstrip("%")) for k, v in first.items()}
     assert success["behaviour cloning"] >= 66  # at least 2 of 3 landed on the pad
     assert success["random"] == 0  # the clear margin
-    assert success["scripted pilot"] == 100 and success["demonstrations"] == 100
+    assert success["scripted pilot"] == 100 and success["scripted demonstrations"] == 100
     assert bc[3] == "0"  # no crash
     # The paper's hover metrics: the clone hovers over the pad, like its teachers.
     assert float(bc[4]) < 0.5 and float(demo[4]) < 0.5
