@@ -137,9 +137,7 @@ class AnalysisWorker:
 
         if self._pool is None:
             ctx = multiprocessing.get_context("spawn")
-            self._pool = ProcessPoolExecutor(
-                max_workers=1, mp_context=ctx, initializer=_worker_init
-            )
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=worker_init)
             self.stats.processes += 1
         self.stats.jobs += 1
         try:
@@ -170,7 +168,7 @@ WORKER_NICE = 10
 PARENT_CHECK_S = 2.0
 
 
-def _worker_init() -> None:
+def worker_init() -> None:
     """The worker yields the cores to the station (on a busy Pi the scheduler gives the
     flight state's process the time first, and the figures wait), and ends with it: a
     station killed outright (SIGKILL, the OOM killer) cannot stop its pool, and an

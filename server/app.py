@@ -14,6 +14,8 @@ from fpv_station.server.guard import RequestGuard, redact_tokens_in_logs
 from fpv_station.server.routes import (
     analysis,
     control,
+    demo,
+    exports,
     health,
     onboard_log,
     recording,
@@ -81,6 +83,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(replay3d.router)
     app.include_router(control.router)
     app.include_router(task.router)
+    app.include_router(demo.router)
+    app.include_router(exports.router)
     app.include_router(onboard_log.router)
     app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return app

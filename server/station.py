@@ -21,6 +21,8 @@ from fpv_station.companion.recording.recorder import Recorder
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.server.analysis_worker import AnalysisWorker
 from fpv_station.server.client_limits import ClientCap, ClientLimits, raise_nofile_limit
+from fpv_station.server.demo_mode import DemoMode
+from fpv_station.server.exports import Exports
 from fpv_station.server.memory_trim import MemoryTrimmer, glibc_malloc_trim
 from fpv_station.server.onboard_logs import OnboardLogs
 from fpv_station.server.pilot import Pilot
@@ -73,6 +75,8 @@ class Station:
     # REST analyses and figures: a worker process, bounded and cached (analysis_worker.py).
     analysis_worker: AnalysisWorker = field(default_factory=AnalysisWorker)
     trials: Trials | None = None  # the flight task chosen and its trials' scores
+    demo: DemoMode | None = None  # a pilot's run of demonstration attempts (demo_mode.py)
+    exports: Exports | None = None  # selected sessions exported to a dataset (exports.py)
     memory_trimmer: MemoryTrimmer | None = None  # None where malloc_trim is off or absent
     # The autopilot's own log of each flight, fetched into its session (server.onboard_logs).
     onboard_logs: OnboardLogs | None = None
@@ -156,6 +160,8 @@ async def open_station(settings: Settings) -> AsyncIterator[Station]:
             station.tasks.spawn,
             station.analysis_limiter,
         )
+        station.demo = DemoMode(station.trials, station.recorder, station.tasks.spawn)
+        station.exports = Exports(station.recorder.store, station.tasks.spawn)
 
         # -- the autopilot's own log, fetched after each flight (before the link stops)
         station.onboard_logs = OnboardLogs(

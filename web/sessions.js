@@ -8,7 +8,11 @@
 // its score says whether the trial counts. Its onboard log column shows the autopilot's
 // own log fetched into it (server/onboard_logs.py): the file, the progress of the download
 // under way (GET /api/onboard_log, every second while one runs), or a button to fetch it.
+// Its pilot column says who flew a demonstration (session.json "demonstration": a person's
+// name, or the twin's scripted pilot); session-select.js selects sessions by task, pilot
+// and score and exports them, and the table then shows only those.
 import { $, el, api } from "/lib.js";
+import { selection, onSelection, knownPilots } from "/session-select.js";
 
 const tbody = document.querySelector("#sessions tbody");
 
@@ -165,7 +169,9 @@ async function load() {
   }
   tbody.replaceChildren();
   $("empty").hidden = sessions.length > 0;
+  knownPilots(sessions.filter((s) => s.demonstration).map((s) => s.demonstration.pilot));
   for (const s of sessions) {
+    if (selection.ids && !selection.ids.has(s.id)) continue;
     const crashed = s.flags.some((f) => f.kind === "crash");
     const tr = el("tr", { "data-id": s.id, class: crashed ? "crashed" : null });
     // start_utc is in the clock the session chose (the vehicle's GPS when the Pi's was off).
@@ -179,6 +185,8 @@ async function load() {
     if (crashed) status.append(" ", el("span", { class: "crash-mark" }, "CRASHED"));
     qualityCell(tr, s);
     cell(tr, s.task ? `${s.task.id}. ${s.task.name}` : "--", "task");
+    const d = s.demonstration;
+    cell(tr, d ? (d.kind === "human" ? `${d.pilot} (${d.attempt}/${d.attempts})` : d.kind) : "--", "pilot");
     const bad = s.score && (!s.score.ok || (s.score.result && s.score.result.valid === false));
     cell(tr, scoreText(s), bad ? "quality-bad score" : "score").title = scoreTitle(s);
     cell(tr, s.onboard_log ? "" : "--", "onboard");
@@ -196,5 +204,6 @@ async function load() {
   followProgress(sessions);
 }
 
+onSelection(load);
 load();
 setInterval(load, 5000);

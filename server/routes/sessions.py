@@ -15,7 +15,13 @@ from fastapi.responses import FileResponse, Response, StreamingResponse
 from pydantic import BaseModel
 
 from fpv_station.companion.recording import layout
-from fpv_station.companion.recording.meta import OnboardLog, SessionMeta, SessionTask, TrialScore
+from fpv_station.companion.recording.meta import (
+    Demonstration,
+    OnboardLog,
+    SessionMeta,
+    SessionTask,
+    TrialScore,
+)
 from fpv_station.companion.recording.recorder import Recorder
 from fpv_station.companion.recording.store import SessionSummary, is_frame_file
 from fpv_station.server.auth import require_control_token
@@ -51,6 +57,7 @@ class SessionSummaryModel(BaseModel):
     skew_p99_s: dict[str, float | None]  # camera -> p99 of row-to-frame skew
     recording_now: bool
     task: SessionTask | None = None  # the flight task chosen before the session
+    demonstration: Demonstration | None = None  # who flew it as a demonstration
     score: TrialScore | None = None  # its score, once the vehicle disarmed
     onboard_log: OnboardLog | None = None  # the autopilot's own log, once fetched
     # Real problems (companion.recording.flags.QUALITY_THRESHOLDS), not every imperfection.
@@ -77,6 +84,7 @@ def _summary_model(s: SessionSummary, recording_id: str | None) -> SessionSummar
     data["skew_p99_s"] = {c: q.skew_p99_s for c, q in cams.items()}
     if s.meta is not None:
         data["task"], data["score"] = s.meta.task, public_score(s.meta.score)
+        data["demonstration"] = s.meta.demonstration
         data["onboard_log"] = s.meta.onboard_log
         data["recovered"] = s.meta.recovery is not None
     data["flags"] = [dataclasses.asdict(f) for f in s.flags]

@@ -4,7 +4,8 @@
     GET  /api/task      the chosen task, the scene's tasks, the last score, this day's
                         attempts at the chosen task and the paper's figures for it
     POST /api/task      {"task_id": 1} or {"task_id": null} (control); kept over a
-                        restart (server.trials.CHOSEN_TASK_FILE)
+                        restart (server.trials.CHOSEN_TASK_FILE); refused (409) while
+                        a demonstration run of another task is on (server.demo_mode)
 
 The chosen task is written into every session that starts while it is chosen
 (`session.json` `task`); when such a session ends the station scores it (`score`).
@@ -22,7 +23,7 @@ from fpv_station.analysis.compare import LOWER_IS_BETTER
 from fpv_station.companion.recording.meta import SessionTask, TrialScore
 from fpv_station.core.scene import bgr_to_rgb
 from fpv_station.server.auth import require_control_token
-from fpv_station.server.errors import BadRequest
+from fpv_station.server.errors import BadRequest, Conflict
 from fpv_station.server.station import Station
 from fpv_station.server.trials import Trials
 
@@ -115,6 +116,11 @@ async def get_task(request: Request) -> TaskReply:
 )
 async def post_task(choice: TaskChoice, request: Request) -> TaskReply:
     trials = _trials(request)
+    run = request.app.state.station.demo and request.app.state.station.demo.active
+    if run and choice.task_id != run.task_id:
+        raise Conflict(
+            f"{run.pilot}'s demonstration run of task {run.task_id} is on; end it first."
+        )
     try:
         trials.select(choice.task_id)
     except KeyError:
