@@ -14,11 +14,13 @@ time. On top of the paper's table:
 Each figure comes with a 95 % interval: Wilson's score interval for the success rate,
 Student's t interval for the mean of each metric (over the episodes whose analysis holds).
 
-Rows: the behaviour-cloning policy, the twin's scripted pilot, an open-loop replay (a
-demonstration's recorded sticks replayed blind, frame by frame from the arming: what a
-policy that ignores its observations scores), a uniformly random policy, and the
-demonstrations (recorded sessions), a row for each kind of pilot that flew them as
-session.json's `demonstration` says: human (per pilot when several), scripted. A row's episodes fly together, one batch of
+Rows: the policy under evaluation (behaviour cloning, or a policy trained by LeRobot,
+`learn.lerobot_policy`, flown at its dataset's rate), the twin's scripted pilot, an
+open-loop replay (a demonstration's recorded sticks replayed blind, frame by frame from
+the arming: what a policy that ignores its observations scores), a uniformly random
+policy, and the demonstrations (recorded sessions), a row for each kind of pilot that
+flew them as session.json's `demonstration` says: human (per pilot when several),
+scripted. A row's episodes fly together, one batch of
 `TwinVectorEnv` seeded `seed`, and every flown row meets the same episodes (episode k
 has the same wind, gusts, turbulence, start and sensor noise in every row), so rows are
 compared pair by pair; what must differ is seeded apart (the random sticks per task and
@@ -33,7 +35,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -64,6 +66,20 @@ CONTROL_HZ = 10.0  # TwinEnv's default: one env step per recorded frame of a rep
 _RANDOM_STREAM = 0x52414E44  # keeps the random sticks' draws apart from the env's seeds
 
 Act = Callable[[np.ndarray, dict], np.ndarray]
+# Every vehicle's sticks (n, 4) at once, from the batch's observations and info (`fly_batch`).
+BatchAct = Callable[[np.ndarray, dict[str, Any]], np.ndarray]
+
+
+@runtime_checkable
+class BatchPolicy(Protocol):
+    """A policy flown a batch at a time at its own rate (a LeRobot policy,
+    `learn.lerobot_policy`): its row's name, `control_hz` (its dataset's fps) and, per
+    batch, a `BatchAct` with a fresh state for `episodes` episodes."""
+
+    name: str
+    control_hz: float
+
+    def batch_act(self, episodes: int) -> BatchAct: ...
 
 
 @dataclass(frozen=True)
@@ -162,17 +178,48 @@ def fly_episodes(
     seed: int,
     scene: Scene | None = None,
     options: dict[str, Any] | None = None,
+    control_hz: float = CONTROL_HZ,
 ) -> tuple[Outcome, ...]:
-    """Episode k flown by `acts[k](obs, info)`, all together in one `TwinVectorEnv`
-    batch seeded `seed` (no autoreset: vehicle k's air, start and sensor noise are the
-    same whatever flies it), each scored; `options` are the env's reset options."""
+    """Episode k flown by `acts[k](obs, info)` (info: "t_s", "pos_enu_m"), all together
+    in one batch (`fly_batch`)."""
+    idle = np.zeros(4, np.float32)
+
+    def act(obs: np.ndarray, info: dict[str, Any]) -> np.ndarray:
+        return np.stack(
+            [
+                idle
+                if info["done"][k]
+                else acts[k](obs[k], {"t_s": info["t_s"][k], "pos_enu_m": info["pos_enu_m"][k]})
+                for k in range(len(acts))
+            ]
+        )
+
+    return fly_batch(act, len(acts), task_id, seed, scene, options, control_hz)
+
+
+def fly_batch(
+    act: BatchAct,
+    episodes: int,
+    task_id: int,
+    seed: int,
+    scene: Scene | None = None,
+    options: dict[str, Any] | None = None,
+    control_hz: float = CONTROL_HZ,
+) -> tuple[Outcome, ...]:
+    """`episodes` episodes flown together in one `TwinVectorEnv` batch seeded `seed` (no
+    autoreset: vehicle k's air, start and sensor noise are the same whatever flies it),
+    each scored; `options` are the env's reset options. Each step, `act(obs, info)` gives
+    every vehicle's sticks (n, 4) from the observations (n, 18) and info: "t_s" (n,) since
+    arming, "pos_enu_m" (n, 3), "done" (n,) (an ended vehicle's sticks are ignored) and
+    "pose" (`pose(k)`: vehicle k's true pose, what its cameras see from)."""
     scene = scene or load_scene()
-    n = len(acts)
+    n = episodes
     env = TwinVectorEnv(
         num_envs=n,
         task=task_id,
         scene=scene,
         max_episode_s=MAX_EPISODE_S.get(task_id, 180.0),
+        control_hz=control_hz,
         autoreset=False,
     )
     obs, _ = env.reset(seed=seed, options=options)
@@ -182,14 +229,9 @@ def fly_episodes(
     end = np.zeros(n, int)  # the step each episode ended at
     landed = np.zeros(n, bool)  # ... disarmed on the ground (terminated, no crash)
     crashed = np.zeros(n, bool)
-    idle = np.zeros(4, np.float32)
     while not done.all():
-        actions = np.stack(
-            [
-                idle if done[k] else acts[k](obs[k], {"t_s": t_s[k], "pos_enu_m": pos[-1][k]})
-                for k in range(n)
-            ]
-        )
+        info = {"t_s": t_s, "pos_enu_m": pos[-1], "done": done.copy(), "pose": env.sim.pose}
+        actions = np.where(done[:, None], 0.0, np.asarray(act(obs, info), np.float32))
         obs, _, terminated, truncated, info = env.step(actions)
         t_s = info["t_s"]
         t.append(t_s)
@@ -308,6 +350,24 @@ def evaluate(
     `make_act(seed + k)`."""
     acts = [make_act(seed + k) for k in range(episodes)]
     return Row(name, fly_episodes(acts, task_id, seed, load_scene(), options))
+
+
+def policy_row(
+    policy,
+    task_id: int,
+    episodes: int = DEFAULT_EPISODES,
+    seed: int = 0,
+    options: dict[str, Any] | None = None,
+) -> Row:
+    """The row of the policy under evaluation: a `BatchPolicy` flown a batch at a time at
+    its rate, else a behaviour-cloning policy (`act(state, t_s)`) per episode."""
+    if isinstance(policy, BatchPolicy):
+        act = policy.batch_act(episodes)
+        outcomes = fly_batch(act, episodes, task_id, seed, load_scene(), options, policy.control_hz)
+        return Row(policy.name, outcomes)
+    return evaluate(
+        "behaviour cloning", lambda s: policy_act(policy), task_id, episodes, seed, options
+    )
 
 
 def demonstrations(paths: Sequence[Path], task_id: int, name: str = "demonstrations") -> Row:
@@ -451,16 +511,12 @@ def benchmark(
     demos: Sequence[Path] = (),
     baselines: bool = True,
 ) -> list[Row]:
-    """The rows of `learn eval`: the policy, then (with `baselines`) the scripted pilot,
-    the open-loop replay of `demos` (episode k replays flight k mod their count) and
-    random sticks, then the demonstrations (by who flew them, `demonstration_rows`); all
+    """The rows of `learn eval`: the policy (`policy_row`), then (with `baselines`) the
+    scripted pilot, the open-loop replay of `demos` (episode k replays flight k mod their
+    count) and random sticks, then the demonstrations (by who flew them, `demonstration_rows`); all
     flown rows on the same episodes."""
     scene = load_scene()
-    rows = [
-        evaluate(
-            "behaviour cloning", lambda s: policy_act(policy), task_id, episodes, seed, options
-        )
-    ]
+    rows = [policy_row(policy, task_id, episodes, seed, options)]
     if baselines:
         rows.append(
             evaluate(
