@@ -29,6 +29,8 @@ import numpy as np
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
+from fpv_station.learn.lerobot import read_meta
+
 FORMAT = "fpv-station-bc-knn-2"
 DEFAULT_K = 5
 # The state elements the policy reads (`twin.gym_env.STATE_NAMES`): x, y, z to the
@@ -102,10 +104,7 @@ def read_lerobot(root: Path) -> tuple[np.ndarray, np.ndarray, int]:
     state = np.concatenate([_matrix(t.column("observation.state")) for t in tables])
     action = np.concatenate([_matrix(t.column("action")) for t in tables])
     t = np.concatenate([t.column("timestamp").to_numpy() for t in tables])
-    task_id = 0
-    episodes = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
-    if episodes and "source/task_id" in pq.read_schema(episodes[0]).names:
-        task_id = int(pq.read_table(episodes[0], columns=["source/task_id"])[0][0].as_py())
+    task_id = read_meta(root).task_id
     inputs = np.column_stack([state[:, list(FEATURES)], t]).astype(np.float32)
     return inputs, action.astype(np.float32), task_id
 

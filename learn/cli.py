@@ -10,7 +10,7 @@
                       [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
     fpv-station learn bc DATASET --out POLICY
     fpv-station learn eval POLICY --task N [--episodes E] [--seed S] [--demos SESSION ...]
-                       [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
+                       [--dataset DATASET] [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
 
 SESSION is a session folder, a downloaded session zip, or a bare .tlog; each flight in
 it (armed, with a take-off) becomes one episode. `--select` takes the sessions of a
@@ -260,7 +260,13 @@ def add_learn_arguments(p: argparse.ArgumentParser) -> None:
     bc.add_argument("--k", type=int, default=5, help="neighbours averaged (default 5)")
     bc.set_defaults(func=run_bc)
     ev = sub.add_parser("eval", help="fly a policy in the twin; the paper's table for the task")
-    ev.add_argument("policy", type=Path, metavar="POLICY")
+    ev.add_argument(
+        "policy",
+        type=Path,
+        metavar="POLICY",
+        help="a behaviour-cloning policy file, or a LeRobot policy (lerobot-train's "
+        "pretrained_model folder)",
+    )
     ev.add_argument("--task", type=int, required=True, help="the scene's task id (1-4)")
     ev.add_argument("--episodes", type=int, default=20)
     ev.add_argument("--seed", type=int, default=1000, help="seed of the episodes' batch")
@@ -271,6 +277,13 @@ def add_learn_arguments(p: argparse.ArgumentParser) -> None:
         "--no-baselines",
         action="store_true",
         help="without the scripted, open-loop replay and random rows",
+    )
+    ev.add_argument(
+        "--dataset",
+        type=Path,
+        metavar="DATASET",
+        help="a LeRobot policy's training dataset (its fps and task text); default: the "
+        "one its train_config.json names, if it is here",
     )
     add_air_arguments(ev)
     ev.set_defaults(func=run_eval)
@@ -292,13 +305,12 @@ def run_bc(args: argparse.Namespace) -> int:
 def run_eval(args: argparse.Namespace) -> int:
     from fpv_station.core.scene import load_scene
     from fpv_station.learn import evaluate as ev
-    from fpv_station.learn.bc import BcPolicy
 
     try:
-        policy = BcPolicy.load(args.policy)
         scene = load_scene()
         scene.task(args.task)
-    except (ValueError, OSError, KeyError) as exc:
+        policy = load_policy(args.policy, args.task, args.dataset)
+    except (ValueError, OSError, KeyError, ImportError) as exc:
         print(f"fpv-station learn eval: {exc}", file=sys.stderr)
         return 1
     if policy.task_id not in (0, args.task):
@@ -330,3 +342,24 @@ def run_eval(args: argparse.Namespace) -> int:
         if other.name in ("open-loop replay", "random") or other.name.startswith("human"):
             print(ev.compare(rows[0], other))
     return 0
+
+
+def load_policy(path: Path, task_id: int, dataset: Path | None = None):
+    """A LeRobot `pretrained_model` folder (`learn.lerobot_policy`), else our
+    behaviour-cloning policy file."""
+    from fpv_station.learn.lerobot_policy import LeRobotPolicy, is_policy_folder
+
+    if is_policy_folder(path):
+        policy = LeRobotPolicy(path, task_id, dataset)
+        f = policy.facts
+        print(
+            f"{policy.name}: {', '.join(policy.inputs.images) or 'no'} cameras, "
+            f"{f.fps:g} fps, task '{f.task}' (from {f.source})",
+            file=sys.stderr,
+        )
+        return policy
+    if dataset is not None:
+        raise ValueError("--dataset is for a LeRobot policy folder")
+    from fpv_station.learn.bc import BcPolicy
+
+    return BcPolicy.load(path)

@@ -76,6 +76,35 @@ ROBOT_TYPE = "f450_quadcopter"
 FrameSource = Callable[[int], bytes]  # recorded frame index -> JPEG bytes
 
 
+@dataclass(frozen=True)
+class DatasetMeta:
+    """What a learner needs of a LeRobot dataset's metadata besides its frames."""
+
+    fps: int
+    tasks: list[str]  # by task_index
+    task_id: int  # the scene's task of `export`'s episodes (0: unknown)
+    features: dict[str, dict]
+
+
+def read_meta(root: Path) -> DatasetMeta:
+    """meta/info.json, meta/tasks.parquet and the episodes' `source/task_id`."""
+    root = Path(root)
+    try:
+        info = json.loads((root / "meta" / "info.json").read_text())
+        fps, features = int(info["fps"]), dict(info["features"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"'{root}' is not a LeRobot dataset (meta/info.json: {exc})") from None
+    tasks: list[str] = []
+    if (root / "meta" / "tasks.parquet").is_file():
+        t = pq.read_table(root / "meta" / "tasks.parquet", columns=["task_index", "task"])
+        tasks = [v for _, v in sorted(zip(t["task_index"].to_pylist(), t["task"].to_pylist()))]
+    task_id = 0
+    episodes = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+    if episodes and "source/task_id" in pq.read_schema(episodes[0]).names:
+        task_id = int(pq.read_table(episodes[0], columns=["source/task_id"])[0][0].as_py())
+    return DatasetMeta(fps, tasks, task_id, features)
+
+
 def video_key(camera: str) -> str:
     return f"observation.images.{camera}"
 
