@@ -19,6 +19,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from playwright.sync_api import expect
 
 from fpv_station.companion.recording.meta import Demonstration, read_meta, write_meta
 from fpv_station.learn.demos import fly_demo
@@ -42,6 +43,8 @@ def _retag(src: Path, root: Path, sid: str, kind: str, pilot: str, attempt: int)
 def sessions(tmp_path_factory) -> Path:
     flown = tmp_path_factory.mktemp("flown")
     valid, failed = fly_demo(flown, 7), fly_demo(flown, 8)
+    tag = read_meta(valid / "session.json").demonstration  # as the twin's pilot flew it
+    assert (tag.kind, tag.pilot, tag.attempt, tag.attempts) == ("scripted", "scripted", 1, 1)
     assert read_meta(valid / "session.json").score.result["valid"] is True
     assert read_meta(failed / "session.json").score.ok is False  # never reached 4 m
     root = tmp_path_factory.mktemp("sessions")
@@ -141,3 +144,35 @@ def test_eval_rows_by_who_flew(sessions: Path):
     ]
     one_pilot = demonstration_rows([sessions / ANA_OK, sessions / SCRIPTED], 1)
     assert [r.name for r in one_pilot] == ["human demonstrations", "scripted demonstrations"]
+
+
+@pytest.mark.timeout(240)
+def test_sessions_page_selects_and_exports(sessions: Path, tmp_path: Path, browser):
+    root = tmp_path / "sessions"
+    shutil.copytree(sessions, root)
+    app = create_app(station_settings("none", root))
+    with run_uvicorn(app) as base:
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.goto(f"{base}/sessions.html")
+        rows = page.locator("#sessions tbody tr")
+        expect(rows).to_have_count(4)
+        page.fill("#sel-pilot", "Ana")
+        page.click("#sel-apply")
+        expect(rows).to_have_count(1)
+        expect(rows.first).to_have_attribute("data-id", ANA_OK)
+        expect(rows.first.locator("td.pilot")).to_have_text("Ana (1/2)")
+        expect(page.locator("#sel-count")).to_contain_text(
+            "1 session selected (pilot=Ana); 1 failed trial left out"
+        )
+        page.check("#sel-failed")
+        page.click("#sel-apply")
+        expect(rows).to_have_count(2)
+        page.uncheck("#sel-failed")
+        page.click("#sel-apply")
+        expect(rows).to_have_count(1)
+        page.click("#export-start")
+        expect(page.locator("#export-download")).to_be_visible(timeout=200_000)
+        record = httpx.get(f"{base}/api/exports", timeout=10).json()[0]
+        assert record["state"] == "done" and record["sessions"] == [ANA_OK]
+        page.click("#sel-clear")
+        expect(rows).to_have_count(4)

@@ -45,26 +45,40 @@ function terms() {
   return t.join(",");
 }
 
-async function select() {
+let asked = null; // the query of the selection that applies
+let askedAt = 0;
+
+async function select(query = `select=${encodeURIComponent(terms())}&include_failed=${failed.checked}`) {
   let reply;
   try {
-    reply = await api(`/api/selection?select=${encodeURIComponent(terms())}&include_failed=${failed.checked}`);
+    reply = await api(`/api/selection?${query}`);
   } catch (err) {
     count.textContent = `Not selected: ${err.message}`;
-    return;
+    return false;
   }
+  asked = query;
+  askedAt = performance.now();
   selection.ids = new Set(reply.sessions);
   selection.text = reply.select;
   selection.includeFailed = reply.include_failed;
   const out = Object.entries(reply.failed);
-  count.textContent = `${reply.sessions.length} sessions selected (${reply.select || "every session"})` +
-    (out.length ? `; ${out.length} failed trials left out` : "");
+  count.textContent = `${reply.sessions.length} session${reply.sessions.length === 1 ? "" : "s"} selected (${reply.select || "every session"})` +
+    (out.length ? `; ${out.length} failed trial${out.length > 1 ? "s" : ""} left out` : "");
   count.title = out.map(([id, why]) => `${id}: ${why}`).join("\n");
   exportButton.disabled = reply.sessions.length === 0;
-  listeners.forEach((fn) => fn());
+  return true;
 }
 
-form.addEventListener("submit", (ev) => { ev.preventDefault(); select(); });
+// The table's reload (sessions.js) takes the selection again: sessions recorded or
+// scored since are in it.
+export async function refreshSelection() {
+  if (selection.ids && performance.now() - askedAt > 1000) await select(asked);
+}
+
+form.addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  if (await select()) listeners.forEach((fn) => fn());
+});
 clear.addEventListener("click", () => {
   selection.ids = null;
   count.textContent = "";

@@ -12,7 +12,7 @@
 // name, or the twin's scripted pilot); session-select.js selects sessions by task, pilot
 // and score and exports them, and the table then shows only those.
 import { $, el, api } from "/lib.js";
-import { selection, onSelection, knownPilots } from "/session-select.js";
+import { selection, onSelection, knownPilots, refreshSelection } from "/session-select.js";
 
 const tbody = document.querySelector("#sessions tbody");
 
@@ -161,6 +161,7 @@ async function load() {
   let sessions;
   try {
     sessions = await api("/api/sessions");
+    await refreshSelection();
     $("error").hidden = true;
   } catch (err) {
     $("error").textContent = `Cannot list sessions: ${err.message}`;
