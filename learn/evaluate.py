@@ -513,8 +513,8 @@ def benchmark(
 ) -> list[Row]:
     """The rows of `learn eval`: the policy (`policy_row`), then (with `baselines`) the
     scripted pilot, the open-loop replay of `demos` (episode k replays flight k mod their
-    count) and random sticks, then the demonstrations (by who flew them, `demonstration_rows`); all
-    flown rows on the same episodes."""
+    count) and random sticks, then the demonstrations (by who flew them,
+    `demonstration_rows`); all flown rows on the same episodes."""
     scene = load_scene()
     rows = [policy_row(policy, task_id, episodes, seed, options)]
     if baselines:
