@@ -16,7 +16,7 @@ from websockets.sync.client import connect
 
 from fpv_station.companion.recording.meta import read_meta
 from fpv_station.server.app import create_app
-from tests.helpers import run_uvicorn, wait_until
+from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.twin_flights import twin_station_settings
 
 NO_CAMERAS = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
@@ -108,3 +108,23 @@ def test_demonstration_run_on_the_pilot_page(tmp_path, browser):
         # A session now is no attempt of the ended run.
         assert station.recorder.demonstration is None
         assert api.post("/api/task", json={"task_id": 2}).status_code == 200
+
+
+def test_a_run_outlives_a_restart_unless_its_task_changed(tmp_path):
+    def station_reply(method: str = "GET", path: str = "/api/demo", **kw) -> dict:
+        with run_uvicorn(create_app(station_settings("none", tmp_path))) as base:
+            if method != "GET":
+                assert httpx.request(method, base + path, timeout=10, **kw).status_code == 200
+            return httpx.get(base + "/api/demo", timeout=10).json()
+
+    station_reply("POST", "/api/task", json={"task_id": 3})
+    started = station_reply("POST", json={"pilot": "Ana", "attempts": 4})
+    assert started["active"] and started["attempt"] == 1
+    again = station_reply()  # a new station on the same sessions folder
+    assert again["active"] and again["run"] == started["run"]
+    # The task file now names another task (as if chosen elsewhere): the run ends.
+    chosen = tmp_path / "chosen_task.json"
+    chosen.write_text(json.dumps({**json.loads(chosen.read_text()), "task_id": 1}))
+    ended = station_reply()
+    assert not ended["active"] and "task changed" in ended["run"]["ended"]
+    assert station_reply("POST", "/api/task", json={"task_id": 2})["run"] == ended["run"]
