@@ -1,5 +1,5 @@
 """Sessions chosen for learning, by task, pilot and score: the one rule behind the
-sessions page (`GET /api/sessions/selection`, `POST /api/exports`) and
+sessions page (`GET /api/selection`, `POST /api/exports`) and
 `fpv-station export --select`.
 
 A selection is written as comma-separated terms, the same text everywhere:
@@ -16,7 +16,7 @@ A selection is written as comma-separated terms, the same text everywhere:
 Failed trials are left out unless `include_failed`: a trial counts only when the score the
 station stored at the disarm (`analysis.trial_score`, session.json `score`) has a result
 that is `valid` (no crash reported, no obstacle touched, landed on the pad). A session
-with no score (none chosen task, not scored yet) has no such result and is left out too.
+with no score (no task chosen, not scored yet) has no such result and is left out too.
 A session being recorded, or whose session.json cannot be read, is never selected.
 """
 
@@ -69,7 +69,7 @@ class Selection:
                     f"METRIC<=X, separated by commas"
                 )
             if key == "task":
-                if not value.isdigit() or len(value) > 6:
+                if not re.fullmatch(r"[0-9]{1,6}", value):
                     raise SelectionError(f"'{term[:60]}': a task is its number (task=1)")
                 task = int(value)
             elif key == "pilot":

@@ -12,8 +12,8 @@ counts is that score's validity (analysis.selection.trial_failed).
 The run is kept in the sessions folder (`DEMO_RUN_FILE`, written whole then renamed), so
 a reloaded page or a restarted station goes on with it; a run whose task is no longer the
 chosen one after a restart is ended. A session cut off by the station's death is not
-counted (its end was never seen): that attempt is flown again. While a run is active the task cannot change
-(routes.task refuses), so all its attempts are of one task.
+counted (its end was never seen): that attempt is flown again. While a run is active the
+task cannot change (routes.task refuses), so all its attempts are of one task.
 """
 
 from __future__ import annotations

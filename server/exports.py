@@ -41,7 +41,6 @@ log = logging.getLogger(__name__)
 
 EXPORTS_DIR = "exports"  # in the sessions folder
 EXPORT_JSON = "export.json"
-EXPORT_FORMATS = ("lerobot", "minari", "mcap")  # learn.formats.FORMATS, without the extra
 _ID = re.compile(r"\d{8}T\d{6}Z(?:-\d{1,3})?")
 
 RUNNING, DONE, FAILED, INTERRUPTED = "running", "done", "failed", "interrupted"
@@ -71,7 +70,6 @@ class Exports:
         self.root = store.root / EXPORTS_DIR
         self._spawn = spawn
         self._running: ExportRecord | None = None
-        self._process: multiprocessing.process.BaseProcess | None = None
         self._lock = asyncio.Lock()  # one start at a time: the check and the claim together
 
     async def start(self, selection: Selection, fmt: str) -> ExportRecord:
@@ -105,7 +103,6 @@ class Exports:
         proc = ctx.Process(
             target=run_export, args=(record, str(folder), paths), name=f"export {record.id}"
         )
-        self._process = proc
         try:
             proc.start()
             await asyncio.to_thread(proc.join)
@@ -124,7 +121,6 @@ class Exports:
             if proc.is_alive():  # cancelled: the station stops
                 proc.terminate()
                 await asyncio.to_thread(proc.join, 5.0)
-            self._process = None
             self._running = None
 
     def _new_id(self) -> str:

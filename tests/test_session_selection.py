@@ -96,7 +96,15 @@ def test_rest_and_cli_select_the_same_sessions(sessions: Path, capsys):
         assert list(reply["failed"]) == [ANA_FAILED]
         assert "never reached 4 m" in reply["failed"][ANA_FAILED]
         # Bad selections: a clear 400 (REST) or exit 2 (CLI), never a crash.
-        for bad in ("foo=1", "task=x", "kind=robot", "pilot=a/b", "speed<=1", "task=1,,x"):
+        for bad in (
+            "foo=1",
+            "task=x",
+            "task=\u00b2",
+            "kind=robot",
+            "pilot=a/b",
+            "speed<=1",
+            "task=1,,x",
+        ):
             r = httpx.get(f"{base}/api/selection", params={"select": bad})
             assert r.status_code == 400 and r.json()["error"] == "BadRequest", bad
             argv = ["export", "--select", bad, "--sessions-dir", str(sessions), "--list"]
@@ -111,6 +119,10 @@ def test_rest_export_of_a_selection(sessions: Path, tmp_path: Path):
     app = create_app(station_settings("none", root))
     with run_uvicorn(app) as base:
         api = httpx.Client(base_url=base, timeout=10)
+        assert (
+            api.post("/api/exports", json={"select": "task=1", "format": "csv"}).status_code == 422
+        )
+        assert api.post("/api/exports", json={"select": "speed<=1"}).status_code == 400
         r = api.post("/api/exports", json={"select": "task=2", "format": "lerobot"})
         assert r.status_code == 400 and "No session" in r.json()["error_msg"]
         r = api.post("/api/exports", json={"select": "pilot=Ana", "format": "lerobot"})

@@ -15,14 +15,14 @@ TERMS: `task=1,pilot=Ana,kind=human,hover_distance_m<=0.3` (analysis.selection).
 from __future__ import annotations
 
 import asyncio
-from typing import Literal
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from fpv_station.analysis.selection import METRICS, Selection, SelectionError, select_sessions
 from fpv_station.companion.recording.recorder import Recorder
+from fpv_station.learn.formats import FORMATS
 from fpv_station.server.auth import require_control_token
 from fpv_station.server.errors import BadRequest, NotFound
 from fpv_station.server.exports import ExportRecord, Exports
@@ -46,7 +46,14 @@ class ExportRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     select: str = Field("", max_length=MAX_SELECT)
     include_failed: bool = False
-    format: Literal["lerobot", "minari", "mcap"] = "lerobot"
+    format: str = "lerobot"
+
+    @field_validator("format")
+    @classmethod
+    def _format(cls, v: str) -> str:
+        if v not in FORMATS:
+            raise ValueError(f"one of {', '.join(FORMATS)}")
+        return v
 
 
 def _selection(text: str, include_failed: bool) -> Selection:
