@@ -345,11 +345,11 @@ def run_eval(args: argparse.Namespace) -> int:
 
 
 def load_policy(path: Path, task_id: int, dataset: Path | None = None):
-    """A LeRobot `pretrained_model` folder (`learn.lerobot_policy`), else our
-    behaviour-cloning policy file."""
-    from fpv_station.learn.lerobot_policy import LeRobotPolicy, is_policy_folder
+    """A LeRobot policy (a folder: `pretrained_model`, a checkpoint or a training's output,
+    `learn.lerobot_policy`), else our behaviour-cloning policy file."""
+    from fpv_station.learn.lerobot_policy import LeRobotPolicy
 
-    if is_policy_folder(path):
+    if Path(path).is_dir():
         policy = LeRobotPolicy(path, task_id, dataset)
         f = policy.facts
         print(

@@ -62,9 +62,15 @@ JPEG_QUALITY = 80
 EXTRA_HINT = "pip install 'fpv-station[learn-lerobot]'"
 
 
-def is_policy_folder(path: Path) -> bool:
-    """A folder with a config.json: a LeRobot `pretrained_model` (or its stand-in)."""
-    return Path(path).is_dir() and (Path(path) / CONFIG_FILE).is_file()
+def policy_folder(path: Path) -> Path | None:
+    """The `pretrained_model` folder `path` names: itself when it holds a config.json, or
+    its `pretrained_model`, or `checkpoints/last/pretrained_model` (a checkpoint or the
+    `--output_dir` of `lerobot-train`); None when it is none of these (a file)."""
+    path = Path(path)
+    for folder in (path, path / "pretrained_model", path / "checkpoints/last/pretrained_model"):
+        if (folder / CONFIG_FILE).is_file():
+            return folder
+    return None
 
 
 @dataclass(frozen=True)
@@ -147,7 +153,7 @@ class LeRobotPolicy:
         dataset: Path | None = None,
         scene: Scene | None = None,
     ) -> None:
-        self.folder = Path(folder)
+        self.folder = policy_folder(folder) or Path(folder)
         self.scene = scene or load_scene()
         self.inputs = PolicyInputs.read(self.folder)
         if self.inputs.state_dim not in (0, 18) or self.inputs.action_dim != 4:

@@ -55,13 +55,16 @@ def _height_holder(dataset: Path) -> tuple[LinearPolicy, np.ndarray, np.ndarray]
 
 
 def test_a_stand_in_folder_is_found_and_scored_in_the_table(dataset, tmp_path, capsys):
-    folder = tmp_path / "checkpoints" / "000100" / "pretrained_model"
+    # As lerobot-train writes it: OUT/checkpoints/NNNNNN/pretrained_model, `last` linked
+    # to the newest, the dataset the run was trained on in train_config.json.
+    out = tmp_path / "train"
+    folder = out / "checkpoints" / "000100" / "pretrained_model"
     LinearPolicy.fit(dataset).save_pretrained(folder)
-    # As lerobot-train writes it: the dataset the run was trained on.
+    (out / "checkpoints" / "last").symlink_to("000100")
     (folder / "train_config.json").write_text(
         json.dumps({"dataset": {"repo_id": "fpv-station/demonstrations", "root": str(dataset)}})
     )
-    argv = ["learn", "eval", str(folder), "--task", "1", "--episodes", "1", "--no-baselines"]
+    argv = ["learn", "eval", str(out), "--task", "1", "--episodes", "1", "--no-baselines"]
     assert cli_main(argv) == 0
     out, err = capsys.readouterr()
     assert "LeRobot fpv_linear: front, bottom cameras, 5 fps, task 'Take off, hover" in err
