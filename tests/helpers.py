@@ -270,6 +270,16 @@ class RawWsClient:
         self.sock.close()
 
 
+# The front camera's picture as drawn, [width, page width]: the view's box holds it
+# contained at its frames' aspect ratio (4:3 until a frame says otherwise).
+FRONT_PICTURE_WIDTH = """() => {
+  const img = document.querySelector('#front-view .video-stream');
+  const r = img.getBoundingClientRect();
+  const aspect = img.naturalWidth && img.naturalHeight ? img.naturalWidth / img.naturalHeight : 4 / 3;
+  return [Math.min(r.width, r.height * aspect), innerWidth];
+}"""
+
+
 def sticks_on(page, base: str) -> None:
     """Open the pilot page of a station on the twin and turn the browser's sticks on."""
     page.goto(base + "/")

@@ -1,6 +1,7 @@
 """The pilot page's layout in real headless chromium, at a desktop and a phone's two
-orientations, against a real station following the test MAVLink vehicle: the 3D panel
-open never covers the flight state."""
+orientations, against a real station following the test MAVLink vehicle: on a laptop
+the front camera's picture is at least 0.6 of the width (the paper's large front view),
+and the 3D panel open never covers the flight state."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import pytest
 from playwright.sync_api import expect
 
 from fpv_station.server.app import create_app
-from tests.helpers import chromium, run_uvicorn, station_settings
+from tests.helpers import FRONT_PICTURE_WIDTH, chromium, run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
 
 
@@ -60,6 +61,9 @@ def test_3d_panel_open_leaves_the_flight_state_in_view(station, browser, size):
     page.route("**/*", lambda r: r.continue_() if r.request.frame == page.main_frame else r.abort())
     page.goto(base + "/")
     expect(page.locator("#v-mode")).to_have_text("POSCTL", timeout=30_000)
+    if size == (1280, 720):
+        picture, width = page.evaluate(FRONT_PICTURE_WIDTH)
+        assert picture >= 0.6 * width, (picture, width)
     page.locator("#p3d-toggle").click()
     panel = page.locator("#panel-3d")
     expect(panel).to_be_visible()

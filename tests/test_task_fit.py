@@ -1,9 +1,12 @@
 """The flight task on the pilot page, in headless Chromium against a real station process:
 the task chosen survives the station's restart, and the restarted station's page shows
 the procedure, the top-view map and the score of the last trial whole, without
-scrolling, at a laptop's 1280x720, goggles' 1920x1080 and a phone either way up. The
-score is the station's own scoring of a session (server.trials) of a trial that crashed:
-invalid, the analysis' reasons, its landing accuracy and which figures are better lower."""
+scrolling, at a laptop's 1280x720, goggles' 1920x1080 and a phone upright, beside a
+front camera at least 0.6 of the width on the laptop and goggles (the paper's large front
+view). On a phone on its side both cameras and the task's essentials (its choice, map,
+steps and verdict) are seen whole. The score is the station's own scoring of a session
+(server.trials) of a trial that crashed, touched an obstacle and landed off the pad:
+invalid for three reasons, its landing accuracy and which figures are better lower."""
 
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from fpv_station.analysis.trial_score import score_and_store
 from fpv_station.companion.recording.meta import session_task
 from fpv_station.core.scene import load_scene
 from tests import synthetic as syn
+from tests.helpers import FRONT_PICTURE_WIDTH
 from tests.station_process import serve_station
 
 TOKEN = "task-fit-token"
@@ -59,8 +63,9 @@ SEEN_WHOLE = """(ids) => ids.map((id) => {
 
 
 def crashed_a_to_b_session(root):
-    """A recorded A-to-B trial with the vehicle's crash report, chosen as task 2 of the
-    station's field and scored by the station's own scoring."""
+    """A recorded A-to-B trial with the vehicle's crash report, flown too low over the
+    obstacles and landed short of the pad, chosen as task 2 of the station's field and
+    scored by the station's own scoring."""
     scene = load_scene(None)
     task = session_task(scene, None, scene.task(2))
     now = dt.datetime.now(dt.UTC)
@@ -72,7 +77,7 @@ def crashed_a_to_b_session(root):
         "start_utc": now.isoformat(timespec="seconds"),
         "task": task.model_dump(mode="json"),
     }
-    flight = syn.a_to_b_flight()
+    flight = syn.a_to_b_flight(length_m=36.0, height_m=2.0)
     folder = syn.write_session(flight, root / sid, wall_t0=now.timestamp(), meta=meta)
     crash_at = float(flight.t_s[len(flight.t_s) // 2])
     (folder / "messages.csv").write_text(
@@ -80,6 +85,7 @@ def crashed_a_to_b_session(root):
     )
     score = score_and_store(folder, task)
     assert score.ok and score.result["valid"] is False, score
+    assert len(score.result["invalid_reasons"]) == 3, score.result["invalid_reasons"]
     return score
 
 
@@ -111,10 +117,22 @@ def test_task_survives_a_restart_and_its_panel_fits_every_screen(tmp_path, brows
                 expect(result).to_contain_text(f"landed from pad landing {accuracy:.3f} m")
                 lower = result.locator("[data-field='lateral_deviation_m']")
                 assert lower.get_attribute("title") == "lower is better"
-                expect(page.locator("#task-invalid")).to_contain_text("reported a crash")
+                invalid = page.locator("#task-invalid")
+                for reason in ("reported a crash", "touched an obstacle", "landed off pad"):
+                    expect(invalid).to_contain_text(reason)
                 expect(page.locator("#task-procedure li")).to_have_count(4)
-                seen = dict(page.evaluate(SEEN_WHOLE, ["task-procedure", "task-map", "task-score"]))
+                if name == "phone-landscape":
+                    shown = ["task-select", "task-map", "task-steps", "task-result"]
+                    shown += ["front-view", "bottom-view"]
+                else:
+                    shown = ["task-procedure", "task-map", "task-score"]
+                seen = dict(page.evaluate(SEEN_WHOLE, shown))
                 assert seen == dict.fromkeys(seen, "ok"), (name, seen)
+                if name in ("laptop", "goggles"):
+                    picture, width = page.evaluate(FRONT_PICTURE_WIDTH)
+                    assert picture >= 0.6 * width, (name, picture, width)
+                    seen = dict(page.evaluate(SEEN_WHOLE, ["front-view", "bottom-view"]))
+                    assert seen == dict.fromkeys(seen, "ok"), (name, seen)
             finally:
                 context.close()
     # The choice is a file of the sessions folder, beside the sessions it goes into.

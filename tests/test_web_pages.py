@@ -119,8 +119,8 @@ def test_http_401_declined_shows_the_servers_error_and_changes_nothing(guarded, 
 
 def test_control_socket_4401_asks_for_the_token_and_reconnects(guarded, browser):
     """The control socket refuses a missing token (close 4401); the page asks through
-    lib.js and opens it again with the token. This station has no twin, so the socket
-    then gets past the token and is refused for that reason instead."""
+    lib.js and opens it again with the token. This station has no vehicle link, so the
+    socket then gets past the token and is refused for that reason instead."""
     page = browser.new_page()
     prompts = answer_dialogs(page, TOKEN)
     page.goto(f"{guarded}/")
@@ -130,7 +130,7 @@ def test_control_socket_4401_asks_for_the_token_and_reconnects(guarded, browser)
         "window.fpv.control.lastReply && window.fpv.control.lastReply.error === 'Conflict'"
     )
     assert len(prompts) == 1
-    assert "digital twin" in page.evaluate("window.fpv.control.lastReply.error_msg")
+    assert "No vehicle to command" in page.evaluate("window.fpv.control.lastReply.error_msg")
 
 
 def test_a_declined_token_is_not_asked_for_again_by_a_waiting_command(guarded, browser):

@@ -12,8 +12,10 @@
 // trial counts (valid: no crash, no obstacle touched, landed on the pad), how far from
 // the pad's centre it landed, and which figures are better when lower (all as the
 // station's analysis gives them; after a restart, the newest of today's trials). The panel
-// sits under the front camera, its procedure, map and score visible whole without
-// scrolling on a laptop, goggles' 1080p and a phone either way up (style.css). Positions
+// sits in the right column under the flight state, so that the front camera keeps the
+// left column's height (the paper's large front view); its procedure, map and score are
+// seen whole without scrolling on a laptop, goggles' 1080p and a phone upright, and on a
+// phone on its side its essentials beside both cameras (style.css). Positions
 // are metres east/north of the scene's home, which is plenty exact over a 60 m field (an
 // equirectangular projection).
 import { $, el, api, ApiError } from "/lib.js";
@@ -39,13 +41,14 @@ const procedure = el("ol", { id: "task-procedure", class: "procedure" });
 const steps = el("ol", { id: "task-steps", class: "steps" });
 const map = el("canvas", { id: "task-map", width: 320, height: 200, "aria-label": "top-view map" });
 const score = el("div", { id: "task-score", class: "score" });
-// The plan (what to fly), the map and the steps with the score side by side, under the
-// front camera (style.css places them per screen); on the goggles page, unseen, in #side.
+// The plan (what to fly) across, the map and the steps with the score under it, in the
+// right column under the flight state (style.css places them per screen); on the goggles
+// page, unseen, in #side.
 const plan = el("div", { class: "task-plan" }, el("div", { class: "task-head" }, toggle, select), procedure);
 const result = el("div", { class: "task-result" }, steps, score);
 body.append(map, result);
 panel.append(plan, body);
-if ($("main-col")) $("main-col").append(panel);
+if ($("main-col")) $("flight-state").after(panel);
 else $("side").prepend(panel);
 
 toggle.addEventListener("click", () => {
