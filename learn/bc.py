@@ -93,20 +93,39 @@ class BcPolicy:
             )
 
 
-def read_lerobot(root: Path) -> tuple[np.ndarray, np.ndarray, int]:
-    """(inputs, sticks, task_id) of every frame of a LeRobot dataset from `export`."""
+@dataclass(frozen=True)
+class Rows:
+    """Every frame of a LeRobot dataset from `export`, in the data files' order."""
+
+    state: np.ndarray  # (n, STATE_SIZE) `observation.state`
+    action: np.ndarray  # (n, 4) sticks
+    t_s: np.ndarray  # (n,) `timestamp`: seconds since the episode's first frame
+    episode: np.ndarray  # (n,) `episode_index`
+    task_id: int  # the task of the demonstrations (0 = unknown)
+
+
+def read_rows(root: Path) -> Rows:
+    """The frames of a LeRobot dataset from `export` (its data files and task)."""
     root = Path(root)
     files = sorted((root / "data").glob("*/*.parquet"))
     if not files:
         raise ValueError(f"'{root}' is not a LeRobot dataset (no data/*/*.parquet)")
-    cols = ["observation.state", "action", "timestamp"]
+    cols = ["observation.state", "action", "timestamp", "episode_index"]
     tables = [pq.read_table(f, columns=cols) for f in files]
-    state = np.concatenate([_matrix(t.column("observation.state")) for t in tables])
-    action = np.concatenate([_matrix(t.column("action")) for t in tables])
-    t = np.concatenate([t.column("timestamp").to_numpy() for t in tables])
-    task_id = read_meta(root).task_id
-    inputs = np.column_stack([state[:, list(FEATURES)], t]).astype(np.float32)
-    return inputs, action.astype(np.float32), task_id
+    return Rows(
+        state=np.concatenate([_matrix(t.column("observation.state")) for t in tables]),
+        action=np.concatenate([_matrix(t.column("action")) for t in tables]).astype(np.float32),
+        t_s=np.concatenate([t.column("timestamp").to_numpy() for t in tables]),
+        episode=np.concatenate([t.column("episode_index").to_numpy() for t in tables]),
+        task_id=read_meta(root).task_id,
+    )
+
+
+def read_lerobot(root: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """(inputs, sticks, task_id) of every frame of a LeRobot dataset from `export`."""
+    r = read_rows(root)
+    inputs = np.column_stack([r.state[:, list(FEATURES)], r.t_s]).astype(np.float32)
+    return inputs, r.action, r.task_id
 
 
 def train(dataset: Path, k: int = DEFAULT_K) -> BcPolicy:

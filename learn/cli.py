@@ -6,9 +6,10 @@
                        [--task N] [--description TEXT] [--fps N] [--channel-map MAP]
                        [--cameras front,bottom|none] [--dataset-id ID] [--image-size WxH]
                        [--workers N] [--ray ADDRESS]
-    fpv-station demos --task N --count K --out DIR [--seed S] [--cameras]
+    fpv-station demos --task N --count K --out DIR [--seed S] [--cameras [NAMES]]
                       [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
     fpv-station learn bc DATASET --out POLICY
+    fpv-station learn vision DATASET --out POLICY
     fpv-station learn eval POLICY --task N [--episodes E] [--seed S] [--demos SESSION ...]
                        [--dataset DATASET] [--wind E,N] [--gusts STD] [--turbulence STD] [--random-start [DEG]]
 
@@ -187,7 +188,14 @@ def add_demos_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--count", type=int, required=True, help="how many flights")
     p.add_argument("--out", type=Path, required=True, help="sessions folder to write into")
     p.add_argument("--seed", type=int, default=0, help="seed of the first flight")
-    p.add_argument("--cameras", action="store_true", help="record both cameras")
+    p.add_argument(
+        "--cameras",
+        nargs="?",
+        const="front,bottom",
+        default=None,
+        metavar="NAMES",
+        help="record the cameras (default both; 'bottom' for the bottom one only)",
+    )
     p.add_argument("--camera-fps", type=float, default=15.0)
     add_air_arguments(p)
 
@@ -227,14 +235,21 @@ def air_options(args: argparse.Namespace) -> dict:
 
 
 def run_demos(args: argparse.Namespace) -> int:
+    from fpv_station.companion.recording.layout import CAMERAS
     from fpv_station.learn.demos import DemoConfig, fly_demos
 
     if args.count < 1:
         print("fpv-station demos: --count must be at least 1", file=sys.stderr)
         return 2
+    cams = tuple(c for c in (args.cameras or "").split(",") if c)
+    unknown = set(cams) - set(CAMERAS)
+    if unknown:
+        print(f"fpv-station demos: no camera {', '.join(sorted(unknown))}", file=sys.stderr)
+        return 2
     config = DemoConfig(
         task_id=args.task,
-        cameras=args.cameras,
+        cameras=bool(cams),
+        camera_names=cams or CAMERAS,
         camera_fps=args.camera_fps,
         env_options=air_options(args),
     )
@@ -259,6 +274,15 @@ def add_learn_arguments(p: argparse.ArgumentParser) -> None:
     bc.add_argument("--out", type=Path, required=True, metavar="POLICY", help="policy file")
     bc.add_argument("--k", type=int, default=5, help="neighbours averaged (default 5)")
     bc.set_defaults(func=run_bc)
+    vision = sub.add_parser(
+        "vision",
+        help="train a policy that flies from the bottom camera and the attitude (no position) "
+        "on a LeRobot dataset exported with the bottom camera",
+    )
+    vision.add_argument("dataset", type=Path, metavar="DATASET", help="a LeRobot dataset folder")
+    vision.add_argument("--out", type=Path, required=True, metavar="POLICY", help="policy file")
+    vision.add_argument("--k", type=int, default=5, help="neighbours averaged (default 5)")
+    vision.set_defaults(func=run_vision)
     ev = sub.add_parser("eval", help="fly a policy in the twin; the paper's table for the task")
     ev.add_argument(
         "policy",
@@ -299,6 +323,24 @@ def run_bc(args: argparse.Namespace) -> int:
         return 1
     path = policy.save(args.out)
     print(f"policy: {len(policy.inputs)} frames, k={policy.k}, task {policy.task_id} -> {path}")
+    return 0
+
+
+def run_vision(args: argparse.Namespace) -> int:
+    from fpv_station.core.scene import SceneError
+    from fpv_station.learn.vision import train
+
+    try:
+        policy = train(args.dataset, args.k)
+    except (ValueError, OSError, KeyError, SceneError) as exc:
+        print(f"fpv-station learn vision: {exc}", file=sys.stderr)
+        return 1
+    path = policy.save(args.out)
+    w, h = policy.image_size
+    print(
+        f"vision policy: {len(policy.inputs)} frames ({w}x{h} bottom pictures), "
+        f"k={policy.k}, task {policy.task_id} -> {path}"
+    )
     return 0
 
 
@@ -346,7 +388,8 @@ def run_eval(args: argparse.Namespace) -> int:
 
 def load_policy(path: Path, task_id: int, dataset: Path | None = None):
     """A LeRobot policy (a folder: `pretrained_model`, a checkpoint or a training's output,
-    `learn.lerobot_policy`), else our behaviour-cloning policy file."""
+    `learn.lerobot_policy`), else our policy file: the vision policy's or the behaviour
+    clone's, told apart by its `format`."""
     from fpv_station.learn.lerobot_policy import LeRobotPolicy
 
     if Path(path).is_dir():
@@ -361,5 +404,6 @@ def load_policy(path: Path, task_id: int, dataset: Path | None = None):
     if dataset is not None:
         raise ValueError("--dataset is for a LeRobot policy folder")
     from fpv_station.learn.bc import BcPolicy
+    from fpv_station.learn.vision import VisionPolicy, is_vision_policy
 
-    return BcPolicy.load(path)
+    return VisionPolicy.load(path) if is_vision_policy(path) else BcPolicy.load(path)

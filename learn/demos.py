@@ -61,6 +61,7 @@ class DemoConfig:
     task_id: int = 1
     rate_hz: float = 30.0  # telemetry rows
     cameras: bool = False
+    camera_names: tuple[str, ...] = layout.CAMERAS  # the cameras recorded, with `cameras`
     camera_fps: float = 15.0
     jpeg_quality: int = 80
     timeout_s: float = 300.0
@@ -106,7 +107,7 @@ def fly_demo(
     if config.hold_s is not None:
         legs = [replace(leg, seconds=config.hold_s) if leg.kind == "hold" else leg for leg in legs]
     pilot = Pilot(legs)
-    cams = layout.CAMERAS if config.cameras else ()
+    cams = config.camera_names if config.cameras else ()
     wall0 = WALL_T0 + 3600.0 * seed
     k, n, run = attempt or (1, 1, layout.utc_label(wall0))
     # The recorder records the twin as it records a replayed log: on the source's own

@@ -334,7 +334,11 @@ def recorded_sticks(paths: Sequence[Path], task_id: int, fps: float) -> list[np.
     return out
 
 
-def policy_act(policy) -> Act:
+def policy_act(policy, scene: Scene | None = None) -> Act:
+    """A trained policy as an actor: a state policy's `act(state, t_s)`; a policy that
+    flies from a camera makes its own actor that renders the twin's picture (`twin_act`)."""
+    if hasattr(policy, "twin_act"):
+        return policy.twin_act(scene or load_scene())
     return lambda obs, info: policy.act(obs, info["t_s"])
 
 
@@ -360,14 +364,14 @@ def policy_row(
     options: dict[str, Any] | None = None,
 ) -> Row:
     """The row of the policy under evaluation: a `BatchPolicy` flown a batch at a time at
-    its rate, else a behaviour-cloning policy (`act(state, t_s)`) per episode."""
+    its rate, else per episode (`policy_act`: behaviour cloning, or the vision policy
+    under its `row_name`)."""
     if isinstance(policy, BatchPolicy):
         act = policy.batch_act(episodes)
         outcomes = fly_batch(act, episodes, task_id, seed, load_scene(), options, policy.control_hz)
         return Row(policy.name, outcomes)
-    return evaluate(
-        "behaviour cloning", lambda s: policy_act(policy), task_id, episodes, seed, options
-    )
+    name = getattr(policy, "row_name", "behaviour cloning")
+    return evaluate(name, lambda s: policy_act(policy), task_id, episodes, seed, options)
 
 
 def demonstrations(paths: Sequence[Path], task_id: int, name: str = "demonstrations") -> Row:
