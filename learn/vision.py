@@ -9,15 +9,15 @@ Nothing from GPS, the barometer or the distance to the target: no position, velo
 or height input. The pad, seen from above, tells where the vehicle is, as it tells the
 paper's pilots in the bottom view.
 
-Image features (`pad_view`): the pad is the grey-and-white blob on the green grass
-(pixels of low colour saturation); its share of the picture, its centroid and whether
-it touches the picture's edge. With the attitude and the bottom camera's geometry
-(`twin.render.bottom_camera`: straight down, 90 degrees wide) they become where the
-vehicle is over the pad (`pad_features`): the height from the pad's apparent size
-(`f * size / sqrt(area)`, the pad's side `pad_size_m` is known to the pilot), the
-offset east and north from the centroid's ray turned level by roll, pitch and heading.
-Below about 1.2 m the pad fills the picture: the height reads as that floor and the
-time since arming says whether it is the take-off or the landing.
+Image features (`pad_view`): the pad is the grey-and-white patch on the green grass;
+each pixel counts as pad by how little colour it has (`PAD_SPREAD`, `GRASS_SPREAD`),
+giving the pad's area, its centroid and whether it touches the picture's edge. With the
+attitude and the bottom camera's geometry (`twin.render.bottom_camera`: straight down,
+90 degrees wide) they become where the vehicle is over the pad (`pad_features`): the
+height from the pad's apparent size (the pad's side is known to the pilot: the scene's),
+the offset east and north from the centroid's ray turned level by roll, pitch and
+heading. Below about 1.2 m the pad fills the picture: the height reads as that floor,
+and on the ground and the time since arming tell the take-off from the landing.
 
 The learner is the behaviour clone's (`learn.bc`): scikit-learn's k-nearest
 neighbours over these features, each divided by a fixed physical scale, and the

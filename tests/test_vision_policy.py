@@ -121,9 +121,9 @@ def _table(text: str) -> dict[str, list[str]]:
 
 
 @pytest.mark.timeout(600)  # ~40 s alone; minutes when the machine is shared
-def test_trained_on_a_demonstration_it_lands_on_the_pad(tmp_path: Path, capsys, renderer):
+def test_trained_on_one_demonstration_it_lands_on_the_pad(tmp_path: Path, capsys, renderer):
     demos = tmp_path / "demos"
-    argv = ["demos", "--task", "1", "--count", "2", "--seed", "7", "--cameras", "bottom"]
+    argv = ["demos", "--task", "1", "--count", "1", "--seed", "7", "--cameras", "bottom"]
     assert cli_main([*argv, "--camera-fps", "10", "--out", str(demos)]) == 0
     sessions = sorted(p for p in demos.iterdir() if p.is_dir())
     dataset = tmp_path / "dataset"
@@ -142,14 +142,14 @@ def test_trained_on_a_demonstration_it_lands_on_the_pad(tmp_path: Path, capsys, 
 
     policy = VisionPolicy.load(policy_file)
     assert policy.task_id == 1 and policy.image_size == SIZE
-    # Same time, attitude and state: the picture alone decides. Low over the pad it
-    # climbs harder than at the hover height.
+    # Same time (the demonstration hovered then), attitude and state: the picture alone
+    # decides. Low over the pad it climbs; at the hover height it holds.
     pad = load_scene().pad("start")
     level = _rotation(0.0, 0.0, 0.0)
     state = np.zeros(18, np.float32)
     state[9] = 1.0
-    low = policy.act(_picture(renderer, [pad.x_m, pad.y_m, 2.0], level), state, 1.5)
-    high = policy.act(_picture(renderer, [pad.x_m, pad.y_m, 4.0], level), state, 1.5)
+    low = policy.act(_picture(renderer, [pad.x_m, pad.y_m, 2.0], level), state, 5.0)
+    high = policy.act(_picture(renderer, [pad.x_m, pad.y_m, 4.0], level), state, 5.0)
     assert low[3] > high[3] + 0.3
 
     argv = ["learn", "eval", str(policy_file), "--task", "1", "--episodes", "2"]
