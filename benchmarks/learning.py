@@ -127,14 +127,20 @@ def main() -> int:
         parts += [md for cc, _, md, _ in sorted(results) if cc == c]
     text = "\n\n".join(parts)
     print(text)
-    if args.write_docs:
-        doc = DOCS.read_text()
-        if BEGIN not in doc or END not in doc:
-            print(f"{DOCS} has no benchmark markers", file=sys.stderr)
-            return 1
-        pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
-        DOCS.write_text(pattern.sub(lambda m: f"{BEGIN}\n{text}\n{END}", doc))
+    if args.write_docs and not write_docs(text, BEGIN, END):
+        return 1
     return 0
+
+
+def write_docs(text: str, begin: str, end: str) -> bool:
+    """Put `text` into docs/LEARNING.md between the markers `begin` and `end`."""
+    doc = DOCS.read_text()
+    if begin not in doc or end not in doc:
+        print(f"{DOCS} has no markers {begin} ... {end}", file=sys.stderr)
+        return False
+    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    DOCS.write_text(pattern.sub(lambda m: f"{begin}\n{text}\n{end}", doc))
+    return True
 
 
 if __name__ == "__main__":

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import re
 import sys
 import tempfile
 import time
@@ -31,11 +30,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.learning import CONDITIONS, machine  # noqa: E402
+from benchmarks.learning import CONDITIONS, machine, write_docs  # noqa: E402
 
 TASK = 1
 SEED = 1000
-DOCS = ROOT / "docs" / "LEARNING.md"
 BEGIN = "<!-- benchmarks/vision_policy.py: begin -->"
 END = "<!-- benchmarks/vision_policy.py: end -->"
 
@@ -122,13 +120,8 @@ def main() -> int:
         parts.append(f"{md}\n\n({s / 60:.0f} min)")
     text = "\n\n".join(parts)
     print(text)
-    if args.write_docs:
-        doc = DOCS.read_text()
-        if BEGIN not in doc or END not in doc:
-            print(f"{DOCS} has no vision benchmark markers", file=sys.stderr)
-            return 1
-        pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
-        DOCS.write_text(pattern.sub(lambda m: f"{BEGIN}\n{text}\n{END}", doc))
+    if args.write_docs and not write_docs(text, BEGIN, END):
+        return 1
     return 0
 
 

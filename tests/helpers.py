@@ -297,3 +297,13 @@ def arm_and_climb(page, station, height_m: float = 1.5, timeout: float = 15.0) -
     page.keyboard.down("ArrowUp")
     assert wait_until(lambda: station.twin.pose().pos_enu_m[2] > height_m, timeout=timeout)
     page.keyboard.up("ArrowUp")
+
+
+def eval_rows(text: str) -> dict[str, list[str]]:
+    """`learn eval`'s Markdown table in `text`: per row's policy name, its other cells."""
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) > 3 and cells[0] not in ("policy", "---"):
+            rows[cells[0]] = cells[1:]
+    return rows

@@ -13,15 +13,7 @@ import pytest
 
 from fpv_station.learn.bc import FEATURES, BcPolicy
 from fpv_station.server.cli import main as cli_main
-
-
-def _table(text: str) -> dict[str, list[str]]:
-    rows = {}
-    for line in text.splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) > 3 and cells[0] not in ("policy", "---"):
-            rows[cells[0]] = cells[1:]
-    return rows
+from tests.helpers import eval_rows
 
 
 @pytest.mark.timeout(900)  # ~25 s alone; minutes when the machine is shared
@@ -45,7 +37,7 @@ def test_demos_bc_eval_on_the_hover(tmp_path: Path, capsys):
     argv = ["learn", "eval", str(policy), "--task", "1", "--episodes", "3", "--seed", "1000"]
     assert cli_main([*argv, "--demos", *map(str, sessions)]) == 0
     out = capsys.readouterr().out
-    rows = _table(out)
+    rows = eval_rows(out)
     # columns: scored on, episodes, success [95%], crashes, hover distance [95%],
     # height dev. [95%], trial time [95%], time; a figure is "value [low, high]"
     first = {k: [c.split(" ")[0] for c in v] for k, v in rows.items()}

@@ -22,6 +22,7 @@ from fpv_station.learn.vision import (
 from fpv_station.server.cli import main as cli_main
 from fpv_station.twin.render import Renderer, bottom_camera
 from fpv_station.twin.sim import Pose
+from tests.helpers import eval_rows
 
 SIZE = (160, 120)  # TwinEnv's pictures
 
@@ -111,15 +112,6 @@ def test_inputs_read_the_attitude_only(renderer):
     assert np.array_equal(a, b)
 
 
-def _table(text: str) -> dict[str, list[str]]:
-    rows = {}
-    for line in text.splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) > 3 and cells[0] not in ("policy", "---"):
-            rows[cells[0]] = cells[1:]
-    return rows
-
-
 @pytest.mark.timeout(600)  # ~40 s alone; minutes when the machine is shared
 def test_trained_on_one_demonstration_it_lands_on_the_pad(tmp_path: Path, capsys, renderer):
     demos = tmp_path / "demos"
@@ -154,7 +146,7 @@ def test_trained_on_one_demonstration_it_lands_on_the_pad(tmp_path: Path, capsys
 
     argv = ["learn", "eval", str(policy_file), "--task", "1", "--episodes", "2"]
     assert cli_main([*argv, "--seed", "1000", "--no-baselines"]) == 0
-    rows = _table(capsys.readouterr().out)
+    rows = eval_rows(capsys.readouterr().out)
     row = rows[VisionPolicy.row_name]
     # columns: scored on, episodes, success [95%], crashes, hover distance, height dev., ...
     assert row[1] == "2" and row[2].startswith("100%") and row[3] == "0"
