@@ -26,6 +26,7 @@ demonstrated sticks. A policy file is an `.npz` of plain arrays (no pickle).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -167,17 +168,16 @@ class VisionPolicy:
         a = self._model.predict((x / self._scale)[None, :])[0]
         return np.clip(a, -1.0, 1.0).astype(np.float32)
 
-    def twin_act(self, scene):
-        """An `learn.evaluate` actor: the twin's bottom camera rendered at the dataset's
-        size from the vehicle's pose (its true position and the observed attitude), as
-        `TwinEnv(cameras=("bottom",))` renders it, then `act`. The policy itself sees
-        the picture and the attitude only."""
-        import cv2
-
+    def twin_act(self, scene: Scene) -> Callable[[np.ndarray, dict], np.ndarray]:
+        """A `learn.evaluate` actor: the twin's bottom camera rendered from the vehicle's
+        pose (its true position and the observed attitude) and resized to the dataset's
+        size as the exporters resize (`learn.images.fit_image`), then `act`. The policy
+        itself sees the picture and the attitude only."""
+        from fpv_station.learn.images import fit_image
         from fpv_station.twin.render import Renderer
         from fpv_station.twin.sim import Pose
 
-        if self._renderer is None or self._renderer.scene is not scene:
+        if self._renderer is None or self._renderer.scene != scene:  # one per scene
             self._renderer = Renderer(scene, bottom=self.camera)
         renderer = self._renderer
         zero = np.zeros(3)
@@ -186,8 +186,7 @@ class VisionPolicy:
             roll, pitch, sin_h, cos_h, _ = (float(obs[i]) for i in ATTITUDE)
             R = world_from_attitude(roll, pitch, sin_h, cos_h)
             pose = Pose(float(info["t_s"]), np.asarray(info["pos_enu_m"], float), zero, R, zero)
-            bgr = renderer.render(CAMERA, pose)
-            bgr = cv2.resize(bgr, self.image_size, interpolation=cv2.INTER_AREA)
+            bgr = fit_image(renderer.render(CAMERA, pose), self.image_size)
             return self.act(bgr[..., ::-1], obs, float(info["t_s"]))
 
         return act
