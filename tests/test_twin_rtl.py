@@ -55,7 +55,7 @@ def test_return_to_launch_flies_home_and_lands(twin_and_gcs) -> None:
         top = max(top, pos[2])
         if twin.sim.commander.landed[0]:
             break
-        for hb in drain(gcs, "HEARTBEAT", timeout=0.1):
+        for hb in drain(gcs, "HEARTBEAT", timeout=0.3):
             beats.append((hb.custom_mode, float(np.hypot(*(pos[:2] - home))), float(pos[2])))
     pos = twin.pose().pos_enu_m
     assert twin.sim.commander.landed[0], pos
