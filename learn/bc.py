@@ -49,48 +49,67 @@ class BcPolicy:
     task_id: int = 0  # the task of the demonstrations (0 = unknown)
 
     def __post_init__(self) -> None:
-        from sklearn.neighbors import KNeighborsRegressor
-
-        self._model = KNeighborsRegressor(
-            n_neighbors=min(self.k, len(self.inputs)), weights="distance"
-        )
-        self._scale = np.array(SCALES)
-        self._model.fit(self.inputs / self._scale, self.sticks)
+        self._model = Neighbours(self.inputs, self.sticks, self.k, SCALES)
 
     def act(self, state: np.ndarray, t_s: float) -> np.ndarray:
-        x = np.append(np.asarray(state, np.float64)[list(FEATURES)], t_s)[None, :]
-        a = self._model.predict(x / self._scale)[0]
-        return np.clip(a, -1.0, 1.0).astype(np.float32)
+        return self._model.sticks(np.append(np.asarray(state, np.float64)[list(FEATURES)], t_s))
 
     def save(self, path: Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb") as f:  # a file object: numpy would append ".npz" to a name
-            np.savez_compressed(
-                f,
-                format=np.array(FORMAT),
-                features=np.array(FEATURES),
-                scales=np.array(SCALES),
-                inputs=self.inputs,
-                sticks=self.sticks,
-                k=np.array(self.k),
-                task_id=np.array(self.task_id),
-            )
-        return path
+        return save_arrays(
+            path,
+            FORMAT,
+            features=np.array(FEATURES),
+            scales=np.array(SCALES),
+            inputs=self.inputs,
+            sticks=self.sticks,
+            k=np.array(self.k),
+            task_id=np.array(self.task_id),
+        )
 
     @classmethod
     def load(cls, path: Path) -> BcPolicy:
-        with np.load(Path(path), allow_pickle=False) as z:
-            if "format" not in z or str(z["format"]) != FORMAT:
-                raise ValueError(f"'{path}' is not an fpv-station behaviour-cloning policy")
-            if tuple(z["features"].tolist()) != FEATURES or tuple(z["scales"].tolist()) != SCALES:
-                raise ValueError(f"'{path}' reads other state features; train it again")
-            return cls(
-                inputs=z["inputs"],
-                sticks=z["sticks"],
-                k=int(z["k"]),
-                task_id=int(z["task_id"]),
-            )
+        z = load_arrays(path, FORMAT, "behaviour-cloning policy", ("features", "scales"))
+        if tuple(z["features"].tolist()) != FEATURES or tuple(z["scales"].tolist()) != SCALES:
+            raise ValueError(f"'{path}' reads other state features; train it again")
+        return cls(inputs=z["inputs"], sticks=z["sticks"], k=int(z["k"]), task_id=int(z["task_id"]))
+
+
+class Neighbours:
+    """The learner: scikit-learn's k-nearest-neighbours regressor, distance weighted, over
+    inputs divided by fixed physical scales; sticks clipped to [-1, 1]."""
+
+    def __init__(self, inputs: np.ndarray, sticks: np.ndarray, k: int, scales) -> None:
+        from sklearn.neighbors import KNeighborsRegressor
+
+        self._scale = np.asarray(scales, np.float64)
+        self._model = KNeighborsRegressor(n_neighbors=min(k, len(inputs)), weights="distance")
+        self._model.fit(inputs / self._scale, sticks)
+
+    def sticks(self, x: np.ndarray) -> np.ndarray:
+        a = self._model.predict((np.asarray(x, np.float64) / self._scale)[None, :])[0]
+        return np.clip(a, -1.0, 1.0).astype(np.float32)
+
+
+def save_arrays(path: Path, fmt: str, **arrays: np.ndarray) -> Path:
+    """A policy file: `arrays`, `k`, `task_id` and the `format` tag in one .npz."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:  # a file object: numpy would append ".npz" to a name
+        np.savez_compressed(f, format=np.array(fmt), **arrays)
+    return path
+
+
+def load_arrays(path: Path, fmt: str, what: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """A policy file's arrays, read with no pickle (loading runs no code from the file):
+    it must carry the `format` tag `fmt` and the arrays `names` besides the inputs, sticks,
+    `k` and `task_id`."""
+    with np.load(Path(path), allow_pickle=False) as z:
+        if "format" not in z or str(z["format"]) != fmt:
+            raise ValueError(f"'{path}' is not an fpv-station {what}")
+        missing = {"inputs", "sticks", "k", "task_id", *names} - set(z.files)
+        if missing:
+            raise ValueError(f"'{path}' has no {', '.join(sorted(missing))}; train it again")
+        return {name: z[name] for name in z.files}
 
 
 @dataclass(frozen=True)

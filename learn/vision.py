@@ -36,7 +36,7 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from fpv_station.core.scene import Scene, load_scene
-from fpv_station.learn.bc import DEFAULT_K, read_rows
+from fpv_station.learn.bc import DEFAULT_K, Neighbours, load_arrays, read_rows, save_arrays
 from fpv_station.learn.lerobot import VIDEO_PATH, read_meta, video_key
 from fpv_station.twin.render import CameraModel, bottom_camera
 
@@ -150,23 +150,15 @@ class VisionPolicy:
     row_name = "vision (bottom camera + attitude)"
 
     def __post_init__(self) -> None:
-        from sklearn.neighbors import KNeighborsRegressor
-
         self.camera = bottom_camera(self.hfov_deg)
-        self._scale = np.array(SCALES)
-        self._model = KNeighborsRegressor(
-            n_neighbors=min(self.k, len(self.inputs)), weights="distance"
-        )
-        self._model.fit(self.inputs / self._scale, self.sticks)
+        self._model = Neighbours(self.inputs, self.sticks, self.k, SCALES)
         self._renderer = None
 
     def act(self, rgb: NDArray[np.uint8], state: np.ndarray, t_s: float) -> np.ndarray:
         """The sticks for a bottom picture (RGB), the state vector (only its attitude
         elements `ATTITUDE` are read) and the time since arming."""
         view = pad_view(rgb, self.hfov_deg)
-        x = inputs_of(view, state, t_s, self.pad_size_m, self.camera)
-        a = self._model.predict((x / self._scale)[None, :])[0]
-        return np.clip(a, -1.0, 1.0).astype(np.float32)
+        return self._model.sticks(inputs_of(view, state, t_s, self.pad_size_m, self.camera))
 
     def twin_act(self, scene: Scene) -> Callable[[np.ndarray, dict], np.ndarray]:
         """A `learn.evaluate` actor: the twin's bottom camera rendered from the vehicle's
@@ -192,58 +184,36 @@ class VisionPolicy:
         return act
 
     def save(self, path: Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb") as f:  # a file object: numpy would append ".npz" to a name
-            np.savez_compressed(
-                f,
-                format=np.array(FORMAT),
-                input_names=np.array(INPUT_NAMES),
-                scales=np.array(SCALES),
-                inputs=self.inputs,
-                sticks=self.sticks,
-                image_size=np.array(self.image_size),
-                pad_size_m=np.array(self.pad_size_m),
-                hfov_deg=np.array(self.hfov_deg),
-                k=np.array(self.k),
-                task_id=np.array(self.task_id),
-            )
-        return path
+        return save_arrays(
+            path,
+            FORMAT,
+            input_names=np.array(INPUT_NAMES),
+            scales=np.array(SCALES),
+            inputs=self.inputs,
+            sticks=self.sticks,
+            image_size=np.array(self.image_size),
+            pad_size_m=np.array(self.pad_size_m),
+            hfov_deg=np.array(self.hfov_deg),
+            k=np.array(self.k),
+            task_id=np.array(self.task_id),
+        )
 
     @classmethod
     def load(cls, path: Path) -> VisionPolicy:
-        with np.load(Path(path), allow_pickle=False) as z:
-            if "format" not in z or str(z["format"]) != FORMAT:
-                raise ValueError(f"'{path}' is not an fpv-station vision policy")
-            missing = set(_ARRAYS) - set(z.files)
-            if missing:
-                raise ValueError(f"'{path}' has no {', '.join(sorted(missing))}; train it again")
-            names, scales = tuple(z["input_names"].tolist()), tuple(z["scales"].tolist())
-            if names != INPUT_NAMES or scales != SCALES:
-                raise ValueError(f"'{path}' reads other inputs; train it again")
-            w, h = (int(v) for v in z["image_size"])
-            return cls(
-                inputs=z["inputs"],
-                sticks=z["sticks"],
-                image_size=(w, h),
-                pad_size_m=float(z["pad_size_m"]),
-                k=int(z["k"]),
-                task_id=int(z["task_id"]),
-                hfov_deg=float(z["hfov_deg"]),
-            )
-
-
-_ARRAYS = (
-    "input_names",
-    "scales",
-    "inputs",
-    "sticks",
-    "image_size",
-    "pad_size_m",
-    "hfov_deg",
-    "k",
-    "task_id",
-)
+        names = ("input_names", "scales", "image_size", "pad_size_m", "hfov_deg")
+        z = load_arrays(path, FORMAT, "vision policy", names)
+        if tuple(z["input_names"].tolist()) != INPUT_NAMES or tuple(z["scales"].tolist()) != SCALES:
+            raise ValueError(f"'{path}' reads other inputs; train it again")
+        w, h = (int(v) for v in z["image_size"])
+        return cls(
+            inputs=z["inputs"],
+            sticks=z["sticks"],
+            image_size=(w, h),
+            pad_size_m=float(z["pad_size_m"]),
+            k=int(z["k"]),
+            task_id=int(z["task_id"]),
+            hfov_deg=float(z["hfov_deg"]),
+        )
 
 
 def is_vision_policy(path: Path) -> bool:
