@@ -14,7 +14,8 @@ time. On top of the paper's table:
 Each figure comes with a 95 % interval: Wilson's score interval for the success rate,
 Student's t interval for the mean of each metric (over the episodes whose analysis holds).
 
-Rows: the policy under evaluation (behaviour cloning, or a policy trained by LeRobot,
+Rows: the policy under evaluation (behaviour cloning, the vision policy flown from the
+twin's bottom camera, `learn.vision`, or a policy trained by LeRobot,
 `learn.lerobot_policy`, flown at its dataset's rate), the twin's scripted pilot, an
 open-loop replay (a demonstration's recorded sticks replayed blind, frame by frame from
 the arming: what a policy that ignores its observations scores), a uniformly random
