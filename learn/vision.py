@@ -278,15 +278,26 @@ def _decode_views(path: Path, fps: float, hfov_deg: float) -> dict[int, PadView]
 
 
 def train(dataset: Path, k: int = DEFAULT_K, scene: Scene | None = None) -> VisionPolicy:
-    """A vision policy from a LeRobot dataset exported with the bottom camera; the
-    pad's size is the scene's, of the dataset's task's landing pad."""
+    """A vision policy from a LeRobot dataset exported with the bottom camera, of a
+    hover task (task 1: the pad stays under the vehicle) over a colourless pad (grey and
+    white, as `pad_view` finds it); the pad's size is the scene's."""
     rows = read_rows(dataset)
     if len(rows.t_s) < 2:
         raise ValueError(f"'{dataset}' has {len(rows.t_s)} frames; a policy needs more")
     if rows.task_id == 0:
         raise ValueError(f"'{dataset}' does not say its task (export it with --task N)")
     scene = scene or load_scene()
-    pad = scene.pad(scene.task(rows.task_id).end_pad)
+    task = scene.task(rows.task_id)
+    pad = scene.pad(task.end_pad)
+    if task.analysis_task != "hover" or task.start_pad != task.end_pad:
+        raise ValueError(
+            f"'{dataset}' is task {task.id} ({task.name}); the vision policy flies the hover "
+            "(task 1), where the pad stays in the bottom view"
+        )
+    if max(pad.bgr) - min(pad.bgr) >= PAD_SPREAD:
+        raise ValueError(
+            f"pad '{pad.name}' is coloured {pad.bgr}; the vision policy finds grey pads"
+        )
     camera = bottom_camera()
     views, size = read_views(dataset, rows.t_s, rows.episode, camera.hfov_deg)
     inputs = np.stack(

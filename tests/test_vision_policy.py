@@ -131,6 +131,11 @@ def test_trained_on_one_demonstration_it_lands_on_the_pad(tmp_path: Path, capsys
     assert cli_main([*argv, "--task", "1", "--cameras", "none", "--no-progress"]) == 0
     assert cli_main(["learn", "vision", str(bare), "--out", str(tmp_path / "no.npz")]) == 1
     assert "no bottom camera video" in capsys.readouterr().err
+    other = tmp_path / "task-2"  # the same flight, exported as task 2 (A to B)
+    argv = ["export", *map(str, sessions), "--format", "lerobot", "--out", str(other)]
+    assert cli_main([*argv, "--task", "2", "--cameras", "none", "--no-progress"]) == 0
+    assert cli_main(["learn", "vision", str(other), "--out", str(tmp_path / "no.npz")]) == 1
+    assert "flies the hover (task 1)" in capsys.readouterr().err
 
     policy = VisionPolicy.load(policy_file)
     assert policy.task_id == 1 and policy.image_size == SIZE
