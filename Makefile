@@ -1,6 +1,7 @@
 # fpv-station: set up and run from a fresh machine.
 #   make run    set up .venv and start the ground station on the embedded digital twin
 #   make test   set up .venv (and Debian's chromium for the browser tests) and run every test
+#   make test-fast   the REST contracts in-process (pytest -m fast): no server, twin or browser
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -8,7 +9,7 @@ STAMP  := $(VENV)/.installed
 HOST   ?= 0.0.0.0
 PORT   ?= 8000
 
-.PHONY: run test venv browser bench lint clean
+.PHONY: run test test-fast venv browser bench lint clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -29,6 +30,11 @@ run: $(STAMP)
 
 test: $(STAMP) browser
 	$(BIN)/python -m pytest -q -n auto --maxprocesses 2
+
+# One part alone by its marker (pyproject.toml): -m fast here; -m browser, -m twin,
+# -m subprocess, or "not browser and not twin" the same way.
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -m fast
 
 bench: $(STAMP)
 	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done

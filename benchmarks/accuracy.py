@@ -34,13 +34,26 @@ from fpv_station.twin.sensors import SensorParams  # noqa: E402
 from fpv_station.twin.sim import SimConfig  # noqa: E402
 from tests import shaped_tlog  # noqa: E402
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until  # noqa: E402
+from tests.known_flights import (  # noqa: E402
+    ARDUPILOT,
+    DASH_FADE,
+    DASH_SPEED_MPS,
+    EKF_CASES,
+    EKF_HOP_M,
+    JOINED_SORTIES,
+    JOINED_SORTIES_END_S,
+    dash,
+    two_sorties,
+)
 from tests.mav_vehicle import MavVehicle  # noqa: E402
-from tests.test_analysis_time_base import FADE, SPEED_MPS, dash  # noqa: E402
-from tests.test_ekf_origin import ARDUPILOT, CASES, HOP_M, pilot_altitudes  # noqa: E402
-from tests.test_flight_truth import by_stream, mavloss, replay_status  # noqa: E402
-from tests.test_replay_clock import record, two_sorties  # noqa: E402
-from tests.test_trial_per_flight import SORTIES as JOINED  # noqa: E402
-from tests.test_twin_mission import MISSION, REL, take_off, upload  # noqa: E402
+from tests.replayed import (  # noqa: E402
+    by_stream,
+    mavloss,
+    pilot_altitudes,
+    replay_status,
+    replayed_sessions,
+)
+from tests.twin_gcs import MISSION, REL, take_off, upload  # noqa: E402
 
 mav = mavutil.mavlink
 ROWS: list[tuple[str, str, str, str, str]] = []
@@ -180,27 +193,29 @@ def reset_case() -> None:
 
 
 def ekf_origin_cases(tmp: Path) -> None:
-    for case, (flight, origin_s) in CASES.items():
+    for case, (flight, origin_s) in EKF_CASES.items():
         path = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=origin_s).write(
             tmp / "ekf.tlog"
         )
         alts, _ = pilot_altitudes(path)
         top = float(alts.max())
         row(f"ArduPilot EKF origin jump to 180 m AMSL, {case}, 1.3 m hop",
-            "highest pilot's altitude while armed (m)", f"{HOP_M:.2f}", f"{top:.2f}",
-            f"{top - HOP_M:+.2f} m")  # fmt: skip
+            "highest pilot's altitude while armed (m)", f"{EKF_HOP_M:.2f}", f"{top:.2f}",
+            f"{top - EKF_HOP_M:+.2f} m")  # fmt: skip
 
 
 def burst_case(tmp: Path) -> None:
-    path = shaped_tlog.vehicle_flight(dash(), fade=FADE, burst_s=1.0).write(tmp / "burst.tlog")
+    path = shaped_tlog.vehicle_flight(dash(), fade=DASH_FADE, burst_s=1.0).write(tmp / "burst.tlog")
     (r,) = analyze_paths([path], "a-to-b", scene=False).results
-    row("28 m/s dash, 4.3 s fade then a 1 s burst", "max speed (m/s)", f"{SPEED_MPS:.1f} (GPS)",
-        f"{r.max_speed_mps:.2f}", f"{r.max_speed_mps - SPEED_MPS:+.2f} m/s")  # fmt: skip
+    row("28 m/s dash, 4.3 s fade then a 1 s burst", "max speed (m/s)", f"{DASH_SPEED_MPS:.1f} (GPS)",
+        f"{r.max_speed_mps:.2f}", f"{r.max_speed_mps - DASH_SPEED_MPS:+.2f} m/s")  # fmt: skip
 
 
 def replay_speed_cases(tmp: Path) -> None:
     path = shaped_tlog.vehicle_flight(two_sorties()).write(tmp / "sorties.tlog")
-    runs = {speed: record(path, speed, tmp / f"s{speed}") for speed in ("1", "20", "max")}
+    runs = {
+        speed: replayed_sessions(path, speed, tmp / f"s{speed}") for speed in ("1", "20", "max")
+    }
     for speed, sessions in runs.items():
         times = " / ".join(f"{s['result']['trial_time_s']:.2f}" for s in sessions)
         reasons = " / ".join(str(s["stop_reason"]) for s in sessions)
@@ -211,7 +226,9 @@ def replay_speed_cases(tmp: Path) -> None:
 
 
 def joined_flights_case(tmp: Path) -> None:
-    path = shaped_tlog.vehicle_flight(two_sorties(JOINED, end_s=33.0)).write(tmp / "joined.tlog")
+    path = shaped_tlog.vehicle_flight(
+        two_sorties(JOINED_SORTIES, end_s=JOINED_SORTIES_END_S)
+    ).write(tmp / "joined.tlog")
     settings = station_settings(
         f"replay:{path}?speed=max", tmp / "joined", **{"recording.auto_record_on_arm": True}
     )

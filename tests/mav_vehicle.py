@@ -28,6 +28,7 @@ whether it carried a good signature.
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import socket
 import struct
@@ -40,6 +41,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pymavlink.generator.mavcrc import x25crc
 
+from fpv_station.companion.link import MavlinkLink
+from fpv_station.companion.link_settings import LinkSettings
 from tests.helpers import free_port
 
 DEFAULT_RATES_HZ = {
@@ -638,3 +641,17 @@ class MavVehicle:
                 msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
             )
         )
+
+
+@contextlib.contextmanager
+def running_link(source, **kw):
+    """The station's MavlinkLink to `source` (a MavVehicle's `station_source`, say),
+    started; it notices a lost link after 1.5 s and retries every 0.2 s unless told."""
+    kw.setdefault("link_lost_s", 1.5)
+    kw.setdefault("reconnect_s", 0.2)
+    link = MavlinkLink(LinkSettings(source=source, **kw))
+    link.start()
+    try:
+        yield link
+    finally:
+        link.stop()

@@ -18,8 +18,7 @@ import signal
 import sys
 from pathlib import Path
 
-from tests.recording_fakes import FakeRig, recorder_options
-from tests.test_recording_tmpfs import record_until_stopped
+from tests.recording_fakes import FakeRig, record_until_stopped, recorder_options
 
 
 def fly(root: Path, flying_s: float) -> int:

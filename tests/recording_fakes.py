@@ -12,6 +12,7 @@ import asyncio
 import os
 import threading
 import time
+from collections import namedtuple
 from pathlib import Path
 
 import cv2
@@ -244,3 +245,28 @@ class FakeRig:
         for cam in self.cameras.values():
             cam.stop()
         self.vehicle.stop()
+
+
+DiskUsage = namedtuple("usage", "total used free")  # shutil.disk_usage's answer, to fake
+
+
+def big_jpegs() -> list[bytes]:
+    return make_jpegs(4, 320, 240)  # ~1.5 MB/s at 30 fps: a tiny disk fills in seconds
+
+
+def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
+    rig = FakeRig(root, recorder_options(min_free_bytes), jpegs=big_jpegs()).start()
+    rec = rig.recorder
+
+    async def run():
+        await rec.open()
+        await rec.start("test")
+        deadline = time.monotonic() + timeout_s
+        while rec.recording_id is not None and time.monotonic() < deadline:  # noqa: ASYNC110
+            await asyncio.sleep(0.1)
+        return rec.status()
+
+    try:
+        return asyncio.run(run())
+    finally:
+        rig.stop()

@@ -22,7 +22,7 @@ from websockets.asyncio.client import connect
 
 from tests.helpers import free_port, wait_until
 from tests.mjpeg_client import Viewer
-from tests.test_recording_kill import spawn, station_up
+from tests.processes import spawn, station_up
 
 STALLED_REQUESTS = (
     b"GET /video/front.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",

@@ -31,6 +31,15 @@ from tests.helpers import free_port
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# `fpv-station serve` with RLIMIT_NOFILE at 256 (soft and hard), as `prlimit --nofile=256`
+# starts it: the station cannot raise it, and fits its budget under it.
+LOW_LIMIT = (
+    "-c",
+    "import resource, sys; resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256)); "
+    "sys.argv[0] = 'fpv-station'; from fpv_station.server.cli import main; sys.exit(main())",
+)
+
+
 class StationFailed(RuntimeError):
     """The station exited or did not get healthy in time; the message has its log's tail."""
 

@@ -10,14 +10,18 @@ pad, y left, z up, origin at the start pad), placed on the Earth by `home` and `
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from fpv_station.companion.recording import layout
+from fpv_station.companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
 from fpv_station.core.geodesy import enu_to_geodetic, rotate_about_up
 
 Array = NDArray[np.float64]
@@ -300,3 +304,88 @@ def write_tlog(flight: Flight, path: Path, gps_hz: float = 10.0, wall_t0: float 
         for tk, packet in events:
             f.write(int((wall_t0 + tk) * 1e6).to_bytes(8, "big") + packet)
     return path
+
+
+def write_frames(folder, camera: str, n: int, fps: float = 5.0) -> None:
+    """A camera folder as the recorder writes it (session format 2): the JPEGs back to
+    back in frames.mjpeg, and frames.csv with each one's name, offset and size."""
+    (folder / camera).mkdir(parents=True, exist_ok=True)
+    offset = 0
+    with (
+        open(folder / layout.frames_csv_relpath(camera), "w", newline="") as f,
+        open(folder / layout.frames_pack_relpath(camera), "wb") as pack,
+    ):
+        w = csv.writer(f)
+        w.writerow(layout.FRAME_COLUMNS)
+        for seq in range(n):
+            img = np.full((48, 64, 3), (seq * 7) % 255, np.uint8)
+            ok, jpeg = cv2.imencode(".jpg", img)
+            pack.write(jpeg.tobytes())
+            rel = layout.frame_relpath(camera, seq)
+            row = (seq, rel, round(seq / fps, 6), 1.7e9 + seq / fps, 64, 48, len(jpeg), offset)
+            w.writerow(row)
+            offset += len(jpeg)
+
+
+def drop_fix(folder, t0_s: float, t1_s: float) -> None:
+    """Turn the GPS fix off between t0 and t1 (a real dropout: rows stay, fix goes)."""
+    path = folder / "telemetry.csv"
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    i_t, i_fix = header.index("t_s"), header.index("gps.fix_type")
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        if t0_s <= float(cells[i_t]) < t1_s:
+            cells[i_fix] = "0"
+        out.append(",".join(cells))
+    path.write_text("\n".join(out) + "\n")
+
+
+# Two recorded sessions: an a-to-b flight with both cameras' frames and a 3 s GPS
+# dropout, and a figure 8 (no frames), for the replay and session pages.
+SESSION_A = "20261122T040000Z_sim"
+SESSION_B = "20261122T041000Z_serial"
+
+
+def write_two_sessions(root: Path) -> Path:
+    """SESSION_A and SESSION_B under `root` (returned)."""
+    a = write_session(a_to_b_flight(heading_deg=30.0), root / SESSION_A)
+    drop_fix(a, 20.0, 23.0)
+    write_frames(a, "front", 250)
+    write_frames(a, "bottom", 250)
+    write_session(figure8_flight(heading_deg=120.0), root / SESSION_B)
+    return root
+
+
+def state_at(t_s: float) -> VehicleState:
+    """The vehicle's state `t_s` into a figure 8 at 3-6 m, 12 m across, about FIELD_HOME,
+    as the link publishes it."""
+    e, n, u = 12 * math.sin(t_s / 4), 6 * math.sin(t_s / 2), 3 + 3 * (1 - math.cos(t_s / 8)) / 2
+    lat, lon, alt = (float(v) for v in enu_to_geodetic([e, n, u], *FIELD_HOME))
+    return VehicleState(
+        gps=GpsRaw(t_mono=t_s, fix_type=3, lat_deg=lat, lon_deg=lon, alt_m=alt),
+        global_position=GlobalPosition(
+            t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.0, vy_mps=1.0
+        ),
+        attitude=Attitude(t_mono=t_s, roll_rad=0.1, pitch_rad=0.0, yaw_rad=t_s / 4),
+    )
+
+
+# Three recorded sessions for the analysis API: an a-to-b flight from a physical vehicle,
+# a wider one flown on the twin, and the physical one again without a GPS fix.
+ANALYSIS_PHYSICAL = "20261122T040000Z_udp"
+ANALYSIS_TWIN = "20261122T040500Z_sim"
+ANALYSIS_NOFIX = "20261122T041000Z_udp"
+ANALYSIS_HEADING = 35.0
+
+
+def write_analysis_sessions(root: Path) -> Flight:
+    """The three under `root`; returns the physical flight (its points place references)."""
+    real = a_to_b_flight(lateral_amp_m=0.5, heading_deg=ANALYSIS_HEADING)
+    twin = a_to_b_flight(lateral_amp_m=1.0, height_m=3.5, heading_deg=ANALYSIS_HEADING)
+    physical = {"id": ANALYSIS_PHYSICAL, "source": "udpin:0.0.0.0:14550"}
+    write_session(real, root / ANALYSIS_PHYSICAL, meta=physical)
+    write_session(twin, root / ANALYSIS_TWIN, meta={"id": ANALYSIS_TWIN, "source": "sim"})
+    write_session(real, root / ANALYSIS_NOFIX, fix_type=0)
+    return real

@@ -19,20 +19,13 @@ from tests import synthetic as syn
 from tests.helpers import run_uvicorn
 
 ROOT = Path(__file__).resolve().parents[1]
-PHYSICAL = "20261122T040000Z_udp"
-TWIN = "20261122T040500Z_sim"
-NOFIX = "20261122T041000Z_udp"
-HEADING = 35.0
+PHYSICAL, TWIN, NOFIX = syn.ANALYSIS_PHYSICAL, syn.ANALYSIS_TWIN, syn.ANALYSIS_NOFIX
 
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     root = tmp_path_factory.mktemp("analysis_api") / "sessions"
-    real = syn.a_to_b_flight(lateral_amp_m=0.5, heading_deg=HEADING)
-    twin = syn.a_to_b_flight(lateral_amp_m=1.0, height_m=3.5, heading_deg=HEADING)
-    syn.write_session(real, root / PHYSICAL, meta={"id": PHYSICAL, "source": "udpin:0.0.0.0:14550"})
-    syn.write_session(twin, root / TWIN, meta={"id": TWIN, "source": "sim"})
-    syn.write_session(real, root / NOFIX, fix_type=0)
+    real = syn.write_analysis_sessions(root)
     overrides = {
         "link.source": "none",
         "recording.sessions_dir": str(root),
@@ -107,77 +100,6 @@ def test_comparison_of_physical_and_twin(server):
     assert results[1]["lateral_deviation_m"] == pytest.approx(1 / 2**0.5, rel=0.01)
     png = httpx.get(f"{base}/api/analysis/history.png", params=params, timeout=120)
     assert png.status_code == 200 and _png_size(png.content) == SIZE_PX
-
-
-@pytest.mark.parametrize(
-    "path, params, status, error, words",
-    [
-        (
-            f"/api/sessions/{PHYSICAL}/analysis",
-            {"task": "figure-9"},
-            400,
-            "BadRequest",
-            "Unknown task",
-        ),
-        (
-            f"/api/sessions/{PHYSICAL}/analysis",
-            {"task": "hover"},
-            422,
-            "NoTaskWindow",
-            "never reached 4 m",
-        ),
-        (f"/api/sessions/{NOFIX}/analysis", {"task": "hover"}, 422, "NoGpsFix", "GPS fix"),
-        (
-            "/api/sessions/20261122T050000Z_sim/analysis",
-            {"task": "hover"},
-            404,
-            "NotFound",
-            "No session",
-        ),
-        (
-            "/api/sessions/..%2F..%2Fetc%2Fpasswd/analysis",
-            {"task": "hover"},
-            404,
-            "HTTPError",
-            "Not Found",
-        ),
-        (
-            "/api/sessions/..passwd/analysis",
-            {"task": "hover"},
-            400,
-            "BadRequest",
-            "not a session id",
-        ),
-        (
-            f"/api/sessions/{PHYSICAL}/analysis",
-            {"task": "hover", "reference": "north"},
-            400,
-            "BadRequest",
-            "LAT,LON",
-        ),
-        (
-            f"/api/sessions/{PHYSICAL}/analysis",
-            {"task": "hover", "margin_m": "-1"},
-            422,
-            "ValidationError",
-            "margin_m",
-        ),
-        (
-            f"/api/sessions/{PHYSICAL}/analysis/pie.png",
-            {"task": "hover"},
-            404,
-            "NotFound",
-            "No plot",
-        ),
-        ("/api/analysis", {"task": "hover"}, 400, "BadRequest", "at least one session"),
-    ],
-)
-def test_clear_errors(server, path, params, status, error, words):
-    base, _, _ = server
-    r = httpx.get(f"{base}{path}", params=params, timeout=120)
-    assert r.status_code == status, r.text
-    body = r.json()
-    assert body["error"] == error and words in body["error_msg"]
 
 
 def test_thresholds_are_parameters(server):

@@ -13,30 +13,18 @@ from fpv_station.analysis.track import load_track
 from fpv_station.analysis.vehicle_clock import on_vehicle_clock
 from fpv_station.companion.timesync import VehicleClock
 from tests import shaped_tlog
-from tests import synthetic as syn
-
-SPEED_MPS = 28.0
-FADE = (12.0, 16.3)  # 4.3 s without packets, the last 1 s of them then in one burst
-
-
-def dash() -> syn.Flight:
-    """Armed at 1.5 s, up to 3 m by 5 s, 15 s due east at 28 m/s (420 m), down, disarmed."""
-    t = np.arange(0.0, 28.0, 0.02)
-    x = SPEED_MPS * np.clip(t - 5.0, 0.0, 15.0)
-    z = np.clip(np.minimum(t - 2.0, 23.0 - t), 0.0, 3.0)
-    xyz = np.stack([x, np.zeros_like(t), z], 1)
-    return syn.Flight(t_s=t, xyz_m=xyz, armed=(t >= 1.5) & (t < 25.0))
+from tests.known_flights import DASH_FADE, DASH_SPEED_MPS, dash
 
 
 @pytest.fixture(scope="module")
 def burst_tlog(tmp_path_factory):
-    log = shaped_tlog.vehicle_flight(dash(), fade=FADE, burst_s=1.0)
+    log = shaped_tlog.vehicle_flight(dash(), fade=DASH_FADE, burst_s=1.0)
     return log.write(tmp_path_factory.mktemp("burst") / "burst.tlog")
 
 
 def test_speed_after_a_burst_is_the_gps_speed_not_the_burst(burst_tlog):
     (r,) = analyze_paths([burst_tlog], "a-to-b", scene=False).results
-    assert r.max_speed_mps == pytest.approx(SPEED_MPS, abs=1.0)  # receive times: ~60 m/s
+    assert r.max_speed_mps == pytest.approx(DASH_SPEED_MPS, abs=1.0)  # receive times: ~60 m/s
     assert r.trial_time_s == pytest.approx(20.0, abs=0.5)  # take-off 2.5 s, landing 22.5 s
 
 

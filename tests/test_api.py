@@ -26,16 +26,6 @@ def make_app(source="none", **overrides):
     return create_app(load_settings(environ={}, overrides={**defaults, **overrides}))
 
 
-def test_status_without_a_vehicle_link():
-    with run_uvicorn(make_app()) as base:
-        r = httpx.get(f"{base}/api/status")
-        assert r.status_code == 200
-        body = r.json()
-        assert body["source"] == "none" and body["link"] is None and body["state"] is None
-        assert body["state_version"] == 0
-        assert body["versions"]["fpv_station"] and body["versions"]["pymavlink"]
-
-
 def test_status_with_a_live_vehicle():
     with MavVehicle("udp") as v, run_uvicorn(make_app(v.station_source)) as base:
         assert wait_until(lambda: httpx.get(f"{base}/api/status").json()["state"] is not None, 15)
@@ -52,20 +42,6 @@ def test_status_with_a_live_vehicle():
         assert body["link"]["autopilot_sysid"] == 1
         assert body["state"]["link"]["link_lost"] is False
         assert httpx.get(f"{base}/api/health").json()["ok"] is True
-
-
-def test_openapi_documents_every_endpoint_with_models():
-    with run_uvicorn(make_app()) as base:
-        spec = httpx.get(f"{base}/openapi.json", timeout=60).json()  # built on first ask
-        for path in ("/api/health", "/api/status"):
-            ok = spec["paths"][path]["get"]["responses"]["200"]["content"]["application/json"]
-            assert "$ref" in ok["schema"], path
-        schemas = spec["components"]["schemas"]
-        assert "LinkHealth" in schemas and "VehicleState" in schemas
-        assert "relative_alt_m" in schemas["PilotAltitude"]["properties"]
-        assert "/ws/telemetry" in httpx.get(f"{base}/").text or True  # page loads
-        assert httpx.get(f"{base}/").status_code == 200
-        assert httpx.get(f"{base}/flight-state.js").status_code == 200
 
 
 def publish_states(slot, n, hz, received=None):

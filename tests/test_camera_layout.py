@@ -10,7 +10,7 @@ import pytest
 from playwright.sync_api import expect
 
 from fpv_station.server.app import create_app
-from tests.helpers import chromium, run_uvicorn, station_settings
+from tests.helpers import run_uvicorn, station_settings
 from tests.video_fixtures import write_images
 
 SIZES = {"4:3": (640, 480), "16:9": (1280, 720)}
@@ -30,12 +30,6 @@ def station(request, tmp_path_factory):
     settings = station_settings("none", tmp / "sessions", **specs)
     with run_uvicorn(create_app(settings)) as base:
         yield base, dict(zip(("front", "bottom"), request.param, strict=True))
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium() as b:
-        yield b
 
 
 # Each shown camera picture: its frames' size, the canvas's box, the picture drawn in it

@@ -13,34 +13,19 @@ import pytest
 
 from fpv_station.core.mavlink.tlog_records import STEP_BACK_MIN_S, TlogReader, encode_record
 from tests import shaped_tlog
-from tests import synthetic as syn
+from tests.known_flights import (
+    HOP_ARMED_S,
+    JOINED_STEPS_BACK_S,
+    JOINED_T0,
+    hop_recording,
+    recording_starts,
+)
 from tests.replayed import replayed_station
-
-T0 = 1_700_000_000.0
-STEPS_BACK_S = (523.0, 488.0)
-ARMED_S, END_S = (2.0, 14.0), 20.0  # each recording: armed, a 3 m hop, disarmed
-
-
-def sortie() -> syn.Flight:
-    t = np.arange(0.0, END_S, 0.02)
-    up = np.clip(np.minimum(t - 4.0, 10.0 - t), 0.0, 3.0)
-    armed = (t >= ARMED_S[0]) & (t < ARMED_S[1])
-    return syn.Flight(
-        t_s=t, xyz_m=np.stack([np.zeros_like(t), np.zeros_like(t), up], 1), armed=armed
-    )
-
-
-def starts() -> list[float]:
-    """Each recording's first time: the file's clock steps back between them."""
-    out = [T0]
-    for back in STEPS_BACK_S:
-        out.append(out[-1] + END_S - back)
-    return out
 
 
 @pytest.fixture(scope="module")
 def joined(tmp_path_factory):
-    logs = [shaped_tlog.vehicle_flight(sortie(), t0=t0) for t0 in starts()]
+    logs = [shaped_tlog.vehicle_flight(hop_recording(), t0=t0) for t0 in recording_starts()]
     path = tmp_path_factory.mktemp("joined") / "joined.tlog"
     return shaped_tlog.write_joined(path, *logs), [len(log.records) for log in logs]
 
@@ -53,10 +38,10 @@ def test_records_are_numbered_by_recording_and_each_runs_forward(joined):
         times = [t for t, _ in records]
         seen.append((segment, len(times)))
         assert np.all(np.diff(times) >= 0), segment
-        assert times[0] == pytest.approx(starts()[segment], abs=0.01)
+        assert times[0] == pytest.approx(recording_starts()[segment], abs=0.01)
     assert seen == list(enumerate(counts))
     steps = [round(s.from_s - s.to_s) for s in reader.clock_steps]
-    assert steps == [round(b - 0.02) for b in STEPS_BACK_S]  # back from the last record
+    assert steps == [round(b - 0.02) for b in JOINED_STEPS_BACK_S]  # back from the last record
     assert [s.segment for s in reader.clock_steps] == [1, 2]
     assert [s.record for s in reader.clock_steps] == [counts[0], counts[0] + counts[1]]
     assert sum(1 for _ in TlogReader(path)) == sum(counts)  # as written, all of it
@@ -69,13 +54,15 @@ def test_a_small_step_back_is_held_not_a_new_recording(tmp_path):
         .sender(1, 1)
         .pack(shaped_tlog.heartbeat(shaped_tlog.Sender(1, 1, False).mav))
     )
-    times = [T0, T0 + 1.0, T0 + 1.0 - STEP_BACK_MIN_S / 2, T0 + 1.2]
+    times = [JOINED_T0, JOINED_T0 + 1.0, JOINED_T0 + 1.0 - STEP_BACK_MIN_S / 2, JOINED_T0 + 1.2]
     path = tmp_path / "slewed.tlog"
     path.write_bytes(b"".join(encode_record(t, packet) for t in times))
     reader = TlogReader(path)
     records = list(reader.records())
     assert [r.segment for r in records] == [0, 0, 0, 0]
-    assert [r.t_wall_s for r in records] == pytest.approx([T0, T0 + 1.0, T0 + 1.0, T0 + 1.2])
+    assert [r.t_wall_s for r in records] == pytest.approx(
+        [JOINED_T0, JOINED_T0 + 1.0, JOINED_T0 + 1.0, JOINED_T0 + 1.2]
+    )
     assert reader.held_back == 1 and reader.clock_steps == []
 
 
@@ -92,8 +79,8 @@ def test_replay_records_one_session_per_recording_each_ended_by_its_disarming(
     assert link["clock_steps_back"] == 2
     # Before: one session, started at the first arming, never stopped by a disarming.
     assert [s["stop_reason"] for s in sessions] == ["disarmed"] * 3
-    for s, t0 in zip(sessions, sorted(starts())):
+    for s, t0 in zip(sessions, sorted(recording_starts())):
         # In its own recording's time: from its arming to 5 s after its disarming.
-        assert s["start_wall"] - t0 == pytest.approx(ARMED_S[0], abs=1.1)
-        assert s["end_wall"] - t0 == pytest.approx(ARMED_S[1] + 5.0, abs=1.1)
+        assert s["start_wall"] - t0 == pytest.approx(HOP_ARMED_S[0], abs=1.1)
+        assert s["end_wall"] - t0 == pytest.approx(HOP_ARMED_S[1] + 5.0, abs=1.1)
         assert s["telemetry_rows"] == pytest.approx(30 * s["duration_s"], abs=5)

@@ -17,7 +17,7 @@ from websockets.sync.client import connect
 from fpv_station.server.app import create_app
 from fpv_station.server.client_limits import BASELINE_FDS, CONTROL_CLIENTS, HTTP_ROOM, ClientLimits
 from tests.helpers import run_uvicorn, station_settings, wait_until
-from tests.station_process import serve_station
+from tests.station_process import LOW_LIMIT, serve_station
 
 
 def test_every_kind_of_client_fits_under_the_descriptor_limit_with_the_reserve_kept():
@@ -51,15 +51,6 @@ def test_a_cap_counts_places_taken_from_many_threads():
     assert cap.active == 0 and len(taken) + cap.refused == 8000
     assert all(cap.try_take() for _ in range(50)) and not cap.try_take()
     assert cap.active == 50 and cap.refused >= 1
-
-
-# `fpv-station serve` with RLIMIT_NOFILE at 256 (soft and hard), as `prlimit --nofile=256`
-# starts it: the station cannot raise it, and fits its budget under it.
-LOW_LIMIT = (
-    "-c",
-    "import resource, sys; resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256)); "
-    "sys.argv[0] = 'fpv-station'; from fpv_station.server.cli import main; sys.exit(main())",
-)
 
 
 class SlowHeaders:

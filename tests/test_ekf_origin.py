@@ -18,69 +18,34 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fpv_station.analysis.flights import split_flights
 from fpv_station.companion.recording import layout
-from fpv_station.companion.state_tracker import StateTracker
-from fpv_station.core.mavlink.framing import MavFramer
-from fpv_station.core.mavlink.tlog_records import TlogReader
 from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, station_settings, wait_until
-from tests.replayed import replayed_station
-
-HOP_M = 1.3
-ARDUPILOT = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+from tests.known_flights import ARDUPILOT, EKF_CASES, EKF_HOP_M, ekf_hop
+from tests.replayed import pilot_altitudes, replayed_station
 
 
-def hop(take_off_s: float, land_s: float, arm_s: float = 5.0, end_s: float = 30.0) -> syn.Flight:
-    """Armed at `arm_s`, a 1 m/s climb to HOP_M at `take_off_s`, down at `land_s`,
-    disarmed 3 s after touching down."""
-    t = np.arange(0.0, end_s, 0.02)
-    up = np.clip(np.minimum(t - take_off_s, land_s - t), 0.0, HOP_M)
-    xyz = np.stack([np.zeros_like(t), np.zeros_like(t), up], 1)
-    armed = (t >= arm_s) & (t < land_s + HOP_M + 3.0)
-    return syn.Flight(t_s=t, xyz_m=xyz, armed=armed)
-
-
-CASES = {
-    "origin set armed on the ground": (hop(take_off_s=12.0, land_s=20.0), 8.0),
-    "origin set during a low hop": (hop(take_off_s=8.0, land_s=18.0), 12.0),
-}
-
-
-def pilot_altitudes(path) -> tuple[np.ndarray, list[str]]:
-    """Every value of the pilot's altitude after each packet, and the references seen."""
-    tracker, framer = StateTracker(), MavFramer()
-    alts, refs = [], []
-    for t, packet in TlogReader(path):
-        for msg in framer.feed(packet):
-            if tracker.update(msg, t):
-                a = tracker.state.altitude
-                if tracker.state.heartbeat.armed and a.relative_alt_m is not None:
-                    alts.append(a.relative_alt_m)
-                refs.append(a.reference)
-    return np.array(alts), refs
-
-
-@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("case", EKF_CASES)
 def test_pilot_altitude_survives_the_ekf_origin_jump(case, tmp_path):
-    flight, origin_s = CASES[case]
+    flight, origin_s = EKF_CASES[case]
     path = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=origin_s).write(
         tmp_path / "ekf.tlog"
     )
     alts, refs = pilot_altitudes(path)
-    assert alts.max() <= HOP_M + 0.5, alts.max()  # before the fix: 181.3 m
-    assert alts.max() >= HOP_M - 0.2  # and the hop is still seen
+    assert alts.max() <= EKF_HOP_M + 0.5, alts.max()  # before the fix: 181.3 m
+    assert alts.max() >= EKF_HOP_M - 0.2  # and the hop is still seen
     assert "arming_retaken" in refs
 
 
 def test_altitude_jump_without_a_message_is_a_frame_change_too(tmp_path):
     """An old ArduPilot log without the STATUSTEXT (or with it lost): the jump alone."""
     log = shaped_tlog.vehicle_flight(
-        CASES["origin set during a low hop"][0], ARDUPILOT, origin_set_s=12.0
+        EKF_CASES["origin set during a low hop"][0], ARDUPILOT, origin_set_s=12.0
     )
     log.records = [(t, p) for t, p in log.records if b"Origin set" not in p]
     alts, refs = pilot_altitudes(log.write(tmp_path / "ekf.tlog"))
-    assert alts.max() <= HOP_M + 0.5
+    assert alts.max() <= EKF_HOP_M + 0.5
     assert "arming_retaken" in refs
 
 
@@ -88,7 +53,7 @@ def test_fused_altitude_converging_slowly_to_gps_retakes_the_reference(tmp_path)
     """No step and no message: the fused altitude slides from near 0 to AMSL over 8 s on
     the ground (36 m a second is no jump). When it comes within 40 m of GPS, the frame
     change is the change of their offset; the hop after it reads as a hop."""
-    flight = hop(take_off_s=20.0, land_s=26.0, end_s=34.0)
+    flight = ekf_hop(take_off_s=20.0, land_s=26.0, end_s=34.0)
     log = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=None)
     decoder = mavlink.MAVLink(None)
     ramp = (8.0, 16.0)
@@ -103,12 +68,12 @@ def test_fused_altitude_converging_slowly_to_gps_retakes_the_reference(tmp_path)
     alts, refs = pilot_altitudes(log.write(tmp_path / "slow.tlog"))
     assert "arming_retaken" in refs or "first_fix_retaken" in refs
     late = alts[-800:]  # the last ~11 s armed (~70 updates/s): the hop, after the slide
-    assert late.max() == pytest.approx(HOP_M, abs=0.5)
+    assert late.max() == pytest.approx(EKF_HOP_M, abs=0.5)
 
 
 @pytest.mark.timeout(120)
 def test_replayed_session_records_the_hop_not_the_jump(tmp_path):
-    flight, origin_s = CASES["origin set during a low hop"]
+    flight, origin_s = EKF_CASES["origin set during a low hop"]
     path = shaped_tlog.vehicle_flight(flight, ARDUPILOT, origin_set_s=origin_s).write(
         tmp_path / "ekf.tlog"
     )
@@ -125,7 +90,7 @@ def test_replayed_session_records_the_hop_not_the_jump(tmp_path):
     with open(folder / layout.TELEMETRY_CSV) as f:
         rows = [r for r in csv.DictReader(f) if r["heartbeat.armed"] == "1"]
     recorded = max(float(r["altitude.relative_alt_m"]) for r in rows)
-    assert HOP_M - 0.3 <= recorded <= HOP_M + 0.5
+    assert EKF_HOP_M - 0.3 <= recorded <= EKF_HOP_M + 0.5
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
     assert meta["arming"]["reference_alt_m"] == pytest.approx(180.0, abs=0.5)
 

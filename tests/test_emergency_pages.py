@@ -12,7 +12,7 @@ import pytest
 from playwright.sync_api import expect
 
 from fpv_station.server.app import create_app
-from tests.helpers import chromium, run_uvicorn, wait_until
+from tests.helpers import run_uvicorn, wait_until
 from tests.twin_flights import twin_station_settings
 
 
@@ -35,12 +35,6 @@ def station(tmp_path_factory):
     with run_uvicorn(app) as url:
         assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=30)
         yield app, url
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium() as b:
-        yield b
 
 
 def click_and_answer(page, locator, accept: bool) -> str:

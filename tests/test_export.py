@@ -24,8 +24,8 @@ from fpv_station.learn.export import ExportOptions, export_recordings, recorded_
 from fpv_station.learn.formats import FileLimits
 from fpv_station.server.cli import main as cli_main
 from tests import synthetic as syn
+from tests.known_flights import three_sorties
 from tests.recording_fakes import as_format_1, recorded_frames
-from tests.test_flights import _sorties
 
 FPS = 10
 # The module's fixtures fly a twin demo with both cameras and export it (~15 s alone);
@@ -271,7 +271,7 @@ def test_minari_dataset_loads_and_recovers_the_twin(session, tmp_path, monkeypat
 
 
 def test_a_bare_tlog_with_several_sorties_gives_one_episode_per_flight(tmp_path):
-    tlog = syn.write_tlog(_sorties(), tmp_path / "sorties.tlog")
+    tlog = syn.write_tlog(three_sorties(), tmp_path / "sorties.tlog")
     out = tmp_path / "lerobot"
     s = export_recordings([tlog], "lerobot", out, ExportOptions(task_id=2, fps=5))
     assert s.episodes == 3  # the motor test and the post-disarm tail are no episodes
@@ -768,7 +768,7 @@ def test_ray_exports_the_same_dataset_as_one_process(tmp_path):
     """`--ray local`: the recordings' jobs as tasks on a new local Ray instance (the
     `export-ray` extra; about a minute and 1 GB to start here, so not in CI's install)."""
     pytest.importorskip("ray")
-    tlogs = [syn.write_tlog(_sorties(), tmp_path / f"s{k}.tlog") for k in range(3)]
+    tlogs = [syn.write_tlog(three_sorties(), tmp_path / f"s{k}.tlog") for k in range(3)]
     opts = ExportOptions(task_id=2, fps=5)
     export_recordings(tlogs, "lerobot", tmp_path / "one", opts)
     s = export_recordings(tlogs, "lerobot", tmp_path / "ray", replace(opts, ray_address="local"))

@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import pytest
 
-from fpv_station.server.app import create_app
-from tests.helpers import run_uvicorn, station_settings
+from tests.stations import no_link_station
 
 PAGES = ("/", "/goggles.html", "/sessions.html", "/analysis.html", "/replay.html")
 
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory):
-    settings = station_settings("none", tmp_path_factory.mktemp("sessions"))
-    with run_uvicorn(create_app(settings)) as url:
+    with no_link_station(tmp_path_factory.mktemp("sessions")) as (url, _):
         yield url
 
 

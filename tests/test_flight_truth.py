@@ -5,10 +5,6 @@ compared with the truth each log was written from and with pymavlink's own tools
 from __future__ import annotations
 
 import json
-import re
-import subprocess
-import sys
-from pathlib import Path
 
 import httpx
 import pytest
@@ -17,40 +13,7 @@ from fpv_station.companion.recording import layout
 from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests.helpers import run_uvicorn, station_settings, wait_until
-
-
-def replay_status(path: Path, speed: str = "max", **overrides) -> dict:
-    """Replay `path` through a real station and return /api/status once it is done."""
-    settings = station_settings(f"replay:{path}?speed={speed}", **overrides)
-    with run_uvicorn(create_app(settings)) as base:
-
-        def status() -> dict:
-            return httpx.get(f"{base}/api/status", timeout=5).json()
-
-        assert wait_until(lambda: status()["link"]["replay_done"], timeout=60)
-        return status()
-
-
-def mavloss(path: Path) -> dict[tuple[int, int] | str, float]:
-    """pymavlink's `mavloss` on the same file: loss % per (sysid, compid) and "total"."""
-    script = Path(sys.executable).parent / "mavloss.py"
-    out = subprocess.run(
-        [sys.executable, str(script), str(path)], capture_output=True, text=True, check=True
-    ).stdout
-    figures: dict[tuple[int, int] | str, float] = {}
-    for line in out.splitlines():
-        row = re.fullmatch(r"\s*(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+([\d.]+)%", line)
-        if row:
-            figures[(int(row[1]), int(row[2]))] = float(row[5])
-        total = re.search(r"Total.*?(\d+) packets, (\d+) lost ([\d.]+)%", line)
-        if total:
-            figures["total"] = float(total[3])
-    assert "total" in figures, out
-    return figures
-
-
-def by_stream(link: dict) -> dict[tuple[int, int], dict]:
-    return {(s["sysid"], s["compid"]): s for s in link["streams"]}
+from tests.replayed import by_stream, mavloss, replay_status
 
 
 @pytest.mark.timeout(120)

@@ -10,54 +10,13 @@ import pytest
 from fpv_station.analysis.flights import Flight, split_flights, track_flights
 from fpv_station.analysis.track import load_track
 from tests import synthetic as syn
-
-DT = 0.02
-
-# (time s, x m, z m) keyframes, linearly interpolated; and the armed periods (s).
-KEYS = [
-    (0, 0, 0),
-    (17, 0, 0),  # motor test 5-10 s, then flight 1 armed at 15 s
-    (20, 0, 5),  # climb: crosses 0.5 m at 17.3 s
-    (30, 10, 5),
-    (33, 10, 0),  # landed at 33 s (last airborne ~32.7 s), disarmed at 35 s
-    (45, 20, 1),  # walked 10 m further, onto ground 1 m higher
-    (51, 20, 1),  # flight 2 armed at 48 s; a 0.4 s GPS blip to 2 m at 51 s (not a take-off)
-    (51.2, 20, 2),
-    (51.4, 20, 1),
-    (53, 20, 1),
-    (56, 20, 7),  # climb from 1 m: crosses 1.5 m at 53.25 s
-    (60, 30, 7),
-    (63, 30, 1),  # landed at 63 s, disarmed at 66 s
-    (72, 30, 1),
-    (74, 30, 3),  # flight 3 armed at 70 s on the 1 m ground: crosses 1.5 m at 72.5 s
-    (78, 30, 3),
-    (80, 30, 0),  # down into a 1 m dip: below 1.5 m after 79 s; disarmed at 82 s, tail to 95 s
-    (95, 30, 0),
-]
-ARMED = [(5, 10), (15, 35), (48, 66), (70, 82)]
-TRUTH = [  # arm, takeoff, landing, disarm (s)
-    (15.0, 17.3, 32.7, 35.0),
-    (48.0, 53.25, 62.75, 66.0),
-    (70.0, 72.5, 79.0, 82.0),
-]
-
-
-def _sorties() -> syn.Flight:
-    k = np.array(KEYS, dtype=float)
-    t = np.arange(0.0, k[-1, 0], DT)
-    xyz = np.stack(
-        [np.interp(t, k[:, 0], k[:, 1]), np.zeros_like(t), np.interp(t, k[:, 0], k[:, 2])], 1
-    )
-    armed = np.zeros(t.size, bool)
-    for a, d in ARMED:
-        armed |= (t >= a) & (t < d)
-    return syn.Flight(t_s=t, xyz_m=xyz, armed=armed)
+from tests.known_flights import SORTIES_TRUTH, three_sorties
 
 
 @pytest.fixture(scope="module")
 def tlog_track(tmp_path_factory):
     path = tmp_path_factory.mktemp("flights") / "sorties.tlog"
-    syn.write_tlog(_sorties(), path, gps_hz=10.0)
+    syn.write_tlog(three_sorties(), path, gps_hz=10.0)
     return load_track(path)
 
 
@@ -69,7 +28,7 @@ def test_tlog_with_several_sorties_splits_into_its_flights(tlog_track):
     # The tlog is read as a recorder's rows (30 a second): a sample is on the first row
     # after it arrived, up to one row period after the log's time.
     row = 1 / 30 + 1e-3
-    for f, (arm, takeoff, landing, disarm) in zip(flights, TRUTH):
+    for f, (arm, takeoff, landing, disarm) in zip(flights, SORTIES_TRUTH):
         # Armed state comes from 1 Hz HEARTBEATs sent on the second, as the vehicle armed.
         assert arm <= f.arm_s <= arm + row
         assert disarm - gps_period <= f.disarm_s <= disarm - gps_period + row  # last armed

@@ -219,3 +219,33 @@ def test_every_import_of_ours_goes_through_the_namespace():
     ]
     assert len(others) > 50  # the walk sees the tests
     assert not bare, "imports outside the fpv_station namespace:\n" + "\n".join(bare)
+
+
+def test_no_file_imports_a_test_module():
+    """A test module holds tests: what several share (helpers, fixtures, flights with
+    known answers) lives in the test kit (tests/*.py without `test_`, conftest.py), so
+    running or changing one test module never runs or breaks another's imports."""
+    importers = [
+        path
+        for folder in ("tests", "benchmarks")
+        for path in sorted((ROOT / folder).rglob("*.py"))
+        if ".venv" not in path.parts
+    ]
+    found = []
+    for path in importers:
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                names = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+            else:
+                continue
+            found += [
+                f"{path.relative_to(ROOT)}:{node.lineno}: {name}"
+                for name in names
+                if name.split(".")[:2][-1].startswith("test_") and name.startswith("tests.")
+            ]
+    assert len(importers) > 50  # the walk sees the tests
+    assert not found, "imports of test modules (move what they share to the kit):\n" + "\n".join(
+        found
+    )

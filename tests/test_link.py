@@ -20,24 +20,12 @@ from fpv_station.companion.transports import UdpTransport, format_addr, parse_co
 from fpv_station.core.mavlink.tlog_records import write_record
 from tests.helpers import free_port
 from tests.helpers import wait_until as _wait_until
-from tests.mav_vehicle import MavVehicle
+from tests.mav_vehicle import MavVehicle, running_link
 
 
 def wait_until(predicate, timeout=10.0):
     """Generous: six engineers' suites share two cores; it returns as soon as true."""
     return _wait_until(predicate, max(timeout, 10.0))
-
-
-@contextlib.contextmanager
-def running_link(source, **kw):
-    kw.setdefault("link_lost_s", 1.5)
-    kw.setdefault("reconnect_s", 0.2)
-    link = MavlinkLink(LinkSettings(source=source, **kw))
-    link.start()
-    try:
-        yield link
-    finally:
-        link.stop()
 
 
 def state(link):

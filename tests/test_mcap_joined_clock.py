@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 
 from fpv_station.learn.export import ExportOptions, export_recordings
 from tests import shaped_tlog
-from tests.test_clock_steps_back import ARMED_S, sortie, starts
+from tests.known_flights import HOP_ARMED_S, hop_recording, recording_starts
 
 
 def topics(path) -> dict[str, list[int]]:
@@ -26,7 +26,7 @@ def topics(path) -> dict[str, list[int]]:
 
 
 def test_each_flight_holds_its_own_recordings_packets(tmp_path):
-    logs = [shaped_tlog.vehicle_flight(sortie(), t0=t0) for t0 in starts()]
+    logs = [shaped_tlog.vehicle_flight(hop_recording(), t0=t0) for t0 in recording_starts()]
     path = shaped_tlog.write_joined(tmp_path / "joined.tlog", *logs)
     out = tmp_path / "mcap"
     export_recordings([path], "mcap", out, ExportOptions(task_id=1, cameras=()))
@@ -34,7 +34,7 @@ def test_each_flight_holds_its_own_recordings_packets(tmp_path):
     assert len(files) == len(logs)
     # Each recording sends the same packets over its armed span (about 12 s at ~73/s).
     armed = [
-        sum(ARMED_S[0] - 1.0 <= t - log.t0 <= ARMED_S[1] + 1.0 for t, _ in log.records)
+        sum(HOP_ARMED_S[0] - 1.0 <= t - log.t0 <= HOP_ARMED_S[1] + 1.0 for t, _ in log.records)
         for log in logs
     ]
     counts = Counter()

@@ -18,7 +18,7 @@ from fpv_station.analysis.track import load_session_dir
 from fpv_station.companion.recording import layout
 from fpv_station.core.geodesy import geodetic_to_enu
 from tests.helpers import chromium, wait_until
-from tests.test_trajectory_browser import open_offline
+from tests.pages import open_offline
 from tests.twin_flights import recorded_twin_flight
 
 INSTANTS = 80  # sampled instants of the session clock

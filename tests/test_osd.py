@@ -15,18 +15,15 @@ from playwright.sync_api import expect
 from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings
 from tests.mav_vehicle import MavVehicle
-from tests.test_pilot_layout import overlap
+from tests.pages import overlap
+from tests.stations import vehicle_station
 from tests.twin_flights import twin_station_settings
 
 
 @pytest.fixture
 def station(tmp_path):
-    with MavVehicle("udp") as vehicle:
-        settings = station_settings(
-            vehicle.station_source, tmp_path / "sessions", **{"link.link_lost_s": 1.0}
-        )
-        with run_uvicorn(create_app(settings)) as base:
-            yield vehicle, base
+    with vehicle_station(tmp_path / "sessions", **{"link.link_lost_s": 1.0}) as station:
+        yield station
 
 
 def horizon_angle(page) -> float:

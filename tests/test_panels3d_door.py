@@ -26,9 +26,8 @@ from fpv_station.server.app import create_app
 from fpv_station.server.trajectory3d.gate import MESSAGES_BURST, MESSAGES_PER_S, gui_uuid
 from tests.helpers import free_port, panel_station_settings, run_uvicorn, wait_until, ws_upgrade
 from tests.helpers import viser_camera as camera
-from tests.station_process import serve_station
-from tests.test_connections import LOW_LIMIT
-from tests.test_trajectory_browser import state_at
+from tests.station_process import LOW_LIMIT, serve_station
+from tests.synthetic import state_at
 
 TOKEN = "door-test-token"
 SUBPROTOCOL = f"viser-v{viser.__version__}"

@@ -8,37 +8,16 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from fpv_station.server.app import create_app
-from tests.helpers import FRONT_PICTURE_WIDTH, chromium, run_uvicorn, station_settings
-from tests.mav_vehicle import MavVehicle
+from tests.helpers import FRONT_PICTURE_WIDTH
+from tests.pages import overlap
+from tests.stations import vehicle_station
 
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    with MavVehicle("udp") as vehicle:
-        settings = station_settings(
-            vehicle.station_source,
-            tmp_path_factory.mktemp("sessions"),
-            **{"viser.enabled": True, "viser.port": 0},
-        )
-        with run_uvicorn(create_app(settings)) as base:
-            yield vehicle, base
-
-
-@pytest.fixture(scope="module")
-def browser():
-    """One browser for the module's three screen sizes (conftest's is one per test)."""
-    with chromium() as b:
-        yield b
-
-
-def overlap(a: dict, b: dict) -> bool:
-    return (
-        a["x"] < b["x"] + b["width"]
-        and b["x"] < a["x"] + a["width"]
-        and a["y"] < b["y"] + b["height"]
-        and b["y"] < a["y"] + a["height"]
-    )
+    panel = {"viser.enabled": True, "viser.port": 0}
+    with vehicle_station(tmp_path_factory.mktemp("sessions"), **panel) as station:
+        yield station
 
 
 # Is the element at the centre of each flight-state value the value itself (not the 3D

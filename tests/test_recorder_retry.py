@@ -19,9 +19,8 @@ from fpv_station.companion.recording.session import RecordingSession, SessionCon
 from fpv_station.companion.recording.writer import WriterLimits
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.companion.video_frame import Frame
-from tests.recording_fakes import FakeRig, recorder_options, starve, until
-from tests.test_recording import DiskUsage
-from tests.test_recording_kill import read_line, spawn
+from tests.processes import read_line, spawn
+from tests.recording_fakes import DiskUsage, FakeRig, recorder_options, starve, until
 
 
 def test_recording_goes_on_while_descriptors_run_out(tmp_path):

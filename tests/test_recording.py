@@ -6,7 +6,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections import namedtuple
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,13 @@ from fpv_station.companion.recording.writer import WriterLimits
 from fpv_station.companion.vehicle_state import Heartbeat, VehicleState
 from fpv_station.companion.video_frame import Frame
 from tests.helpers import CountingSelector, wait_until
-from tests.recording_fakes import FakeCamera, FakeVehicle, make_jpegs, recorded_frames
+from tests.recording_fakes import (
+    DiskUsage,
+    FakeCamera,
+    FakeVehicle,
+    make_jpegs,
+    recorded_frames,
+)
 from tests.video_fixtures import write_images
 
 FPS = 30.0
@@ -400,9 +405,6 @@ def test_watching_for_arming_does_not_wake_the_event_loop_for_each_state(tmp_pat
         vehicle.stop()
     assert recording
     assert quiet_turns <= 4  # the sleep's own turns; 30 and more before
-
-
-DiskUsage = namedtuple("usage", "total used free")
 
 
 def test_disk_nearly_full_stops_cleanly_with_reason(tmp_path, monkeypatch):

@@ -4,33 +4,21 @@ import httpx
 import pytest
 from playwright.sync_api import expect
 
-from fpv_station.server.app import create_app
-from fpv_station.server.settings import load_settings
-from tests.helpers import chromium, run_uvicorn
+from tests.stations import no_link_station
 
 
 @pytest.fixture
 def base(tmp_path):
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
-            "viser.enabled": False,
-            "recording.sessions_dir": str(tmp_path / "sessions"),
-            "recording.auto_record_on_arm": False,
-            "recording.min_free_mb": 0,
-        },
-    )
-    with run_uvicorn(create_app(settings)) as url:
+    with no_link_station(tmp_path / "sessions") as (url, _):
         yield url
 
 
 @pytest.fixture
-def page():
-    with chromium() as browser:
-        pg = browser.new_page()
-        pg.on("dialog", lambda d: d.accept())
-        yield pg
+def page(browser):
+    pg = browser.new_page()
+    pg.on("dialog", lambda d: d.accept())
+    yield pg
+    pg.context.close()
 
 
 def test_sessions_page_lists_downloads_and_deletes(base, page):

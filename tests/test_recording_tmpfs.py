@@ -11,12 +11,13 @@ import pytest
 from pymavlink import mavutil
 
 from fpv_station.companion.recording import layout
-from tests.recording_fakes import FakeRig, make_jpegs, recorder_options
-from tests.test_recording_kill import complete_rows, read_line, spawn
-
-
-def big_jpegs() -> list[bytes]:
-    return make_jpegs(4, 320, 240)  # ~1.5 MB/s at 30 fps: a tiny disk fills in seconds
+from tests.processes import complete_rows, read_line, spawn
+from tests.recording_fakes import (
+    FakeRig,
+    big_jpegs,
+    record_until_stopped,
+    recorder_options,
+)
 
 
 @contextlib.contextmanager
@@ -33,24 +34,6 @@ def tmpfs(path, size_kb: int):
         yield path
     finally:
         subprocess.run(["umount", "-l", str(path)], check=False)
-
-
-def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
-    rig = FakeRig(root, recorder_options(min_free_bytes), jpegs=big_jpegs()).start()
-    rec = rig.recorder
-
-    async def run():
-        await rec.open()
-        await rec.start("test")
-        deadline = time.monotonic() + timeout_s
-        while rec.recording_id is not None and time.monotonic() < deadline:  # noqa: ASYNC110
-            await asyncio.sleep(0.1)
-        return rec.status()
-
-    try:
-        return asyncio.run(run())
-    finally:
-        rig.stop()
 
 
 @pytest.mark.parametrize(

@@ -9,32 +9,14 @@ x1, x20 and as fast as it goes; sessions and analyses are read over HTTP."""
 
 from __future__ import annotations
 
-import httpx
-import numpy as np
 import pytest
 
 from fpv_station.core.mavlink.tlog_records import TlogReader
 from fpv_station.server.app import create_app
 from tests import shaped_tlog
-from tests import synthetic as syn
-from tests.helpers import run_uvicorn, station_settings, wait_until
-
-SORTIES = ((1.0, 14.0), (24.0, None))  # armed periods (s); the second never disarms
-END_S = 37.0
-
-
-def two_sorties(sorties=SORTIES, end_s: float = END_S) -> syn.Flight:
-    """Each sortie: armed, climb 1 m/s to 3 m, 12 m along x at 2 m/s, down; walked back."""
-    t = np.arange(0.0, end_s, 0.02)
-    x, z = np.zeros_like(t), np.zeros_like(t)
-    armed = np.zeros(t.size, bool)
-    for arm, disarm in sorties:
-        tau = t - arm
-        on = (tau >= 0) & (t < (disarm if disarm is not None else end_s))
-        armed |= on
-        z += np.where(on, np.clip(np.minimum(tau - 1.0, 12.0 - tau), 0.0, 3.0), 0.0)
-        x += np.where(on, 2.0 * np.clip(tau - 4.0, 0.0, 6.0), 0.0)
-    return syn.Flight(t_s=t, xyz_m=np.stack([x, np.zeros_like(t), z], 1), armed=armed)
+from tests.helpers import run_uvicorn, station_settings
+from tests.known_flights import TWO_SORTIES_END_S, two_sorties
+from tests.replayed import replayed_sessions
 
 
 @pytest.fixture(scope="module")
@@ -44,26 +26,12 @@ def sorties_tlog(tmp_path_factory):
     )
 
 
-def record(path, speed: str, sessions_dir) -> list[dict]:
-    """Replay at `speed` with recording on arming; each session's summary and analysis."""
-    settings = station_settings(
-        f"replay:{path}?speed={speed}", sessions_dir, **{"recording.auto_record_on_arm": True}
-    )
-    with run_uvicorn(create_app(settings)) as base:
-        get = lambda url: httpx.get(f"{base}{url}", timeout=30).json()  # noqa: E731
-        assert wait_until(lambda: get("/api/status")["link"]["replay_done"], timeout=120)
-        assert wait_until(lambda: not get("/api/recording")["recording"], timeout=10)
-        rates = get("/api/status")["link"]["rates_hz"]
-        out = []
-        for s in sorted(get("/api/sessions"), key=lambda s: s["start_wall"]):
-            table = get(f"/api/sessions/{s['id']}/analysis?task=a-to-b")
-            out.append({**s, "result": table["results"][0], "rates_hz": rates})
-        return out
-
-
 @pytest.mark.timeout(300)
 def test_sessions_from_a_replay_are_the_same_at_any_speed(sorties_tlog, tmp_path):
-    runs = {speed: record(sorties_tlog, speed, tmp_path / speed) for speed in ("1", "20", "max")}
+    runs = {
+        speed: replayed_sessions(sorties_tlog, speed, tmp_path / speed)
+        for speed in ("1", "20", "max")
+    }
     log_t0 = next(iter(TlogReader(sorties_tlog)))[0]
     for speed, sessions in runs.items():
         # One session per sortie: the 5 s tail is the log's 5 s at every speed.
@@ -74,7 +42,7 @@ def test_sessions_from_a_replay_are_the_same_at_any_speed(sorties_tlog, tmp_path
         assert first["duration_s"] == pytest.approx(
             14.0 + 5.0 - first["start_wall"] + log_t0, abs=0.2
         )
-        assert second["end_wall"] - log_t0 == pytest.approx(END_S, abs=0.2), speed
+        assert second["end_wall"] - log_t0 == pytest.approx(TWO_SORTIES_END_S, abs=0.2), speed
         for s in sessions:
             assert s["telemetry_rows"] == pytest.approx(30 * s["duration_s"], abs=3), speed
             r = s["result"]
@@ -104,7 +72,7 @@ def test_a_replays_telemetry_ages_are_in_the_logs_time(sorties_tlog, tmp_path):
             for _ in range(20):
                 msg = json.loads(ws.recv(timeout=10))
                 now = msg["t_server_mono"]
-                assert log_t0 <= now <= log_t0 + END_S + 1
+                assert log_t0 <= now <= log_t0 + TWO_SORTIES_END_S + 1
                 if msg["state"]["heartbeat"]["t_mono"] is None:
                     continue  # before the log's first heartbeat
                 age = now - msg["state"]["heartbeat"]["t_mono"]

@@ -10,27 +10,18 @@ import threading
 import pytest
 from playwright.sync_api import expect
 
-from fpv_station.server.app import create_app
-from fpv_station.server.settings import load_settings
 from fpv_station.twin.pilot import Leg, Pilot, fly_twin
 from tests import synthetic as syn
-from tests.helpers import run_uvicorn
-from tests.twin_flights import twin_station_settings
+from tests.stations import no_link_station
+from tests.twin_flights import task_page_on_the_twin
 
 HELD = 3  # "Held 10 s" in task 1's steps: Armed, Took off, Reached 4 m, Held 10 s, ...
 
 
 @pytest.mark.timeout(300)
 def test_held_lights_only_while_the_height_is_held_and_the_score_says_valid(tmp_path, browser):
-    no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
-    app = create_app(twin_station_settings(tmp_path, no_cameras))
-    with run_uvicorn(app) as base:
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.goto(f"{base}/")
-        page.locator("#task-select option[value='1']").wait_for(state="attached")
-        page.locator("#task-select").select_option("1")
+    with task_page_on_the_twin(browser, tmp_path, 1) as (app, page):
         expect(page.locator("#task-steps li").nth(HELD)).to_have_text("Held 10 s")
-        page.wait_for_function("document.getElementById('task-map').dataset.vehicle")
         # 11 s at 5.2 m (above the task's 4 m), then 4 m held, then the landing.
         legs = [
             Leg("arm"),
@@ -82,13 +73,7 @@ def test_the_sessions_page_opens_the_analysis_of_the_sessions_task(tmp_path, bro
     (folder / "messages.csv").write_text(
         f"t_s,t_wall,severity,kind,text\n{crash_at:.3f},,2,statustext,CRASH: obstacle\n"
     )
-    overrides = {
-        "link.source": "none",
-        "recording.sessions_dir": str(root),
-        "recording.auto_record_on_arm": False,
-        "recording.min_free_mb": 0,
-    }
-    with run_uvicorn(create_app(load_settings(environ={}, overrides=overrides))) as base:
+    with no_link_station(root, **{"viser.enabled": True, "viser.port": 0}) as (base, _):
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         page.goto(f"{base}/sessions.html")
         link = page.locator(f"#sessions tbody tr[data-id='{sid}'] a.analysis")

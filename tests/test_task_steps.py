@@ -11,10 +11,8 @@ import threading
 import pytest
 from playwright.sync_api import expect
 
-from fpv_station.server.app import create_app
 from fpv_station.twin.pilot import Leg, Pilot, fly_twin
-from tests.helpers import run_uvicorn
-from tests.twin_flights import twin_station_settings
+from tests.twin_flights import task_page_on_the_twin
 
 CRUISE_M = 4.5  # above the field's 3 m obstacles
 LEGS = [
@@ -33,18 +31,11 @@ LEGS = [
 
 @pytest.mark.timeout(300)
 def test_passed_and_landed_hold_only_while_there(tmp_path, browser):
-    no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
-    app = create_app(twin_station_settings(tmp_path, no_cameras))
-    with run_uvicorn(app) as base:
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.goto(f"{base}/")
-        page.locator("#task-select option[value='2']").wait_for(state="attached")
-        page.locator("#task-select").select_option("2")
+    with task_page_on_the_twin(browser, tmp_path, 2) as (app, page):
         steps = page.locator("#task-steps li")
         passed = steps.filter(has_text="Passed obstacle 1")
         landed = steps.filter(has_text="Landed")
         expect(passed).to_have_count(1)
-        page.wait_for_function("document.getElementById('task-map').dataset.vehicle")
         pilot = Pilot(list(LEGS))
         flyer = threading.Thread(target=fly_twin, args=(app.state.station.twin, pilot, 150.0))
         flyer.start()

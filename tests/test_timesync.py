@@ -15,7 +15,7 @@ from fpv_station.companion.timesync import TimeSync, VehicleClock
 from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import PX4_ONBOARD_RATES_HZ, MavVehicle, timesync_v2
-from tests.test_link import running_link as link_running
+from tests.mav_vehicle import running_link as link_running
 
 
 def running_link(source, **kw):

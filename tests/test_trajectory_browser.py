@@ -4,7 +4,6 @@ recorded path with its time slider and frames. Pixels are checked, not just page
 
 from __future__ import annotations
 
-import math
 import time
 
 import cv2
@@ -12,13 +11,11 @@ import httpx
 import numpy as np
 import pytest
 
-from fpv_station.companion.vehicle_state import Attitude, GlobalPosition, GpsRaw, VehicleState
-from fpv_station.core.geodesy import enu_to_geodetic
 from fpv_station.server.app import create_app
 from tests.helpers import chromium, panel_station_settings, run_uvicorn, wait_until
-from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
+from tests.pages import open_offline
+from tests.synthetic import SESSION_A, SESSION_B, state_at
 
-ORIGIN = (43.0021, -78.7875, 180.0)
 TOKEN = "browser-test-token"
 
 
@@ -28,41 +25,9 @@ def saturated(png: bytes) -> np.ndarray:
     return (img.max(axis=2) - img.min(axis=2)) > 70
 
 
-def state_at(t_s: float) -> VehicleState:
-    """A figure 8 at 3-6 m, 12 m across."""
-    e, n, u = 12 * math.sin(t_s / 4), 6 * math.sin(t_s / 2), 3 + 3 * (1 - math.cos(t_s / 8)) / 2
-    lat, lon, alt = (float(v) for v in enu_to_geodetic([e, n, u], *ORIGIN))
-    return VehicleState(
-        gps=GpsRaw(t_mono=t_s, fix_type=3, lat_deg=lat, lon_deg=lon, alt_m=alt),
-        global_position=GlobalPosition(
-            t_mono=t_s, lat_deg=lat, lon_deg=lon, alt_m=alt, vx_mps=1.0, vy_mps=1.0
-        ),
-        attitude=Attitude(t_mono=t_s, roll_rad=0.1, pitch_rad=0.0, yaw_rad=t_s / 4),
-    )
-
-
-def open_offline(browser, outside: list[str]):
-    """A page that may only reach the station (the Pi has no internet)."""
-    page = browser.new_page(viewport={"width": 960, "height": 640})  # software WebGL: keep it small
-    # The viser iframe renders WebGL in software on the page's renderer: on a starved CI box
-    # a plain evaluate waited more than Playwright's 30 s default for the main thread. A
-    # hang guard, not a speed figure (benchmarks/trajectory3d.py has those).
-    page.set_default_timeout(90_000)
-
-    def only_local(route):
-        if route.request.url.startswith(("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")):
-            route.continue_()
-        else:
-            outside.append(route.request.url)
-            route.abort()
-
-    page.route("**/*", only_local)
-    return page
-
-
 @pytest.fixture
-def station(sessions_dir):  # noqa: F811
-    app = create_app(panel_station_settings(sessions_dir, TOKEN))
+def station(two_sessions_dir):
+    app = create_app(panel_station_settings(two_sessions_dir, TOKEN))
     with run_uvicorn(app) as base:
         yield base, app
 

@@ -3,7 +3,6 @@ recorder's format by tests.synthetic, with real JPEG frames), through real uvico
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import math
 
@@ -13,75 +12,20 @@ import numpy as np
 import pytest
 
 from fpv_station.companion.recording import layout
-from fpv_station.server.app import create_app
-from fpv_station.server.settings import load_settings
 from fpv_station.server.trajectory3d.replay import CameraFrames, build_trajectory, frames_at
-from tests.helpers import run_uvicorn
-from tests.synthetic import a_to_b_flight, figure8_flight, write_session
-
-SESSION_A = "20261122T040000Z_sim"
-SESSION_B = "20261122T041000Z_serial"
-
-
-def write_frames(folder, camera: str, n: int, fps: float = 5.0) -> None:
-    """A camera folder as the recorder writes it (session format 2): the JPEGs back to
-    back in frames.mjpeg, and frames.csv with each one's name, offset and size."""
-    (folder / camera).mkdir(parents=True, exist_ok=True)
-    offset = 0
-    with (
-        open(folder / layout.frames_csv_relpath(camera), "w", newline="") as f,
-        open(folder / layout.frames_pack_relpath(camera), "wb") as pack,
-    ):
-        w = csv.writer(f)
-        w.writerow(layout.FRAME_COLUMNS)
-        for seq in range(n):
-            img = np.full((48, 64, 3), (seq * 7) % 255, np.uint8)
-            ok, jpeg = cv2.imencode(".jpg", img)
-            pack.write(jpeg.tobytes())
-            rel = layout.frame_relpath(camera, seq)
-            row = (seq, rel, round(seq / fps, 6), 1.7e9 + seq / fps, 64, 48, len(jpeg), offset)
-            w.writerow(row)
-            offset += len(jpeg)
-
-
-def drop_fix(folder, t0_s: float, t1_s: float) -> None:
-    """Turn the GPS fix off between t0 and t1 (a real dropout: rows stay, fix goes)."""
-    path = folder / "telemetry.csv"
-    lines = path.read_text().splitlines()
-    header = lines[0].split(",")
-    i_t, i_fix = header.index("t_s"), header.index("gps.fix_type")
-    out = [lines[0]]
-    for line in lines[1:]:
-        cells = line.split(",")
-        if t0_s <= float(cells[i_t]) < t1_s:
-            cells[i_fix] = "0"
-        out.append(",".join(cells))
-    path.write_text("\n".join(out) + "\n")
+from tests.stations import no_link_station
+from tests.synthetic import (
+    SESSION_A,
+    SESSION_B,
+    a_to_b_flight,
+    write_session,
+)
 
 
 @pytest.fixture
-def sessions_dir(tmp_path):
-    root = tmp_path / "sessions"
-    a = write_session(a_to_b_flight(heading_deg=30.0), root / SESSION_A)
-    drop_fix(a, 20.0, 23.0)
-    write_frames(a, "front", 250)
-    write_frames(a, "bottom", 250)
-    write_session(figure8_flight(heading_deg=120.0), root / SESSION_B)
-    return root
-
-
-@pytest.fixture
-def base(sessions_dir):
-    settings = load_settings(
-        environ={},
-        overrides={
-            "link.source": "none",
-            "viser.port": 0,
-            "recording.sessions_dir": str(sessions_dir),
-            "recording.auto_record_on_arm": False,
-        },
-    )
-    with run_uvicorn(create_app(settings)) as url:
+def base(two_sessions_dir):
+    panel = {"viser.enabled": True, "viser.port": 0}
+    with no_link_station(two_sessions_dir, **panel) as (url, _):
         yield url
 
 
@@ -148,7 +92,7 @@ def test_trajectory_endpoint_matches_the_flown_path(base):
     assert abs(al["y_m"][-1]) < 0.05 and al["x_m"][-1] > 35
 
 
-def test_replay_and_analysis_share_the_flight_frame(base, sessions_dir):
+def test_replay_and_analysis_share_the_flight_frame(base, two_sessions_dir):
     """The replay draws the frame the analysis measures in: same origin, same turn."""
     from fpv_station.analysis.flight_frame import align_track
     from fpv_station.analysis.track import load_track
@@ -158,9 +102,9 @@ def test_replay_and_analysis_share_the_flight_frame(base, sessions_dir):
     f = a_to_b_flight(heading_deg=200.0)
     late = f.armed & (f.xyz_m[:, 2] > 0.8)
     late_id = "20261122T042000Z_serial"
-    write_session(dataclasses.replace(f, armed=late), sessions_dir / late_id)
+    write_session(dataclasses.replace(f, armed=late), two_sessions_dir / late_id)
     for sid in (SESSION_A, SESSION_B, late_id):
-        track = load_track(sessions_dir / sid)
+        track = load_track(two_sessions_dir / sid)
         k = len(track) // 3  # any point off the origin sets +x
         lat, lon = float(track.lat_deg[k]), float(track.lon_deg[k])
         a = align_track(track, reference_latlon=(lat, lon))

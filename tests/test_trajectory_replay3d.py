@@ -16,7 +16,7 @@ from fpv_station.server.settings import ViserSettings, load_settings
 from fpv_station.server.trajectory3d.replay import build_trajectory
 from fpv_station.server.trajectory3d.replay_scene import Replay3D
 from tests.helpers import run_uvicorn, viser_viewer, wait_until, watch_viser_pushes
-from tests.test_trajectory_replay import SESSION_A, SESSION_B, sessions_dir  # noqa: F401
+from tests.synthetic import SESSION_A, SESSION_B
 
 TOKEN = "replay-test-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -85,14 +85,14 @@ def test_replay_scene_draws_the_path_with_gaps_and_moves_the_vehicle(replay):
     assert all_segments(replay).shape == (49, 2, 3) and replay.overlay_handles == []
 
 
-def replay_settings(sessions_dir, **overrides):  # noqa: F811
-    """A station with its 3D panels on and `sessions_dir`'s recorded sessions."""
+def replay_settings(two_sessions_dir, **overrides):
+    """A station with its 3D panels on and `two_sessions_dir`'s recorded sessions."""
     return load_settings(
         environ={},
         overrides={
             "link.source": "none",
             "viser.port": 0,
-            "recording.sessions_dir": str(sessions_dir),
+            "recording.sessions_dir": str(two_sessions_dir),
             "recording.auto_record_on_arm": False,
             **overrides,
         },
@@ -100,8 +100,8 @@ def replay_settings(sessions_dir, **overrides):  # noqa: F811
 
 
 @pytest.fixture
-def base(sessions_dir):  # noqa: F811
-    settings = replay_settings(sessions_dir)
+def base(two_sessions_dir):
+    settings = replay_settings(two_sessions_dir)
     app = create_app(settings)
     with run_uvicorn(app) as url:
         yield url, app
@@ -192,13 +192,13 @@ def test_replay3d_endpoints_refuse_bad_input(base):
     assert app.state.station.replay3d.primary is None  # nothing half-loaded
 
 
-def test_replay3d_is_off_with_no_3d(sessions_dir):  # noqa: F811
+def test_replay3d_is_off_with_no_3d(two_sessions_dir):
     settings = load_settings(
         environ={},
         overrides={
             "link.source": "none",
             "viser.enabled": False,
-            "recording.sessions_dir": str(sessions_dir),
+            "recording.sessions_dir": str(two_sessions_dir),
             "recording.auto_record_on_arm": False,
         },
     )
@@ -270,9 +270,9 @@ def test_replay_viewer_shows_a_users_panel_and_frames_the_path(replay):
         )
 
 
-def test_replay3d_changes_need_the_control_token(sessions_dir):  # noqa: F811
+def test_replay3d_changes_need_the_control_token(two_sessions_dir):
     """What the replay panel shows is shared by all its viewers: only the token moves it."""
-    app = create_app(replay_settings(sessions_dir, **{"server.token": TOKEN}))
+    app = create_app(replay_settings(two_sessions_dir, **{"server.token": TOKEN}))
     with run_uvicorn(app) as url:
         load = {"session": SESSION_A}
         for headers in ({}, {"Authorization": "Bearer wrong-token"}):

@@ -14,14 +14,12 @@ import pytest
 from fpv_station.server.app import create_app
 from tests import shaped_tlog
 from tests.helpers import run_uvicorn, station_settings, wait_until
-from tests.test_replay_clock import two_sorties
-
-SORTIES = ((1.0, 14.0), (17.0, 30.0))  # disarmed 3 s: under the 5 s tail
+from tests.known_flights import JOINED_SORTIES, JOINED_SORTIES_END_S, two_sorties
 
 
 @pytest.fixture(scope="module")
 def joined_tlog(tmp_path_factory):
-    flight = two_sorties(SORTIES, end_s=33.0)
+    flight = two_sorties(JOINED_SORTIES, end_s=JOINED_SORTIES_END_S)
     return shaped_tlog.vehicle_flight(flight).write(tmp_path_factory.mktemp("j") / "joined.tlog")
 
 
@@ -42,10 +40,12 @@ def test_a_session_joining_two_flights_gives_one_row_each(joined_tlog, tmp_path)
     rows = table["results"]
     assert [r["flight"] for r in rows] == [1, 2]
     assert [r["label"] for r in rows] == [f"{session['id']} flight {n}" for n in (1, 2)]
-    for r, (arm, _) in zip(rows, SORTIES):
+    for r, (arm, _) in zip(rows, JOINED_SORTIES):
         assert r["trial_time_s"] == pytest.approx(10.0, abs=0.3)  # not 26 s, first to last
         # take-off 1.5 s after arming, on the session's clock (which starts at arming 1)
-        assert r["takeoff_s"] - rows[0]["takeoff_s"] == pytest.approx(arm - SORTIES[0][0], abs=0.1)
+        assert r["takeoff_s"] - rows[0]["takeoff_s"] == pytest.approx(
+            arm - JOINED_SORTIES[0][0], abs=0.1
+        )
         assert r["path_length_m"] == pytest.approx(12.0 + 2 * 2.5, abs=1.5)  # above 0.5 m
     assert [r["flight"] for r in one["results"]] == [2]
     assert one["results"][0]["trial_time_s"] == rows[1]["trial_time_s"]

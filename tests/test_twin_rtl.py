@@ -12,8 +12,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from fpv_station.core.mavlink.px4_modes import PX4_MODES, px4_custom_mode
-from tests.test_twin_mission import REL, latlon, take_off, wait_for
-from tests.test_twin_vehicle import drain
+from tests.twin_gcs import REL, drain, latlon, take_off, wait_for
 
 mav = mavutil.mavlink
 

@@ -3,19 +3,10 @@ pymavlink ground station on a real loopback UDP socket."""
 
 from __future__ import annotations
 
-import time
-
 import pytest
 from pymavlink import mavutil
 
-
-def drain(gcs, kind: str | None = None, timeout: float = 0.3) -> list:
-    out, deadline = [], time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        msg = gcs.recv_match(blocking=True, timeout=0.05)
-        if msg is not None and (kind is None or msg.get_type() == kind):
-            out.append(msg)
-    return out
+from tests.twin_gcs import drain
 
 
 def test_rc_override_moves_the_sticks_and_shows_in_rc_channels(twin_and_gcs) -> None:

@@ -9,9 +9,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from fpv_station.server.app import create_app
-from tests.helpers import chromium, run_uvicorn, station_settings
-from tests.mav_vehicle import MavVehicle
+from tests.stations import vehicle_station
 
 # window.speechSynthesis replaced before the page's scripts run: what they speak is kept.
 STUB = """(() => {
@@ -25,16 +23,8 @@ STUB = """(() => {
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    with MavVehicle("udp") as vehicle:
-        settings = station_settings(vehicle.station_source, tmp_path_factory.mktemp("sessions"))
-        with run_uvicorn(create_app(settings)) as base:
-            yield vehicle, base
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with chromium() as b:
-        yield b
+    with vehicle_station(tmp_path_factory.mktemp("sessions")) as station:
+        yield station
 
 
 def on_the_ground(vehicle) -> None:

@@ -14,7 +14,8 @@ from playwright.sync_api import expect
 from fpv_station.companion.vehicle_state import VehicleState
 from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings
-from tests.test_trajectory_replay import SESSION_A, sessions_dir  # noqa: F401
+from tests.stations import no_link_station
+from tests.synthetic import SESSION_A
 
 TOKEN = "s3cret-token"
 # Each page, and what shows once all its scripts have run.
@@ -31,8 +32,7 @@ WEB_DIR = Path(__file__).resolve().parents[1] / "web"
 @pytest.fixture
 def guarded(tmp_path):
     """A station with a control token; yields its base URL."""
-    settings = station_settings("none", tmp_path / "sessions", **{"server.token": TOKEN})
-    with run_uvicorn(create_app(settings)) as base:
+    with no_link_station(tmp_path / "sessions", **{"server.token": TOKEN}) as (base, _):
         yield base
 
 
@@ -161,10 +161,12 @@ new MutationObserver((muts) => {
 
 @pytest.mark.timeout(180)
 def test_pages_style_only_through_the_stylesheet_and_load_only_own_scripts(
-    sessions_dir,  # noqa: F811
+    two_sessions_dir,
     browser,
 ):
-    settings = station_settings("none", sessions_dir, **{"viser.enabled": True, "viser.port": 0})
+    settings = station_settings(
+        "none", two_sessions_dir, **{"viser.enabled": True, "viser.port": 0}
+    )
     with run_uvicorn(create_app(settings)) as base:
         page = browser.new_page()
         page.add_init_script(WATCH_STYLES)
@@ -243,10 +245,10 @@ def test_live_socket_sends_acks_and_closes_for_good(tmp_path, browser):
         assert page.evaluate("window.__got.length") == before
 
 
-def test_every_page_links_to_the_analysis_page(sessions_dir, browser):  # noqa: F811
+def test_every_page_links_to_the_analysis_page(two_sessions_dir, browser):
     pages = {path.split("?")[0].lstrip("/") or "index.html" for path in PAGES}
     assert pages == {p.name for p in WEB_DIR.glob("*.html")}  # a new page is tested too
-    settings = station_settings("none", sessions_dir)
+    settings = station_settings("none", two_sessions_dir)
     with run_uvicorn(create_app(settings)) as base:
         page = browser.new_page(viewport={"width": 1280, "height": 720})
         for path in PAGES:

@@ -32,8 +32,8 @@ import httpx
 import pytest
 
 from tests import synthetic as syn
+from tests.known_flights import three_sorties
 from tests.station_process import serve_station
-from tests.test_flights import _sorties
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = [pytest.mark.wheel, pytest.mark.timeout(600)]
@@ -175,7 +175,7 @@ def test_the_wheel_installs_and_runs_beside_other_core_and_server(tmp_path):
     assert index.status_code == 200 and "<html" in index.text.lower()
     assert style.status_code == 200 and style.text == (ROOT / "web" / "style.css").read_text()
 
-    tlog = syn.write_tlog(_sorties(), tmp_path / "sorties.tlog")
+    tlog = syn.write_tlog(three_sorties(), tmp_path / "sorties.tlog")
     datasets = tmp_path / "minari"
     dataset_id = "fpv-station/wheel-task1/demos-v0"
     run(python, "-I", script, "export", tlog, "--format", "minari", "--task", "1",

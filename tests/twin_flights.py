@@ -3,6 +3,7 @@
 `recorded_twin_flight` starts a real station (`--source sim`, real uvicorn, real MAVLink
 over loopback) that auto-records into `sessions_dir`, lets the twin's scripted pilot fly
 one of the scene's tasks, and yields once the recorder has closed the session.
+`task_page_on_the_twin` opens such a station's pilot page on a task, for a test to fly.
 """
 
 from __future__ import annotations
@@ -85,3 +86,21 @@ def recorded_twin_flight(
         )
         last = station.recorder.last_stop
         yield RecordedFlight(base, station, last.id, last.reason, Path(sessions_dir) / last.id)
+
+
+@contextlib.contextmanager
+def task_page_on_the_twin(browser, sessions_dir: Path, task_id: int) -> Iterator[tuple[Any, Any]]:
+    """A station on the twin (no cameras) and its pilot page in Chromium with task
+    `task_id` chosen, once the task's map shows the vehicle: (the app, the page)."""
+    no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    app = create_app(twin_station_settings(sessions_dir, no_cameras))
+    with run_uvicorn(app) as base:
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.goto(f"{base}/")
+        page.locator(f"#task-select option[value='{task_id}']").wait_for(state="attached")
+        page.locator("#task-select").select_option(str(task_id))
+        page.wait_for_function("document.getElementById('task-map').dataset.vehicle")
+        try:
+            yield app, page
+        finally:
+            page.context.close()
