@@ -6,7 +6,6 @@ sticks a person gives; recording starts on arming and stops after the post-disar
 
 import csv
 import json
-import time
 
 import numpy as np
 import pytest
@@ -23,10 +22,8 @@ RATE_HZ = 30.0
 
 
 def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
-    t0 = time.monotonic()
     with recorded_twin_flight(tmp_path, 1, {"recording.rate_hz": RATE_HZ}) as flight:
         fps = {n: cam.config.fps for n, cam in flight.station.cameras.items()}
-        assert time.monotonic() - t0 < 80
         last = flight.station.recorder.last_stop
     assert last.reason == "disarmed"
     folder = tmp_path / last.id

@@ -238,7 +238,7 @@ def test_a_full_notify_queue_does_not_block_the_event_loop(tmp_path):
     notifier = Notifier(str(tmp_path / "notify"), None)
     t0 = time.monotonic()
     sent = [notifier.send("WATCHDOG=1") for _ in range(200)]
-    assert time.monotonic() - t0 < 2
+    assert time.monotonic() - t0 < 30  # a hang guard: a blocking send waits for ever
     assert sent[0] and not sent[-1]  # later ones dropped (and logged), not waited for
     sock.close()
 

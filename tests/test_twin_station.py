@@ -222,22 +222,26 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
 
 
 @pytest.mark.timeout(150)  # a loaded machine runs the 10x twin slower
-def test_reset_after_minutes_of_flight_keeps_telemetry_flowing(tmp_path) -> None:
+@pytest.mark.timeout(300)
+def test_reset_after_a_flight_keeps_telemetry_flowing(tmp_path) -> None:
     """Reset puts the twin back on the pad; its telemetry must go on at once. It used to
-    rewind the sim clock, and the twin stayed silent for as long as it had run."""
-    app = sim_app(**{"recording.sessions_dir": str(tmp_path), "twin.realtime_factor": 10.0})
+    rewind the sim clock, and the twin stayed silent for as long as it had run: 10 s of
+    wall time here (40 s of sim time at 4x, a pace a loaded machine keeps), twice the
+    wait for telemetry below."""
+    app = sim_app(**{"recording.sessions_dir": str(tmp_path), "twin.realtime_factor": 4.0})
     with run_uvicorn(app) as url:
         twin = app.state.station.twin
-        assert wait_until(lambda: twin.sim.t_s > 120.0, timeout=80)  # two minutes flown (10x)
+        assert wait_until(lambda: twin.sim.t_s > 40.0, timeout=240)  # a hang guard
         with connect(url.replace("http", "ws") + "/ws/control") as ws:
             json.loads(ws.recv(timeout=5))  # hello
+            flown_s = twin.sim.t_s
             ws.send(json.dumps({"type": "reset"}))
             assert json.loads(ws.recv(timeout=5)) == {"type": "ack", "cmd": "reset", "ok": True}
         after = time.monotonic()
-        assert wait_until(lambda: (state(app).attitude.t_mono or 0) > after + 0.5, timeout=3)
-        assert wait_until(lambda: (state(app).heartbeat.t_mono or 0) > after, timeout=3)
+        assert wait_until(lambda: (state(app).attitude.t_mono or 0) > after + 0.5, timeout=5)
+        assert wait_until(lambda: (state(app).heartbeat.t_mono or 0) > after, timeout=5)
         assert not state(app).link.link_lost
-        assert twin.sim.t_s > 120.0  # carried back, not rebooted: its clock ran on
+        assert twin.sim.t_s >= flown_s  # carried back, not rebooted: its clock ran on
 
 
 def test_keyboard_arm_gesture_legend_select_and_release_on_blur(tmp_path) -> None:

@@ -146,7 +146,7 @@ def test_airsim_camera_streams_named_camera(port):
     camera = build_camera("front", CameraConfig(spec=spec, fps=30, width=96, height=64))
     camera.start()
     try:
-        assert wait_until(lambda: camera.stats().frames >= 15, 3.0)
+        assert wait_until(lambda: camera.stats().frames >= 15, 10.0)
         frame = camera.frames.get().value
         stats = camera.stats()
     finally:
@@ -175,7 +175,7 @@ def test_cosys_airsim_two_argument_api_and_png(port):
     camera = build_camera("bottom", CameraConfig(spec=spec, fps=30, width=96, height=64))
     camera.start()
     try:
-        assert wait_until(lambda: camera.stats().frames >= 5, 3.0)
+        assert wait_until(lambda: camera.stats().frames >= 5, 10.0)
         frame = camera.frames.get().value
     finally:
         camera.stop()
@@ -194,7 +194,7 @@ def test_airsim_unknown_camera_and_absent_simulator_show_no_signal_then_recover(
     )
     bad.start()
     try:
-        assert wait_until(lambda: bad.frames.get() is not None and bad.stats().reason, 2.0)
+        assert wait_until(lambda: bad.frames.get() is not None and bad.stats().reason, 10.0)
         assert "nose_cam" in bad.stats().reason and not bad.frames.get().value.signal
     finally:
         bad.stop()
@@ -209,14 +209,14 @@ def test_airsim_unknown_camera_and_absent_simulator_show_no_signal_then_recover(
     )
     camera.start()
     try:
-        assert wait_until(lambda: "not reachable" in (camera.stats().reason or ""), 2.0)
+        assert wait_until(lambda: "not reachable" in (camera.stats().reason or ""), 10.0)
         fake = FakeAirSim(port)
-        assert wait_until(lambda: camera.frames.get().value.signal, 3.0)
+        assert wait_until(lambda: camera.frames.get().value.signal, 10.0)
         # The simulator drops the connection: the camera reconnects by itself.
         fake.close()
-        assert wait_until(lambda: not camera.frames.get().value.signal, 3.0)
+        assert wait_until(lambda: not camera.frames.get().value.signal, 10.0)
         fake = FakeAirSim(port)
-        assert wait_until(lambda: camera.frames.get().value.signal, 3.0)
+        assert wait_until(lambda: camera.frames.get().value.signal, 10.0)
     finally:
         camera.stop()
         fake.close()

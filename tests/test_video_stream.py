@@ -81,7 +81,7 @@ def test_ten_viewers_per_camera_get_increasing_frames_from_one_encode_each(serve
         assert encodes == made, (encodes, made)  # one encode per frame ...
         assert delivered > 5 * encodes  # ... however many viewers got it
     # The viewers are gone: every disconnect was cleaned up.
-    assert wait_until(lambda: all(c["clients"] == 0 for c in _cameras(server).values()), 3.0)
+    assert wait_until(lambda: all(c["clients"] == 0 for c in _cameras(server).values()), 10.0)
 
 
 def test_a_viewer_that_stops_reading_does_not_delay_the_others(server):
@@ -118,7 +118,7 @@ def test_a_viewer_that_stops_reading_does_not_delay_the_others(server):
         assert _increasing(seqs) and max(b - a for a, b in zip(seqs, seqs[1:])) > 1
     finally:
         stuck.close()
-    assert wait_until(lambda: _cameras(server)["front"]["clients"] == 0, 3.0)
+    assert wait_until(lambda: _cameras(server)["front"]["clients"] == 0, 10.0)
 
 
 def test_snapshot_stats_and_errors(server):
