@@ -5,7 +5,7 @@ same at any replay speed; and a replay that ends while armed closes its session.
 One shaped log (tests/shaped_tlog.vehicle_flight) with two sorties 10 s apart (the tail
 is 5 s of the log, 0.25 s of wall time at x20) and the log ending while still armed, is
 replayed through the real `replay:` source into a real server recording on arming, at
-x1, x20 and as fast as it goes; sessions and analyses are read over HTTP."""
+x4, x20 and as fast as it goes; sessions and analyses are read over HTTP."""
 
 from __future__ import annotations
 
@@ -28,9 +28,12 @@ def sorties_tlog(tmp_path_factory):
 
 @pytest.mark.timeout(300)
 def test_sessions_from_a_replay_are_the_same_at_any_speed(sorties_tlog, tmp_path):
+    # Each speed is checked against the log's truth and against the others. Not x1: it
+    # takes the log's 37 s of wall time, and there the wall's clock and the log's agree,
+    # so it would hide what the other speeds find.
     runs = {
         speed: replayed_sessions(sorties_tlog, speed, tmp_path / speed)
-        for speed in ("1", "20", "max")
+        for speed in ("4", "20", "max")
     }
     log_t0 = next(iter(TlogReader(sorties_tlog)))[0]
     for speed, sessions in runs.items():
@@ -51,7 +54,7 @@ def test_sessions_from_a_replay_are_the_same_at_any_speed(sorties_tlog, tmp_path
             # Rates in the log's seconds: ATTITUDE is 50 Hz of the vehicle's, at any speed.
             assert s["rates_hz"]["ATTITUDE"] == pytest.approx(50.0, rel=0.05), speed
     for k in range(2):
-        base = runs["1"][k]["result"]["trial_time_s"]
+        base = runs["4"][k]["result"]["trial_time_s"]
         for speed in ("20", "max"):
             assert runs[speed][k]["result"]["trial_time_s"] == pytest.approx(base, rel=0.01)
 

@@ -1,12 +1,13 @@
-"""The flight task on the pilot page, in headless Chromium against a real station process:
-the task chosen survives the station's restart, and the restarted station's page shows
-the procedure, the top-view map and the score of the last trial whole, without
-scrolling, at a laptop's 1280x720, goggles' 1920x1080 and a phone upright, beside a
-front camera at least 0.6 of the width on the laptop and goggles (the paper's large front
-view). On a phone on its side both cameras and the task's essentials (its choice, map,
-steps and verdict) are seen whole. The score is the station's own scoring of a session
-(server.trials) of a trial that crashed, touched an obstacle and landed off the pad:
-invalid for three reasons, its landing accuracy and which figures are better lower."""
+"""The flight task on the pilot page, in headless Chromium against a real station: the
+task chosen survives the station's restart (a new station on the same sessions folder),
+and the restarted station's page shows the procedure, the top-view map and the score of
+the last trial whole, without scrolling, at a laptop's 1280x720, goggles' 1920x1080 and
+a phone upright, beside a front camera at least 0.6 of the width on the laptop and
+goggles (the paper's large front view). On a phone on its side both cameras and the
+task's essentials (its choice, map, steps and verdict) are seen whole. The score is the
+station's own scoring of a session (server.trials) of a trial that crashed, touched an
+obstacle and landed off the pad: invalid for three reasons, its landing accuracy and
+which figures are better lower."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from fpv_station.companion.recording.meta import session_task
 from fpv_station.core.scene import load_scene
 from tests import synthetic as syn
 from tests.helpers import FRONT_PICTURE_WIDTH
-from tests.station_process import serve_station
+from tests.stations import no_link_station
 
 TOKEN = "task-fit-token"
 SIZES = {
@@ -93,22 +94,27 @@ def crashed_a_to_b_session(root):
 def test_task_survives_a_restart_and_its_panel_fits_every_screen(tmp_path, browser):
     root = tmp_path / "sessions"
     score = crashed_a_to_b_session(root)
-    args = ["--source", "none", "--token", TOKEN]
-    env = {"FPV_RECORDING__SESSIONS_DIR": str(root), "FPV_RECORDING__MIN_FREE_MB": "0"}
     auth = {"Authorization": f"Bearer {TOKEN}"}
-    with serve_station(args, env) as station:
-        assert httpx.get(f"{station.base}/api/task").json()["selected"] is None
-        reply = httpx.post(f"{station.base}/api/task", json={"task_id": 2}, headers=auth)
+
+    def restarted():
+        """The station (`serve --source none --token`, its 3D panel on) on the same
+        sessions folder, started again: (its base URL, the app)."""
+        panel = {"viser.enabled": True, "viser.port": 0}
+        return no_link_station(root, **{"server.token": TOKEN, **panel})
+
+    with restarted() as (base, _):
+        assert httpx.get(f"{base}/api/task").json()["selected"] is None
+        reply = httpx.post(f"{base}/api/task", json={"task_id": 2}, headers=auth)
         assert reply.status_code == 200, reply.text
-    with serve_station(args, env) as station:
-        task = httpx.get(f"{station.base}/api/task").json()
+    with restarted() as (base, _):
+        task = httpx.get(f"{base}/api/task").json()
         assert task["selected"]["id"] == 2, task["selected"]
         assert task["last_score"]["result"]["valid"] is False  # the newest of today's trials
         for name, options in SIZES.items():
             context = browser.new_context(**options)
             try:
                 page = context.new_page()
-                page.goto(f"{station.base}/")
+                page.goto(f"{base}/")
                 expect(page.locator("#task-select")).to_have_value("2")
                 result = page.locator("#task-result")
                 expect(result).to_have_attribute("data-valid", "false")
@@ -139,8 +145,8 @@ def test_task_survives_a_restart_and_its_panel_fits_every_screen(tmp_path, brows
     saved = json.loads((root / "chosen_task.json").read_text())
     assert saved["task_id"] == 2
     # Set to none, it stays none.
-    with serve_station(args, env) as station:
-        reply = httpx.post(f"{station.base}/api/task", json={"task_id": None}, headers=auth)
+    with restarted() as (base, _):
+        reply = httpx.post(f"{base}/api/task", json={"task_id": None}, headers=auth)
         assert reply.status_code == 200, reply.text
-    with serve_station(args, env) as station:
-        assert httpx.get(f"{station.base}/api/task").json()["selected"] is None
+    with restarted() as (base, _):
+        assert httpx.get(f"{base}/api/task").json()["selected"] is None
