@@ -129,7 +129,7 @@ def _markers(item: pytest.Function) -> set[str]:
     }
     marks = set()
     # Names count too: an import inside a test puts its module and names there.
-    if chromium in reach.objects or {"chromium", "browser"} & reach.names:
+    if any(o is chromium for o in reach.objects) or {"chromium", "browser"} & reach.names:
         marks.add("browser")
     if (
         any(m.startswith("fpv_station.twin") for m in modules | reach.names)

@@ -18,12 +18,14 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def complete_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file up to its last whole line (a killed writer cuts the next)."""
     data = path.read_bytes()
     data = data[: data.rfind(b"\n") + 1]  # a cut last line is not a row
     return list(csv.DictReader(data.decode().splitlines()))
 
 
 def spawn(args: list[str], env: dict | None = None) -> subprocess.Popen:
+    """`python ARGS` from the checkout, `env` added to ours, its output read as text."""
     return subprocess.Popen(
         [sys.executable, *args],
         cwd=ROOT,
@@ -60,6 +62,7 @@ def terminate(proc: subprocess.Popen, timeout: float = 30.0) -> None:
 
 
 def read_line(proc: subprocess.Popen, prefix: str, timeout: float = 20.0) -> str:
+    """The rest of the first line `proc` prints that starts with `prefix`."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         line = proc.stdout.readline()

@@ -251,10 +251,13 @@ DiskUsage = namedtuple("usage", "total used free")  # shutil.disk_usage's answer
 
 
 def big_jpegs() -> list[bytes]:
+    """Frames large enough to fill a small disk quickly."""
     return make_jpegs(4, 320, 240)  # ~1.5 MB/s at 30 fps: a tiny disk fills in seconds
 
 
 def record_until_stopped(root, min_free_bytes: int, timeout_s: float = 20.0):
+    """Record big frames under `root` until the recorder stops itself (a full disk, say)
+    or `timeout_s` passes; the recorder's status then."""
     rig = FakeRig(root, recorder_options(min_free_bytes), jpegs=big_jpegs()).start()
     rec = rig.recorder
 

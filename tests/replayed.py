@@ -81,6 +81,7 @@ def mavloss(path: Path) -> dict[tuple[int, int] | str, float]:
 
 
 def by_stream(link: dict) -> dict[tuple[int, int], dict]:
+    """/api/status's link streams by (sysid, compid)."""
     return {(s["sysid"], s["compid"]): s for s in link["streams"]}
 
 

@@ -68,6 +68,7 @@ def upload(twin, gcs, items: list[tuple], mission_type: int = 0, drop_request: i
 
 
 def download(twin, gcs, mission_type: int = 0) -> list:
+    """QGroundControl's download: MISSION_REQUEST_LIST, each item, the ack; the items."""
     gcs.mav.mission_request_list_send(1, 1, mission_type)
     count = wait_for(twin, gcs, "MISSION_COUNT")[0]
     assert count.mission_type == mission_type
@@ -89,6 +90,7 @@ MISSION = [
 
 
 def drain(gcs, kind: str | None = None, timeout: float = 0.3) -> list:
+    """What the GCS receives within `timeout` s (only `kind` messages, if given)."""
     out, deadline = [], time.monotonic() + timeout
     while time.monotonic() < deadline:
         msg = gcs.recv_match(blocking=True, timeout=0.05)
