@@ -142,6 +142,15 @@ def _markers(item: pytest.Function) -> set[str]:
     return marks
 
 
+def pytest_ignore_collect(collection_path, config):
+    """Under `-m fast` alone, a test module that marks nothing fast is not even imported:
+    the fast tier takes its tests' time, not the import of the whole suite."""
+    name = collection_path.name
+    if config.getoption("markexpr") == "fast" and name.startswith("test_") and name.endswith(".py"):
+        return "mark.fast" not in collection_path.read_text(encoding="utf-8") or None
+    return None
+
+
 @pytest.hookimpl(tryfirst=True)  # before `-m` deselects by markers
 def pytest_collection_modifyitems(config, items):
     for item in items:
