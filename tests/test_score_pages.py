@@ -20,7 +20,7 @@ HELD = 3  # "Held 10 s" in task 1's steps: Armed, Took off, Reached 4 m, Held 10
 
 @pytest.mark.timeout(300)
 def test_held_lights_only_while_the_height_is_held_and_the_score_says_valid(tmp_path, browser):
-    with task_page_on_the_twin(browser, tmp_path, 1) as (app, page):
+    with task_page_on_the_twin(browser, tmp_path, 1) as (app, _, page):
         expect(page.locator("#task-steps li").nth(HELD)).to_have_text("Held 10 s")
         # 11 s at 5.2 m (above the task's 4 m), then 4 m held, then the landing.
         legs = [

@@ -15,10 +15,8 @@ import pytest
 from playwright.sync_api import expect
 from websockets.sync.client import connect
 
-from fpv_station.server.app import create_app
 from fpv_station.twin.pilot import Leg, Observation, Pilot, task_plan
-from tests.helpers import chromium, run_uvicorn
-from tests.twin_flights import twin_station_settings
+from tests.twin_flights import task_page_on_the_twin
 
 
 def fly_over_the_control_socket(ws_url: str, twin, pilot: Pilot, stop: threading.Event) -> None:
@@ -49,16 +47,10 @@ def fly_over_the_control_socket(ws_url: str, twin, pilot: Pilot, stop: threading
 
 
 @pytest.mark.timeout(240)
-def test_pilot_flies_task_1_with_procedure_map_and_score(tmp_path):
-    no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
-    app = create_app(twin_station_settings(tmp_path, no_cameras))
-    with run_uvicorn(app) as base, chromium() as browser:
+def test_pilot_flies_task_1_with_procedure_map_and_score(tmp_path, browser):
+    with task_page_on_the_twin(browser, tmp_path, 1) as (app, base, page):
         station = app.state.station
         twin = station.twin
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.goto(f"{base}/")
-        page.locator("#task-select option[value='1']").wait_for(state="attached")
-        page.locator("#task-select").select_option("1")
         steps = page.locator("#task-steps li")
         expect(steps).to_have_text(
             ["Armed", "Took off", "Reached 4 m", "Held 10 s", "Landed", "Disarmed"]
@@ -66,9 +58,6 @@ def test_pilot_flies_task_1_with_procedure_map_and_score(tmp_path):
         expect(page.locator("#task-procedure li").first).to_contain_text("Arm on the start pad")
         assert httpx.get(f"{base}/api/task").json()["selected"]["id"] == 1
         # The map: the vehicle drawn on the start pad (x = -20 m, y = 0) before take-off.
-        page.wait_for_function(
-            "document.getElementById('task-map').dataset.vehicle", timeout=20_000
-        )
         x, y = map(float, page.locator("#task-map").get_attribute("data-vehicle").split(","))
         assert abs(x + 20.0) < 1.0 and abs(y) < 1.0
 

@@ -31,7 +31,7 @@ LEGS = [
 
 @pytest.mark.timeout(300)
 def test_passed_and_landed_hold_only_while_there(tmp_path, browser):
-    with task_page_on_the_twin(browser, tmp_path, 2) as (app, page):
+    with task_page_on_the_twin(browser, tmp_path, 2) as (app, _, page):
         steps = page.locator("#task-steps li")
         passed = steps.filter(has_text="Passed obstacle 1")
         landed = steps.filter(has_text="Landed")

@@ -89,9 +89,12 @@ def recorded_twin_flight(
 
 
 @contextlib.contextmanager
-def task_page_on_the_twin(browser, sessions_dir: Path, task_id: int) -> Iterator[tuple[Any, Any]]:
+def task_page_on_the_twin(
+    browser, sessions_dir: Path, task_id: int
+) -> Iterator[tuple[Any, str, Any]]:
     """A station on the twin (no cameras) and its pilot page in Chromium with task
-    `task_id` chosen, once the task's map shows the vehicle: (the app, the page)."""
+    `task_id` chosen, once the task's map shows the vehicle: (the app, its base URL,
+    the page)."""
     no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
     app = create_app(twin_station_settings(sessions_dir, no_cameras))
     with run_uvicorn(app) as base:
@@ -101,6 +104,6 @@ def task_page_on_the_twin(browser, sessions_dir: Path, task_id: int) -> Iterator
         page.locator("#task-select").select_option(str(task_id))
         page.wait_for_function("document.getElementById('task-map').dataset.vehicle")
         try:
-            yield app, page
+            yield app, base, page
         finally:
             page.context.close()
