@@ -1,6 +1,7 @@
 """`fpv-station`: the command line.
 
     fpv-station serve [--source CONN] [--host H] [--port P] [--config FILE.toml] ...
+    fpv-station config --dump [the same flags]   # every setting, as commented TOML
 
 Each subcommand registers its flags in its own `add_*_parser` function; flags map onto
 dotted settings keys so that the CLI is the last layer over TOML and environment.
@@ -19,6 +20,35 @@ from fpv_station.server.settings import Settings, SettingsError, load_settings
 
 def add_serve_parser(sub: Any) -> None:
     p = sub.add_parser("serve", help="run the ground station (web UI, telemetry, video, recording)")
+    add_station_flags(p)
+    p.set_defaults(func=run_serve)
+
+
+def add_config_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "config", help="print the settings `serve` would run with, as commented TOML (--dump)"
+    )
+    p.add_argument(
+        "--dump",
+        action="store_true",
+        help="print every setting with its description; takes serve's flags",
+    )
+    add_station_flags(p)
+    p.set_defaults(func=run_config)
+
+
+def run_config(args: argparse.Namespace) -> int:
+    from fpv_station.server.settings_dump import dump_settings
+
+    if not args.dump:
+        print("fpv-station config: --dump prints the effective settings", file=sys.stderr)
+        return 2
+    print(dump_settings(settings_from_args(args)), end="")
+    return 0
+
+
+def add_station_flags(p: argparse.ArgumentParser) -> None:
+    """The station's settings flags, shared by `serve` and `config --dump`."""
     p.add_argument("--config", type=Path, help="TOML settings file")
     p.add_argument("--host", dest="server.host", help="address to listen on (default 0.0.0.0)")
     p.add_argument("--port", dest="server.port", type=int, help="HTTP port (default 8000)")
@@ -55,7 +85,6 @@ def add_serve_parser(sub: Any) -> None:
     add_camera_flags(p)
     add_viser_flags(p)
     add_recording_flags(p)
-    p.set_defaults(func=run_serve)
 
 
 def add_recording_flags(p: argparse.ArgumentParser) -> None:
@@ -323,6 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     add_serve_parser(sub)
+    add_config_parser(sub)
     add_sim_parser(sub)
     add_analyze_parser(sub)
     add_learn_parsers(sub)

@@ -19,20 +19,42 @@ def _scene_loads(path: Path) -> None:
 class TwinSettings(Section):
     """The embedded digital twin (`--source sim` and `fpv-station sim`)."""
 
-    # scene TOML; None = the built-in field of the paper
-    scene: Annotated[Path | None, checked_by(_scene_loads)] = None
-    seed: int = 0
-    physics_hz: float = Field(250.0, ge=250.0, le=2000.0)
-    realtime_factor: float = Field(1.0, gt=0, le=100.0)
-    wind_east_mps: float = 0.0
-    wind_north_mps: float = 0.0
-    gust_std_mps: float = Field(0.0, ge=0)
-    turbulence_std_mps: float = Field(0.0, ge=0)  # Dryden-like (twin.dynamics.Wind)
-    sensor_noise: bool = True
-    gps_rate_hz: float = Field(5.0, ge=1.0, le=20.0)
-    max_vel_xy_mps: float = Field(5.0, gt=0, le=20.0)
-    rates_hz: dict[str, float] = Field(default_factory=dict)  # MAVLink stream rates by name
-    fpv_noise: bool = False  # analog-FPV look on the rendered cameras (rate: cameras.*.fps)
+    scene: Annotated[Path | None, checked_by(_scene_loads)] = Field(
+        None,
+        description="The scene TOML the twin flies (core/scenes/field.toml's format); None: "
+        "the built-in field of the paper.",
+    )
+    seed: int = Field(0, description="Seed of the twin's randomness (noise, gusts).")
+    physics_hz: float = Field(
+        250.0, ge=250.0, le=2000.0, description="Fixed physics steps a second."
+    )
+    realtime_factor: float = Field(
+        1.0, gt=0, le=100.0, description="Simulated seconds per wall second."
+    )
+    wind_east_mps: float = Field(
+        0.0, description="Mean wind towards east (m/s); calm settings: the scene's [wind]."
+    )
+    wind_north_mps: float = Field(0.0, description="Mean wind towards north (m/s).")
+    gust_std_mps: float = Field(0.0, ge=0, description="Gusts' standard deviation (m/s).")
+    turbulence_std_mps: float = Field(
+        0.0,
+        ge=0,
+        description="Dryden-like turbulence's standard deviation (m/s; twin.dynamics.Wind).",
+    )
+    sensor_noise: bool = Field(
+        True, description="Noise on the twin's sensors (GPS, altitude, attitude)."
+    )
+    gps_rate_hz: float = Field(5.0, ge=1.0, le=20.0, description="GPS fixes a second.")
+    max_vel_xy_mps: float = Field(
+        5.0, gt=0, le=20.0, description="Horizontal speed limit (m/s): full stick in Position mode."
+    )
+    rates_hz: dict[str, float] = Field(
+        default_factory=dict,
+        description="MAVLink stream rates by message name, before any ground station asks.",
+    )
+    fpv_noise: bool = Field(
+        False, description="An analog-FPV look on the rendered cameras (rate: cameras.*.fps)."
+    )
     flight_log: bool = Field(
         True,
         description="Write the twin's own flight log (a PX4 ULog per armed period: IMU and "

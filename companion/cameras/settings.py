@@ -12,14 +12,24 @@ from fpv_station.core.settings_section import Section, checked_by
 
 
 class CameraConfig(Section):
-    # A camera spec (see companion/cameras/spec.py): v4l2:/dev/video0, v4l2:0, file:X.mp4,
-    # folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none. None = sim:<name> when
-    # link.source is "sim", else none. Spec options (?width=..&fps=..) override the rest.
-    spec: Annotated[str | None, checked_by(parse_spec)] = None  # CameraSpecError says why
-    width: int = Field(640, ge=16, le=8192)
-    height: int = Field(480, ge=16, le=8192)
-    fps: float = Field(30.0, gt=0, le=240)
-    jpeg_quality: int = Field(80, ge=1, le=100)
+    """One camera: its source and the picture asked of it."""
+
+    spec: Annotated[str | None, checked_by(parse_spec)] = Field(
+        None,
+        description="The camera's source (companion/cameras/spec.py): v4l2:/dev/video0, "
+        "v4l2:0, file:X.mp4, folder:DIR, sim:front, airsim:HOST:PORT/CAMERA, none. None: "
+        "sim:<name> when link.source is sim, else none. Spec options (?width=..&fps=..) "
+        "override the keys below.",
+    )
+    width: int = Field(640, ge=16, le=8192, description="Width asked of the camera (px).")
+    height: int = Field(480, ge=16, le=8192, description="Height asked of the camera (px).")
+    fps: float = Field(30.0, gt=0, le=240, description="Frames a second asked of the camera.")
+    jpeg_quality: int = Field(
+        80,
+        ge=1,
+        le=100,
+        description="JPEG quality when frames are encoded here (MJPEG passes through).",
+    )
     # The optics the OSD draws its horizon and pitch ladder with (web/osd.js).
     tilt_up_deg: float | None = Field(
         None,
@@ -40,8 +50,14 @@ class CameraConfig(Section):
 
 
 class CameraSettings(Section):
-    front: CameraConfig = Field(default_factory=CameraConfig)
-    bottom: CameraConfig = Field(default_factory=CameraConfig)
-    stall_s: float = Field(2.0, gt=0)  # no frame for this long = NO SIGNAL (stalled)
-    retry_min_s: float = Field(0.5, gt=0)  # reopen back-off, doubling up to retry_max_s
-    retry_max_s: float = Field(5.0, gt=0)
+    """The front and bottom cameras, and how a failing one is retried."""
+
+    front: CameraConfig = Field(default_factory=CameraConfig, description="The front camera.")
+    bottom: CameraConfig = Field(default_factory=CameraConfig, description="The bottom camera.")
+    stall_s: float = Field(
+        2.0, gt=0, description="No frame for this long (s): NO SIGNAL (stalled), and reopen."
+    )
+    retry_min_s: float = Field(
+        0.5, gt=0, description="First reopen back-off (s), doubling up to retry_max_s."
+    )
+    retry_max_s: float = Field(5.0, gt=0, description="Longest reopen back-off (s).")
