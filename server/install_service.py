@@ -115,7 +115,8 @@ def small_pi_toml() -> str:
 
 CONFIG_TEMPLATE = (
     """\
-# fpv-station settings (see `fpv-station serve --help`; flags override these).
+# fpv-station settings; `fpv-station config --dump --config FILE` prints every setting,
+# what it does and the value it takes (flags override these).
 [server]
 token_file = "{state_dir}/token"
 # On a Pi 3 or a Pi Zero 2 W uncomment this line and the last one of [link]:
