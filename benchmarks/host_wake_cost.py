@@ -84,7 +84,7 @@ def warm_speed(seconds: float = 2.0) -> float | None:
 
     A process's user instructions a second over this figure is the share of one core its
     work would take at warm speed; the rest of its user time is the cost of waking
-    (docs/PERFORMANCE.md, round 8: under 1 % of a core of the station's 12 % here)."""
+    (docs/PERFORMANCE.md, "Where the Pi configuration's cycles go")."""
     perf = shutil.which("perf")
     if perf is None:
         return None

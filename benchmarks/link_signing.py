@@ -1,4 +1,4 @@
-"""What MAVLink 2 signing costs the link thread per packet (issue 13, item 5).
+"""What MAVLink 2 signing costs the link thread per packet.
 
     python benchmarks/link_signing.py [--packets 20000]
 

@@ -1,4 +1,4 @@
-"""The OSD's cost per frame in headless Chromium (issue 12: target < 2 ms).
+"""The OSD's cost per frame in headless Chromium (target: under 2 ms).
 
     python benchmarks/osd_frame_cost.py [--seconds 10] [--size 1280x720 1920x1080]
 

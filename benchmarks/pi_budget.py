@@ -15,9 +15,8 @@ Runs the real-Pi configuration on this machine, as `fpv-station serve` in a subp
   passthrough (the grabber is simulated at OpenCV's VideoCapture: usb_mjpeg_camera.py);
 - recording on (telemetry, tlog and both videos);
 - two telemetry WebSocket clients that acknowledge their messages as the pages do
-  (`?ack=2`, an ack every second message; `--telemetry-ack 1`: one per message, the pages
-  before round 7; `--telemetry-ack 0` or `--no-telemetry-ack`: clients that only read, as
-  in rounds 1 and 2), and
+  (`?ack=2`, an ack every second message; `--telemetry-ack 1`: one per message;
+  `--telemetry-ack 0` or `--no-telemetry-ack`: clients that only read), and
   two MJPEG viewers per camera, in this process;
 - the 3D panel on, off, or both runs side by side. "On": the pilot page's GET /api/viser
   starts its viser servers once the station is ready (`--no-visit`: not), nobody looks.
@@ -733,8 +732,8 @@ def main() -> None:
         default=PAGE_ACK_WINDOW,
         metavar="N",
         help="telemetry clients as the pages run them: ?ack=N, an ack when N messages are "
-        "unacknowledged (2, web/telemetry.js; 1: the pages before round 7; 0: clients that "
-        "only read, as in rounds 1 and 2)",
+        "unacknowledged (2, web/telemetry.js; 1: an ack per message; 0: clients that only "
+        "read)",
     )
     ap.add_argument(
         "--no-telemetry-ack",

@@ -1,6 +1,6 @@
 """Shutdown under load: SIGTERM to `fpv-station serve --source sim` (3D panels on,
 recording) with telemetry clients, MJPEG viewers and clients that stopped reading
-connected; how long until the process has exited (issue 13 item 9: within 5 s).
+connected; how long until the process has exited (target: within 5 s).
 
     python benchmarks/shutdown.py [--runs 3] [--telemetry 100] [--viewers 20] [--stalled 5]
 

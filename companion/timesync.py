@@ -47,7 +47,7 @@ BIN_S = 2.0
 # Kept bins: beyond it the oldest go (hours at BIN_S).
 MAX_BINS = 4096
 # Drift is fitted once the kept samples span this much of the vehicle's clock (a few
-# bins); before, the clocks are taken to tick at one rate.
+# bins); until then the clocks are taken to tick at one rate.
 MIN_DRIFT_SPAN_S = 4.0
 # Requests sent and not yet answered, remembered by their ts1 (the oldest forgotten).
 MAX_PENDING = 64

@@ -301,10 +301,9 @@ class VehicleState:
 # -- quick construction (the link's per-packet path) ---------------------------------------
 #
 # A frozen dataclass's generated __init__ sets each field with object.__setattr__, a slow
-# call per field: building a VehicleState (13 fields) took about 4 us on the dev VM, and
-# the state merge built two or three objects per MAVLink packet. An unfrozen twin with the
-# same fields, defaults and slots (so the same memory layout) is filled with plain
-# attribute stores and then made an instance of the frozen class by assigning
+# call per field, and the state merge builds two or three objects per MAVLink packet. An
+# unfrozen twin with the same fields, defaults and slots (so the same memory layout) is
+# filled with plain attribute stores and then made an instance of the frozen class by assigning
 # `__class__`, which CPython allows between classes of the same slot layout. The result
 # is the frozen class's own object: its type, equality, hash, repr, fields and
 # frozenness (FrozenInstanceError on a store) are the class's.

@@ -1,6 +1,6 @@
 """Caps on concurrent clients, so that no crowd of sockets can take the file descriptors
-the recorder needs (issue 13: 1,050 telemetry sockets once made recording fail with
-EMFILE for good).
+the recorder needs: without a cap, a thousand telemetry sockets leave none for its files
+and recording fails with EMFILE.
 
 Every client holds a socket: the main server's plain HTTP connections, WebSockets and
 MJPEG viewers, and the 3D panels' viewers (which come through the main server too and are

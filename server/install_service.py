@@ -97,7 +97,7 @@ WantedBy=multi-user.target
 
 # A small Pi (Pi 3, Pi Zero 2 W): the pages at 25 messages a second and about half the
 # MAVLink messages (75 a second instead of 140), which `benchmarks/pi_budget.py
-# --rates small-pi` measures (docs/PERFORMANCE.md, "A small Pi"). The horizon then redraws at
+# --rates small-pi` measures (docs/PERFORMANCE.md). The horizon then redraws at
 # 25 Hz, about the cameras' rate; the trajectory and the tlog get positions at 10 Hz.
 # The config file has them commented out, one line in [server] and one in [link].
 SMALL_PI_SERVER = "telemetry_rate_hz = 25"

@@ -3,10 +3,10 @@
 Each client's coroutine (server/routes/telemetry.py) sends on its own socket, so a slow
 client delays only itself; what it sends comes from here. A tick takes the newest
 vehicle state and builds its message once (the JSON body, server/telemetry_json.py, and
-the `t_server` prefix); every client that is due sends that same text. Before, each
-client paced itself with a timer of its own and, out of phase with the others, got a
-state version of its own: two page-like clients cost two timer wake-ups and two message
-builds per message instead of one.
+the `t_server` prefix); every client that is due sends that same text. Clients do not
+pace themselves with timers of their own: out of phase with each other, each would get
+a state version of its own, and two page-like clients would cost two timer wake-ups and
+two message builds per message instead of one.
 
 Who is due, and when the pump ticks:
 - A client is due once its own interval (`1 / max_rate`) has passed since the tick of
@@ -46,7 +46,7 @@ PUMP_TASK = "telemetry-pump"
 # A moment this close before a time counts as that time (a client's due time, the next
 # tick's): the loop's timers fire to the millisecond, and uvloop's clock counts whole
 # milliseconds, so a timer meant for a moment may run a hair before it. Without it, each
-# such timer costs a second wake-up a millisecond later (37 % of them under uvloop here).
+# such timer would cost a second wake-up a millisecond later (a third of them, under uvloop).
 TICK_SLACK_S = 0.002
 
 

@@ -110,8 +110,8 @@ def _add_file(zf: zipfile.ZipFile, arcname: str, path: Path) -> None:
 
     A session still recording grows while it is zipped (its packs by about 1 MB a
     second). `ZipFile.write` copies to the end of the file but chose the entry's format
-    from its size at the start, so a pack that grew past 2 GB during the download failed
-    the archive ("File size too large"); the appended bytes belong to the next download
+    from its size at the start, so a pack that grows past 2 GB during the download would
+    fail the archive ("File size too large"); the appended bytes belong to the next download
     anyway (frames.csv, zipped before the pack, names none of them)."""
     info = zipfile.ZipInfo.from_file(path, arcname)
     if path.suffix.lower() in STORED_SUFFIXES:

@@ -1,4 +1,4 @@
-"""SIGTERM under load (issue 13 item 9): a real `fpv-station serve --source sim` with its
+"""SIGTERM under load: a real `fpv-station serve --source sim` with its
 3D panels, recording, with telemetry clients and MJPEG viewers connected and reading,
 then SIGTERM. Used by tests/test_shutdown.py (no traceback, the session complete) and
 benchmarks/shutdown.py (how long the shutdown takes).

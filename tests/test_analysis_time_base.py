@@ -1,4 +1,4 @@
-"""Analysis times from the vehicle's own clock (issue 11 item 7): a radio fade of 4.3 s
+"""Analysis times from the vehicle's own clock: a radio fade of 4.3 s
 ends in a burst of the packets it buffered, all with one receive time. Speeds and
 durations must come from the vehicle's time_usec / time_boot_ms, not from when the burst
 arrived: the GPS says 28 m/s, so must the analysis."""

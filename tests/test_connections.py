@@ -96,9 +96,9 @@ class SlowHeaders:
 
 
 def test_idle_and_slow_header_sockets_leave_health_and_arming_under_256_descriptors(tmp_path):
-    """Under `prlimit --nofile=256` 400 idle TCP connections once filled the descriptor
-    table: health checks failed and arming could not create a session (EMFILE). Idle
-    connections are now closed after their request timeout, or sooner for a newer
+    """Under `prlimit --nofile=256` 400 idle TCP connections would fill the descriptor
+    table: health checks would fail and arming could not create a session (EMFILE). Idle
+    connections are closed after their request timeout, or sooner for a newer
     connection, slow-header clients after the timeout, and the recorder's reserve
     stays: health answers and arming the twin starts a recording."""
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)

@@ -58,7 +58,7 @@ def _big_frame_close_code(port: int, path: str) -> int | None:
 
 def test_big_frames_are_refused_with_1009_and_memory_stays_flat(tmp_path):
     """uvicorn's default 16 MiB frames let 30 anonymous clients drive the station from
-    207 MB to 1.49 GB. Each route now takes frames that fit its messages: a larger frame
+    207 MB to 1.49 GB. Each route takes frames that fit its messages: a larger frame
     is closed with 1009 as it starts, before its payload is read."""
     args = ["--source", "none", "--open", "--no-3d", "--sessions-dir", str(tmp_path)]
     with serve_station(args) as station:

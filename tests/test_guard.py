@@ -107,7 +107,7 @@ def test_a_binary_frame_on_the_control_socket_closes_it_cleanly(tmp_path):
 
 
 def test_a_socket_flood_cannot_take_the_recorders_descriptors(tmp_path):
-    """1,050 sockets once made the recorder fail with EMFILE under the Pi's default limit.
+    """Without a cap, a thousand sockets make the recorder fail with EMFILE under the Pi's limit.
     With 256 descriptors for the whole process, a flood of telemetry clients is capped
     (503 beyond the cap), and recording still starts, writes and stops cleanly."""
     import os

@@ -1,4 +1,4 @@
-"""The vehicle link on a hostile network (issue 13, item 5): datagrams from addresses other
+"""The vehicle link on a hostile network: datagrams from addresses other
 than the link's peer, and MAVLink 2 signing on and off. Real uvicorn stations, real UDP
 sockets, real MAVLink bytes from pymavlink's encoder (and its signing, as MAVProxy uses
 it); what is checked is what the station shows (/api/status, its state) and records."""
@@ -151,7 +151,7 @@ def test_udpin_locks_to_the_first_sender_and_counts_others(tmp_path) -> None:
 
 
 def test_udpin_unlocked_hears_every_sender(tmp_path) -> None:
-    """`link.udpin_lock = false`: the old behaviour, for several hosts feeding one port."""
+    """`link.udpin_lock = false`: every host is heard, for several feeding one port."""
     with MavVehicle("udp", rates_hz=QUIET) as v:
         with station(v.station_source, tmp_path, **{"link.udpin_lock": False}) as (app, base):
             assert wait_until(lambda: state(app) and state(app).heartbeat.autopilot == "px4")

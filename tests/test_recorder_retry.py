@@ -1,4 +1,4 @@
-"""The recorder keeps recording through a real EMFILE (issue 13 item 1): a process under a
+"""The recorder keeps recording through a real EMFILE: a process under a
 lowered RLIMIT_NOFILE loses its descriptors mid-flight, the session is cut short with the
 reason, the recorder reports the problem, and once descriptors are back it records again
 into a new session, which ends when the vehicle disarms like the one arming started."""
@@ -110,8 +110,8 @@ def test_a_start_refused_on_arming_is_retried_while_armed(tmp_path):
     """A real station with no descriptor left when the vehicle arms: the arming's start is
     refused (EMFILE). While armed, health is degraded with the reason and /api/status says
     NOT RECORDING; the start is tried again, so once descriptors are back the flight is
-    recorded, and its session says how much of the flight came before it. Before, a
-    refused start was never retried: the flight went unrecorded to its end."""
+    recorded, and its session says how much of the flight came before it. Without the
+    retry the flight would go unrecorded to its end."""
     proc = spawn(["-m", "tests.record_through_refused_start", str(tmp_path)])
     try:
         refused = read_line(proc, "REFUSED ", timeout=120)

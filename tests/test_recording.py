@@ -223,8 +223,8 @@ def test_rows_sit_on_the_grid_with_the_state_newest_at_each_instant_and_no_sampl
     """A live session takes its rows in the writer's thread, at each batch, from what
     the slots published and when: each row at its exact grid instant (k / rate_hz), with
     the state newest at that instant (never one from its future, never an older one),
-    and the session's one thread is the writer. Before, a sampler thread woke at every
-    instant (30 wake-ups a second) and stamped each row with when it woke."""
+    and the session's one thread is the writer: no sampler thread wakes at every instant
+    (30 wake-ups a second) and stamps each row with when it woke."""
     vehicle = FakeVehicle(rate_hz=97.0).start()  # out of step with the 30 Hz rows
     published: list[float] = []
     vehicle.state.add_listener(lambda s: published.append(s.heartbeat.t_mono))

@@ -91,7 +91,7 @@ def test_kill_9_of_the_server_and_restart(tmp_path):
 
 
 def test_kill_9_of_the_station_on_the_twin_cuts_the_pack_after_its_last_listed_frame(tmp_path):
-    """Issue 13 item 8, session format 2: `serve --source sim` recording the twin's two
+    """Session format 2: `serve --source sim` recording the twin's two
     cameras is killed. What a kill can leave: pack bytes after the last listed frame (the
     batch in its writev; here also made certain: a whole frame without a row and a cut
     one) and a cut last frames.csv row. The next start cuts the pack after its last

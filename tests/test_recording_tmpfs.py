@@ -66,8 +66,8 @@ def test_a_write_past_the_file_size_limit_cuts_the_session_short(tmp_path):
 
 
 def assert_report_is_what_is_on_disk(folder) -> dict:
-    """A session cut short by a failed write: its report states what is on disk (issue 13
-    item 7), not what the writer had handed to buffers that the failed flush lost."""
+    """A session cut short by a failed write: its report states what is on disk, not
+    what the writer had handed to buffers that the failed flush lost."""
     meta = json.loads((folder / layout.SESSION_JSON).read_text())
     assert meta["status"] == "cut_short"
     with open(folder / layout.TELEMETRY_CSV) as f:

@@ -1,4 +1,4 @@
-"""A replay runs on its own clock (issue 11 items 3 and 4): sessions recorded from it are
+"""A replay runs on its own clock: sessions recorded from it are
 in the log's time (rows, times, the post-disarm tail), so they and their analysis are the
 same at any replay speed; and a replay that ends while armed closes its session.
 

@@ -1,5 +1,5 @@
 """Time without a real-time clock: sessions take UTC from the vehicle's GPS when the
-station's clock is unsynchronised or wrong (issue 15 item 3)."""
+station's clock is unsynchronised or wrong."""
 
 import datetime as dt
 import json

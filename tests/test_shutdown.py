@@ -1,4 +1,4 @@
-"""SIGTERM under load (issue 13 item 9): a real `fpv-station serve` on the twin, with its
+"""SIGTERM under load: a real `fpv-station serve` on the twin, with its
 3D panels, recording, telemetry clients and MJPEG viewers reading and clients that stopped
 reading, ends with no traceback and the session complete. How long it takes is a figure
 of benchmarks/shutdown.py (docs/PERFORMANCE.md), not asserted here."""

@@ -1,4 +1,4 @@
-"""Issue 16 in headless Chromium against the twin: the pilot picks task 1 on the page, the
+"""The flight task in headless Chromium against the twin: the pilot picks task 1 on the page, the
 scripted pilot flies it through the page's own control path (`WS /ws/control` sticks),
 the procedure's steps light up in order, the map shows the vehicle on the start pad, and
 the trial's score appears after landing (the station's own analysis of the session)."""

@@ -1,4 +1,4 @@
-"""One trial per flight (issue 11 item 6): a session or log holding several take-off and
+"""One trial per flight: a session or log holding several take-off and
 landing cycles gives one row per flight, labelled, and `flight` / `--flight N` picks one.
 Two sorties 3 s apart (less than the 5 s post-disarm tail) make one session from the
 real `replay:` source and recorder; its analysis over REST and the CLI on the log split it."""

@@ -224,9 +224,9 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
 @pytest.mark.timeout(150)  # a loaded machine runs the 10x twin slower
 @pytest.mark.timeout(300)
 def test_reset_after_a_flight_keeps_telemetry_flowing(tmp_path) -> None:
-    """Reset puts the twin back on the pad; its telemetry must go on at once. It used to
-    rewind the sim clock, and the twin stayed silent for as long as it had run: 10 s of
-    wall time here (40 s of sim time at 4x, a pace a loaded machine keeps), twice the
+    """Reset puts the twin back on the pad; its telemetry must go on at once. Reset must
+    not rewind the sim clock: the twin would stay silent for as long as it had run, 10 s
+    of wall time here (40 s of sim time at 4x, a pace a loaded machine keeps), twice the
     wait for telemetry below."""
     app = sim_app(**{"recording.sessions_dir": str(tmp_path), "twin.realtime_factor": 4.0})
     with run_uvicorn(app) as url:

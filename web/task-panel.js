@@ -1,4 +1,4 @@
-// fpv-station pilot page: the flight task (issue 16). The pilot picks one of the scene's
+// fpv-station pilot page: the flight task. The pilot picks one of the scene's
 // tasks (POST /api/task), follows its procedure while the steps light up as the flight
 // state reaches them, sees the field from above with the vehicle and this flight's trail,
 // and gets the trial's score when the vehicle disarms (the station scores the recorded

@@ -31,8 +31,8 @@
 // replay shows what the pilot saw at that moment of the log at any speed: a value fresh in
 // the log is fresh on a x0.25 replay, one stale in the log is stale at x4. Between
 // messages the source's time is extrapolated at the rate the messages show (source
-// seconds over wall seconds, over the last seconds of messages): 1 for a live vehicle, as
-// before, and for a replay its speed (the log's clock runs on through a silence in the
+// seconds over wall seconds, over the last seconds of messages): 1 for a live vehicle,
+// and for a replay its speed (the log's clock runs on through a silence in the
 // log at that speed, companion/link.py). Once the station says the replay has ended
 // (GET /api/status, link.replay_done) the log's time stands still and so does every age:
 // the page holds the log's last moment (until the next status poll tells it, ages run on

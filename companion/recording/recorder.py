@@ -304,9 +304,8 @@ class Recorder:
 
     def _note_armed(self, state: VehicleState) -> None:
         """The state slot's listener, in the link's thread for each of its 100-odd states a
-        second: a comparison, and a hop to the event loop only when the armed flag changed
-        (before, the watcher looked at the state 20 times a second: 20 wake-ups of the
-        loop for a flag that changes twice a flight)."""
+        second: a comparison, and a hop to the event loop only when the armed flag changed,
+        not a wake-up of the loop per state for a flag that changes twice a flight."""
         armed = bool(state.heartbeat.armed)
         if armed is not self._armed_seen:
             self._armed_seen = armed

@@ -13,7 +13,7 @@ slot held and since when: its state listener notes each state with the time it w
 published, and each accepted frame carries its capture time (`Frame.t_mono`, the
 station's monotonic clock, the session's). The writer thread, at each of its batches,
 turns the instants up to now into rows (`_sample_due`): the same rows a thread waking at
-every instant took, without its 30 wake-ups a second (docs/PERFORMANCE.md, round 6), and
+every instant took, without its 30 wake-ups a second (docs/PERFORMANCE.md), and
 each at its exact instant. A row names the newest frame captured at or before its
 instant, never one captured after it, however late the threads run: frames are chosen by
 their capture time, not by when they reached the session, and a row waits until every

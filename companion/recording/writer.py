@@ -22,9 +22,9 @@ many wake-ups, each a futex call and a pass over every queue), only when its que
 half full. The telemetry CSVs sit in their file buffers until the flush anyway, so a
 batch as long as the flush interval loses nothing to a kill that the telemetry would not:
 frames and telemetry alike, at most the last half second. Each batch costs the thread
-its system calls (a writev per camera, frames.csv, the CSVs) and the GIL back after each:
-two batches a second instead of ten took the thread from 1.2-1.35 to 0.85-0.95 % of a
-core in benchmarks/pi_budget.py (docs/PERFORMANCE.md, round 4). At each flush the packs
+its system calls (a writev per camera, frames.csv, the CSVs) and the GIL back after each,
+so fewer, longer batches cost the thread less (benchmarks/pi_budget.py,
+docs/PERFORMANCE.md). At each flush the packs
 and frames.csv files are fdatasync'ed before telemetry.csv and the tlog, so a power cut
 keeps them in the same order.
 """

@@ -3,8 +3,8 @@ cost: the same message objects, field for field.
 
 pymavlink decodes every message generically: per packet it walks each field three
 times in Python (reordering, strings, the constructor), builds two header objects and
-copies the buffer twice; about 45,000 instructions a packet, a third of the link
-thread's work on a Pi (docs/PERFORMANCE.md, round 7). For a message whose fields are
+copies the buffer twice, a large share of the link thread's work on a Pi
+(docs/PERFORMANCE.md). For a message whose fields are
 all scalars (no arrays, no strings: ATTITUDE, GLOBAL_POSITION_INT, LOCAL_POSITION_NED,
 VFR_HUD, GPS_RAW_INT, RC_CHANNELS, SERVO_OUTPUT_RAW, SYS_STATUS, HEARTBEAT, ...) the
 layout is fixed, so the decode is one unpack, one reordering in C and one dictionary
