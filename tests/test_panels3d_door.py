@@ -419,8 +419,8 @@ def test_big_frames_from_30_viewers_leave_the_stations_memory_flat(tmp_path):
 
 @pytest.mark.timeout(300)
 def test_300_3d_viewers_under_256_descriptors_leave_health_answering(tmp_path):
-    """Under `prlimit --nofile=256`, 228 viser viewers once filled the descriptor table.
-    The 3D viewers' cap is fitted under the budget (three descriptors each): the excess is
+    """Under `prlimit --nofile=256`, a few hundred viser viewers would fill the descriptor
+    table. The 3D viewers' cap is fitted under the budget (three descriptors each): the excess is
     refused with 503, the recorder's room is kept and `/api/health` answers throughout."""
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, min(hard, 4096)), hard))
