@@ -4,7 +4,7 @@
 
 Starts a real twin station (uvicorn in this process), opens N pilot pages in one browser
 context and, after a warm-up, collects for `--seconds` every front-camera frame each page
-draws (web/video.js `fpv.video.log`). The twin stamps each frame's render time into its
+draws (web/video.js `cameras.log`, window.fpvDebug.cameras.log). The twin stamps each frame's render time into its
 corner (companion/cameras/frame_stamp.py); the page reads it from the decoded picture in
 the animation frame that draws it. Printed per tab count:
 
@@ -49,16 +49,16 @@ def measure(base: str, browser, tabs: int, seconds: float) -> dict:
         pages.append(page)
     for page in pages:
         page.wait_for_function(
-            "() => window.fpv.video && window.fpv.video.frames.front", timeout=120_000
+            "() => window.fpvDebug && window.fpvDebug.cameras.frames.front", timeout=120_000
         )
     pages[0].wait_for_timeout(3000)  # warm-up: JIT, first layout, the twin's textures
     for page in pages:
-        page.evaluate("() => { window.fpv.video.log = []; }")
+        page.evaluate("() => { window.fpvDebug.cameras.log = []; }")
     pages[0].wait_for_timeout(seconds * 1000)
     rows = []
     for page in pages:
         rows += page.evaluate(
-            "() => { const l = window.fpv.video.log; window.fpv.video.log = null; return l; }"
+            "() => { const l = window.fpvDebug.cameras.log; window.fpvDebug.cameras.log = null; return l; }"
         )
     context.close()
     front = [r for r in rows if r["camera"] == "front"]

@@ -6,11 +6,11 @@ Starts a real station (uvicorn in this process) following the test MAVLink vehic
 UDP (attitude at 50 Hz, the rest at its default rates, the vehicle rolling and yawing all
 the time so that the horizon and the tape redraw on every new message), opens
 /goggles.html in headless Debian chromium at each size, and after a warm-up reads
-window.fpv.osdStats: osd.js times each animation frame's OSD work with
+window.fpvDebug.osd.stats: osd.js times each animation frame's OSD work with
 performance.now() (the Performance API's clock). Two figures per size:
 
   draw     the script's work: what it sets and the canvas commands it records;
-  +raster  the same with the canvases rasterized inside the timing (osdStats.raster:
+  +raster  the same with the canvases rasterized inside the timing (stats.raster:
            one pixel read back from each), which a software canvas (--disable-gpu, and a
            Pi without GPU canvas) otherwise pays later in the frame, out of sight.
 
@@ -71,13 +71,13 @@ def main() -> None:
                 page.wait_for_timeout(2000)  # warm-up: JIT, first layout
                 for mode, raster in (("draw", False), ("+raster", True)):
                     page.evaluate(
-                        "(raster) => { const s = fpv.osdStats; s.recent.length = 0; s.frames = 0;"
+                        "(raster) => { const s = fpvDebug.osd.stats; s.recent.length = 0; s.frames = 0;"
                         " s.totalMs = 0; s.keep = 1e6; s.raster = raster; }",
                         raster,
                     )
                     page.wait_for_timeout(args.seconds * 1000)
-                    ms = sorted(page.evaluate("fpv.osdStats.recent.slice()"))
-                    frames = page.evaluate("fpv.osdStats.frames")
+                    ms = sorted(page.evaluate("fpvDebug.osd.stats.recent.slice()"))
+                    frames = page.evaluate("fpvDebug.osd.stats.frames")
                     p50 = statistics.median(ms)
                     p99 = ms[min(len(ms) - 1, int(0.99 * len(ms)))]
                     print(

@@ -285,7 +285,7 @@ def sticks_on(page, base: str) -> None:
     page.goto(base + "/")
     page.wait_for_selector("#control-widget:not([hidden])", timeout=30_000)
     page.click("#ctl-toggle")
-    page.wait_for_function("window.fpv.control.enabled === true", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.enabled === true", timeout=15_000)
 
 
 def arm_and_climb(page, station, height_m: float = 1.5, timeout: float = 15.0) -> None:

@@ -68,11 +68,11 @@ def test_legend_says_how_and_the_arming_gesture_turns_the_sticks_on(station, bro
     expect(legend).to_contain_text("turns the sticks on")
     page.keyboard.press("Escape")
     expect(legend).to_be_hidden()
-    assert page.evaluate("window.fpv.control.enabled") is False
+    assert page.evaluate("window.fpvDebug.control.enabled") is False
     # The gesture with the sticks off: they come on, and the keys still held arm.
     page.keyboard.down("ArrowDown")
     page.keyboard.down("KeyE")
-    page.wait_for_function("window.fpv.control.enabled === true", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.enabled === true", timeout=15_000)
     assert wait_until(lambda: armed(app), timeout=15), "the gesture did not arm"
     page.keyboard.up("KeyE")
     page.keyboard.down("KeyQ")  # down + Q: disarm on the ground
@@ -124,7 +124,7 @@ def test_phone_landscape_video_takes_half_the_screen_and_sticks_cover_no_control
     page.goto(url + "/")
     page.wait_for_selector("#control-widget:not([hidden])", timeout=30_000)
     page.locator("#ctl-toggle").tap()
-    page.wait_for_function("window.fpv.control.held === true", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.held === true", timeout=15_000)
     expect(page.locator("#touch-sticks")).to_be_visible()
     front = page.locator("#front-view").bounding_box()
     assert front["width"] * front["height"] >= 0.5 * w * h, front
@@ -148,7 +148,7 @@ def test_emergency_from_another_page_while_one_has_the_sticks(station, browser):
     pilot.goto(url + "/")
     pilot.wait_for_selector("#control-widget:not([hidden])", timeout=30_000)
     pilot.click("#ctl-toggle")
-    pilot.wait_for_function("window.fpv.control.held === true", timeout=15_000)
+    pilot.wait_for_function("window.fpvDebug.control.held === true", timeout=15_000)
     pilot.click("#ctl-arm")
     assert wait_until(lambda: armed(app), timeout=15), "the twin did not arm"
     expect(pilot.locator("#toast")).to_contain_text("arm: done")

@@ -185,7 +185,7 @@ def test_a_quiet_group_lends_no_freshness_to_its_old_value(station, browser):
     # VFR_HUD has gone quiet (its last one is half a second older than the newest state)
     # before the vehicle moves: its last values are those of a vehicle at rest.
     page.wait_for_function(
-        "() => { const m = window.fpv.latest;"
+        "() => { const m = window.fpvDebug.feed.latest;"
         " return m.t_server_mono - m.state.vfr_hud.t_mono > 0.5; }",
         timeout=30_000,
     )
@@ -319,13 +319,13 @@ def test_goggles_fill_the_screen_with_the_osd_and_no_scrollbars(station, browser
     page.keyboard.press("s")
     expect(right).to_be_hidden()
     # The hidden eye's OSD draws nothing (it drew every frame); on again, it draws again.
-    frames = lambda: page.evaluate("fpv.osdRight.stats.frames")  # noqa: E731
+    frames = lambda: page.evaluate("fpvDebug.osdRight.stats.frames")  # noqa: E731
     drawn = frames()
     page.wait_for_timeout(1000)
     assert frames() == drawn
     page.keyboard.press("s")
     expect(right).to_be_visible()
-    page.wait_for_function("(n) => fpv.osdRight.stats.frames > n", arg=drawn, timeout=15_000)
+    page.wait_for_function("(n) => fpvDebug.osdRight.stats.frames > n", arg=drawn, timeout=15_000)
 
 
 def test_goggles_stereo_eyes_switch_osd_elements_together(station, browser):
@@ -481,7 +481,13 @@ def test_osd_horizon_lies_on_the_twins_rendered_horizon_in_a_level_hover(tmp_pat
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         sticks_on(page, base)
         arm_and_climb(page, station, height_m=1.5)
-        page.wait_for_function("() => (window.fpv.cameras.front || {}).vfov_deg", timeout=15_000)
+        # The OSD draws with the camera's declared field of view (its horizon's data-vfov).
+        page.wait_for_function(
+            "(vfov) => Math.abs(document.querySelector('[data-osd=horizon]').dataset.vfov - vfov)"
+            " < 0.1",
+            arg=vfov,
+            timeout=15_000,
+        )
         # Level: the hover has settled (the OSD's own roll and pitch near zero).
         page.wait_for_function(
             """() => { const d = document.querySelector('[data-osd=horizon]').dataset;

@@ -4,7 +4,7 @@ headless chromium, a real station replaying a real .tlog through its `replay:` s
 
 Each log is an armed vehicle at a real autopilot's rates (tests/shaped_tlog) with fades,
 stretches where nothing arrives. The page records every change of the OSD with the
-source time of the newest message it had (window.fpv.latest.t_server_mono), and the
+source time of the newest message it had (window.fpvDebug.feed.latest.t_server_mono), and the
 test compares that record with the log."""
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ RECORD = """(t0) => {
   const root = document.querySelector('#front-view .osd');
   const banner = document.querySelector('#link-banner');
   const note = () => {
-    const m = window.fpv.latest;
+    const m = window.fpvDebug.feed.latest;
     if (!m) return;
     const q = (n) => root.querySelector(`[data-osd=${n}]`);
     window.__osd.push({t: m.t_server_mono - t0, timer: q('timer').textContent,
@@ -73,7 +73,7 @@ def open_osd(browser, base, ready_before_s: float):
     page.goto(base + "/")
     expect(page.locator("[data-osd=armed]")).to_have_text("ARMED", timeout=30_000)
     page.evaluate(RECORD, T0)
-    start = page.evaluate("window.fpv.latest.t_server_mono") - T0
+    start = page.evaluate("window.fpvDebug.feed.latest.t_server_mono") - T0
     assert start < ready_before_s, f"the page was ready at {start:.1f} s of the log"
     return page, start
 
@@ -92,7 +92,7 @@ def during(record: list[dict], span: tuple[float, float]) -> list[dict]:
 
 def wait_for_log_time(page, t_s: float) -> None:
     page.wait_for_function(
-        "([t0, t]) => window.fpv.latest && window.fpv.latest.t_server_mono - t0 >= t",
+        "([t0, t]) => window.fpvDebug.feed.latest && window.fpvDebug.feed.latest.t_server_mono - t0 >= t",
         arg=[T0, t_s],
         timeout=60_000,
     )
@@ -153,7 +153,7 @@ def test_a_4x_replay_greys_what_is_stale_in_the_log_and_holds_at_its_end(browser
         # The end of the log: its time stands still, and so do the ages and the timer.
         get = lambda url: httpx.get(f"{base}{url}", timeout=30).json()  # noqa: E731
         assert wait_until(lambda: get("/api/status")["link"]["replay_done"], timeout=60)
-        page.wait_for_function("window.fpv.feed.ended", timeout=15_000)
+        page.wait_for_function("window.fpvDebug.feed.ended", timeout=15_000)
         age, timer = (page.locator(f"[data-osd={n}]") for n in ("age", "timer"))
         held = age.text_content(), timer.text_content()
         page.wait_for_timeout(1500)

@@ -80,7 +80,7 @@ def test_touch_sticks_on_a_phone_fly_the_twin(twin_station, browser):
     page.wait_for_selector("#control-widget:not([hidden])", timeout=30_000)
     expect(page.locator("#touch-sticks")).to_be_hidden()  # only while the sticks are on
     page.locator("#ctl-toggle").tap()
-    page.wait_for_function("window.fpv.control.enabled === true", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.enabled === true", timeout=15_000)
     expect(page.locator("#touch-sticks")).to_be_visible()
     # The twin's controls wrap the header bar onto a second line: the front view still
     # fits the screen below it, its OSD menu button and camera readout with it.
@@ -93,28 +93,28 @@ def test_touch_sticks_on_a_phone_fly_the_twin(twin_station, browser):
     lx, ly, lhalf = stick_centre(page, "left")
     left.down(lx, ly)
     left.move(lx + 1.5 * lhalf, ly + 1.5 * lhalf)
-    page.wait_for_function("window.fpv.control.sticks.yaw === 1", timeout=15_000)
-    assert page.evaluate("window.fpv.control.sticks.throttle") == 0
-    assert page.evaluate("window.fpv.control.input") == "touch"
+    page.wait_for_function("window.fpvDebug.control.sticks.yaw === 1", timeout=15_000)
+    assert page.evaluate("window.fpvDebug.control.sticks.throttle") == 0
+    assert page.evaluate("window.fpvDebug.control.input") == "touch"
     assert wait_until(lambda: state(app).heartbeat.armed, timeout=10)
     left.up()
     # Yaw springs back, throttle stays down (a transmitter's throttle has no spring).
-    page.wait_for_function("window.fpv.control.sticks.yaw === 0", timeout=15_000)
-    assert page.evaluate("window.fpv.control.sticks.throttle") == 0
+    page.wait_for_function("window.fpvDebug.control.sticks.yaw === 0", timeout=15_000)
+    assert page.evaluate("window.fpvDebug.control.sticks.throttle") == 0
 
     # Throttle up to 0.9 and let go: it stays, and the twin climbs.
     left.down(lx, ly)
     left.move(lx, ly - 0.9 * 2 * lhalf)
     left.up()
-    page.wait_for_function("window.fpv.control.sticks.throttle > 0.85", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.sticks.throttle > 0.85", timeout=15_000)
     assert wait_until(lambda: twin.pose().pos_enu_m[2] > 1.5, timeout=15)
-    assert page.evaluate("window.fpv.control.sticks.throttle") > 0.85
+    assert page.evaluate("window.fpvDebug.control.sticks.throttle") > 0.85
     # Back to the centre: hold the altitude.
     left.down(lx, ly)
     left.move(lx, ly + 0.4 * 2 * lhalf)
     left.up()
     page.wait_for_function(
-        "Math.abs(window.fpv.control.sticks.throttle - 0.5) < 0.02", timeout=3000
+        "Math.abs(window.fpvDebug.control.sticks.throttle - 0.5) < 0.02", timeout=3000
     )
 
     # The right stick forward: the twin flies forward; let go, and the stick centres.
@@ -122,15 +122,15 @@ def test_touch_sticks_on_a_phone_fly_the_twin(twin_station, browser):
     x0, y0 = twin.pose().pos_enu_m[:2]
     right.down(rx, ry)
     right.move(rx + 0.3 * rhalf, ry - 0.8 * rhalf)
-    page.wait_for_function("window.fpv.control.sticks.pitch > 0.7", timeout=15_000)
-    assert page.evaluate("window.fpv.control.sticks.roll") > 0.2
+    page.wait_for_function("window.fpvDebug.control.sticks.pitch > 0.7", timeout=15_000)
+    assert page.evaluate("window.fpvDebug.control.sticks.roll") > 0.2
     assert wait_until(
         lambda: ((twin.pose().pos_enu_m[0] - x0) ** 2 + (twin.pose().pos_enu_m[1] - y0) ** 2) > 1.0,
         timeout=10,
     ), "the twin did not move on the right stick"
     right.up()
     page.wait_for_function(
-        "window.fpv.control.sticks.pitch === 0 && window.fpv.control.sticks.roll === 0",
+        "window.fpvDebug.control.sticks.pitch === 0 && window.fpvDebug.control.sticks.roll === 0",
         timeout=3000,
     )
     assert page.locator("[data-stick=right]").get_attribute("data-y") == "0.00"
@@ -140,9 +140,9 @@ def test_touch_sticks_on_a_phone_fly_the_twin(twin_station, browser):
     # A finger on the stick when the page loses focus: the sticks let go.
     right.down(rx, ry)
     right.move(rx, ry - 0.8 * rhalf)
-    page.wait_for_function("window.fpv.control.sticks.pitch > 0.5", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.sticks.pitch > 0.5", timeout=15_000)
     page.evaluate("window.dispatchEvent(new Event('blur'))")
-    page.wait_for_function("window.fpv.control.sticks.pitch === 0", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.sticks.pitch === 0", timeout=15_000)
     assert page.locator("[data-stick=right]").get_attribute("data-y") == "0.00"
     right.up()
     context.close()
@@ -195,14 +195,14 @@ def test_the_gamepad_flies_on_while_a_panel_in_the_page_has_focus(twin_station, 
     page.frame_locator("#panel-frame").locator("#i").click()
     assert page.evaluate("document.activeElement.id") == "panel-frame"
     page.evaluate("window.__axes[3] = -0.8")  # right stick forward
-    page.wait_for_function("window.fpv.control.sticks.pitch === 0.8", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.sticks.pitch === 0.8", timeout=15_000)
     assert wait_until(lambda: state(app).rc.pwm_us[1] != 1500, timeout=5)
     # A hidden tab still lets go (nobody watches the video then).
     page.evaluate(
         """() => { Object.defineProperty(document, "visibilityState", {value: "hidden"});
                    document.dispatchEvent(new Event("visibilitychange")); }"""
     )
-    page.wait_for_function("window.fpv.control.sticks.pitch === 0", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.sticks.pitch === 0", timeout=15_000)
 
 
 @pytest.mark.timeout(120)

@@ -138,8 +138,8 @@ def test_browser_keyboard_flies_the_twin(tmp_path) -> None:
         sticks_on(page, url)
         arm_and_climb(page, app.state.station)
         # Sticks are sampled on the page's 50 Hz tick: the release shows by the next one.
-        page.wait_for_function("window.fpv.control.sticks.throttle === 0.5", timeout=2000)
-        sticks = page.evaluate("window.fpv.control.sticks")
+        page.wait_for_function("window.fpvDebug.control.sticks.throttle === 0.5", timeout=2000)
+        sticks = page.evaluate("window.fpvDebug.control.sticks")
         assert sticks == {"roll": 0, "pitch": 0, "yaw": 0, "throttle": 0.5}
         page.keyboard.down("KeyW")  # forward: east
         x0 = twin.pose().pos_enu_m[0]
@@ -259,12 +259,12 @@ def test_keyboard_arm_gesture_legend_select_and_release_on_blur(tmp_path) -> Non
         page.keyboard.press("Escape")
         assert page.locator("#key-legend").is_hidden()
         page.click("#ctl-toggle")
-        page.wait_for_function("window.fpv.control.enabled === true", timeout=15_000)
+        page.wait_for_function("window.fpvDebug.control.enabled === true", timeout=15_000)
         # The documented gesture, without Shift: full throttle down and full yaw right.
         page.keyboard.down("ArrowDown")
         page.keyboard.down("KeyE")
-        page.wait_for_function("window.fpv.control.sticks.yaw === 1", timeout=2000)
-        assert page.evaluate("window.fpv.control.sticks.throttle") == 0
+        page.wait_for_function("window.fpvDebug.control.sticks.yaw === 1", timeout=2000)
+        assert page.evaluate("window.fpvDebug.control.sticks.throttle") == 0
         assert wait_until(lambda: state(app).heartbeat.armed, timeout=8)
         page.keyboard.up("KeyE")
         page.keyboard.up("ArrowDown")
@@ -273,12 +273,12 @@ def test_keyboard_arm_gesture_legend_select_and_release_on_blur(tmp_path) -> Non
         select.focus()
         before = select.input_value()
         page.keyboard.down("ArrowDown")
-        page.wait_for_function("window.fpv.control.sticks.throttle < 0.5", timeout=2000)
+        page.wait_for_function("window.fpvDebug.control.sticks.throttle < 0.5", timeout=2000)
         page.keyboard.up("ArrowDown")
         assert select.input_value() == before
         # The window loses focus with a key held: the sticks are centred.
         select.evaluate("e => e.blur()")
         page.keyboard.down("KeyW")
-        page.wait_for_function("window.fpv.control.sticks.pitch > 0", timeout=2000)
+        page.wait_for_function("window.fpvDebug.control.sticks.pitch > 0", timeout=2000)
         page.evaluate("window.dispatchEvent(new Event('blur'))")
-        page.wait_for_function("window.fpv.control.sticks.pitch === 0", timeout=2000)
+        page.wait_for_function("window.fpvDebug.control.sticks.pitch === 0", timeout=2000)

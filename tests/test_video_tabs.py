@@ -42,12 +42,11 @@ def clients(base: str) -> dict[str, int]:
 
 
 def frames_advance(page, camera: str) -> None:
-    seq = page.evaluate(
-        f"""() => new Promise((done) => {{ const look = () => {{
-          const f = window.fpv && window.fpv.video && window.fpv.video.frames.{camera};
-          if (f) done(f.seq); else setTimeout(look, 50); }}; look(); }})"""
-    )
-    page.wait_for_function(f"() => window.fpv.video.frames.{camera}.seq > {seq}", timeout=GUARD_MS)
+    """The camera's view draws frames: its canvas's count of frames drawn (data-frames) grows."""
+    drawn = f"+(document.querySelector('canvas[data-camera={camera}]').dataset.frames || 0)"
+    page.wait_for_function(f"() => {drawn} > 0", timeout=GUARD_MS)
+    count = page.evaluate(f"() => {drawn}")
+    page.wait_for_function(f"() => {drawn} > {count}", timeout=GUARD_MS)
 
 
 def api_answers(page) -> None:
@@ -95,10 +94,12 @@ def test_six_tabs_in_one_browser_stay_live(station):
             expect(page.locator(".osd-lines").first).to_contain_text(
                 re.compile(r"R2S \d+/\d+ms"), timeout=GUARD_MS
             )
-        lat = pages[0].evaluate("() => window.fpv.video.latency.front")
+        lat = pages[0].evaluate("() => window.fpvDebug.cameras.latency.front")
         assert lat["kind"] == "render" and 0 < lat["stationP50"] <= lat["p50"] <= lat["p99"], lat
         context.close()
 
 
 def page_has_no_frames(page, camera: str) -> bool:
-    return page.evaluate(f"() => !window.fpv.video.frames.{camera}")
+    return page.evaluate(
+        f"() => !document.querySelector('canvas[data-camera={camera}]').dataset.frames"
+    )

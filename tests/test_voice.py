@@ -47,9 +47,7 @@ def open_page(browser, url: str):
     context.add_init_script(STUB)
     page = context.new_page()
     page.goto(url)
-    page.wait_for_function(
-        "window.fpv && window.fpv.feed && window.fpv.feed.flowing()", timeout=30_000
-    )
+    page.wait_for_function("window.fpvDebug && window.fpvDebug.feed.flowing()", timeout=30_000)
     return page
 
 

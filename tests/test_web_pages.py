@@ -124,13 +124,13 @@ def test_control_socket_4401_asks_for_the_token_and_reconnects(guarded, browser)
     page = browser.new_page()
     prompts = answer_dialogs(page, TOKEN)
     page.goto(f"{guarded}/")
-    page.wait_for_function("window.fpv && window.fpv.control")
+    page.wait_for_function("window.fpvDebug && window.fpvDebug.control")
     page.evaluate("document.getElementById('ctl-toggle').click()")  # hidden without a twin
     page.wait_for_function(
-        "window.fpv.control.lastReply && window.fpv.control.lastReply.error === 'Conflict'"
+        "window.fpvDebug.control.lastReply && window.fpvDebug.control.lastReply.error === 'Conflict'"
     )
     assert len(prompts) == 1
-    assert "No vehicle to command" in page.evaluate("window.fpv.control.lastReply.error_msg")
+    assert "No vehicle to command" in page.evaluate("window.fpvDebug.control.lastReply.error_msg")
 
 
 def test_a_declined_token_is_not_asked_for_again_by_a_waiting_command(guarded, browser):
@@ -140,7 +140,7 @@ def test_a_declined_token_is_not_asked_for_again_by_a_waiting_command(guarded, b
     page = browser.new_page()
     prompts = answer_dialogs(page, None)
     page.goto(f"{guarded}/")
-    page.wait_for_function("window.fpv && window.fpv.control")
+    page.wait_for_function("window.fpvDebug && window.fpvDebug.control")
     # (the sticks are off from the start: the first prompt is what says the socket was
     # refused and declined)
     with page.expect_event("dialog", timeout=30_000):

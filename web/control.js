@@ -20,7 +20,7 @@
 // The gamepad panel shows every axis of the pad and the four sticks sent, live (the send
 // rate). Every command's answer is a toast: done, or refused with the vehicle's (or the
 // station's) reason. The arming gesture on the keys turns the sticks on by itself.
-// Test hook: window.fpv.control = {enabled, sticks, input, lastReply}.
+import { expose } from "/debug.js";
 import { $, el, svgEl, askToken, wsUrl, CLOSE_UNAUTHORIZED } from "/lib.js";
 import { feed } from "/telemetry.js";
 import { mountTouchSticks, touchDevice } from "/touch-sticks.js";
@@ -33,9 +33,9 @@ const DEFAULT_MAP = {
   roll: { index: 2, invert: false }, pitch: { index: 3, invert: true },
   yaw: { index: 0, invert: false }, throttle: { index: 1, invert: true },
 };
-const fpv = (window.fpv = window.fpv || {});
 // enabled: the socket is open; held: this page has the sticks (another page may have them)
-const ctl = (fpv.control = { enabled: false, held: false, sticks: null, input: "keyboard", lastReply: null });
+const ctl = { enabled: false, held: false, sticks: null, input: "keyboard", lastReply: null };
+expose("control", ctl);
 
 let config = loadConfig();
 let socket = null;

@@ -1,18 +1,14 @@
 // fpv-station pilot page: the flight state table, the connection pill and LINK LOST.
 //
-// The telemetry comes from telemetry.js (the page's one WS /ws/telemetry?ack=2 feed; other
-// modules listen to its window "fpv:telemetry" events). Freshness is honest: the pill says
-// "live" only while messages actually arrive, and each row greys out and shows its age
-// when the telemetry it is drawn from is older than its stale age (telemetry.js READINGS).
-// The page shows LINK LOST when the station says the autopilot is silent, when the
-// station is unreachable, or when no state arrives at all.
+// Drawn from the page's one telemetry feed (telemetry.js: `feed`, its readings, and its
+// window "fpv:telemetry" event per message), at most once per animation frame. Freshness
+// is honest: the pill says "live" only while messages actually arrive, and each row greys
+// out and shows its age when the telemetry it is drawn from is older than its stale age
+// (telemetry.js READINGS). The page shows LINK LOST when the station says the autopilot is
+// silent, when the station is unreachable, or when no state arrives at all.
 import { $, el } from "/lib.js";
-import { FLOW_S, feed, reading } from "/telemetry.js";
+import { FLOW_S, feed, fixName, reading } from "/telemetry.js";
 
-// No message for FLOW_S while the socket is open: link lost. Source seconds (a replay's
-// log time, telemetry.js), or wall seconds before the first message. The same threshold
-// as the pill's "no telemetry" and the OSD's LINK LOST (it was 3 s here, 2 s there: for a
-// second the OSD said LINK LOST while this banner did not).
 // Row (value element id) -> the reading it shows (telemetry.js READINGS: its groups and
 // stale age).
 const ROWS = {
@@ -69,11 +65,8 @@ function draw() {
   armed.textContent = hb === null ? "--" : hb.armed ? "ARMED" : "disarmed";
   armed.className = hb !== null && hb.armed ? "armed" : "disarmed";
   $("v-mode").textContent = hb === null ? "--" : hb.mode;
-  const fixNames = ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"];
   const gps = reading("gps").value;
-  $("v-gps").textContent = gps === null
-    ? "--"
-    : `${fixNames[gps.fix_type] ?? "fix " + gps.fix_type}, ${gps.satellites ?? "?"} sats`;
+  $("v-gps").textContent = gps === null ? "--" : `${fixName(gps.fix_type)}, ${gps.satellites ?? "?"} sats`;
   const b = reading("battery").value;
   $("v-battery").textContent = b === null
     ? "--"
@@ -95,6 +88,10 @@ function updateFreshness() {
   else setConn(feed.latest ? "no telemetry" : "waiting for telemetry", "bad");
 }
 
+// LINK LOST, and why. No message for FLOW_S (telemetry.js) while the socket is open is a
+// lost link: source seconds (a replay's log time), or wall seconds before the first
+// message; the pill's "no telemetry" and the OSD's LINK LOST use the same threshold, so
+// the three agree.
 function updateBanner() {
   updateFreshness();
   const msg = feed.latest;

@@ -8,13 +8,15 @@
 // goggles loses its edges rather than a quarter of the screen to black bars. In stereo each
 // eye shows the whole picture at its aspect ratio (a half screen is narrower than any
 // camera's frame), and the bottom camera's PiP takes its frames' shape.
+import { expose } from "/debug.js";
 import { $, el } from "/lib.js";
-import { mountOsd } from "/osd.js";
+// osd.js before emergency.js and voice.js: they put their controls in the menu of the OSD
+// it mounts when loaded.
+import { mountOsd, pageOsd } from "/osd.js";
 import { emergencyButtons } from "/emergency.js";
 import { nextAction } from "/task-panel.js";
+import { cameras } from "/video.js";
 import { voiceControls } from "/voice.js";
-
-const fpv = (window.fpv = window.fpv || {});
 
 function toggleFullscreen() {
   if (document.fullscreenElement) document.exitFullscreen().catch(() => {});
@@ -26,7 +28,7 @@ window.addEventListener("keydown", (e) => {
   const key = e.key.toLowerCase();
   if (key === "f") toggleFullscreen();
   else if (key === "b") $("bottom-view").hidden = !$("bottom-view").hidden;
-  else if (key === "o" && fpv.osd) fpv.osd.toggleMenu();
+  else if (key === "o" && pageOsd) pageOsd.toggleMenu();
   else if (key === "s") toggleStereo();
   else return;
   e.preventDefault();
@@ -54,13 +56,13 @@ keepAwake();
 let taskLine = "";
 window.addEventListener("fpv:task-step", (e) => {
   taskLine = e.detail ? `next: ${nextAction(e.detail)}` : "";
-  for (const osd of [fpv.osd, fpv.osdRight]) if (osd) osd.setLine("task", taskLine);
+  for (const osd of [pageOsd, rightOsd]) if (osd) osd.setLine("task", taskLine);
 });
 
 // Side-by-side stereo for phone headsets: the same front picture and OSD for each eye.
 // The right eye draws the same decoded frames as the left (video.js: one subscription per
 // camera and page); it and its OSD stop when stereo is switched off.
-let right = null;
+let right = null, rightOsd = null;
 function toggleStereo() {
   const on = !document.body.classList.contains("stereo");
   document.body.classList.toggle("stereo", on);
@@ -69,12 +71,13 @@ function toggleStereo() {
     const canvas = el("canvas", { class: "video-stream", role: "img", "aria-label": "front camera, right eye", width: 4, height: 3 });
     right.append(canvas);
     $("goggles").append(right);
-    if (fpv.video) fpv.video.addTarget("front", canvas); // drawn from the left eye's frames
+    cameras.addTarget("front", canvas); // drawn from the left eye's frames
     // The same OSD and menu in the right eye (osd.js: one menu state for both eyes).
-    fpv.osdRight = mountOsd(right);
-    fpv.osdRight.menuBox.append(emergencyButtons(), voiceControls());
-    fpv.osdRight.setLine("task", taskLine);
+    rightOsd = mountOsd(right);
+    rightOsd.menuBox.append(emergencyButtons(), voiceControls());
+    rightOsd.setLine("task", taskLine);
+    expose("osdRight", rightOsd);
   }
-  fpv.osdRight.setRunning(on); // a hidden eye draws nothing
+  rightOsd.setRunning(on); // a hidden eye draws nothing
   right.hidden = !on;
 }

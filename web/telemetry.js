@@ -18,6 +18,7 @@
 //                       when the group was never heard
 //   reading(name)       {value, age, stale} of one of READINGS (what the pilot page's table
 //                       and the OSD show): the value and its age come from one group
+//   fixName(fixType)    the name of a GPS fix type (the gps group's fix_type), e.g. "3D"
 //
 // One socket per page (ES modules load once): WS /ws/telemetry?ack=2, acknowledged after
 // every second message is handled (the station keeps at most ACK_WINDOW messages
@@ -37,6 +38,7 @@
 // (GET /api/status, link.replay_done) the log's time stands still and so does every age:
 // the page holds the log's last moment (until the next status poll tells it, ages run on
 // at the replay's rate).
+import { expose } from "/debug.js";
 import { api, liveSocket } from "/lib.js";
 
 export const FLOW_S = 2; // no message for this long (source seconds): telemetry is not flowing
@@ -55,7 +57,6 @@ const RATE_MAX = 8;
 // busy browser can fall behind); the ack goes when the window is full, and reaches the
 // station before its next tick on any usable network, so the rate does not drop.
 const ACK_WINDOW = 2;
-const fpv = (window.fpv = window.fpv || {});
 
 const samples = []; // [performance.now(), t_server_mono] of past messages, oldest first
 
@@ -76,8 +77,7 @@ export const feed = {
     return this.socketOpen && this.latest !== null && !this.ended && this.sourceSince() < FLOW_S;
   },
 };
-fpv.latest = null;
-fpv.feed = feed;
+expose("feed", feed);
 
 // The source seconds per wall second over the last messages; a source whose time went
 // back (the station restarted on another log) starts a new measure.
@@ -105,7 +105,7 @@ const socket = liveSocket(`/ws/telemetry?ack=${ACK_WINDOW}`, {
   message(msg) {
     const now = performance.now();
     measureRate(now, msg.t_server_mono);
-    feed.latest = fpv.latest = msg;
+    feed.latest = msg;
     feed.receivedAt = now;
     window.dispatchEvent(new CustomEvent("fpv:telemetry", { detail: msg }));
     if (++unacked >= ACK_WINDOW) {
@@ -160,6 +160,10 @@ export const READINGS = {
   gps: [2, [["gps", (g) => g]]],
   battery: [5, [["battery", (g) => g]]],
 };
+
+// GPS_RAW_INT's fix types by number, one name each for the table and the OSD.
+const FIX_NAMES = ["no GPS", "no fix", "2D", "3D", "DGPS", "RTK float", "RTK fixed"];
+export const fixName = (fixType) => FIX_NAMES[fixType] ?? `fix ${fixType}`;
 
 export function reading(name) {
   const [staleS, sources] = READINGS[name];

@@ -1,6 +1,21 @@
 // fpv-station pages: the front and bottom cameras in their views, each with its delivered
 // fps and a latency readout.
 //
+//   import { cameras } from "/video.js";
+//   cameras.latest      camera name -> its newest GET /api/cameras entry (delivered fps,
+//                       settings, last_frame_age_s, signal), with latency_ms (p50) and
+//                       clock_offset_s (station minus browser)
+//   cameras.receivedAt  performance.now() of that reply: when last_frame_age_s was true
+//   cameras.frames      camera name -> its newest frame drawn: {seq, t, signal, drawnAt
+//                       (performance.now()), ageAtDrawS (its age when drawn, when clocks
+//                       agree), width, height, drawn (count)}
+//   cameras.latency     camera name -> {kind ("render" or "capture"), p50, p99, stationP50,
+//                       stationP99, n}: milliseconds to the screen over the last WINDOW_MS
+//   cameras.log         null, or an array that every latency sample is appended to
+//                       (benchmarks/glass_to_glass.py)
+//   cameras.addTarget(camera, canvas)  another canvas showing a camera (the goggles'
+//                       right eye), drawn from the same decoded frames
+//
 // A page's frames come over one WebSocket, /ws/video (server/routes/video_ws.py), not one
 // MJPEG <img> per camera: Chromium gives a host six HTTP/1.1 connections, an MJPEG stream
 // holds one for good, and a few pages' streams then starve every page's /api requests.
@@ -13,13 +28,7 @@
 //
 // Once a second one cheap GET /api/cameras gives every camera's delivered fps and settings,
 // and the station's clock (the reply's server_time checked against the request's round
-// trip). Others read the figures from window.fpv.cameras (and
-// window.fpv.camerasAt: performance.now() of the reply), and each camera's newest drawn
-// frame from window.fpv.video.frames[camera]: {seq, t, signal, drawnAt (performance.now()),
-// ageAtDrawS (its age when drawn, when clocks agree), width, height, drawn (count)}.
-// Another canvas showing a camera (the goggles' right eye) is added with
-// fpv.video.addTarget(camera, canvas). A camera whose newest frame is older than STALLED_S
-// reads "0 fps · stalled".
+// trip). A camera whose newest frame is older than STALLED_S reads "0 fps · stalled".
 //
 // Latency to the screen: the twin's frames carry their render time in a corner code
 // (companion/cameras/frame_stamp.py), read from the decoded picture when it is drawn:
@@ -27,9 +36,10 @@
 // `t`): capture-to-screen ("C2S"). "Screen" is the animation frame the picture is drawn
 // in; the display shows it at its next refresh. p50 and p99 over the last WINDOW_MS, and
 // the station's share (render or capture until the message arrived), are in
-// fpv.video.latency[camera], on the camera's readout and, for the front camera, an OSD line.
+// cameras.latency, on the camera's readout and, for the front camera, an OSD line (osd.js).
 // Times are on the station's clock (the browser's, corrected by the offset /api/cameras
 // measures, when the two differ by more than its round trip).
+import { expose } from "/debug.js";
 import { $, el, api } from "/lib.js";
 
 const CAMERAS = ["front", "bottom"];
@@ -38,8 +48,6 @@ const CLOCK_SLACK_S = 0.02; // clocks "agree" if the offset is within RTT/2 + th
 const STALLED_S = 1.0; // no new frame for this long: the stream is stalled, whatever fps says
 const ACK_WINDOW = 4; // frames on their way at most (the station's ?ack=)
 const WINDOW_MS = 5000; // latency figures over this long
-const fpv = (window.fpv = window.fpv || {});
-fpv.cameras = {};
 
 const views = {};
 for (const name of CAMERAS) {
@@ -50,9 +58,9 @@ for (const name of CAMERAS) {
 }
 const frames = {};
 const samples = {}; // camera -> [{at, totalMs, stationMs}] over the last WINDOW_MS
-const latency = {}; // camera -> {kind, p50, p99, stationP50, stationP99, n}
-// `log`: when an array (benchmarks/glass_to_glass.py), every sample is appended to it too.
-fpv.video = { frames, latency, log: null, addTarget, refresh: () => subscribe() };
+const latency = {};
+export const cameras = { latest: {}, receivedAt: 0, frames, latency, log: null, addTarget };
+expose("cameras", cameras);
 
 function videoCanvas(label, name) {
   // 4x3 until the first frame: the view keeps a camera's usual shape while it waits.
@@ -223,7 +231,7 @@ function noteLatency(name, head, bitmap, drawnAt) {
   const list = (samples[name] = samples[name] || []);
   list.push(sample);
   while (list.length && list[0].at < drawnAt - WINDOW_MS) list.shift();
-  if (fpv.video.log) fpv.video.log.push({ camera: name, seq: head.seq, counter: code ? code.counter : null, ...sample });
+  if (cameras.log) cameras.log.push({ camera: name, seq: head.seq, counter: code ? code.counter : null, ...sample });
 }
 
 function percentile(sorted, q) {
@@ -271,19 +279,17 @@ async function poll() {
   }
   subscribe();
   const now = Date.now();
-  fpv.camerasAt = performance.now(); // when last_frame_age_s was true (the OSD ages it on)
+  cameras.receivedAt = performance.now(); // when last_frame_age_s was true (the OSD ages it on)
   const rttS = (now - sentAt) / 1000;
   // Station clock minus browser clock, best estimate: server_time was taken mid-request.
   const offsetS = reply.server_time - (sentAt + now) / 2000;
   const clocksAgree = Math.abs(offsetS) <= rttS / 2 + CLOCK_SLACK_S;
   clockOffset = { agree: clocksAgree, offsetS };
-  const front = summarise("front");
-  const line = front ? `${front.kind === "render" ? "R2S" : "C2S"} ${front.p50.toFixed(0)}/${front.p99.toFixed(0)}ms` : "";
-  for (const osd of [fpv.osd, fpv.osdRight]) if (osd) osd.setLine("latency", line);
+  for (const name of CAMERAS) summarise(name);
   for (const cam of reply.cameras) {
-    const lat = cam.name === "front" ? front : summarise(cam.name);
+    const lat = latency[cam.name] ?? null;
     const latencyMs = lat ? lat.p50 : null;
-    fpv.cameras[cam.name] = { ...cam, latency_ms: latencyMs, clock_offset_s: offsetS };
+    cameras.latest[cam.name] = { ...cam, latency_ms: latencyMs, clock_offset_s: offsetS };
     const v = views[cam.name];
     if (!v) continue;
     if (!cam.signal) {
