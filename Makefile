@@ -6,10 +6,12 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# The JavaScript linter's packages (package-lock.json), installed by npm ci.
+NODE_STAMP := node_modules/.installed
 HOST   ?= 0.0.0.0
 PORT   ?= 8000
 
-.PHONY: run test test-fast venv browser bench lint clean
+.PHONY: run test test-fast venv browser bench lint lint-js clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -39,10 +41,18 @@ test-fast: $(STAMP)
 bench: $(STAMP)
 	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
 
-# The formatter and the linter, both as configured in pyproject.toml (CI runs this).
-lint: $(STAMP)
+$(NODE_STAMP): package.json package-lock.json
+	npm ci --silent
+	touch $(NODE_STAMP)
+
+# The Python formatter and linter, as configured in pyproject.toml, and ESLint on web/, as
+# configured in eslint.config.mjs (CI runs this).
+lint: $(STAMP) lint-js
 	$(BIN)/python -m ruff format --check .
 	$(BIN)/python -m ruff check .
 
+lint-js: $(NODE_STAMP)
+	node_modules/.bin/eslint web/
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info node_modules

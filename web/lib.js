@@ -108,13 +108,14 @@ export async function api(path, { method = "GET", body } = {}) {
   let r = await send(path, method, body);
   if (r.status === 401 && askToken()) r = await send(path, method, body);
   const text = await r.text();
-  let reply = null;
+  let reply;
   try {
     reply = text ? JSON.parse(text) : null;
   } catch (err) {
     // Not the station's JSON (a proxy's page, say): the status line is all there is.
     throw new ApiError(r.status, "HTTPError", `${r.status} ${r.statusText}`);
   }
+  if (!r.ok && reply === null) throw new ApiError(r.status, "HTTPError", `${r.status} ${r.statusText}`);
   if (!r.ok) throw new ApiError(r.status, reply.error, reply.error_msg);
   return reply;
 }
