@@ -241,14 +241,14 @@ function percentile(sorted, q) {
 function summarise(name) {
   const now = performance.now();
   const list = (samples[name] || []).filter((x) => x.at >= now - WINDOW_MS);
-  if (!list.length) { delete latency[name]; return null; }
+  if (!list.length) { delete latency[name]; return; }
   const total = list.map((x) => x.totalMs).sort((a, b) => a - b);
   const station = list.map((x) => x.stationMs).sort((a, b) => a - b);
-  return (latency[name] = {
+  latency[name] = {
     kind: list[list.length - 1].kind, n: list.length,
     p50: percentile(total, 0.5), p99: percentile(total, 0.99),
     stationP50: percentile(station, 0.5), stationP99: percentile(station, 0.99),
-  });
+  };
 }
 
 function drawOn(canvas, bitmap) {
