@@ -30,12 +30,11 @@ class CsvColumns:
         self._buf = np.frombuffer(body, np.uint8)
         self._table: Bytes | None = None
         seps = np.flatnonzero((self._buf == ord(",")) | (self._buf == ord("\n")))
-        ends = seps.reshape(-1, width) if seps.size % width == 0 else None
-        fast = ends is not None and b'"' not in body
-        if fast:
-            # Every row must end in a newline exactly at its last separator.
-            fast = bool(np.all(self._buf[ends[:, -1]] == ord("\n"))) if ends.size else True
-        if fast:
+        ends = seps.reshape(-1, width) if seps.size % width == 0 and b'"' not in body else None
+        # Every row must end in a newline exactly at its last separator.
+        if ends is not None and (
+            not ends.size or bool(np.all(self._buf[ends[:, -1]] == ord("\n")))
+        ):
             self._ends = ends  # (rows, width) positions of each field's terminator
             self.rows = int(ends.shape[0])
         else:

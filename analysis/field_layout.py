@@ -68,8 +68,8 @@ class FieldLayout:
             + [[o.x_m, o.y_m, 0.0] for o in self.obstacles],
             float,
         ).reshape(-1, 3)
-        llh = enu_to_geodetic(xy, *self.home)
-        moved = rotate_about_up(geodetic_to_enu(*llh.T, *origin), rotation_rad)
+        lat, lon, alt = enu_to_geodetic(xy, *self.home).T
+        moved = rotate_about_up(geodetic_to_enu(lat, lon, alt, *origin), rotation_rad)
         pads = tuple(
             replace(p, x_m=float(moved[i, 0]), y_m=float(moved[i, 1]))
             for i, p in enumerate(self.pads)

@@ -28,7 +28,7 @@ import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -210,9 +210,8 @@ def open_recording(
 def _session(folder: Path, source: str, tmp: Path, frames: bool) -> Recording:
     meta = _meta_dir(folder)
     name = str(meta.get("id") or (Path(source).stem if source.endswith(".zip") else folder.name))
-    tlog: Path | None = folder / layout.MAVLINK_TLOG
-    if not tlog.is_file():
-        tlog = next(iter(sorted(folder.glob("*.tlog"))), None)
+    named = folder / layout.MAVLINK_TLOG
+    tlog = named if named.is_file() else next(iter(sorted(folder.glob("*.tlog"))), None)
     csv_path = folder / layout.TELEMETRY_CSV
     if csv_path.is_file():
         rec = Recording(name, source, folder, csv_path, tlog, meta, from_tlog=False)
@@ -325,7 +324,7 @@ def replay_tlog(
     said: Any = None  # messages.csv's writer
     seen = 0  # the tracker's message count at the last row
 
-    def row(f, at_us: int) -> None:
+    def row(f: TextIO, formatter: RowFormatter, at_us: int) -> None:
         nonlocal rows, n, seen
         sample = Sample(at_us * 1e-6, (at_us - shift) * 1e-6, tracker.state, ())
         f.write(formatter.line(sample))
@@ -334,9 +333,9 @@ def replay_tlog(
         rows += 1
         n += 1
 
-    def rows_until(f, end_us: int, inclusive: bool) -> None:
+    def rows_until(f: TextIO, formatter: RowFormatter, end_us: int, inclusive: bool) -> None:
         while (at := grid0 + round(n * period_us)) < end_us or (inclusive and at == end_us):
-            row(f, at)
+            row(f, formatter, at)
 
     try:
         with (
@@ -351,18 +350,18 @@ def replay_tlog(
                     f.write(formatter.header_line())
                     grid0 = last = t_us
                 elif new:  # the next recording: a new tracker
-                    rows_until(f, last, inclusive=True)
+                    rows_until(f, formatter, last, inclusive=True)
                     tracker, seen = StateTracker(), 0
                     shift = t_us - t_log
                     grid0, n = t_us, 0
                 if t_us - last > FILL_GAP_S * 1e6:
-                    rows_until(f, last, inclusive=True)
+                    rows_until(f, formatter, last, inclusive=True)
                     grid0, n = t_us, 0
-                rows_until(f, t_us, inclusive=False)
+                rows_until(f, formatter, t_us, inclusive=False)
                 tracker.update(msg, t_us * 1e-6)
                 last = t_us
             if formatter is not None:  # the instants up to the last packet
-                rows_until(f, last, inclusive=True)
+                rows_until(f, formatter, last, inclusive=True)
     except OSError as exc:
         raise RecordingError(f"'{source}' cannot be read: {exc}") from None
     if not rows:
@@ -389,8 +388,9 @@ def _on_session_clock(tlog: Path) -> Iterator[tuple[int, int, Any, bytes, bool]]
             if msg is None or isinstance(msg, MAVLink_unknown):
                 continue
             t_log = round(t * 1e6)
-            new = last is not None and not started and segment > 0
-            if new:
+            new = False
+            if last is not None and not started and segment > 0:
+                new = True
                 shift = last + round(FILL_GAP_S * 1e6) - t_log
             started = True
             last = t_log + shift

@@ -57,9 +57,9 @@ class Track:
     meta: dict = field(default_factory=dict)  # the session's metadata, when it has some
     # Session clock of the first telemetry.csv row holding the sample: at any instant the
     # row shows this sample, and the frames are stamped on this clock (None: `t_s`).
-    row_t_s: Array = None  # type: ignore[assignment]
+    row_t_s: Array = None  # type: ignore[assignment]  # None: __post_init__ takes t_s
     # The GPS's horizontal uncertainty (m) where the receiver reported it, else NaN.
-    h_acc_m: Array = None  # type: ignore[assignment]
+    h_acc_m: Array = None  # type: ignore[assignment]  # None: __post_init__ fills NaN
     # What the vehicle said (its STATUSTEXTs: session time, text), from the recording's
     # messages.csv or replayed from its tlog (`Recording.vehicle_texts`).
     vehicle_texts: tuple[tuple[float | None, str], ...] = ()
@@ -73,8 +73,8 @@ class Track:
     def __len__(self) -> int:
         return int(self.t_s.size)
 
-    def select(self, mask: NDArray[np.bool_] | NDArray[np.intp]) -> Track:
-        """The same track restricted to `mask` (boolean or index array)."""
+    def select(self, mask: NDArray[np.bool_] | NDArray[np.intp] | slice) -> Track:
+        """The same track restricted to `mask` (boolean or index array, or a slice)."""
         arrays = {name: getattr(self, name)[mask] for name in _ARRAY_FIELDS}
         return replace(self, **arrays)
 

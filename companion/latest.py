@@ -54,6 +54,14 @@ class Latest(Generic[T]):
         """The newest value with its version, or None before the first publish."""
         return self._current
 
+    def current(self) -> T:
+        """The newest value, for a slot that always holds one (made with an initial value);
+        LookupError before the first publish."""
+        current = self._current
+        if current is None:
+            raise LookupError("nothing is published in this slot yet")
+        return current.value
+
     def publish(self, value: T) -> int:
         """Store `value` as the newest one and wake every waiter. Callable from any thread."""
         with self._lock:

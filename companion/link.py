@@ -206,7 +206,7 @@ class MavlinkLink:
     def health(self) -> LinkHealth:
         return self._meter.report(
             self._framer.counters,
-            self.state.get().value.link.link_lost if self.state.get() else True,
+            state.value.link.link_lost if (state := self.state.get()) else True,
             self._last_hb_mono,
             self.clock.mono(),
             self._tracker.sysid if self._tracker.compid is not None else self._tracker.pinned_sysid,
@@ -308,29 +308,31 @@ class MavlinkLink:
         )
         # epoll, not select(): the station raises its file limit for its clients, and
         # select() cannot watch a descriptor numbered 1024 or more (ValueError).
+        transport_fd = transport.fileno()
+        forwarders = {fwd.fileno(): fwd for fwd in self._forwarders}
         with selectors.DefaultSelector() as selector:
-            for fileobj in (transport, self._wake_r, *self._forwarders):
-                selector.register(fileobj, selectors.EVENT_READ)
+            for fd in (transport_fd, self._wake_r, *forwarders):
+                selector.register(fd, selectors.EVENT_READ)
             next_housekeeping = 0.0
             while not self._stop.is_set():
                 ready = selector.select(_TICK_S)
                 now = time.monotonic()
                 for key, _ in ready:
-                    r = key.fileobj
-                    if r is transport:
+                    if key.fd == transport_fd:
                         for data in transport.read_queued():
                             probation = confirm is not None and confirm.probation
                             if data and self._on_bytes(data, now, probation) and confirm:
                                 confirm.adopt_sender()
-                    elif r == self._wake_r:
+                    elif key.fd == self._wake_r:
                         try:
                             os.read(self._wake_r, 4096)
                         except BlockingIOError:
                             pass
                     else:  # a forward peer (QGroundControl) talks back: pass it on
-                        data = r.read()  # type: ignore[union-attr]
+                        peer = forwarders[key.fd]
+                        data = peer.read()
                         if data:
-                            self._on_forwarded(r, data, now, transport)  # type: ignore[arg-type]
+                            self._on_forwarded(peer, data, now, transport)
                 self._publish_state()
                 while self._outbox:
                     self._write(transport, self._outbox.popleft())

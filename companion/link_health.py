@@ -66,7 +66,8 @@ class LinkSecurity:
     # signing is on, counted always.
     own_identity_packets: int = 0
 
-    @computed_field
+    # pydantic's documented form; mypy takes no decorator above @property.
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def refused(self) -> int:
         """Packets signing refused, all reasons (in the JSON of /api/status too: the

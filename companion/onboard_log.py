@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 from pydantic import Field
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -285,9 +285,9 @@ class LogDownload:
 
     # -- the download thread ----------------------------------------------------------
 
-    def _publish(self, **changes: object) -> DownloadStatus:
+    def _publish(self, **changes: Any) -> DownloadStatus:
         status = replace(
-            self.status.get().value,
+            self.status.current(),
             dropped_packets=self._dropped,
             lost_packets=self.lost_packets,
             **changes,

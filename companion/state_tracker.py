@@ -20,6 +20,7 @@ from fpv_station.companion.vehicle_state import (
     MESSAGES_KEPT,
     UTC_PLAUSIBLE_AFTER_S,
     GlobalPosition,
+    GpsRaw,
     VehicleMessage,
     VehicleState,
     freeze_draft,
@@ -108,7 +109,8 @@ def _enum_name(enum: str, value: int, prefix: str) -> str:
     entry = mavlink.enums.get(enum, {}).get(value)
     if entry is None:
         return f"{prefix}{value}" if prefix else str(value)
-    return entry.name.removeprefix(prefix).lower()
+    name: str = entry.name
+    return name.removeprefix(prefix).lower()
 
 
 def mode_name(autopilot: int, vehicle_type: int, base_mode: int, custom_mode: int) -> str:
@@ -202,9 +204,11 @@ class StateTracker:
 
     def follows(self, msg: mavlink.MAVLink_message) -> bool:
         """`msg` comes from the autopilot followed (any sender before one is)."""
+        sysid: int = msg.get_srcSystem()
         if self.compid is None:
-            return self.sysid is None or msg.get_srcSystem() == self.sysid
-        return msg.get_srcSystem() == self.sysid and msg.get_srcComponent() == self.compid
+            return self.sysid is None or sysid == self.sysid
+        compid: int = msg.get_srcComponent()
+        return sysid == self.sysid and compid == self.compid
 
     def update(self, msg: mavlink.MAVLink_message, t_mono: float) -> bool:
         mtype = msg.get_type()
@@ -481,10 +485,13 @@ class StateTracker:
     # -- the pilot's altitude (paper: relative to the altitude at arming) ---------------
 
     def _current_alt_m(self) -> float | None:
+        alt_m: float | None
         if self._gp_seen:
-            return self._draft.global_position.alt_m
-        gps = self._draft.gps
-        return gps.alt_m if gps.fix_type >= _GPS_3D_FIX else None
+            alt_m = self._draft.global_position.alt_m
+        else:
+            gps = self._draft.gps
+            alt_m = gps.alt_m if gps.fix_type >= _GPS_3D_FIX else None
+        return alt_m
 
     def _current_latlon(self) -> tuple[float | None, float | None]:
         if self._gp_seen:
@@ -493,15 +500,17 @@ class StateTracker:
         return self._draft.gps.lat_deg, self._draft.gps.lon_deg
 
     def _has_fix(self) -> bool:
-        if self._draft.gps.t_mono is not None:
-            return self._draft.gps.fix_type >= _GPS_3D_FIX
-        gp = self._draft.global_position  # no GPS_RAW_INT at all: a fused position counts
+        gps: GpsRaw = self._draft.gps
+        if gps.t_mono is not None:
+            return gps.fix_type >= _GPS_3D_FIX
+        gp: GlobalPosition = self._draft.global_position  # no GPS_RAW_INT: a fused fix counts
         return gp.lat_deg not in (None, 0.0) or gp.lon_deg not in (None, 0.0)
 
     def _take_reference(self, reference: str, t: float, at: _GroundFix | None = None) -> None:
         """Make the altitude now (or `at`, where the vehicle stood a moment ago) the zero
         of the pilot's altitude, measured by `alt` or, at arming where the two disagree on
         the ground, by `relative_alt` (`_altitude_source`)."""
+        alt: float | None
         if at is not None:
             alt, lat, lon, rel = at.alt_m, at.lat_deg, at.lon_deg, at.relative_alt_m
         else:
@@ -590,7 +599,7 @@ class StateTracker:
             and abs(t - gps.t_mono) <= _FRESH_GPS_S
         )
         if fresh:
-            offset = new.alt_m - gps.alt_m  # type: ignore[operator]
+            offset = new.alt_m - gps.alt_m
             disagree = abs(offset) > _DISAGREE_M
             held = self._frame_offset_m
             if shift is None and held is not None and not disagree:

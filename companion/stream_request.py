@@ -34,7 +34,7 @@ _LEGACY_STREAM = {
 
 
 def message_id(name: str) -> int:
-    mid = getattr(mavlink, f"MAVLINK_MSG_ID_{name}", None)
+    mid: int | None = getattr(mavlink, f"MAVLINK_MSG_ID_{name}", None)
     if mid is None:
         raise ValueError(f"Unknown MAVLink message '{name}' in link.message_rates_hz.")
     return mid

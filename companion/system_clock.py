@@ -11,6 +11,8 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+from collections.abc import Callable
+from typing import Any
 
 TIME_ERROR = 5  # adjtimex(2): the clock is not synchronised
 
@@ -21,7 +23,7 @@ class _Timex(ctypes.Structure):
 
 
 @functools.cache
-def _adjtimex():
+def _adjtimex() -> Callable[[Any], int] | None:
     try:
         return ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True).adjtimex
     except (OSError, AttributeError):  # not Linux (or no libc): the answer is unknown

@@ -90,11 +90,12 @@ class VehicleClock(BaseModel):
             return line
         kv, ks = np.array(self.knots, dtype=np.float64).T
         # Beyond the knots, the line's rate from the nearest one.
-        return np.where(
+        mapped: np.ndarray = np.where(
             b < kv[0],
             ks[0] + (b - kv[0]) * rate,
             np.where(b > kv[-1], ks[-1] + (b - kv[-1]) * rate, np.interp(b, kv, ks)),
         )
+        return mapped
 
     def shifted(self, t0: float) -> VehicleClock:
         """The same mapping on a clock whose zero is at `t0` (a session's start)."""
@@ -147,10 +148,10 @@ class TimeSync:
         """An answer from the followed autopilot, addressed to us or to no one; False
         when it answers no request of ours (or too late to measure)."""
         t_send = self._pending.pop(ts1_ns, None)
-        rtt = None if t_send is None else t_recv - t_send
-        if rtt is None or not 0.0 <= rtt <= MAX_RTT_S or tc1_ns <= 0:
+        if t_send is None or not 0.0 <= t_recv - t_send <= MAX_RTT_S or tc1_ns <= 0:
             self.ignored += 1
             return False
+        rtt = t_recv - t_send
         v = tc1_ns * 1e-9
         if self._last_v is not None and v < self._last_v:
             self.reboots += 1

@@ -49,8 +49,10 @@ class ConnSpec:
 
 def parse_connection(text: str) -> ConnSpec:
     text = text.strip()
-    if text in ("none", "sim"):
-        return ConnSpec(kind=text, text=text)  # type: ignore[arg-type]
+    if text == "none":
+        return ConnSpec(kind="none", text=text)
+    if text == "sim":
+        return ConnSpec(kind="sim", text=text)
     if text.startswith("replay:"):
         rest = text.removeprefix("replay:")
         path, _, query = rest.partition("?")
@@ -70,7 +72,12 @@ def parse_connection(text: str) -> ConnSpec:
         if not path:
             raise ConnectionStringError(f"'{text}' names no file: use replay:FILE.tlog.")
         return ConnSpec(kind="replay", text=text, path=path, speed=speed)
-    prefixes = (("udpin:", "udpin"), ("udp:", "udpin"), ("udpout:", "udpout"), ("tcp:", "tcp"))
+    prefixes: tuple[tuple[str, Kind], ...] = (
+        ("udpin:", "udpin"),
+        ("udp:", "udpin"),
+        ("udpout:", "udpout"),
+        ("tcp:", "tcp"),
+    )
     for prefix, kind in prefixes:
         if text.startswith(prefix):
             host, sep, port = text.removeprefix(prefix).rpartition(":")
@@ -80,7 +87,7 @@ def parse_connection(text: str) -> ConnSpec:
                     f"(for example {prefix}127.0.0.1:14550)."
                 )
             host = host or "0.0.0.0"
-            return ConnSpec(kind=kind, text=text, host=host, port=int(port))  # type: ignore[arg-type]
+            return ConnSpec(kind=kind, text=text, host=host, port=int(port))
     if text.startswith("/") or text.upper().startswith("COM"):
         path, sep, baud = text.rpartition(":")
         if sep and baud.isdigit():

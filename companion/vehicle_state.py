@@ -14,7 +14,6 @@ with `quick_constructor` / `quick_replace` (the same objects, built faster).
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, make_dataclass
 from operator import attrgetter
@@ -309,10 +308,20 @@ class VehicleState:
 # frozenness (FrozenInstanceError on a store) are the class's.
 
 
-@functools.cache
-def _twin(cls: type) -> tuple[type, Callable[[Any], tuple[Any, ...]]]:
+_Twin = tuple[type, Callable[[Any], tuple[Any, ...]]]
+_TWINS: dict[type, _Twin] = {}
+
+
+def _twin(cls: type) -> _Twin:
     """The unfrozen twin of the frozen slots dataclass `cls`, and a getter of all its
-    field values in order."""
+    field values in order (made once per class)."""
+    made = _TWINS.get(cls)
+    if made is None:
+        made = _TWINS.setdefault(cls, _make_twin(cls))  # two threads: one twin wins
+    return made
+
+
+def _make_twin(cls: type) -> _Twin:
     specs = [
         (f.name, f.type, field(default=f.default, default_factory=f.default_factory))
         for f in fields(cls)
@@ -334,9 +343,9 @@ def quick_constructor(cls: type[T]) -> Callable[..., T]:
     twin = _twin(cls)[0]
 
     def construct(*args: Any, **kwargs: Any) -> T:
-        obj = twin(*args, **kwargs)
+        obj: T = twin(*args, **kwargs)  # a T once its class is set
         obj.__class__ = cls
-        return obj  # type: ignore[return-value]
+        return obj
 
     construct.__qualname__ = construct.__name__ = f"quick_{cls.__name__}"
     return construct
@@ -358,7 +367,8 @@ def quick_replace(obj: T, **changes: Any) -> T:
     replace = _REPLACERS.get(key)
     if replace is None:
         replace = _REPLACERS[key] = _replacer(*key)
-    return replace(obj, changes)  # type: ignore[no-any-return]
+    new: T = replace(obj, changes)
+    return new
 
 
 _REPLACERS: dict[tuple[type, tuple[str, ...]], Callable[[Any, dict[str, Any]], Any]] = {}
@@ -377,15 +387,16 @@ def _replacer(cls: type, names: tuple[str, ...]) -> Callable[[Any, dict[str, Any
         f"def replace(o, c):\n    new = twin({args})\n    new.__class__ = cls\n    return new",
         scope,
     )
-    return scope["replace"]  # type: ignore[no-any-return]
+    replace: Callable[[Any, dict[str, Any]], Any] = scope["replace"]
+    return replace
 
 
 def _copy_as(source: Any, cls: type[T], changes: dict[str, Any]) -> T:
     """A new frozen `cls` with the field values of `source` (a `cls` or its twin) and
     `changes`."""
     twin, values = _twin(cls)
-    new = twin(*values(source))
+    new: T = twin(*values(source))  # a T once its class is set
     for name, value in changes.items():
         setattr(new, name, value)
     new.__class__ = cls
-    return new  # type: ignore[no-any-return]
+    return new

@@ -95,7 +95,7 @@ def save_arrays(path: Path, fmt: str, **arrays: np.ndarray) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:  # a file object: numpy would append ".npz" to a name
-        np.savez_compressed(f, format=np.array(fmt), **arrays)
+        np.savez_compressed(f, allow_pickle=True, format=np.array(fmt), **arrays)
     return path
 
 

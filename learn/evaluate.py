@@ -140,7 +140,9 @@ def wilson_interval(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[flo
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def mean_interval(values: Sequence[float], confidence: float = CONFIDENCE) -> tuple[float, float]:
+def mean_interval(
+    values: Sequence[float] | np.ndarray, confidence: float = CONFIDENCE
+) -> tuple[float, float]:
     """Student's t interval for the mean of `values` (nan, nan for fewer than two)."""
     from scipy.stats import t
 
@@ -389,7 +391,7 @@ def demonstrations(paths: Sequence[Path], task_id: int, name: str = "demonstrati
         last = eps[-1] if eps else None
         landed = last is not None and last.landed and not crashed
         xy = last.state[-1, :2] + scene.pad(scene.task(task_id).end_pad).xy_m if last else None
-        success = result is not None and landed and on_pad(scene, task_id, xy)
+        success = result is not None and landed and xy is not None and on_pad(scene, task_id, xy)
         time_s = last.duration_s if last else 0.0
         outcomes.append(Outcome(success, crashed, time_s, result, why))
     return Row(name, tuple(outcomes), RECORDED)
@@ -402,8 +404,9 @@ def demonstration_rows(paths: Sequence[Path], task_id: int) -> list[Row]:
     not say; in that order."""
     groups: dict[tuple[str, str], list[Path]] = {}
     for path in paths:
-        demo = recording_meta(path).get("demonstration")
-        kind = demo.get("kind") if isinstance(demo, dict) else None
+        said = recording_meta(path).get("demonstration")
+        demo = said if isinstance(said, dict) else {}
+        kind = demo.get("kind")
         pilot = str(demo.get("pilot", "")) if kind == PILOT_HUMAN else ""
         groups.setdefault((kind if kind in PILOT_KINDS else "", pilot), []).append(Path(path))
     pilots = {p for k, p in groups if k == PILOT_HUMAN}

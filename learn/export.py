@@ -22,7 +22,7 @@ import sys
 import tempfile
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -125,10 +125,12 @@ class RecordingJob:
     fmt: str
     out: Path
     parts: Path  # a folder for part files (on a cluster: storage every node sees)
-    options: ExportOptions  # with its task and scene resolved
+    options: ExportOptions  # with its task and scene resolved, as below
     cameras: tuple[str, ...]
     sizes: dict[str, tuple[int, int]]  # camera -> (width, height) of LeRobot videos
     task: str
+    scene: Scene
+    task_id: int
 
 
 @dataclass
@@ -150,7 +152,7 @@ def export_recording(job: RecordingJob) -> RecordingResult:
                 "recordings with the same cameras, or choose them with --cameras."
             )
         result = RecordingResult(rec.source)
-        for ep in episodes(rec, o.scene, o.task_id, o.fps, o.channel_map, job.cameras):
+        for ep in episodes(rec, job.scene, job.task_id, o.fps, o.channel_map, job.cameras):
             result.parts.append(_part(job, rec, ep))
             result.frames += len(ep)
             result.camera_frames += _camera_frames(job, rec, ep)
@@ -174,7 +176,7 @@ def _part(job: RecordingJob, rec, ep: Episode):
     path = job.parts / f"{job.index:06d}_{ep.number:03d}.mcap"
     onboard = onboard_of(rec)
     write_episode_mcap(
-        path, rec, ep, o.scene, o.task_id, job.cameras, job.task, o.image_size, onboard
+        path, rec, ep, job.scene, job.task_id, job.cameras, job.task, o.image_size, onboard
     )
     return path, mcap_name(rec, ep)
 
@@ -203,11 +205,10 @@ def export_recordings(
     if options.workers < 1:
         raise ValueError(f"workers must be at least 1, not {options.workers}")
     scene = options.scene or load_scene()
-    if options.task_id is None:
-        options = replace(options, task_id=recorded_task_id(paths))
-    scene.task(options.task_id)  # a wrong task fails before anything is written
-    options = replace(options, scene=scene)
-    task = options.description or task_description(scene, options.task_id)
+    task_id = options.task_id if options.task_id is not None else recorded_task_id(paths)
+    scene.task(task_id)  # a wrong task fails before anything is written
+    options = replace(options, scene=scene, task_id=task_id)
+    task = options.description or task_description(scene, task_id)
     cameras, sizes = _cameras(paths[0], options)
     out = Path(out)
     writer = _assembler(fmt, out, options, sizes, task)
@@ -215,7 +216,9 @@ def export_recordings(
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=".parts-", dir=out) as parts:
         jobs = [
-            RecordingJob(k, Path(p), fmt, out, Path(parts), options, cameras, sizes, task)
+            RecordingJob(
+                k, Path(p), fmt, out, Path(parts), options, cameras, sizes, task, scene, task_id
+            )
             for k, p in enumerate(paths)
         ]
         for k, result in enumerate(_results(jobs, options)):
@@ -271,7 +274,7 @@ def _pool_results(jobs: list[RecordingJob], workers: int) -> Iterator[RecordingR
     # whose locks a fork would copy held.
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
-        pending = deque()
+        pending: deque[Future[RecordingResult]] = deque()
         todo = iter(jobs)
         try:
             for job in todo:

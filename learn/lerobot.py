@@ -41,12 +41,14 @@ with the number of episodes but for their metadata rows.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
+from typing import Final
 
 import av
 import cv2
@@ -66,7 +68,7 @@ MB = 1024 * 1024  # LeRobot's megabyte (get_file_size_in_mb)
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
-VIDEO_CODEC = "libx264"
+VIDEO_CODEC: Final = "libx264"
 VIDEO_OPTIONS = {"g": "2", "crf": "23"}
 # x264's fastest preset keeps a two-camera export over 10x real time on a 2-core machine;
 # "veryfast" makes files ~45% smaller at about twice the encoding time.
@@ -157,7 +159,7 @@ def episode_part(
         for cam, size in sizes.items():
             path = Path(parts) / f"{tag}_{cam}.mp4"
             videos[cam] = encode_video(
-                path, ep.frames[cam], lambda k, c=cam: frame_bytes(c, k), size, fps, preset
+                path, ep.frames[cam], functools.partial(frame_bytes, cam), size, fps, preset
             )
     return EpisodePart(ep.recording, ep.number, ep.landed, ep.t_s, ep.state, ep.action, videos)
 
@@ -179,13 +181,15 @@ def encode_video(
         )
         stream.width, stream.height = size
         stream.pix_fmt = "yuv420p"
-        last, hist, frame = None, None, None
+        last = None
+        frame: av.VideoFrame | None = None
         for i, k in enumerate(picks):
-            if k != last:  # a recorded frame held over several dataset frames: convert once
+            # A recorded frame held over several dataset frames is converted once.
+            if frame is None or k != last:
                 bgr = decode_fit(jpeg(int(k)), size)
                 # OpenCV's I420 conversion is BT.601 limited range, what an untagged H.264
                 # stream is decoded as, and several times faster than swscale from BGR.
-                i420 = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420)
+                i420 = np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420), np.uint8)
                 frame = av.VideoFrame.from_ndarray(i420, format="yuv420p")
                 frame.time_base = time_base
                 hist = st.image_histogram(bgr)[::-1]  # BGR -> RGB
@@ -501,8 +505,8 @@ class _VideoFiles:
     def __init__(self, root: Path, camera: str, fps: int, limits: FileLimits) -> None:
         self.root, self.camera, self.fps, self.limits = root, camera, fps, limits
         self.index = (0, 0)
-        self.container = None
-        self.stream = None
+        self.container: av.container.OutputContainer | None = None
+        self.stream: av.VideoStream | None = None
         self.frames = 0  # in the current file
         self.bytes = 0  # packet bytes in the current file
 
@@ -515,26 +519,31 @@ class _VideoFiles:
             self.index = next_file(*self.index, self.limits.chunks_size)
         with av.open(str(part)) as source:
             src = source.streams.video[0]
-            if self.container is None:
+            if src.time_base is None:
+                raise ValueError(f"{part}: its video stream has no time base")
+            container, stream = self.container, self.stream
+            if container is None or stream is None:
                 path = self.root / VIDEO_PATH.format(
                     video_key=video_key(self.camera),
                     chunk_index=self.index[0],
                     file_index=self.index[1],
                 )
                 path.parent.mkdir(parents=True, exist_ok=True)
-                self.container = av.open(str(path), mode="w")
-                self.stream = self.container.add_stream_from_template(src)
+                container = self.container = av.open(str(path), mode="w")
+                stream = self.stream = container.add_stream_from_template(src)
                 self.frames = self.bytes = 0
             start = self.frames
             shift = int(round(Fraction(start, self.fps) / src.time_base))
             for packet in source.demux(src):
                 if packet.size == 0:  # the demuxer's end-of-stream marker
                     continue
+                if packet.pts is None or packet.dts is None:
+                    raise ValueError(f"{part}: a video packet without a timestamp")
                 packet.pts += shift
                 packet.dts += shift
-                packet.stream = self.stream
+                packet.stream = stream
                 self.bytes += packet.size
-                self.container.mux(packet)
+                container.mux(packet)
         os.unlink(part)
         self.frames += frames
         return (*self.index, start)

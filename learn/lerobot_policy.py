@@ -40,7 +40,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -50,6 +50,9 @@ from fpv_station.learn.evaluate import BatchAct
 from fpv_station.learn.formats import DEFAULT_FPS
 from fpv_station.learn.images import decode_fit
 from fpv_station.learn.lerobot import read_meta
+
+if TYPE_CHECKING:  # imported when a camera is first rendered (OpenCV)
+    from fpv_station.twin.render import Renderer
 
 CONFIG_FILE = "config.json"
 TRAIN_CONFIG_FILE = "train_config.json"
@@ -167,7 +170,7 @@ class LeRobotPolicy:
         self.control_hz = self.facts.fps
         self.name = f"LeRobot {self.inputs.type}"
         self._runtime = _load(self.folder, self.inputs.type)
-        self._renderer = None
+        self._renderer: Renderer | None = None
 
     def batch_act(self, episodes: int) -> BatchAct:
         """A fresh episode for every vehicle: the policy's state (action queues) reset."""

@@ -27,6 +27,7 @@ import math
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import foxglove
 import numpy as np
@@ -55,6 +56,9 @@ from fpv_station.learn.onboard_export import onboard_events
 
 WORLD_FRAME = "field"
 BODY_FRAME = "base_link"
+# (log time ns, kind, payload): kind "row", "frame", "packet" or "onboard", and the
+# payload that kind's channels log.
+Event = tuple[int, str, Any]
 
 
 def mcap_name(rec: Recording, ep: Episode) -> str:
@@ -125,7 +129,7 @@ def write_episode_mcap(
                 "landed": str(ep.landed).lower(),
             },
         )
-        streams = [_row_events(rec, scene, task_id, i0, i1, wall0)]
+        streams: list[Iterator[Event]] = [_row_events(rec, scene, task_id, i0, i1, wall0)]
         streams += [_frame_events(rec, c, ep, wall0, image_size) for c in cameras]
         if rec.tlog is not None:
             streams.append(_packet_events(rec, rec.t_s[i0], rec.t_s[i1], wall0))
@@ -133,8 +137,11 @@ def write_episode_mcap(
             streams.append(onboard_events(onboard, rec.t_s[i0], rec.t_s[i1], wall0))
         for t_ns, kind, payload in heapq.merge(*streams, key=lambda e: e[0]):
             if kind == "row":
-                for channel, msg in zip((gps, pose, tf, telemetry), payload):
-                    channel.log(msg, log_time=t_ns)
+                fix, pose_msg, tf_msg, row = payload
+                gps.log(fix, log_time=t_ns)
+                pose.log(pose_msg, log_time=t_ns)
+                tf.log(tf_msg, log_time=t_ns)
+                telemetry.log(row, log_time=t_ns)
             elif kind == "packet":
                 raw.log(payload, log_time=t_ns)
             elif kind == "onboard":
@@ -149,7 +156,9 @@ def write_episode_mcap(
                 )
 
 
-def _row_events(rec: Recording, scene, task_id: int, i0: int, i1: int, wall0: float):
+def _row_events(
+    rec: Recording, scene, task_id: int, i0: int, i1: int, wall0: float
+) -> Iterator[Event]:
     xyz = scene_xyz(rec, scene, task_id, np.arange(i0, i1 + 1))
     c = rec.columns
     q = enu_flu_quaternion(
@@ -187,7 +196,7 @@ def _row_events(rec: Recording, scene, task_id: int, i0: int, i1: int, wall0: fl
             translation=position,
             rotation=orientation,
         )
-        row = {"t_s": float(rec.t_s[i])}
+        row: dict[str, float | None] = {"t_s": float(rec.t_s[i])}
         row.update({n: _json_num(c[n][i]) for n in COLUMNS})
         yield t_ns, "row", (fix, pose, tf, row)
 
@@ -197,7 +206,7 @@ def frame_window(rec: Recording, cam: str, ep: Episode) -> np.ndarray:
     return np.flatnonzero((t >= rec.t_s[ep.flight.arm]) & (t <= rec.t_s[ep.flight.disarm]))
 
 
-def _frame_events(rec: Recording, cam: str, ep: Episode, wall0: float, size):
+def _frame_events(rec: Recording, cam: str, ep: Episode, wall0: float, size) -> Iterator[Event]:
     t = rec.cameras[cam].t_s
     for k in frame_window(rec, cam, ep):
         jpeg = rec.frame_bytes(cam, int(k))
@@ -206,7 +215,7 @@ def _frame_events(rec: Recording, cam: str, ep: Episode, wall0: float, size):
         yield int(round((wall0 + t[k]) * 1e9)), "frame", (cam, jpeg)
 
 
-def _packet_events(rec: Recording, t_lo: float, t_hi: float, wall0: float) -> Iterator:
+def _packet_events(rec: Recording, t_lo: float, t_hi: float, wall0: float) -> Iterator[Event]:
     """The tlog's packets from `t_lo` to `t_hi` on the session clock (a joined log's
     recordings each on their own, as the rows), on the rows' log time."""
     for t, packet in rec.tlog_packets():

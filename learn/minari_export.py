@@ -23,11 +23,15 @@ import os
 import re
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fpv_station.learn.episodes import Episode, target_m
 from fpv_station.twin.gym_env import ENV_ID, TaskReward
+
+if TYPE_CHECKING:  # imported on use: minari is an optional extra
+    from minari.data_collector.episode_buffer import EpisodeBuffer
 
 DATA_FORMAT = "arrow"
 
@@ -36,7 +40,7 @@ def default_dataset_id(task_id: int) -> str:
     return f"fpv-station/twin-task{task_id}/demos-v0"
 
 
-def episode_buffer(ep: Episode, scene, task_id: int, fps: float):
+def episode_buffer(ep: Episode, scene, task_id: int, fps: float) -> EpisodeBuffer:
     """One Minari `EpisodeBuffer` from an episode, rewards recomputed by the env's rule."""
     from minari.data_collector.episode_buffer import EpisodeBuffer
 
@@ -77,7 +81,7 @@ class MinariExport:
             if _is_minari_id(options.dataset_id)
             else default_dataset_id(options.task_id)
         )
-        self.buffers = []
+        self.buffers: list[EpisodeBuffer] = []
 
     def add(self, ep: Episode) -> None:
         if len(ep) >= 2:

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from fpv_station.core.scene import Scene, load_scene
 from fpv_station.learn.bc import DEFAULT_K, Neighbours, load_arrays, read_rows, save_arrays
 from fpv_station.learn.lerobot import VIDEO_PATH, read_meta, video_key
-from fpv_station.twin.render import CameraModel, bottom_camera
+from fpv_station.twin.render import CameraModel, Renderer, bottom_camera
 
 FORMAT = "fpv-station-vision-knn-1"
 CAMERA = "bottom"
@@ -152,7 +152,7 @@ class VisionPolicy:
     def __post_init__(self) -> None:
         self.camera = bottom_camera(self.hfov_deg)
         self._model = Neighbours(self.inputs, self.sticks, self.k, SCALES)
-        self._renderer = None
+        self._renderer: Renderer | None = None
 
     def act(self, rgb: NDArray[np.uint8], state: np.ndarray, t_s: float) -> np.ndarray:
         """The sticks for a bottom picture (RGB), the state vector (only its attitude
@@ -166,7 +166,6 @@ class VisionPolicy:
         size as the exporters resize (`learn.images.fit_image`), then `act`. The policy
         itself sees the picture and the attitude only."""
         from fpv_station.learn.images import fit_image
-        from fpv_station.twin.render import Renderer
         from fpv_station.twin.sim import Pose
 
         if self._renderer is None or self._renderer.scene != scene:  # one per scene
@@ -273,7 +272,8 @@ def _decode_views(path: Path, fps: float, hfov_deg: float) -> dict[int, PadView]
     out = {}
     with av.open(str(path)) as c:
         for frame in c.decode(video=0):
-            out[int(round(frame.time * fps))] = pad_view(frame.to_ndarray(format="rgb24"), hfov_deg)
+            rgb = np.asarray(frame.to_ndarray(format="rgb24"), np.uint8)
+            out[int(round(frame.time * fps))] = pad_view(rgb, hfov_deg)
     return out
 
 

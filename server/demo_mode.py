@@ -81,10 +81,10 @@ class DemoMode:
 
     def start(self, pilot: str, attempts: int) -> DemoRun:
         """Start a run of `attempts` at the chosen task (name and count already checked)."""
-        if self.active is not None:
+        if (run := self.active) is not None:
             raise Conflict(
-                f"{self.run.pilot}'s run is on (attempt {len(self.run.sessions) + 1} of "
-                f"{self.run.attempts}); end it first."
+                f"{run.pilot}'s run is on (attempt {len(run.sessions) + 1} of "
+                f"{run.attempts}); end it first."
             )
         task = self.trials.selected
         if task is None:

@@ -327,9 +327,10 @@ def check_cameras(settings: Settings, seconds: float = 2.0) -> tuple[list[Check]
         camera.start()
         try:
             time.sleep(seconds)
-            stats, frame = camera.stats(), camera.frames.get()
+            stats, latest = camera.stats(), camera.frames.get()
         finally:
             camera.stop()
+        frame = latest.value if latest is not None else None
         if not stats.signal or frame is None or not frame.signal:
             checks.append(
                 Check(

@@ -19,6 +19,7 @@ running, done, failed; the summary, or why it failed). The station lists the fol
 from __future__ import annotations
 
 import asyncio
+import builtins
 import contextlib
 import logging
 import multiprocessing
@@ -154,7 +155,7 @@ class Exports:
             return record.model_copy(update={"state": INTERRUPTED})
         return record
 
-    def files(self, export_id: str) -> list[tuple[str, Path]]:
+    def files(self, export_id: str) -> builtins.list[tuple[str, Path]]:
         """Blocking: (name in the zip, path) of a finished export's files."""
         record = self.get(export_id)
         if record is None:

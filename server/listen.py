@@ -143,6 +143,8 @@ class StationHttpProtocol(HttpToolsProtocol):
         self.holds_place = False
         self._deadline: asyncio.TimerHandle | None = None
 
+    # asyncio.Protocol's parameter is a BaseTransport; uvicorn's protocols take the
+    # asyncio.Transport the loop gives a TCP connection, and so does this one.
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         if not self.table.admit():
@@ -317,7 +319,7 @@ class StationServer(uvicorn.Server):
                 break
             await asyncio.sleep(0.05)
         for conn in stalled:
-            conn.transport.abort()  # type: ignore[attr-defined]
+            conn.transport.abort()
         if stalled:
             log.info("shutdown: closed %d connections whose clients stopped reading", len(stalled))
 
@@ -341,6 +343,8 @@ def uvicorn_server(app, log_level: str = "info") -> uvicorn.Server:
     and timed (`ConnectionTable`).
     """
     table = ConnectionTable(app)
+    # uvicorn types `http` and `ws` as protocol classes; it only calls them with the
+    # protocol's arguments, as a partial of the class is called.
     config = uvicorn.Config(
         app,
         log_level=log_level,

@@ -50,7 +50,7 @@ class OnboardLogs:
 
     def status(self) -> DownloadStatus:
         """The current or last download's status ("idle" before the first)."""
-        return self.current.status.get().value if self.current is not None else DownloadStatus()
+        return self.current.status.current() if self.current is not None else DownloadStatus()
 
     def _on_session_end(self, meta: SessionMeta, folder: Path) -> None:
         if not self.settings.after_disarm or not self.available:
@@ -74,7 +74,7 @@ class OnboardLogs:
         if not self.available or self.link is None:
             raise Unavailable("No vehicle link to fetch an onboard log from (none, or a replay).")
         if self.current is not None and self.current.running:
-            busy = self.current.status.get().value.session
+            busy = self.current.status.current().session
             raise Conflict(f"The onboard log of session '{busy}' is being downloaded; wait.")
         target = self.link.autopilot()
         if target is None:
@@ -92,7 +92,7 @@ class OnboardLogs:
         download.start()
         self._spawn(f"onboard-log-{session_id}", self._watch(download, folder))
         log.info("fetching the onboard log of session %s", session_id)
-        return download.status.get().value
+        return download.status.current()
 
     async def _watch(self, download: LogDownload, folder: Path) -> None:
         """Wait for the download's end (its status, published by its thread), then

@@ -29,6 +29,8 @@ def open_twin_link(
     )
     twin.start()
     stack.callback(twin.stop)
+    if twin.vehicle is None:
+        raise RuntimeError("the twin opened no MAVLink endpoint")
     port = twin.vehicle.sock.getsockname()[1]
     link = MavlinkLink(settings.link, source=f"udpout:127.0.0.1:{port}")
     link.start()

@@ -45,6 +45,9 @@ class _ChunkWriter:
     def flush(self) -> None:
         pass
 
+    def close(self) -> None:
+        pass  # part of a writable file's interface; the stream ends with `drain`
+
     def drain(self) -> None:
         if self._buf:
             self._emit(bytes(self._buf))
@@ -118,7 +121,8 @@ def _add_file(zf: zipfile.ZipFile, arcname: str, path: Path) -> None:
         info.compress_type = zipfile.ZIP_STORED
     else:
         info.compress_type = zipfile.ZIP_DEFLATED
-        info._compresslevel = 1  # what ZipFile.write(compresslevel=1) sets (3.13: an alias)
+        # What ZipFile.write(compresslevel=1) sets; private before 3.13 (compress_level).
+        info._compresslevel = 1  # type: ignore[attr-defined]
     with open(path, "rb") as src, zf.open(info, "w") as dest:
         left = info.file_size
         while left > 0 and (chunk := src.read(min(left, _COPY_BYTES))):

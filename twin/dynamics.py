@@ -14,6 +14,7 @@ electric power is calibrated so that a hover lasts about 11 minutes.
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -165,10 +166,13 @@ class BodyState:
         return self.pos_m.shape[0]
 
 
-try:  # the clip ufunc: one call with an output, unlike the np.clip wrapper
-    from numpy._core.umath import clip as _clip
+# The clip ufunc: one call with an output, unlike the np.clip wrapper. Looked up by
+# name: numpy's stubs leave it out.
+try:
+    _umath = importlib.import_module("numpy._core.umath")
 except ImportError:  # numpy < 2
-    from numpy.core.umath import clip as _clip
+    _umath = importlib.import_module("numpy.core.umath")
+_clip: np.ufunc = _umath.clip
 _min = np.minimum.reduce
 
 
@@ -263,7 +267,7 @@ class Dynamics:
         pos = np.zeros((n, 3))
         pos[:, :2] = xy_m
         charge = np.full(n, af.capacity_ah * 3600.0)
-        volt = np.full(n, af.cells * float(ocv_per_cell_v(1.0)))
+        volt = np.full(n, af.cells * float(ocv_per_cell_v(np.array(1.0))))
         self._w_max_alive = _per_rotor(af.kv_rad_s_per_v * volt)
         self._grounded = True
         state = BodyState(

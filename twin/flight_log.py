@@ -100,7 +100,8 @@ def quaternion_wxyz(R: np.ndarray) -> tuple[float, float, float, float]:
         s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
         q = ((m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s)
     sign = -1.0 if q[0] < 0 else 1.0
-    return tuple(float(sign * v) for v in q)  # type: ignore[return-value]
+    w, x, y, z = q
+    return float(sign * w), float(sign * x), float(sign * y), float(sign * z)
 
 
 @dataclass(frozen=True)

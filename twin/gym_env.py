@@ -42,7 +42,7 @@ Terminated: crash, or landed (disarmed after touchdown). Truncated: `max_episode
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -51,6 +51,9 @@ from gymnasium import spaces
 from fpv_station.core.scene import Scene, SceneStart, Task, load_scene
 from fpv_station.twin.dynamics import Wind
 from fpv_station.twin.sim import Sim, SimConfig
+
+if TYPE_CHECKING:  # imported when a camera is first rendered (OpenCV)
+    from fpv_station.twin.render import Renderer
 
 # What each element of the state vector is; exporters name dataset features with these.
 STATE_NAMES: tuple[str, ...] = (
@@ -80,7 +83,20 @@ ENV_ID = "fpv_station/TwinEnv-v0"
 ACTION_NAMES: tuple[str, ...] = ("roll", "pitch", "yaw", "throttle")
 
 
-class TwinEnv(gym.Env):
+class EpisodeTwin:
+    """The twin of an environment's episode, made by its reset()."""
+
+    _sim: Sim | None = None
+
+    @property
+    def sim(self) -> Sim:
+        """The episode's twin; RuntimeError before the first reset()."""
+        if self._sim is None:
+            raise RuntimeError("call reset() before step()")
+        return self._sim
+
+
+class TwinEnv(EpisodeTwin, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(
@@ -120,28 +136,25 @@ class TwinEnv(gym.Env):
             self.observation_space = state
         end = self.scene.pad(self.task.end_pad)
         self.target_m = np.array([end.x_m, end.y_m, 0.0])
-        self.sim: Sim | None = None
-        self._renderer = None
+        self._renderer: Renderer | None = None
 
     # ---- gymnasium API ----
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         sim_seed = int(self.np_random.integers(0, 2**31 - 1))
         config = episode_config(self.config, sim_seed, self.wind, self.start, options)
-        self.sim = Sim(self.scene, config)
-        self.sim.run_for(self.sim.config.sensors.gps_fix_delay_s + 0.5)
-        ok, why = self.sim.arm()
+        self._sim = sim = Sim(self.scene, config)
+        sim.run_for(sim.config.sensors.gps_fix_delay_s + 0.5)
+        ok, why = sim.arm()
         if not ok:
             raise RuntimeError(f"the twin refused to arm at reset: {why}")
-        self._t0 = self.sim.t_s
+        self._t0 = sim.t_s
         self.reward_fn = TaskReward(self.task, self.target_m, self.control_hz)
-        self.reward_fn.reset(self.sim.state.pos_m[0])
+        self.reward_fn.reset(sim.state.pos_m[0])
         return self._observation(), self._info()
 
     def step(self, action):
         sim = self.sim
-        if sim is None:
-            raise RuntimeError("call reset() before step()")
         a = np.clip(np.asarray(action, float), -1.0, 1.0)
         sim.set_sticks(a[0], a[1], a[2], 0.5 + 0.5 * a[3])
         sim.step(max(1, int(round(1.0 / (self.control_hz * sim.dt_s)))))
@@ -153,7 +166,7 @@ class TwinEnv(gym.Env):
         return self._observation(), float(reward), terminated, truncated, self._info()
 
     def render(self):
-        if self.render_mode != "rgb_array" or self.sim is None:
+        if self.render_mode != "rgb_array" or self._sim is None:
             return None
         return self._camera("front", full_size=True)
 

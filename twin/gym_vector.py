@@ -26,11 +26,11 @@ from gymnasium.vector.utils import batch_space
 
 from fpv_station.core.scene import Scene, SceneStart, load_scene
 from fpv_station.twin.dynamics import Wind
-from fpv_station.twin.gym_env import STATE_SIZE, episode_config, parse_start
+from fpv_station.twin.gym_env import STATE_SIZE, EpisodeTwin, episode_config, parse_start
 from fpv_station.twin.sim import Sim, SimConfig
 
 
-class TwinVectorEnv(VectorEnv):
+class TwinVectorEnv(EpisodeTwin, VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
     def __init__(
@@ -60,14 +60,13 @@ class TwinVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         end = self.scene.pad(self.task.end_pad)
         self.target_m = np.array([end.x_m, end.y_m, 0.0])
-        self.sim: Sim | None = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         n = self.num_envs
         sim_seed = int(self.np_random.integers(0, 2**31 - 1))
         config = episode_config(self.config, sim_seed, self.wind, self.start, options)
-        self.sim = sim = Sim(self.scene, config, n=n)
+        self._sim = sim = Sim(self.scene, config, n=n)
         sim.run_for(sim.config.sensors.gps_fix_delay_s + 0.5)
         self._arm(np.arange(n))
         self._t0 = np.full(n, sim.t_s)
@@ -78,8 +77,6 @@ class TwinVectorEnv(VectorEnv):
 
     def step(self, actions):
         sim = self.sim
-        if sim is None:
-            raise RuntimeError("call reset() before step()")
         a = np.clip(np.asarray(actions, float).reshape(self.num_envs, 4), -1.0, 1.0)
         sim.sticks[:] = np.column_stack([a[:, :3], 0.5 + 0.5 * a[:, 3]])
         again = self._autoreset

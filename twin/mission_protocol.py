@@ -88,6 +88,8 @@ class MissionProtocol:
             self._ack(src, mavlink.MAV_MISSION_INVALID_SEQUENCE, mtype)
             return
         it = items[seq]
+        lat: float | int
+        lon: float | int
         if as_int:
             lat, lon = int(round(it.lat_deg * 1e7)), int(round(it.lon_deg * 1e7))
             send = self.mav.mission_item_int_send

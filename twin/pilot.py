@@ -68,9 +68,11 @@ class Pilot:
         if self.done:
             return (0.0, 0.0, 0.0, 0.0 if not obs.armed else 0.5)
         leg = self.legs[self.leg]
-        if self._leg_t0 is None:
+        hold_xy = self._hold_xy
+        if self._leg_t0 is None or hold_xy is None:  # a leg starts (both are set together)
             self._leg_t0 = obs.t_s
-            self._hold_xy = obs.pos_enu_m[:2].copy() if leg.xy_m is None else np.array(leg.xy_m)
+            hold_xy = obs.pos_enu_m[:2].copy() if leg.xy_m is None else np.array(leg.xy_m)
+            self._hold_xy = hold_xy
             self._hold_alt = float(obs.pos_enu_m[2])
         elapsed = obs.t_s - self._leg_t0
         z = float(obs.pos_enu_m[2])
@@ -82,11 +84,11 @@ class Pilot:
         if leg.kind == "climb":
             if z >= leg.alt_m:
                 self._next(obs)
-            return self._fly(obs, self._hold_xy, leg.alt_m + CLIMB_MARGIN_M)
+            return self._fly(obs, hold_xy, leg.alt_m + CLIMB_MARGIN_M)
         if leg.kind == "hold":
             if elapsed >= leg.seconds:
                 self._next(obs)
-            return self._fly(obs, self._hold_xy, leg.alt_m or self._hold_alt)
+            return self._fly(obs, hold_xy, leg.alt_m or self._hold_alt)
         if leg.kind == "goto":
             d = np.hypot(*(np.array(leg.xy_m) - obs.pos_enu_m[:2]))
             if d < leg.tolerance_m:
@@ -96,7 +98,7 @@ class Pilot:
             if not obs.armed:  # auto-disarm after the landing: the flight is over
                 self._next(obs)
                 return (0.0, 0.0, 0.0, 0.0)
-            roll, pitch, _, _ = self._fly(obs, self._hold_xy, z)
+            roll, pitch, _, _ = self._fly(obs, hold_xy, z)
             if z < 0.05 and abs(obs.vel_enu_mps[2]) < 0.1:
                 return (0.0, 0.0, 0.0, 0.0)  # on the ground: throttle down, wait
             return (roll, pitch, 0.0, self._throttle(-self.descent_mps))

@@ -139,8 +139,8 @@ class Renderer:
             field[:, x : x + stripe] = np.clip(np.array(f.grass_bgr) * 1.12, 0, 255).astype(
                 np.uint8
             )
-        noise = rng.normal(0, 1, (h // 4 + 1, w // 4 + 1)).astype(np.float32)
-        noise = cv2.resize(cv2.GaussianBlur(noise, (0, 0), 1.5), (w, h))[..., None]
+        coarse = rng.normal(0, 1, (h // 4 + 1, w // 4 + 1)).astype(np.float32)
+        noise = cv2.resize(cv2.GaussianBlur(coarse, (0, 0), 1.5), (w, h))[..., None]
         fine = rng.normal(0, 7, (h, w, 1)).astype(np.float32)
         tex = np.clip(tex.astype(np.float32) + 14 * noise + fine, 0, 255).astype(np.uint8)
         cv2.rectangle(tex, (fx0, fy0), (fx0 + fw, fy0 + fh), (235, 235, 235), max(2, ppm // 8))

@@ -17,7 +17,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from fpv_station.twin.log_server import LogServer
 from fpv_station.twin.settings import TwinSettings
 from fpv_station.twin.sim import Pose, Sim, SimConfig
 from fpv_station.twin.vehicle import MavlinkVehicle
+
+if TYPE_CHECKING:  # imported on first use: its textures take a while to build
+    from fpv_station.twin.render import Renderer
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +66,7 @@ class Twin:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._render_options = render_options or {}
-        self._renderer = None
+        self._renderer: Renderer | None = None
         self._render_lock = threading.Lock()
         self.error: str | None = None
         # Its own flight log (a ULog per armed period, `twin.flight_log`), on its "SD
@@ -168,7 +171,7 @@ class Twin:
     # ---- state and commands (any thread) ----
     def pose(self) -> Pose:
         """The latest true pose: position/velocity ENU (m, m/s) in the scene's world frame."""
-        return self.poses.get().value
+        return self.poses.current()
 
     def local_position_enu_m(self) -> np.ndarray:
         return self.pose().pos_enu_m
@@ -223,7 +226,7 @@ class Twin:
             return None
         return Optics(tilt_up_deg=model.tilt_up_deg, vfov_deg=model.vfov_deg)
 
-    def _get_renderer(self):
+    def _get_renderer(self) -> Renderer:
         with self._render_lock:
             if self._renderer is None:
                 from fpv_station.twin.render import Renderer  # textures are built on first use only

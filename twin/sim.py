@@ -92,14 +92,16 @@ class Sim:
         self.dt_s = 1.0 / cfg.physics_hz
         half = (self.scene.field.size_x_m / 2, self.scene.field.size_y_m / 2)
         sw = self.scene.wind
-        self.wind = cfg.wind
-        if self.wind is None:
-            self.wind = Wind(
+        self.wind = (
+            cfg.wind
+            if cfg.wind is not None
+            else Wind(
                 (sw.east_mps, sw.north_mps, 0.0),
                 sw.gust_std_mps,
                 sw.gust_tau_s,
                 sw.turbulence_std_mps,
             )
+        )
         self.start = cfg.start if cfg.start is not None else self.scene.start
         self.dynamics = Dynamics(
             airframe=cfg.airframe,

@@ -25,6 +25,7 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -134,7 +135,7 @@ def _extend(index: FrameIndex, data: bytes, st: os.stat_result) -> FrameIndex:
     whose state is now `st`."""
     whole = data[: data.rfind(b"\n") + 1]
     new = _parse_rows(whole, index.header, index.packed)
-    grown = {
+    grown: dict[str, Any] = {  # field name -> its longer array
         name: np.concatenate([getattr(index, name), new[column].astype(getattr(index, name).dtype)])
         for name, column in zip(_ARRAYS, _NUMERIC, strict=True)
         if new["seq"].size

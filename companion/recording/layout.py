@@ -25,6 +25,7 @@ import re
 import time
 import typing
 from datetime import UTC, datetime
+from typing import Any
 
 from fpv_station.companion.vehicle_state import LOG_GROUPS, VehicleState
 
@@ -128,10 +129,10 @@ def is_valid_session_id(session_id: str) -> bool:
     )
 
 
-def _tuple_length(group_type: type, f: dataclasses.Field) -> int | None:
+def _tuple_length(group_type: type, f: dataclasses.Field[Any]) -> int | None:
     """Length of a tuple field from its default (the state fixes it), None if not a tuple."""
-    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
-        default = f.default_factory()  # type: ignore[misc]
+    if f.default_factory is not dataclasses.MISSING:
+        default = f.default_factory()
     else:
         default = f.default
     return len(default) if isinstance(default, tuple) else None

@@ -229,8 +229,8 @@ def _reconcile_files(
             t_wall = os.stat(path).st_mtime
             t_s = t_wall - start_wall
         rel = layout.frame_relpath(camera, seq)
-        row = (seq, rel, round(t_s, 6), round(t_wall, 6), width, height, len(data))
-        added.append(tuple(str(v) for v in row))
+        cells = (seq, rel, round(t_s, 6), round(t_wall, 6), width, height, len(data))
+        added.append(tuple(str(v) for v in cells))
     out.added = len(added)
     out.rows = sorted(kept + added, key=lambda r: int(r[0]))
     if not added and not out.rows_removed and not old.cut:

@@ -12,7 +12,7 @@ import logging
 
 from fpv_station.companion.recording import layout
 from fpv_station.companion.recording.meta import write_meta
-from fpv_station.companion.recording.ondisk import apply_census, take_census
+from fpv_station.companion.recording.ondisk import Census, apply_census, take_census
 from fpv_station.companion.recording.store import SessionStore
 
 log = logging.getLogger(__name__)
@@ -29,6 +29,7 @@ def mark_interrupted(store: SessionStore, skip: set[str] | None = None) -> list[
         if meta is None or meta.status != layout.STATUS_RECORDING:
             continue
         folder = store.resolve(sid)
+        census: Census | None
         try:
             census = take_census(folder, meta.cameras, meta.start_wall)
         except OSError as exc:
@@ -36,7 +37,7 @@ def mark_interrupted(store: SessionStore, skip: set[str] | None = None) -> list[
             # it from starting. Its counts stay those it last wrote (no `recovery`).
             census = None
             log.warning("cannot count the files of interrupted session %s: %s", sid, exc)
-        else:
+        if census is not None:
             apply_census(meta, census, layout.utc_label())
         meta.status = layout.STATUS_INTERRUPTED
         meta.stop_reason = "interrupted: the station stopped while recording (power loss or kill)"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any
@@ -69,7 +69,7 @@ class _CsvText:
         self._buf = io.StringIO()
         self._writer = csv.writer(self._buf, lineterminator="")
 
-    def __call__(self, cells: list[Any]) -> str:
+    def __call__(self, cells: Sequence[Any]) -> str:
         buf = self._buf
         buf.seek(0)
         buf.truncate()

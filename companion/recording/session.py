@@ -519,7 +519,9 @@ class RecordingSession:
                 configured_fps=self.config.camera_fps.get(cam),
                 achieved_fps=achieved,
                 frames_captured=(
-                    0 if track.first_seq is None else track.last_seq - track.first_seq + 1
+                    0
+                    if track.first_seq is None or track.last_seq is None
+                    else track.last_seq - track.first_seq + 1
                 ),
                 frames_written=written,
                 frames_missed=track.missed,

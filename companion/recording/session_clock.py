@@ -39,7 +39,7 @@ def choose_session_clock(
     has it (`VehicleState.utc`; None or empty: it has none) and `station_synced`, the
     kernel's answer (None: unknown)."""
     vehicle_utc = None if vehicle is None else vehicle.at(station_mono)
-    vehicle_source = vehicle.source if vehicle_utc is not None else None
+    vehicle_source = vehicle.source if vehicle is not None and vehicle_utc is not None else None
 
     def clock(used: str, reason: str) -> SessionClock:
         offset = 0.0 if used != "vehicle" or vehicle_utc is None else vehicle_utc - station_wall

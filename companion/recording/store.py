@@ -16,6 +16,7 @@ and a slice of the camera's frame pack in format 2 (`companion.recording.frame_p
 
 from __future__ import annotations
 
+import builtins
 import contextlib
 import logging
 import os
@@ -158,7 +159,9 @@ class SessionStore:
         except SessionFileNotFound:  # format 1, or no such camera
             return None
         index = self.frame_index(session_id, camera)
-        k = index.find(seq) if index is not None and index.packed else None
+        if index is None or not index.packed:
+            return None
+        k = index.find(seq)
         if k is None:
             return None
         try:
@@ -203,7 +206,7 @@ class SessionStore:
 
     def ids(self) -> list[str]:
         """Ids of every session folder, oldest first (ids sort by start time)."""
-        out = []
+        out: list[str] = []
         if not self._real_root.is_dir():
             return out
         with os.scandir(self._real_root) as it:
@@ -287,7 +290,7 @@ class SessionStore:
             for key in [k for k in self._indexes if k[0] == session_id]:
                 del self._indexes[key]
 
-    def files(self, session_id: str) -> list[tuple[str, Path]]:
+    def files(self, session_id: str) -> builtins.list[tuple[str, Path]]:
         """(relative posix path, absolute path) of every regular file, sorted; no symlinks."""
         folder = self.resolve(session_id)
         out: list[tuple[str, Path]] = []

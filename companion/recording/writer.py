@@ -50,6 +50,11 @@ from fpv_station.core.mavlink.tlog_records import encode_record
 
 log = logging.getLogger(__name__)
 
+# What the writer thread takes from its queues at once: frames by camera, rows, packets.
+_Frames = dict[str, deque[Frame]]
+_Rows = deque[Sample]
+_Packets = deque[tuple[float, bytes]]
+
 
 @dataclass
 class WriterStats:
@@ -272,7 +277,7 @@ class SessionWriter:
             or any(len(q) >= lim.frame_queue // 2 for q in self._frames.values())
         )
 
-    def _take(self) -> tuple[dict[str, deque[Frame]], deque[Sample], deque[tuple[float, bytes]]]:
+    def _take(self) -> tuple[_Frames, _Rows, _Packets]:
         """Everything queued, leaving the queues empty (call holding `_cond`)."""
         rows, self._rows = self._rows, deque()
         packets, self._packets = self._packets, deque()
@@ -281,7 +286,7 @@ class SessionWriter:
             self._frames[c] = deque()
         return frames, rows, packets
 
-    def _write_or_count(self, frames, rows, packets) -> None:
+    def _write_or_count(self, frames: _Frames, rows: _Rows, packets: _Packets) -> None:
         if self.failure is None:
             try:
                 self._write(frames, rows, packets)
@@ -291,12 +296,7 @@ class SessionWriter:
         else:
             self._count_lost(frames, rows, packets)
 
-    def _write(
-        self,
-        frames: dict[str, deque[Frame]],
-        rows: deque[Sample],
-        packets: deque[tuple[float, bytes]],
-    ) -> None:
+    def _write(self, frames: _Frames, rows: _Rows, packets: _Packets) -> None:
         # The frames first (pack, then frames.csv rows, both out to the OS): the rows name
         # them, and a full CSV buffer reaches the OS in the middle of a batch, so rows
         # written first could be on disk (and left there by a kill) naming frames that are
@@ -372,7 +372,7 @@ class SessionWriter:
         )
         self._messages_csv.writerows(rows)
 
-    def _count_lost(self, frames, rows, packets) -> None:
+    def _count_lost(self, frames: _Frames, rows: _Rows, packets: _Packets) -> None:
         with self._cond:
             for cam, q in frames.items():
                 self.stats.frames_dropped_queue[cam] += len(q)

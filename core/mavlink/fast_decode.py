@@ -16,6 +16,7 @@ tests/test_mavlink_framing.py compares both decoders on every message of the dia
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from operator import itemgetter
 from typing import Any
@@ -71,12 +72,16 @@ _LAYOUTS: dict[int, _Layout] = {
 }
 
 
-_MCRF4XX = getattr(mavlink, "mcrf4xx", None)  # fastcrc's, where pymavlink found it
+# fastcrc's, where pymavlink found it
+_MCRF4XX: Callable[[bytes, int], int] | None = getattr(mavlink, "mcrf4xx", None)
 
 
 def _crc(data: bytes) -> int:
     """The X.25 checksum pymavlink computes (through fastcrc when it is installed)."""
-    return _MCRF4XX(data, 0xFFFF) if _MCRF4XX is not None else mavlink.x25crc(data).crc
+    if _MCRF4XX is not None:
+        return _MCRF4XX(data, 0xFFFF)
+    crc: int = mavlink.x25crc(data).crc
+    return crc
 
 
 class FastDecoder:
@@ -116,7 +121,7 @@ class FastDecoder:
         if mlen < layout.size:
             payload += bytes(layout.size - mlen)
         values = layout.in_field_order(layout.unpack(payload[: layout.size]))
-        msg = layout.cls.__new__(layout.cls)
+        msg = object.__new__(layout.cls)
         attrs = msg.__dict__
         attrs.update(layout.constant)
         attrs.update(zip(layout.fieldnames, values))

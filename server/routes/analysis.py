@@ -20,7 +20,7 @@ three figures loads the session once. The JSON is the CLI's
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Literal, overload
 
 import anyio
 from fastapi import APIRouter, Depends, Query, Request
@@ -101,9 +101,7 @@ def _session_files(store: st.SessionStore, session_id: str) -> tuple[Path, Path 
     return data, meta
 
 
-def _stamp(path: Path | None) -> Stamp | None:
-    if path is None:
-        return None
+def _stamp(path: Path) -> Stamp:
     s = path.stat()
     return (str(path), s.st_mtime_ns, s.st_size)
 
@@ -122,11 +120,35 @@ def _job(
     files = []
     for sid in session_ids:
         data, meta = _session_files(store, sid)
-        files.append((sid, _stamp(data), _stamp(meta)))
+        files.append((sid, _stamp(data), _stamp(meta) if meta is not None else None))
     scene = request.app.state.settings.twin.scene
     return AnalysisJob(
         tuple(files), task, reference, str(scene) if scene else None, params, flight, plot
     )
+
+
+@overload
+async def _run(
+    request: Request,
+    session_ids: list[str],
+    task: str,
+    reference: str | None,
+    params: TaskParams,
+    plot: None = None,
+    flight: int | None = None,
+) -> dict: ...  # the table
+
+
+@overload
+async def _run(
+    request: Request,
+    session_ids: list[str],
+    task: str,
+    reference: str | None,
+    params: TaskParams,
+    plot: str,
+    flight: int | None = None,
+) -> bytes: ...  # the figure's PNG
 
 
 async def _run(

@@ -70,7 +70,7 @@ async def _reply(demo: DemoMode) -> DemoReply:
     return DemoReply(
         run=run,
         active=active,
-        attempt=(recording or len(run.sessions) + 1) if active else None,
+        attempt=(recording or len(run.sessions) + 1) if run is not None and active else None,
         recording=recording is not None,
         flown=flown,
     )

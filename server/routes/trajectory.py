@@ -96,8 +96,9 @@ def load_trajectory(
 
 def _number(value: object) -> float | None:
     """A number from session.json, None when it holds something else."""
-    ok = isinstance(value, int | float) and not isinstance(value, bool)
-    return float(value) if ok else None
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    return None
 
 
 @router.get(

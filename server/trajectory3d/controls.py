@@ -116,7 +116,7 @@ class Controls:
             value = pilot.color_by.value
             if event.client is not None and value in COLOR_BY_CHOICES:
                 with self._lock:
-                    self._requests.color_by = value  # type: ignore[assignment]
+                    self._requests.color_by = value
 
         @pilot.show_field.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -163,10 +163,12 @@ class Controls:
 
     def show(self) -> None:
         """Every pilot's inputs to the panel's settings (a no-op where they agree)."""
+        # viser defines a method between `value`'s getter and setter, which hides the
+        # setter from mypy: the stores below are viser's documented API.
         for pilot in list(self.pilots.values()):
-            pilot.follow.value = self.follow
-            pilot.color_by.value = self.color_by
-            pilot.show_field.value = self.show_field
+            pilot.follow.value = self.follow  # type: ignore[misc]
+            pilot.color_by.value = self.color_by  # type: ignore[misc]
+            pilot.show_field.value = self.show_field  # type: ignore[misc]
 
     def set_status(self, text: str) -> None:
         if self.status.content != text:  # skip the message when nothing changed

@@ -33,7 +33,7 @@ import secrets
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import msgspec
 from starlette.websockets import WebSocket, WebSocketDisconnect
@@ -60,10 +60,10 @@ class ViewerInput:
     choices: tuple[str, ...] | None = None  # a dropdown's options
 
 
-def gui_uuid(handle: object) -> str:
+def gui_uuid(handle: viser.GuiInputHandle[Any] | viser.GuiButtonHandle) -> str:
     """The uuid viser's client names a GUI input by in its GuiUpdateMessage (viser keeps
     it on the handle's state, `_impl`, and has no public name for it)."""
-    return handle._impl.uuid  # type: ignore[attr-defined]
+    return handle._impl.uuid
 
 
 # -- what a viewer may send, in the exact shape viser's client sends it ------------------
@@ -154,7 +154,7 @@ def open_viser(port: int, label: str, host: str = LOOPBACK) -> viser.ViserServer
     server = viser.ViserServer(host=host, port=port, label=label, verbose=False)
     # viser answers a client's ShareUrlRequest by calling this method of the server, on a
     # worker thread: the instance's own attribute wins over the class's.
-    server.request_share_url = _no_share_url  # type: ignore[method-assign]
+    server.request_share_url = _no_share_url  # type: ignore[method-assign]  # on purpose
     return server
 
 
@@ -179,7 +179,7 @@ class PilotPath:
         """Whether viser's `client` came in by this path. viser keeps each client's
         websockets connection, and the request it opened with, in its server's
         `_live_connections` (no public name)."""
-        conn = server._websock_server._live_connections.get(client.client_id)  # type: ignore[attr-defined]
+        conn = server._websock_server._live_connections.get(client.client_id)
         request = getattr(conn, "request", None)
         return request is not None and request.path == self.path
 

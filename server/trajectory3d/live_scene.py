@@ -15,6 +15,8 @@ from numpy.typing import NDArray
 
 from fpv_station.core.scene import Scene, bgr_to_rgb
 from fpv_station.server.trajectory3d.colors import ColorBy, ramp_rgb
+from fpv_station.server.trajectory3d.pose import wxyz as as_wxyz
+from fpv_station.server.trajectory3d.pose import xyz
 from fpv_station.server.trajectory3d.trail import Origin, Trail, TrailChunk
 
 # The F450 drawn three times its size, so that it stays visible over a 60 m field.
@@ -118,15 +120,15 @@ class LiveScene:
     def set_vehicle_pose(
         self, position_enu_m: NDArray[np.float64], wxyz: NDArray[np.float64]
     ) -> None:
-        self.vehicle.position = tuple(float(v) for v in position_enu_m)
-        self.vehicle.wxyz = tuple(float(v) for v in wxyz)
+        self.vehicle.position = xyz(position_enu_m)
+        self.vehicle.wxyz = as_wxyz(wxyz)
 
     def set_footprint(self, corners_enu_m: NDArray[np.float64] | None) -> None:
         if corners_enu_m is None:
             if self._footprint is not None and self._footprint.visible:
                 self._footprint.visible = False
             return
-        lifted = np.asarray(corners_enu_m, np.float32) + np.float32([0, 0, 0.03])
+        lifted = np.asarray(corners_enu_m, np.float32) + np.array([0, 0, 0.03], np.float32)
         pts = np.stack([lifted, np.roll(lifted, -1, axis=0)], axis=1)
         if self._footprint is None:
             self._footprint = self.scene.add_line_segments(

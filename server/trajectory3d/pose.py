@@ -17,6 +17,18 @@ _T_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _T_FRD_FLU = np.diag([1.0, -1.0, -1.0])
 
 
+def xyz(v: Array) -> tuple[float, float, float]:
+    """A 3-vector as the plain floats a viser handle's position takes."""
+    x, y, z = v
+    return float(x), float(y), float(z)
+
+
+def wxyz(q: Array) -> tuple[float, float, float, float]:
+    """A quaternion as the plain floats a viser handle's orientation takes."""
+    w, x, y, z = q
+    return float(w), float(x), float(y), float(z)
+
+
 def R_ned_frd_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Array:
     """Aerospace Z-Y-X (yaw, pitch, roll) rotation, body FRD -> world NED."""
     cr, sr = np.cos(roll_rad), np.sin(roll_rad)

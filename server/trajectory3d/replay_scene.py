@@ -29,6 +29,7 @@ from fpv_station.server.trajectory3d.pose import (
     R_enu_flu_from_euler,
     bottom_footprint_enu,
     wxyz_from_matrix,
+    xyz,
 )
 from fpv_station.server.trajectory3d.replay import TrajectoryReply
 from fpv_station.server.trajectory3d.trail import TrailChunk
@@ -174,8 +175,8 @@ class Replay3D:
             for h in list(sc.chunk_handles.values()):
                 h.remove()
             sc.chunk_handles.clear()
-            for h in reversed(self.overlay_handles):  # children (the label) first
-                h.remove()
+            for node in reversed(self.overlay_handles):  # children (the label) first
+                node.remove()
             self.overlay_handles = []
             self.overlay_vehicle = None
             self._place_field(a)
@@ -197,7 +198,7 @@ class Replay3D:
         centre = (lo + hi) / 2.0
         span = max(float(np.linalg.norm(hi - lo)), 10.0)
         eye = centre + np.array([-0.45, -0.65, 0.6]) * span
-        look, pos = tuple(float(v) for v in centre), tuple(float(v) for v in eye)
+        look, pos = xyz(centre), xyz(eye)
         # New viewers start from initial_camera (and viser's own "Reset View" goes back to
         # it); open ones are moved.
         self.server.initial_camera.look_at = look
@@ -245,7 +246,7 @@ class Replay3D:
             "/overlay/vehicle",
             radius=0.35,
             color=OVERLAY_RGB,
-            position=tuple(float(v) for v in b.enu_m[0]),
+            position=xyz(b.enu_m[0]),
         )
         self.overlay_handles.append(self.overlay_vehicle)
         self.overlay_handles.append(
@@ -285,7 +286,7 @@ class Replay3D:
             j = b.index_at(t)
             if self.overlay_vehicle.visible != (j >= 0):
                 self.overlay_vehicle.visible = j >= 0
-            self.overlay_vehicle.position = tuple(float(v) for v in b.enu_m[max(j, 0)])
+            self.overlay_vehicle.position = xyz(b.enu_m[max(j, 0)])
         return t
 
     def _place_vehicle(self, a: ReplayPath, i: int) -> None:

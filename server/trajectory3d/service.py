@@ -68,14 +68,18 @@ UNWATCHED_TURN_S = 1.0
 KEPT_S = 10.0
 
 
-def _valid_fix(lat_deg: float | None, lon_deg: float | None, alt_m: float | None) -> bool:
-    """Coordinates worth drawing: present, finite, on the globe, and not the (0, 0) that
-    autopilots send before their first fix."""
+def _valid_fix(
+    lat_deg: float | None, lon_deg: float | None, alt_m: float | None
+) -> tuple[float, float, float] | None:
+    """(lat, lon, alt) when the coordinates are worth drawing: present, finite, on the
+    globe, and not the (0, 0) that autopilots send before their first fix; else None."""
     if lat_deg is None or lon_deg is None or alt_m is None:
-        return False
+        return None
     if not all(math.isfinite(v) for v in (lat_deg, lon_deg, alt_m)):
-        return False
-    return abs(lat_deg) <= 90 and abs(lon_deg) <= 180 and (lat_deg, lon_deg) != (0.0, 0.0)
+        return None
+    if abs(lat_deg) <= 90 and abs(lon_deg) <= 180 and (lat_deg, lon_deg) != (0.0, 0.0):
+        return lat_deg, lon_deg, alt_m
+    return None
 
 
 def sample_from_state(state: VehicleState) -> TrailSample | None:
@@ -84,37 +88,25 @@ def sample_from_state(state: VehicleState) -> TrailSample | None:
     gps, gp = state.gps, state.global_position
     if gps.t_mono is not None and gps.fix_type < MIN_FIX_TYPE:
         return None
-    if gp.t_mono is not None and _valid_fix(gp.lat_deg, gp.lon_deg, gp.alt_m):
+    if gp.t_mono is not None and (fix := _valid_fix(gp.lat_deg, gp.lon_deg, gp.alt_m)):
         speed = (
             math.hypot(gp.vx_mps, gp.vy_mps)
             if gp.vx_mps is not None and gp.vy_mps is not None
             else math.nan
         )
-        return TrailSample(
-            gp.t_mono,
-            gp.lat_deg,
-            gp.lon_deg,
-            gp.alt_m,  # type: ignore[arg-type]
-            speed,
-        )
-    if gps.t_mono is not None and _valid_fix(gps.lat_deg, gps.lon_deg, gps.alt_m):
+        return TrailSample(gp.t_mono, *fix, speed)
+    if gps.t_mono is not None and (fix := _valid_fix(gps.lat_deg, gps.lon_deg, gps.alt_m)):
         speed = gps.ground_speed_mps if gps.ground_speed_mps is not None else math.nan
-        return TrailSample(
-            gps.t_mono,
-            gps.lat_deg,
-            gps.lon_deg,  # type: ignore[arg-type]
-            gps.alt_m,
-            speed,
-        )
+        return TrailSample(gps.t_mono, *fix, speed)
     return None
 
 
 def origin_from_state(state: VehicleState) -> Origin | None:
     """The arming point (or the first fix before any arming), as the link measured it."""
     a = state.altitude
-    if a.reference == "none" or not _valid_fix(a.home_lat_deg, a.home_lon_deg, a.reference_alt_m):
+    if a.reference == "none":
         return None
-    return (a.home_lat_deg, a.home_lon_deg, a.reference_alt_m)  # type: ignore[return-value]
+    return _valid_fix(a.home_lat_deg, a.home_lon_deg, a.reference_alt_m)
 
 
 class Trajectory3D:
@@ -304,12 +296,12 @@ class Trajectory3D:
         self.steps += 1
         if not draw or self.server is None or not self.watched():
             self._stale = True
-            self._step(state, draw=False)
+            self._step(state, scene=None)
             return
         # One atomic batch per update: viewers apply it as a whole, and viser wakes its
         # sender once per step instead of once per message.
         with self.server.atomic():
-            self._step(state, draw=True)
+            self._step(state, self.scene)
             if self._stale and redraw:
                 for _ in self._redraw_turns(max(len(self.trail.chunks), 1)):
                     pass
@@ -330,40 +322,41 @@ class Trajectory3D:
                     self.scene.sync_chunk(chunk)
             yield
 
-    def _step(self, state: VehicleState, draw: bool) -> None:
+    def _step(self, state: VehicleState, scene: LiveScene | None) -> None:
+        """Extend the trail with `state`; draw it on `scene` too (None: the trail only)."""
         self.apply_requests()
         origin = origin_from_state(state)
-        if origin is not None and self.trail.set_origin(origin) and draw:
-            self.scene.set_origin(origin)
+        if origin is not None and self.trail.set_origin(origin) and scene is not None:
+            scene.set_origin(origin)
             self._stale = True  # every chunk re-projected
         sample = sample_from_state(state)
         if sample is None:
             self.trail.mark_gap()
-            if draw:
-                self.scene.set_footprint(None)
+            if scene is not None:
+                scene.set_footprint(None)
                 self._status(state, "no position fix: the trail pauses")
             return
         if self._last_sample_t is None or sample.t_s > self._last_sample_t:
             self._last_sample_t = sample.t_s
             new_origin = self.trail.origin is None
             changed, dropped = self.trail.append(sample)
-            if draw:
-                if new_origin:
-                    self.scene.set_origin(self.trail.origin)  # type: ignore[arg-type]
-                self.scene.drop_chunks(dropped)
+            if scene is not None:
+                if new_origin and self.trail.origin is not None:
+                    scene.set_origin(self.trail.origin)
+                scene.drop_chunks(dropped)
                 for chunk in changed:
-                    self.scene.sync_chunk(chunk)
-        if not draw:
+                    scene.sync_chunk(chunk)
+        if scene is None:
             return
-        assert self.scene is not None and self.controls is not None
+        assert self.controls is not None
         assert self.trail.origin is not None
         pos = self.trail.last_enu_m if self.trail.held is None else None
         if pos is None:  # a sample held (not a point), or the trail cleared since this fix
             pos = geodetic_to_enu(sample.lat_deg, sample.lon_deg, sample.alt_m, *self.trail.origin)
         R = self._attitude(state)
-        self.scene.set_vehicle_pose(pos, wxyz_from_matrix(R))
+        scene.set_vehicle_pose(pos, wxyz_from_matrix(R))
         s = self.settings
-        self.scene.set_footprint(
+        scene.set_footprint(
             bottom_footprint_enu(
                 pos,
                 R,
@@ -376,18 +369,14 @@ class Trajectory3D:
             self._follow(pos)
         self._status(
             state,
-            f"{self.trail.n_points} points, {len(self.scene.chunk_handles)} "
+            f"{self.trail.n_points} points, {len(scene.chunk_handles)} "
             f"chunks; height {pos[2]:.1f} m",
         )
 
     def _attitude(self, state: VehicleState) -> np.ndarray:
         a = state.attitude
-        if None not in (a.roll_rad, a.pitch_rad, a.yaw_rad):
-            return R_enu_flu_from_euler(
-                a.roll_rad,
-                a.pitch_rad,  # type: ignore[arg-type]
-                a.yaw_rad,
-            )
+        if a.roll_rad is not None and a.pitch_rad is not None and a.yaw_rad is not None:
+            return R_enu_flu_from_euler(a.roll_rad, a.pitch_rad, a.yaw_rad)
         heading = state.global_position.heading_deg
         return R_enu_flu_from_euler(0.0, 0.0, math.radians(heading or 0.0))
 
