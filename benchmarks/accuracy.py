@@ -19,6 +19,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -124,7 +125,7 @@ def forward_rate_case() -> None:
         f"{hz:.1f}", f"{hz - 50:+.1f} Hz")  # fmt: skip
 
 
-def twin() -> tuple[Twin, object]:
+def twin() -> tuple[Twin, Any]:  # pymavlink's connection (untyped)
     port = free_port(socket.SOCK_DGRAM)
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     t = Twin(config=SimConfig(sensors=SensorParams(enabled=False)),
@@ -163,13 +164,13 @@ def twin_cases() -> None:
             pass
         if len(track) > 20 and not t.sim.commander.armed[0]:
             break
-    track = np.array(track)
+    path = np.array(track)
     for east, north in ((-8.0, 0.0), (-8.0, 6.0)):
-        miss = float(np.min(np.hypot(track[:, 0] - east, track[:, 1] - north)))
+        miss = float(np.min(np.hypot(path[:, 0] - east, path[:, 1] - north)))
         where = f"closest to waypoint ({east:g}, {north:g}) m"
         row("twin AUTO.MISSION (uploaded by MISSION_ITEM_INT)", where,
             "0 (accept radius 1 m)", f"{miss:.2f} m", f"{miss:.2f} m")  # fmt: skip
-    home = float(np.hypot(*(track[-1, :2] - t.scene.start_xy_m)))
+    home = float(np.hypot(*(path[-1, :2] - t.scene.start_xy_m)))
     row("twin AUTO.MISSION", "landing point from home (m)", "0", f"{home:.2f}", f"{home:.2f} m")
     t.stop()
     gcs.close()

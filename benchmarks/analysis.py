@@ -15,8 +15,10 @@ import platform
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
+from typing import TypeVar
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -27,9 +29,12 @@ from tests import synthetic as syn  # noqa: E402
 PLOT_KINDS = ("trajectory3d", "birdseye", "history")
 
 
-def best(fn, repeat: int) -> tuple[float, object]:
+T = TypeVar("T")
+
+
+def best(fn: Callable[[], T], repeat: int) -> tuple[float, T]:
     """Best wall time of `repeat` runs (the machine is shared), and the result."""
-    times, out = [], None
+    times = []
     for _ in range(repeat):
         t0 = time.perf_counter()
         out = fn()

@@ -145,9 +145,9 @@ def main() -> None:
             try:
                 time.sleep(2.0)
                 print(f"station: {args.root}, {os.cpu_count()} cores, {args.clients} clients")
-                for kind in (None, "busted", "distinct"):
-                    got = phase(station, kind, args.clients, args.seconds)
-                    print(f"{kind or 'no load':9s} {json.dumps(got)}", flush=True)
+                for load_kind in (None, "busted", "distinct"):
+                    got = phase(station, load_kind, args.clients, args.seconds)
+                    print(f"{load_kind or 'no load':9s} {json.dumps(got)}", flush=True)
             finally:
                 sender.kill()
                 sender.wait()

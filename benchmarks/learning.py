@@ -53,8 +53,8 @@ def unit(condition: str, task: int, demos: int, episodes: int) -> tuple[str, int
 
     t0 = time.perf_counter()
     air = CONDITIONS[condition]
-    with tempfile.TemporaryDirectory(prefix=f"learning-{condition}-{task}-") as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory(prefix=f"learning-{condition}-{task}-") as tmp_name:
+        tmp = Path(tmp_name)
         quiet = io.StringIO()
         with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
             argv = ["demos", "--task", str(task), "--count", str(demos), "--seed", "0"]

@@ -75,7 +75,9 @@ def run(signing: bool, rate: float, seconds: float, folder: Path) -> str:
                 if got is not None and got.value.heartbeat.sysid == 1:
                     break
                 time.sleep(0.1)
-            tid = link._thread.native_id  # type: ignore[union-attr]
+            thread = link._thread
+            assert thread is not None and thread.native_id is not None
+            tid = thread.native_id
             c0, t0 = thread_cpu_s(tid), time.monotonic()
             flood = [sys.executable, "-c", FLOOD, str(port), str(rate), str(seconds)]
             sent = subprocess.run(flood, capture_output=True, text=True, check=True).stdout

@@ -183,7 +183,7 @@ def udp_thread_cost(seconds: float) -> None:
         link.start()
         try:
             time.sleep(3)  # heard, warmed up
-            assert link._thread is not None
+            assert link._thread is not None and link._thread.native_id is not None
             tid = link._thread.native_id
 
             def cpu_s() -> float:

@@ -124,7 +124,7 @@ def run(transport: str, size: int) -> None:
             link.state.remove_listener(counter.state)
             during_hz = (counter.count - c0) / (time.monotonic() - t0)
             sent_hz = (vehicle.sent["ATTITUDE"] - s0) / (time.monotonic() - t0)
-            status = download.status.get().value
+            status = download.status.current()
         finally:
             link.stop()
     ages = sorted(counter.ages) or [float("nan")]

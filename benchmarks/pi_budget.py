@@ -667,7 +667,7 @@ def report(run: Run) -> None:
     if run.counters:
         print(f"   perf stat: {describe_counters(run.counters)}")
         share = warm_share(run)
-        if share is not None:
+        if share is not None and run.warm_insn_per_s is not None:
             print(
                 f"   at warm Python's speed here ({run.warm_insn_per_s / 1e6:.0f} M instructions "
                 f"per CPU second) the user instructions would take {share:.2f} % of one core"

@@ -82,10 +82,12 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     vehicle.start()
     await rec.start("bench")
     session = rec.session
-    tids = session.thread_ids()
+    assert session is not None
+    writer_tid = session.thread_ids()["writer"]
+    assert writer_tid is not None
     ids = {
         "event loop": threading.get_native_id(),
-        "writer thread": tids["writer"],
+        "writer thread": writer_tid,
     }
     cpu0, wall0 = thread_cpu_s(ids), time.monotonic()
     await asyncio.sleep(seconds)
@@ -97,6 +99,7 @@ async def record(root: Path, seconds: float, jpegs: list[bytes]) -> dict:
     vehicle.stop()
     for c in cams.values():
         c.stop()
+    assert rec.last_stop is not None
     sid = rec.last_stop.id
     meta = json.loads((root / sid / "session.json").read_text())
     size = sum(p.stat().st_size for p in (root / sid).rglob("*") if p.is_file())
@@ -118,6 +121,7 @@ def paper_png_cpu_per_frame(root: Path, jpegs: list[bytes], frames: int) -> floa
     t0 = time.process_time()
     for i in range(frames):
         img = cv2.imdecode(np.frombuffer(jpegs[i % len(jpegs)], np.uint8), cv2.IMREAD_COLOR)
+        assert img is not None
         cv2.imwrite(str(out / f"{i:08d}.png"), img)
     return (time.process_time() - t0) / frames
 

@@ -42,6 +42,7 @@ def main() -> None:
     try:
         c0, w0 = time.process_time(), time.perf_counter()
         svc.load(reply, reply)
+        assert svc.scene is not None
         print(
             f"load: {t.size} fixes + overlay: {1e3 * (time.process_time() - c0):.0f} ms CPU, "
             f"{1e3 * (time.perf_counter() - w0):.0f} ms wall; "

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import json
 import os
 import platform
@@ -42,6 +43,7 @@ from pathlib import Path
 import httpx
 import psutil
 from websockets.asyncio.client import connect
+from websockets.typing import Subprotocol
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -87,7 +89,8 @@ async def viewer_3d(url: str, counts: Counts, i: int, stop: asyncio.Event) -> No
     import viser
 
     camera = viser_camera()
-    async with connect(url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:
+    protocol = Subprotocol(f"viser-v{viser.__version__}")
+    async with connect(url, subprotocols=[protocol], max_size=None) as ws:
         counts.viewers_3d += 1
         if counts.viewers_3d == len(counts.frames_3d):
             counts.all_3d_in.set()
@@ -235,7 +238,7 @@ async def load(args: argparse.Namespace, port: int, base: str, proc: psutil.Proc
     for i in range(args.viewers):
         done = loop.create_future()
         transport, viewer = await loop.create_connection(
-            lambda d=done: MjpegViewer(d), "127.0.0.1", port
+            functools.partial(MjpegViewer, done), "127.0.0.1", port
         )
         cam = "front" if i % 2 == 0 else "bottom"
         transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())

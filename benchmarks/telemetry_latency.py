@@ -180,9 +180,11 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
             workers.append(_spawn("--clients-worker", url, str(epoch), str(k)))
             left -= k
         for w in workers:
+            assert w.stdout is not None and w.stdin is not None
             assert w.stdout.readline().strip() == "ready"
         t0 = start_sender()
         for w in workers:
+            assert w.stdin is not None
             w.stdin.write(f"{t0} {t0 + seconds}\n")
             w.stdin.flush()
         time.sleep(max(t0 - time.monotonic(), 0))
@@ -193,6 +195,7 @@ def measure(n_clients: int, seconds: float, max_rate: float, per_worker: int) ->
         packets = seconds * RATE_HZ * 2
         samples: list[float] = []
         for w in workers:
+            assert w.stdout is not None
             samples += json.loads(w.stdout.readline())
             w.wait()
     ms = sorted(x * 1000 for x in samples)

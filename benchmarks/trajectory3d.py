@@ -51,6 +51,7 @@ def fly(args: argparse.Namespace, field, geo: np.ndarray, t: np.ndarray, watched
         if watched:
             stack.enter_context(viser_viewer(svc.port))
             assert wait_until(svc.watched)
+        assert svc.server is not None and svc.scene is not None
         buffer = svc.server._websock_server.get_message_buffer()
         cpu, msgs, nbytes = np.zeros(n), np.zeros(n), np.zeros(n)
         for i in range(n):

@@ -15,6 +15,7 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -86,6 +87,8 @@ class FakeMjpegGrabber:
 
 def _jpeg_size(data: bytes) -> tuple[int, int]:
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise ValueError("not a JPEG")
     return (image.shape[1], image.shape[0])
 
 
@@ -94,12 +97,13 @@ def install() -> None:
     users (their default arguments bind cv2.VideoCapture at import)."""
     real = cv2.VideoCapture
 
-    def video_capture(device: object, *args: object) -> object:
+    def video_capture(device: Any, *args: Any) -> Any:
         if isinstance(device, str) and Path(device).is_dir():
             return FakeMjpegGrabber(Path(device))
         return real(device, *args)
 
-    cv2.VideoCapture = video_capture
+    # A function in place of the class: what the station's captures call.
+    cv2.VideoCapture = video_capture  # type: ignore[misc,assignment]
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import os
 import platform
 import statistics
@@ -144,7 +145,7 @@ async def watch(port: int, cameras: list[str], per_camera: int, seconds: float, 
         for _ in range(per_camera):
             done = loop.create_future()
             transport, viewer = await loop.create_connection(
-                lambda d=done: MjpegViewer(d), "127.0.0.1", port
+                functools.partial(MjpegViewer, done), "127.0.0.1", port
             )
             transport.write(f"GET /video/{cam}.mjpg HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
             viewers.append(viewer)
@@ -204,7 +205,8 @@ def run(args: argparse.Namespace) -> None:
             dropped = sum(a["frames_dropped"] - b["frames_dropped"] for a, b in zip(after, before))
             made = sum(a["frames"] - b["frames"] for a, b in zip(after, before))
             encodes = sum(a["encodes"] - b["encodes"] for a, b in zip(after, before))
-            fps, lat = [], []
+            fps: list[float] = []
+            lat: list[float] = []
             for v in viewers:
                 window = [p for p in v.parts if t0 <= p[2] <= t1]
                 fps.append(len(window) / (t1 - t0))

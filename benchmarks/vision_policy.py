@@ -48,8 +48,8 @@ def unit(condition: str, demos: int, episodes: int) -> tuple[str, str, float]:
 
     t0 = time.perf_counter()
     air = CONDITIONS[condition]
-    with tempfile.TemporaryDirectory(prefix=f"vision-{condition}-") as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory(prefix=f"vision-{condition}-") as tmp_name:
+        tmp = Path(tmp_name)
         quiet = io.StringIO()
         with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
             argv = ["demos", "--task", str(TASK), "--count", str(demos), "--seed", "0"]

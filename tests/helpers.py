@@ -138,8 +138,11 @@ def viser_viewer(port: int) -> Iterator[Any]:
     to send what a viewer sends (a GUI click, say)."""
     import viser
     from websockets.sync.client import connect
+    from websockets.typing import Subprotocol
 
-    ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"])
+    ws = connect(
+        f"ws://127.0.0.1:{port}", subprotocols=[Subprotocol(f"viser-v{viser.__version__}")]
+    )
     ws.send(viser_camera())
 
     def drain() -> None:
@@ -177,7 +180,9 @@ def wait_until(predicate, timeout: float = 5.0, interval: float = 0.02) -> bool:
         time.sleep(interval)
 
 
-def station_settings(source: str, sessions_dir: Path | None = None, **overrides) -> Settings:
+def station_settings(
+    source: str, sessions_dir: Path | None = None, /, **overrides: Any
+) -> Settings:
     """A test station on `source`: no 3D panel, no recording on arming, and sessions (when
     it records) in `sessions_dir` whatever the disk's free space."""
     base: dict = {
@@ -204,7 +209,7 @@ def ws_upgrade(
     host: str | None = None,
     subprotocol: str | None = None,
     rcvbuf: int | None = None,
-    timeout: float = 20.0,
+    timeout: float | None = 20.0,
 ) -> tuple[socket.socket, bytes]:
     """A WebSocket upgrade on a bare socket to 127.0.0.1:`port`: (the socket, the status
     line it was answered with). The answer's head is read byte by byte, so the frames

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import Any, Self
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -60,7 +60,7 @@ class LogResponder(MavVehicle):
         self._wake = threading.Event()
         self._silenced = False
 
-    def start(self) -> LogResponder:
+    def start(self) -> Self:
         super().start()
         t = threading.Thread(target=self._log_loop, name="log-responder", daemon=True)
         t.start()

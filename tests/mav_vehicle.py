@@ -35,7 +35,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
-from typing import Literal
+from typing import Literal, Self
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -223,7 +223,7 @@ class MavVehicle:
 
     # -- lifecycle ---------------------------------------------------------------------
 
-    def start(self) -> MavVehicle:
+    def start(self) -> Self:
         for target, name in ((self._send_loop, "send"), (self._recv_loop, "recv")):
             t = threading.Thread(target=target, name=f"mav-vehicle-{name}", daemon=True)
             t.start()
@@ -237,7 +237,7 @@ class MavVehicle:
         self.drop_connection()
         self._sock.close()
 
-    def __enter__(self) -> MavVehicle:
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

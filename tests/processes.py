@@ -64,6 +64,7 @@ def terminate(proc: subprocess.Popen, timeout: float = 30.0) -> None:
 def read_line(proc: subprocess.Popen, prefix: str, timeout: float = 20.0) -> str:
     """The rest of the first line `proc` prints that starts with `prefix`."""
     deadline = time.monotonic() + timeout
+    assert proc.stdout is not None
     while time.monotonic() < deadline:
         line = proc.stdout.readline()
         if line.startswith(prefix):

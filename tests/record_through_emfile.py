@@ -28,6 +28,7 @@ async def main(root: Path) -> None:
     await rec.open()
     vehicle.armed = True
     assert await until(lambda: rec.session is not None, 30), "no session on arming"
+    assert rec.session is not None
     first = rec.session.id
     print(f"FIRST {first}", flush=True)
     await asyncio.sleep(0.5)
@@ -38,14 +39,19 @@ async def main(root: Path) -> None:
 
     starve(hog)
     before = written()
-    await until(lambda: starve(hog) or written() >= before + 30 or rec.failure is not None, 30)
+
+    def starved_long_enough() -> bool:
+        starve(hog)  # take every descriptor freed since
+        return written() >= before + 30 or rec.failure is not None
+
+    await until(starved_long_enough, 30)
     sid = rec.session.id if rec.session else None
     print(f"STARVED frames={written() - before} failure={rec.failure} session={sid}", flush=True)
     for fd in hog:
         os.close(fd)
     vehicle.armed = False
     if await until(lambda: rec.session is None, 10):
-        print(f"STOPPED {rec.last_stop.reason}", flush=True)
+        print(f"STOPPED {rec.last_stop.reason if rec.last_stop else None}", flush=True)
     await rec.aclose()
     rig.stop()
     print("DONE", flush=True)

@@ -247,7 +247,7 @@ class FakeRig:
         self.vehicle.stop()
 
 
-DiskUsage = namedtuple("usage", "total used free")  # shutil.disk_usage's answer, to fake
+DiskUsage = namedtuple("DiskUsage", "total used free")  # shutil.disk_usage's answer, to fake
 
 
 def big_jpegs() -> list[bytes]:

@@ -180,10 +180,10 @@ def sik_radio_link(
     for tick in range(n_ticks):
         t = tick / 50
         in_gap = gap is not None and gap[0] <= t < gap[1]
-        burst = gap is not None and gap[1] - 0.5 <= t < gap[1]
+        burst_end = gap[1] if gap is not None and gap[1] - 0.5 <= t < gap[1] else None
         for msg in autopilot_messages(ap.mav, t):
-            if burst:
-                log.emit(ap, gap[1], msg)  # buffered, delivered at once when the fade ends
+            if burst_end is not None:
+                log.emit(ap, burst_end, msg)  # buffered, delivered at once when the fade ends
             else:
                 log.emit(ap, t, msg, lost=in_gap or rng.random() < loss)
         if tick % 50 == 10:

@@ -103,7 +103,9 @@ def sigterm_under_load(
     args = ["-m", "fpv_station.server", "serve", "--source", "sim", "--host", "127.0.0.1"]
     proc = spawn([*args, "--port", str(port), "--open"], env)
     lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    assert proc.stdout is not None
+    out = proc.stdout
+    reader = threading.Thread(target=lambda: lines.extend(out), daemon=True)
     reader.start()
     base = f"http://127.0.0.1:{port}"
     ready, gone = threading.Event(), threading.Event()

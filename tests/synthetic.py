@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +50,7 @@ class Flight:
         return float(lat), float(lon)
 
 
-def _phases(dt: float, *segments: tuple[float, callable]) -> tuple[Array, Array]:
+def _phases(dt: float, *segments: tuple[float, Callable[[Array], Array]]) -> tuple[Array, Array]:
     """Concatenate segments (duration_s, f(tau) -> (n,3)) sampled every dt."""
     ts, ps, t0 = [], [], 0.0
     for duration, f in segments:
@@ -284,7 +285,7 @@ def write_tlog(flight: Flight, path: Path, gps_hz: float = 10.0, wall_t0: float 
     gi = np.clip(np.searchsorted(t, gps_t), 0, t.size - 1)
     events: list[tuple[float, bytes]] = []
     for k in range(int(t[-1]) + 1):
-        i = min(np.searchsorted(t, float(k)), t.size - 1)
+        i = min(int(np.searchsorted(t, float(k))), t.size - 1)
         armed = mav.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed[i] else 0
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | armed
         msg = link.heartbeat_encode(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, 0, 4)

@@ -29,7 +29,8 @@ class TelemetryReader:
     """A /ws/telemetry client in a thread, counting what it receives."""
 
     def __init__(self, ws_url: str) -> None:
-        self.url, self.count, self.error = ws_url, 0, None
+        self.url, self.count = ws_url, 0
+        self.error: Exception | None = None
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run)
 

@@ -41,7 +41,15 @@ def click_and_answer(page, locator, accept: bool) -> str:
     """Click, and answer the question the click asks (after a request: the events are
     read while Playwright waits); returns the question."""
     asked: list[str] = []
-    page.once("dialog", lambda d: (asked.append(d.message), d.accept() if accept else d.dismiss()))
+
+    def answer(dialog) -> None:
+        asked.append(dialog.message)
+        if accept:
+            dialog.accept()
+        else:
+            dialog.dismiss()
+
+    page.once("dialog", answer)
     locator.click()
     for _ in range(300):  # a hang guard: 30 s
         if asked:

@@ -166,7 +166,9 @@ def test_lerobot_videos_decode_to_the_declared_frames(lerobot, session):
         on_disk = recorded_frames(session, cam)
 
         def image(r: dict, on_disk: dict[str, bytes] = on_disk) -> np.ndarray:
-            return cv2.imdecode(np.frombuffer(on_disk[r["file"]], np.uint8), cv2.IMREAD_COLOR)
+            bgr = cv2.imdecode(np.frombuffer(on_disk[r["file"]], np.uint8), cv2.IMREAD_COLOR)
+            assert bgr is not None, r["file"]
+            return bgr
 
         for k in (5, len(frames) // 2, len(frames) - 3):
             j = int(np.searchsorted(t_rec, data["session_time_s"][k] + 1e-9, side="right") - 1)
@@ -521,6 +523,7 @@ def _all_frames(session: Path, cam: str, t_s: np.ndarray, size: tuple[int, int])
     for t in t_s:
         j = max(int(np.searchsorted(t_rec, t + 1e-9, side="right") - 1), 0)
         bgr = cv2.imdecode(np.frombuffer(on_disk[recorded[j]["file"]], np.uint8), 1)
+        assert bgr is not None, recorded[j]["file"]
         out.append(cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)[..., ::-1])
     return np.stack(out)
 
@@ -617,6 +620,7 @@ def _read_like_lerobot(root: Path, cache: Path) -> tuple[dict, list[dict], dict]
             with av.open(str(path)) as c:
                 s = c.streams.video[0]
                 for frame in c.decode(s):
+                    assert frame.pts is not None and s.time_base is not None
                     by_time[float(frame.pts * s.time_base)] = frame.to_ndarray(format="rgb24")
             times = np.array(sorted(by_time))
             got = []

@@ -107,4 +107,4 @@ def test_flight_is_a_small_frozen_record():
     f = Flight(1, 0, 9, 2, 7, 0.0, 0.9, 0.2, 0.7)
     assert f.samples == slice(0, 10)
     with pytest.raises(AttributeError):
-        f.number = 2  # type: ignore[misc]
+        f.number = 2

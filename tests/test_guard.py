@@ -177,7 +177,7 @@ def test_a_websocket_beyond_its_cap_is_refused_with_a_reason_and_no_false_error(
     while that message with no denial behind it still is."""
     records: list[logging.LogRecord] = []
     handler = logging.Handler(logging.ERROR)
-    handler.emit = records.append  # type: ignore[method-assign]
+    handler.emit = records.append
     uvicorn_errors = logging.getLogger("uvicorn.error")
     app = create_app(station_settings("none", tmp_path, **{"server.max_ws_clients": 1}))
     with run_uvicorn(app) as base:

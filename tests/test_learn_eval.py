@@ -39,7 +39,7 @@ def test_random_rows_are_seeded_per_task_and_episode() -> None:
 
     def sticks(seed: int, task: int) -> np.ndarray:
         act = ev.random_policy(seed, task)
-        return np.array([act(None, {}) for _ in range(20)])
+        return np.array([act(np.zeros(0), {}) for _ in range(20)])  # it reads no observation
 
     a = sticks(1000, 3)
     np.testing.assert_array_equal(a, sticks(1000, 3))

@@ -105,10 +105,12 @@ def test_udpout_drops_a_forged_position_from_another_socket(tmp_path) -> None:
             v.arm()
             assert wait_until(lambda: httpx.get(f"{base}/api/recording").json()["recording"])
             forged = forged_position(FORGED_LAT)
+            station_addr = v.reply_to  # the station's own link socket
+            assert station_addr is not None
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
                 attacker.bind(("127.0.0.1", 0))
                 for _ in range(3):
-                    attacker.sendto(forged, v.reply_to)  # the station's own link socket
+                    attacker.sendto(forged, station_addr)
                 sync(v, app, 0.25)
                 assert_position_real(app)
                 sec = security(base)
@@ -342,7 +344,7 @@ def test_signing_over_a_serial_port_hears_the_signed_vehicle(tmp_path) -> None:
     try:
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and not (
-            link.state.get().value.heartbeat.sysid == 1 and any(m.get_signed() for m in heard)
+            link.state.current().heartbeat.sysid == 1 and any(m.get_signed() for m in heard)
         ):
             os.write(master, vehicle.build("HEARTBEAT").pack(vehicle.mav))
             os.write(
@@ -351,7 +353,7 @@ def test_signing_over_a_serial_port_hears_the_signed_vehicle(tmp_path) -> None:
             time.sleep(0.05)
             with contextlib.suppress(BlockingIOError):
                 heard += parser.parse_buffer(os.read(master, 4096)) or []
-        assert link.state.get().value.heartbeat.autopilot == "px4"
+        assert link.state.current().heartbeat.autopilot == "px4"
         assert heard and all(m.get_signed() for m in heard)
         sec = link.health().security
         assert sec.signed > 0 and sec.unsigned_refused > 0 and link.running
@@ -395,7 +397,9 @@ def test_the_key_is_the_passphrase_hashed_as_mavproxy_does(tmp_path) -> None:
     with station(f"udpin:127.0.0.1:{port}", tmp_path, **overrides) as (app, base):
         with Twin(mavlink=f"udpout:127.0.0.1:{port}", signing_key=KEY) as twin:
             assert wait_until(lambda: state(app) and state(app).heartbeat.autopilot == "px4")
-            assert wait_until(lambda: twin.vehicle.signing.counts.signed > 0, timeout=5)
+            assert twin.vehicle is not None and twin.vehicle.signing is not None
+            signing = twin.vehicle.signing
+            assert wait_until(lambda: signing.counts.signed > 0, timeout=5)
         sec = security(base)
         assert sec["signed"] > 0 and sec["unsigned_refused"] == sec["bad_signature_refused"] == 0
 

@@ -62,7 +62,7 @@ def _download(link: MavlinkLink, folder: Path, timeout_s: float = 90.0, **kwargs
     dl = LogDownload(link, (1, 1), folder, settings, **kwargs)
     dl.start()
     dl.join(timeout_s)  # a hang guard: every path ends by itself
-    status = dl.status.get().value
+    status = dl.status.current()
     assert not dl.running, f"the download hangs: {status}"
     assert status.done
     return status
@@ -165,10 +165,11 @@ def test_a_vehicle_that_does_not_answer(served, tmp_path: Path) -> None:
 
 def test_choose_log_takes_the_newest_started_before_the_flight_ended() -> None:
     logs = [LogEntry(1, 1000, 10), LogEntry(2, 2000, 10), LogEntry(3, 9000, 10), LogEntry(4, 0, 0)]
-    assert choose_log(logs, None).id == 3
-    assert choose_log(logs, 2500).id == 2
+    assert (chosen := choose_log(logs, None)) is not None and chosen.id == 3
+    assert (chosen := choose_log(logs, 2500)) is not None and chosen.id == 2
     assert choose_log(logs, 500) is None
-    assert choose_log([LogEntry(5, 0, 10)], 500).id == 5  # no clock: it counts
+    chosen = choose_log([LogEntry(5, 0, 10)], 500)
+    assert chosen is not None and chosen.id == 5  # no clock: it counts
 
 
 def test_file_names() -> None:
@@ -188,6 +189,7 @@ def test_twin_serves_its_ulog(tmp_path: Path) -> None:
     assert twin.flight_log is not None and len(twin.flight_log.logs) == 1
     twin.start()
     try:
+        assert twin.vehicle is not None
         port = twin.vehicle.sock.getsockname()[1]
         link = _link(f"udpout:127.0.0.1:{port}")
         try:

@@ -34,6 +34,7 @@ def test_twin_flight_ends_with_its_ulog_in_the_session(tmp_path: Path) -> None:
             f"{flight.base_url}/api/onboard_log"
         ).json()
         entry = _onboard(flight.folder)
+        assert entry is not None
         status = httpx.get(f"{flight.base_url}/api/onboard_log").json()
         twin_logs = flight.station.twin.flight_log.logs
         served = twin_logs[-1].path.read_bytes()
@@ -84,8 +85,9 @@ def test_fetch_on_request_and_its_errors(tmp_path: Path) -> None:
         r = httpx.post(url, json={"log_id": 99}, headers=auth)
         assert r.status_code == 200, r.text
         assert wait_until(lambda: _onboard(flight.folder) is not None, 60)
-        assert _onboard(flight.folder)["state"] == "no_log"
-        assert "log 99 is not on the vehicle" in _onboard(flight.folder)["message"]
+        entry = _onboard(flight.folder)
+        assert entry is not None and entry["state"] == "no_log"
+        assert "log 99 is not on the vehicle" in entry["message"]
 
         bad = httpx.post(f"{base}/api/sessions/nope/onboard_log", headers=auth)
         assert bad.status_code == 400 and bad.json()["error"]
@@ -107,5 +109,6 @@ def test_fetch_on_request_and_its_errors(tmp_path: Path) -> None:
             logs.burst = burst  # and on
             expect(row.locator("a")).to_have_text("onboard.ulg", timeout=300_000)
             expect(row).not_to_contain_text("incomplete")
-        assert _onboard(flight.folder)["state"] == "complete"
-    assert (flight.folder / "onboard.ulg").stat().st_size == _onboard(flight.folder)["bytes"]
+        entry = _onboard(flight.folder)
+        assert entry is not None and entry["state"] == "complete"
+    assert (flight.folder / "onboard.ulg").stat().st_size == entry["bytes"]

@@ -21,6 +21,7 @@ import zstandard
 from viser._messages import ShareUrlRequest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import ClientConnection, connect
+from websockets.typing import Subprotocol
 
 from fpv_station.server.app import create_app
 from fpv_station.server.trajectory3d.gate import MESSAGES_BURST, MESSAGES_PER_S, gui_uuid
@@ -30,7 +31,7 @@ from tests.station_process import LOW_LIMIT, serve_station
 from tests.synthetic import state_at
 
 TOKEN = "door-test-token"
-SUBPROTOCOL = f"viser-v{viser.__version__}"
+SUBPROTOCOL = Subprotocol(f"viser-v{viser.__version__}")
 
 
 def gui_update(uuid: str, value: object) -> bytes:
@@ -67,7 +68,7 @@ class Viewer:
                     self.received.extend(messages_in(frame))
         self.closed.set()
 
-    def types(self) -> set[str]:
+    def types(self) -> set[str | None]:
         return {m.get("type") for m in list(self.received)}
 
     def close(self) -> None:

@@ -13,7 +13,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fpv_station.analysis.report import analyze_paths
-from fpv_station.analysis.tasks import TaskParams
+from fpv_station.analysis.tasks import TaskParams, TaskResult
 from fpv_station.core.geodesy import enu_to_geodetic
 from tests import shaped_tlog
 from tests import synthetic as syn
@@ -21,7 +21,7 @@ from tests import synthetic as syn
 START = tuple(enu_to_geodetic([-20.0, 0.0, 0.0], *syn.FIELD_HOME))  # field.toml's start pad
 
 
-def a_to_b(tmp_path, name: str, h_acc_m: float | None, **flight) -> dict:
+def a_to_b(tmp_path, name: str, h_acc_m: float | None, **flight) -> TaskResult:
     """The default field's analysis of an A to B from the start pad, from its bare tlog."""
     f = dataclasses.replace(syn.a_to_b_flight(lateral_amp_m=0.0, **flight), home=START)
     log = shaped_tlog.vehicle_flight(f, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, h_acc_m=h_acc_m)

@@ -551,7 +551,12 @@ def test_a_write_stalled_past_the_stops_patience_is_waited_for(tmp_path, caplog)
     reader = stalled_pack(tmp_path)
     writer = SessionWriter(tmp_path, RowFormatter(("front",), t0), WriterLimits(min_free_bytes=0))
     died: list[BaseException] = []
-    hook, threading.excepthook = threading.excepthook, lambda a: died.append(a.exc_value)
+
+    def record(args: threading.ExceptHookArgs) -> None:
+        if args.exc_value is not None:
+            died.append(args.exc_value)
+
+    hook, threading.excepthook = threading.excepthook, record
     jpeg = big_jpeg()
     try:
         writer.start()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import time
+from collections.abc import Sequence
 
 import httpx
 import pytest
@@ -38,7 +39,7 @@ def write_session(
     dropped: dict[str, int] | None = None,
     link_loss: list[LinkLoss] | None = None,
     gaps: list[LinkLoss] | None = None,
-    said: list[tuple[float, int, str]] = (),
+    said: Sequence[tuple[float, int, str]] = (),
     recovered: bool = False,
     stop_reason: str | None = None,
 ) -> str:

@@ -44,9 +44,12 @@ def sessions(tmp_path_factory) -> Path:
     flown = tmp_path_factory.mktemp("flown")
     valid, failed = fly_demo(flown, 7), fly_demo(flown, 8)
     tag = read_meta(valid / "session.json").demonstration  # as the twin's pilot flew it
+    assert tag is not None
     assert (tag.kind, tag.pilot, tag.attempt, tag.attempts) == ("scripted", "scripted", 1, 1)
-    assert read_meta(valid / "session.json").score.result["valid"] is True
-    assert read_meta(failed / "session.json").score.ok is False  # never reached 4 m
+    score = read_meta(valid / "session.json").score
+    assert score is not None and score.result is not None and score.result["valid"] is True
+    score = read_meta(failed / "session.json").score
+    assert score is not None and score.ok is False  # never reached 4 m
     root = tmp_path_factory.mktemp("sessions")
     _retag(valid, root, "20261201T100000Z_sim", "human", "Ana", 1)
     _retag(failed, root, "20261201T100100Z_sim", "human", "Ana", 2)

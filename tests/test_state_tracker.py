@@ -214,11 +214,11 @@ def test_published_snapshots_never_change():
     assert tracker.state is not snapshot and tracker.state.attitude.roll_rad == pytest.approx(0.7)
     assert tracker.state.heartbeat is snapshot.heartbeat  # unchanged groups are shared
     with pytest.raises(dataclasses.FrozenInstanceError):
-        snapshot.attitude.roll_rad = 1.0  # type: ignore[misc]
+        snapshot.attitude.roll_rad = 1.0
     # The state is built from the tracker's draft when looked at: still a frozen
     # VehicleState of its own, the same object until the next change, a new one after it.
     with pytest.raises(dataclasses.FrozenInstanceError):
-        snapshot.attitude = tracker.state.attitude  # type: ignore[misc]
+        snapshot.attitude = tracker.state.attitude
     now = tracker.state
     assert type(now) is VehicleState and tracker.state is now
     for d in MavFramer().feed(v.mav.param_value_encode(b"X", 1.0, 9, 1, 0).pack(v.mav)):

@@ -21,7 +21,9 @@ TOKEN = "browser-test-token"
 
 def saturated(png: bytes) -> np.ndarray:
     """Mask of strongly coloured pixels (paths and markers; not grids, text or white)."""
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).astype(int)
+    decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    assert decoded is not None, "not a PNG"
+    img = decoded.astype(int)
     return (img.max(axis=2) - img.min(axis=2)) > 70
 
 

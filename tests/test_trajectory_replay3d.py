@@ -27,7 +27,7 @@ def straight_line(session_id: str, n: int = 1200, gap_at: int | None = None):
     from fpv_station.core.geodesy import enu_to_geodetic
 
     f = load_scene()
-    t = np.arange(n) * 0.1
+    t = np.arange(n, dtype=np.float64) * 0.1
     enu = np.column_stack([0.5 * t, np.zeros(n), np.full(n, 2.0)])
     lat, lon, alt = enu_to_geodetic(enu, *f.home_llh).T
     if gap_at is not None:
@@ -46,6 +46,7 @@ def replay():
 
 
 def all_segments(svc: Replay3D) -> np.ndarray:
+    assert svc.scene is not None
     return np.concatenate([np.asarray(h.points) for h in svc.scene.chunk_handles.values()])
 
 

@@ -55,12 +55,12 @@ def test_upload_with_a_lost_request_download_and_fly_the_mission(twin_and_gcs) -
             break
     assert reached == [0, 1, 2, 3]
     assert (4, 4) in modes  # the heartbeat says AUTO.MISSION
-    track = np.array(track)
+    path = np.array(track)
     for east, north in ((-8.0, 0.0), (-8.0, 6.0)):
-        assert np.min(np.hypot(track[:, 0] - east, track[:, 1] - north)) < 1.0
+        assert np.min(np.hypot(path[:, 0] - east, path[:, 1] - north)) < 1.0
     assert max_alt == pytest.approx(4.0, abs=0.6)
     start = twin.scene.start_xy_m
-    assert np.hypot(*(track[-1, :2] - start)) < 1.0 and track[-1, 2] < 0.1  # home, landed
+    assert np.hypot(*(path[-1, :2] - start)) < 1.0 and path[-1, 2] < 0.1  # home, landed
     assert not twin.sim.commander.armed[0]  # PX4 disarms after landing
 
 

@@ -108,10 +108,10 @@ def test_position_mode_holds_within_30cm_for_10s() -> None:
     for _ in range(500):  # 10 s at 50 Hz
         sim.step(5)
         track.append(sim.state.pos_m[0].copy())
-    track = np.array(track)
-    horizontal = np.linalg.norm(track[:, :2] - track[0, :2], axis=1)
+    path = np.array(track)
+    horizontal = np.linalg.norm(path[:, :2] - path[0, :2], axis=1)
     assert horizontal.max() < 0.3
-    assert np.ptp(track[:, 2]) < 0.3
+    assert np.ptp(path[:, 2]) < 0.3
 
 
 def test_crash_into_obstacle_is_detected() -> None:

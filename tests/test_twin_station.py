@@ -190,6 +190,7 @@ def test_serve_source_sim_cli_prints_url_and_shows_the_twin(tmp_path) -> None:
     try:
         # First start: a control token is made, kept only for this user, and put in the URL.
         token_file = tmp_path / "config" / "fpv-station" / "token"
+        assert proc.stdout is not None
         assert str(token_file) in proc.stdout.readline()
         line = proc.stdout.readline()
         token = token_file.read_text().strip()

@@ -46,8 +46,8 @@ def test_interval_disable_request_message_and_version(twin_and_gcs) -> None:
     twin.step_for(0.1)
     drain(gcs, timeout=0.2)
     twin.step_for(2.0)
-    got = {m.get_type() for m in drain(gcs)}
-    assert "VFR_HUD" not in got and "ATTITUDE" in got
+    kinds = {m.get_type() for m in drain(gcs)}
+    assert "VFR_HUD" not in kinds and "ATTITUDE" in kinds
     gcs.mav.command_long_send(
         1,
         1,

@@ -91,15 +91,15 @@ def test_random_start_is_on_the_pad_seeded_and_off_by_default() -> None:
         env = TwinEnv(task=2, start={"random": True, "heading_deg": 90.0})
         obs, info = env.reset(seed=seed)
         starts.append((*info["pos_enu_m"][:2], np.arctan2(obs[8], obs[9])))
-    starts = np.array(starts)
-    assert np.all(np.abs(starts[:, :2] - pad.xy_m) <= pad.size_m / 2)
-    assert np.all(np.abs(starts[:, 2]) <= np.pi / 2 + 1e-6)
+    start_poses = np.array(starts)
+    assert np.all(np.abs(start_poses[:, :2] - pad.xy_m) <= pad.size_m / 2)
+    assert np.all(np.abs(start_poses[:, 2]) <= np.pi / 2 + 1e-6)
     # spread over the pad and the headings, not a few fixed spots
-    assert np.ptp(starts[:, 0]) > pad.size_m / 2 and np.ptp(starts[:, 1]) > pad.size_m / 2
-    assert np.ptp(starts[:, 2]) > np.pi / 2
+    assert np.ptp(start_poses[:, 0]) > pad.size_m / 2 and np.ptp(start_poses[:, 1]) > pad.size_m / 2
+    assert np.ptp(start_poses[:, 2]) > np.pi / 2
     again = TwinEnv(task=2, start={"random": True, "heading_deg": 90.0})
     _, info = again.reset(seed=39)
-    np.testing.assert_array_equal(info["pos_enu_m"][:2], starts[-1, :2])
+    np.testing.assert_array_equal(info["pos_enu_m"][:2], start_poses[-1, :2])
     with pytest.raises(ValueError, match="unknown reset options"):
         again.reset(seed=1, options={"gusts": 1.0})
     with pytest.raises(ValueError, match="unknown wind fields"):

@@ -85,7 +85,7 @@ def test_quick_replace_is_dataclasses_replace():
     assert new == dataclasses.replace(att, roll_rad=0.5, yaw_rad=0.3)
     assert type(new) is Attitude and att.roll_rad == 0.1  # the original is untouched
     with pytest.raises(dataclasses.FrozenInstanceError):
-        new.roll_rad = 0.0  # type: ignore[misc]
+        new.roll_rad = 0.0
     with pytest.raises(AttributeError):
         quick_replace(att, roll=0.5)
 

@@ -124,6 +124,7 @@ def port():
 
 def _mean_bgr(jpeg: bytes) -> np.ndarray:
     image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    assert image is not None, "not a JPEG"
     return image.reshape(-1, 3).mean(axis=0)
 
 

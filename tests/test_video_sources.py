@@ -14,6 +14,7 @@ from fpv_station.companion.cameras.jpeg import jpeg_size
 from fpv_station.companion.cameras.rig import build_camera, effective_spec
 from fpv_station.companion.cameras.settings import CameraConfig
 from fpv_station.companion.cameras.spec import CameraSpecError, parse_spec
+from fpv_station.companion.video_frame import Frame
 from fpv_station.server.settings import SettingsError, load_settings
 from tests.helpers import wait_until
 from tests.video_fixtures import CountingRenderer, write_images
@@ -46,7 +47,7 @@ def _rate(camera, seconds: float) -> tuple[float, list]:
     polling reader on a loaded machine may miss a frame, the versions say whether the
     camera skipped a sequence number or the reader skipped a publish.
     """
-    seen = []
+    seen: list[Frame] = []
     first = camera.frames.get()
     start_version = first.version if first else 0
     t0 = time.monotonic()

@@ -4,6 +4,7 @@ flown by `learn eval` from the picture and the attitude, landing on the pad."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -47,7 +48,7 @@ def _rotation(roll: float, pitch: float, yaw_enu: float) -> np.ndarray:
     return rz(yaw_enu) @ ry(-pitch) @ rx(roll)
 
 
-def _picture(renderer: Renderer, pos: np.ndarray, R: np.ndarray) -> np.ndarray:
+def _picture(renderer: Renderer, pos: Sequence[float], R: np.ndarray) -> np.ndarray:
     """The bottom camera as TwinEnv gives it: rendered, area-resized, RGB."""
     pose = Pose(0.0, np.asarray(pos, float), np.zeros(3), R, np.zeros(3))
     bgr = cv2.resize(renderer.render("bottom", pose), SIZE, interpolation=cv2.INTER_AREA)

@@ -61,8 +61,7 @@ def recorded_twin_flight(
     app = create_app(twin_station_settings(sessions_dir, overrides))
     with run_uvicorn(app) as base:
         station = app.state.station
-        state = lambda: station.state.get().value if station.state.get() else None  # noqa: E731
-        assert wait_until(lambda: state() and state().altitude.reference == "first_fix", 20)
+        assert wait_until(lambda: station.state.current().altitude.reference == "first_fix", 20)
         if before_flight is not None:
             before_flight(base)
         legs = list(legs) if legs is not None else task_plan(station.twin.scene, task_id)
