@@ -45,14 +45,16 @@ $(NODE_STAMP): package.json package-lock.json
 	npm ci --silent
 	touch $(NODE_STAMP)
 
-# The Python formatter and linter, as configured in pyproject.toml, and ESLint on web/, as
-# configured in eslint.config.mjs (CI runs this).
+# The Python formatter, linter and type checker, as configured in pyproject.toml
+# (tools/typecheck.py runs mypy), and ESLint on web/, as configured in eslint.config.mjs
+# (CI runs this).
 lint: $(STAMP) lint-js
 	$(BIN)/python -m ruff format --check .
 	$(BIN)/python -m ruff check .
+	$(BIN)/python tools/typecheck.py
 
 lint-js: $(NODE_STAMP)
 	node_modules/.bin/eslint web/
 
 clean:
-	rm -rf $(VENV) build *.egg-info node_modules
+	rm -rf $(VENV) build *.egg-info node_modules .mypy_cache
