@@ -92,7 +92,7 @@ class _Reach:
         if code is None or code in self._seen:
             return
         self._seen.add(code)
-        scope = func.__globals__
+        scope: dict[str, object] = getattr(func, "__globals__", {})  # a function's, with __code__
         strings = scope.get("__name__") == self.module
         stack = [code]
         while stack:
