@@ -29,7 +29,13 @@ from pathlib import Path
 def add_export_arguments(p: argparse.ArgumentParser) -> None:
     from fpv_station.analysis.selection import METRICS
     from fpv_station.companion.recording.settings import RecordingSettings
-    from fpv_station.learn.formats import DEFAULT_FPS, FORMATS
+    from fpv_station.learn.formats import (
+        CHUNKS_SIZE,
+        DATA_FILES_SIZE_IN_MB,
+        DEFAULT_FPS,
+        FORMATS,
+        VIDEO_FILES_SIZE_IN_MB,
+    )
 
     p.add_argument("sessions", nargs="*", type=Path, metavar="SESSION")
     p.add_argument(
@@ -84,6 +90,29 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
         help="x264 preset of LeRobot videos (slower = smaller files)",
     )
     p.add_argument(
+        "--chunks-size",
+        type=int,
+        default=CHUNKS_SIZE,
+        metavar="N",
+        help=f"LeRobot: files per chunk folder (default {CHUNKS_SIZE}, LeRobot's)",
+    )
+    p.add_argument(
+        "--data-files-size-mb",
+        type=float,
+        default=DATA_FILES_SIZE_IN_MB,
+        metavar="MB",
+        help="LeRobot: a data file rolls over at this size "
+        f"(MiB; default {DATA_FILES_SIZE_IN_MB}, LeRobot's)",
+    )
+    p.add_argument(
+        "--video-files-size-mb",
+        type=float,
+        default=VIDEO_FILES_SIZE_IN_MB,
+        metavar="MB",
+        help="LeRobot: a video file rolls over at this size "
+        f"(MiB; default {VIDEO_FILES_SIZE_IN_MB}, LeRobot's)",
+    )
+    p.add_argument(
         "--workers",
         type=int,
         default=None,
@@ -110,6 +139,7 @@ def run_export(args: argparse.Namespace) -> int:
         parse_image_size,
         tqdm_progress,
     )
+    from fpv_station.learn.formats import FileLimits
 
     try:
         paths = selected_paths(args)
@@ -121,6 +151,7 @@ def run_export(args: argparse.Namespace) -> int:
         size = parse_image_size(args.image_size) if args.image_size else None
         if args.workers is not None and args.workers < 1:
             raise ValueError("--workers must be at least 1")
+        limits = FileLimits(args.chunks_size, args.data_files_size_mb, args.video_files_size_mb)
     except ValueError as exc:
         print(f"fpv-station export: {exc}", file=sys.stderr)
         return 2
@@ -137,6 +168,7 @@ def run_export(args: argparse.Namespace) -> int:
         image_size=size,
         workers=args.workers or default_workers(),
         ray_address=args.ray,
+        lerobot_limits=limits,
         **({"dataset_id": args.dataset_id} if args.dataset_id else {}),
     )
     progress = None if args.no_progress else tqdm_progress(len(paths))

@@ -309,6 +309,8 @@ def test_cli_export_and_its_errors(session, tmp_path, capsys):
     assert cli_main([*argv[:2], str(tmp_path / "missing"), *argv[2:]]) == 1
     assert "does not exist" in capsys.readouterr().err
     assert cli_main([*argv, "--task", "9"]) == 1
+    assert cli_main([*argv, "--video-files-size-mb", "0"]) == 2
+    assert "video_files_size_in_mb must be positive" in capsys.readouterr().err
 
 
 def test_telemetry_read_in_small_blocks_is_the_same(session, monkeypatch):
@@ -641,13 +643,17 @@ ROLLED = FileLimits(chunks_size=2, data_files_size_in_mb=0.001, video_files_size
 def rolled(three, small, tmp_path_factory) -> Path:
     """The `small` export (three episodes) with LeRobot's file limits lowered: a video
     file holds two episodes (2.5 episodes' bytes), data files roll over at every episode,
-    and two files make a chunk."""
+    and two files make a chunk. Exported by the command line, whose limit flags these
+    are."""
     front = small / "videos/observation.images.front/chunk-000/file-000.mp4"
     per_episode_mb = front.stat().st_size / 3 / 2**20
-    limits = replace(ROLLED, video_files_size_in_mb=2.5 * per_episode_mb)
     out = tmp_path_factory.mktemp("rolled")
-    opts = ExportOptions(task_id=1, fps=FPS, image_size=(160, 120), lerobot_limits=limits)
-    export_recordings(three, "lerobot", out, opts)
+    argv = ["export", *map(str, three), "--format", "lerobot", "--out", str(out)]
+    argv += ["--task", "1", "--fps", str(FPS), "--image-size", "160x120", "--no-progress"]
+    argv += ["--chunks-size", str(ROLLED.chunks_size), "--workers", "1"]
+    argv += ["--data-files-size-mb", str(ROLLED.data_files_size_in_mb)]
+    argv += ["--video-files-size-mb", repr(2.5 * per_episode_mb)]
+    assert cli_main(argv) == 0
     return out
 
 
