@@ -6,8 +6,11 @@ goggles, off on the pilot page until switched on; each callout can be switched o
 
 from __future__ import annotations
 
+import time
+
 import httpx
 import pytest
+from playwright.sync_api import expect
 
 from tests.stations import vehicle_station
 
@@ -82,6 +85,30 @@ def test_goggles_say_what_happens(station, browser):
     for text in ("Armed", "Altitude mode", "5 metres", "Battery low, 15 percent", "Link lost"):
         assert said(page).count(text) == 1, (text, said(page))
     page.context.close()
+
+
+@pytest.mark.timeout(120)
+def test_goggles_that_load_their_modules_late_still_get_the_first_step(station, browser):
+    """goggles.html runs task-panel.js as its own script before goggles.js's modules: with
+    voice.js (and so goggles.js) held back at the network, the panel finds the first step
+    before they can listen. They must still say it and show it on the OSD."""
+    vehicle, base = station
+    on_the_ground(vehicle)
+    assert httpx.post(f"{base}/api/task", json={"task_id": 1}).status_code == 200
+    context = browser.new_context()
+    context.add_init_script(STUB)
+
+    def after_the_panel(route) -> None:  # a slow link for one module, at the network
+        time.sleep(3.0)  # the panel's /api/scene and /api/task (not held) answer meanwhile
+        route.continue_()
+
+    context.route("**/voice.js", after_the_panel)
+    page = context.new_page()
+    page.goto(f"{base}/goggles.html")
+    wait_said(page, "Next: arm")
+    expect(page.locator("[data-osd=task]")).to_have_text("next: arm", timeout=30_000)
+    assert said(page).count("Next: arm") == 1, said(page)
+    context.close()
 
 
 @pytest.mark.timeout(120)

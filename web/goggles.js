@@ -3,7 +3,7 @@
 //   F or a tap   fullscreen          B   bottom camera picture-in-picture
 //   O            OSD elements menu   S   side-by-side stereo (phone headsets)
 // The screen is kept awake (Screen Wake Lock, re-taken when the page is shown again), and
-// the flight task's next step (task-panel.js, "fpv:task-step") is an OSD line. The
+// the flight task's next step (task-panel.js onTaskStep) is an OSD line. The
 // picture fills the screen (object-fit: cover in style.css): a 4:3 camera on 16:9
 // goggles loses its edges rather than a quarter of the screen to black bars. In stereo each
 // eye shows the whole picture at its aspect ratio (a half screen is narrower than any
@@ -14,7 +14,7 @@ import { $, el } from "/lib.js";
 // it mounts when loaded.
 import { mountOsd, pageOsd } from "/osd.js";
 import { emergencyButtons } from "/emergency.js";
-import { nextAction } from "/task-panel.js";
+import { nextAction, onTaskStep } from "/task-panel.js";
 import { cameras } from "/video.js";
 import { voiceControls } from "/voice.js";
 
@@ -53,16 +53,16 @@ document.addEventListener("visibilitychange", keepAwake);
 keepAwake();
 
 // Both eyes show it in stereo; the right eye, mounted later, starts with the current one.
+let right = null, rightOsd = null; // the right eye's view and OSD, once stereo is on
 let taskLine = "";
-window.addEventListener("fpv:task-step", (e) => {
-  taskLine = e.detail ? `next: ${nextAction(e.detail)}` : "";
+onTaskStep((step) => {
+  taskLine = step ? `next: ${nextAction(step)}` : "";
   for (const osd of [pageOsd, rightOsd]) if (osd) osd.setLine("task", taskLine);
 });
 
 // Side-by-side stereo for phone headsets: the same front picture and OSD for each eye.
 // The right eye draws the same decoded frames as the left (video.js: one subscription per
 // camera and page); it and its OSD stop when stereo is switched off.
-let right = null, rightOsd = null;
 function toggleStereo() {
   const on = !document.body.classList.contains("stereo");
   document.body.classList.toggle("stereo", on);

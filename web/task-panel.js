@@ -30,7 +30,8 @@ let scene = null; // GET /api/scene
 let taskInfo = null; // GET /api/task
 let flight = null; // this flight: steps done (indices of stepNames), trail; reset on arming
 let lastVersion = -1;
-let currentStep = null; // the name of the step the pilot is on (window "fpv:task-step")
+let currentStep = null; // the name of the step the pilot is on (onTaskStep)
+const stepListeners = [];
 let vehicle = null; // {x, y, heading}: metres east/north of the scene's home
 
 const panel = el("section", { id: "task-panel", class: "task-panel", "aria-label": "flight task" });
@@ -82,6 +83,15 @@ async function load() {
 }
 
 // -- the flight's steps ----------------------------------------------------------------
+
+// Follow the step the pilot is on (null: no task): `listener` is called at once with the
+// current step when there is one, then on every change. A page may run this module as its
+// own script before the modules that follow it are loaded (goggles.html), so a first step
+// found meanwhile must not be lost to them, as a one-off event would be.
+export function onTaskStep(listener) {
+  stepListeners.push(listener);
+  if (currentStep !== null) listener(currentStep);
+}
 
 // The panel names each step as done ("Armed", "Reached 4 m"); the goggles' OSD line and the
 // voice callouts say what to do next ("arm", "climb to 4 m").
@@ -207,7 +217,7 @@ function render() {
   );
   if (step !== currentStep) {
     currentStep = step;
-    window.dispatchEvent(new CustomEvent("fpv:task-step", { detail: step }));
+    for (const listener of stepListeners) listener(step);
   }
   drawMap();
   renderScore();

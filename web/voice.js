@@ -6,7 +6,7 @@
 //   mode     "Altitude mode", ...
 //   battery  "Battery low, 18 percent"            (below the OSD's LOW BATTERY level)
 //   recording "Recording started" / "stopped"    (GET /api/status, telemetry.js)
-//   task     "Next: climb to 4 m"                 (task-panel.js "fpv:task-step")
+//   task     "Next: climb to 4 m"                 (task-panel.js onTaskStep)
 //   altitude "4 metres"                           (armed, at each multiple of the step)
 // Link lost and arming cut short what is still being said; the rest queue. Nothing is
 // said of the state the page found on opening, only of changes seen since.
@@ -17,7 +17,7 @@
 //   import { voiceControls } from "/voice.js";  parent.append(voiceControls());
 import { $, el } from "/lib.js";
 import { feed } from "/telemetry.js";
-import { nextAction } from "/task-panel.js";
+import { nextAction, onTaskStep } from "/task-panel.js";
 
 const STORE_KEY = "fpv.voice";
 const LOW_BATTERY_PCT = 20; // the OSD's LOW BATTERY (osd.js)
@@ -129,9 +129,9 @@ window.addEventListener("fpv:status", (e) => {
 });
 
 let step = null;
-window.addEventListener("fpv:task-step", (e) => {
-  if (e.detail && e.detail !== step) say("task", `Next: ${nextAction(e.detail)}`);
-  step = e.detail;
+onTaskStep((next) => {
+  if (next && next !== step) say("task", `Next: ${nextAction(next)}`);
+  step = next;
 });
 
 // -- the switches ----------------------------------------------------------------------
