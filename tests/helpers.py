@@ -275,13 +275,13 @@ class RawWsClient:
         self.sock.close()
 
 
-# The front camera's picture as drawn, [width, page width]: the view's box holds it
-# contained at its frames' aspect ratio (4:3 until a frame says otherwise).
-FRONT_PICTURE_WIDTH = """() => {
-  const img = document.querySelector('#front-view .video-stream');
+# A camera's picture as drawn, [width, page width], of the view whose id is given: the
+# view's canvas holds it contained at its frames' aspect ratio (the canvas's own size,
+# 4:3 until a frame gives it).
+PICTURE_WIDTH = """(view) => {
+  const img = document.querySelector(`#${view} .video-stream`);
   const r = img.getBoundingClientRect();
-  const aspect = img.naturalWidth && img.naturalHeight ? img.naturalWidth / img.naturalHeight : 4 / 3;
-  return [Math.min(r.width, r.height * aspect), innerWidth];
+  return [Math.min(r.width, r.height * img.width / img.height), innerWidth];
 }"""
 
 

@@ -47,7 +47,7 @@ PICTURES = """() => [...document.querySelectorAll('.video-stream')]
   const left = box.left + (box.width - pw) / 2, top = box.top + (box.height - ph) / 2;
   const vw = Math.min(left + pw, view.right, innerWidth) - Math.max(left, view.left, 0);
   const vh = Math.min(top + ph, view.bottom, innerHeight) - Math.max(top, view.top, 0);
-  return {view: img.closest('.view').id, nw, nh, sx, sy, pw, ph, fit,
+  return {view: img.closest('.view').id, nw, nh, sx, sy, pw, ph, fit, bottom: view.bottom,
           boxW: box.width, boxH: box.height,
           visible: Math.max(0, vw) * Math.max(0, vh) / (pw * ph), shownW: Math.max(0, vw)};
 })"""
@@ -77,9 +77,11 @@ def box_is_the_picture(p: dict) -> None:
 
 @pytest.mark.parametrize("size", [(1280, 720), (1280, 800), (1920, 1080)])
 def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station, browser, size):
-    """With a task selected (its panel under the front camera) the bottom camera keeps the
-    column's width at its own aspect ratio, on the screen. At 720 px the front camera
-    gives up the height of the task panel, which is seen whole (tests/test_task_fit.py)."""
+    """With a task selected (its panel above the bottom camera, the flight state a strip
+    under the front camera) the bottom camera keeps its own aspect ratio at the column's
+    width or the height the task leaves it, at least 0.3 of the screen's width and
+    height, on the screen. At 720 px the front camera gives up the height of the flight
+    state; the task panel is seen whole (tests/test_task_fit.py)."""
     base, shapes = station
     w, h = size
     page = browser.new_page(viewport={"width": w, "height": h})
@@ -98,7 +100,10 @@ def test_pilot_page_cameras_keep_their_shape_and_size_with_a_task_shown(station,
     assert pics["front-view"]["shownW"] >= (0.55 if h <= 720 else 0.6) * w, pics["front-view"]
     bottom = pics["bottom-view"]
     box_is_the_picture(bottom)
-    assert bottom["shownW"] >= 0.25 * w and bottom["ph"] >= 0.2 * h, bottom
+    assert bottom["shownW"] >= 0.3 * w and bottom["ph"] >= 0.3 * h, bottom
+    # The flight state, a strip under the front camera, is seen too.
+    state = page.locator("#flight-state").bounding_box()
+    assert state["y"] + state["height"] <= h and state["y"] >= pics["front-view"]["bottom"], state
     # The step the pilot is on is in view.
     inside = page.evaluate(
         """() => { const li = document.querySelector('#task-steps li.current');

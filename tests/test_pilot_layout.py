@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from tests.helpers import FRONT_PICTURE_WIDTH
+from tests.helpers import PICTURE_WIDTH
 from tests.pages import overlap
 from tests.stations import vehicle_station
 
@@ -41,7 +41,7 @@ def test_3d_panel_open_leaves_the_flight_state_in_view(station, browser, size):
     page.goto(base + "/")
     expect(page.locator("#v-mode")).to_have_text("POSCTL", timeout=30_000)
     if size == (1280, 720):
-        picture, width = page.evaluate(FRONT_PICTURE_WIDTH)
+        picture, width = page.evaluate(PICTURE_WIDTH, "front-view")
         assert picture >= 0.6 * width, (picture, width)
     page.locator("#p3d-toggle").click()
     panel = page.locator("#panel-3d")

@@ -3,7 +3,8 @@ task chosen survives the station's restart (a new station on the same sessions f
 and the restarted station's page shows the procedure, the top-view map and the score of
 the last trial whole, without scrolling, at a laptop's 1280x720, goggles' 1920x1080 and
 a phone upright, beside a front camera at least 0.6 of the width on the laptop and
-goggles (the paper's large front view). On a phone on its side both cameras and the
+goggles (the paper's large front view), a bottom camera at least 0.3 of it and the
+flight state. On a phone on its side both cameras and the
 task's essentials (its choice, map, steps and verdict) are seen whole. The score is the
 station's own scoring of a session (server.trials) of a trial that crashed, touched an
 obstacle and landed off the pad: invalid for three reasons, its landing accuracy and
@@ -22,7 +23,7 @@ from fpv_station.analysis.trial_score import score_and_store
 from fpv_station.companion.recording.meta import session_task
 from fpv_station.core.scene import load_scene
 from tests import synthetic as syn
-from tests.helpers import FRONT_PICTURE_WIDTH
+from tests.helpers import PICTURE_WIDTH
 from tests.stations import no_link_station
 
 TOKEN = "task-fit-token"
@@ -135,9 +136,12 @@ def test_task_survives_a_restart_and_its_panel_fits_every_screen(tmp_path, brows
                 seen = dict(page.evaluate(SEEN_WHOLE, shown))
                 assert seen == dict.fromkeys(seen, "ok"), (name, seen)
                 if name in ("laptop", "goggles"):
-                    picture, width = page.evaluate(FRONT_PICTURE_WIDTH)
+                    picture, width = page.evaluate(PICTURE_WIDTH, "front-view")
                     assert picture >= 0.6 * width, (name, picture, width)
-                    seen = dict(page.evaluate(SEEN_WHOLE, ["front-view", "bottom-view"]))
+                    bottom, _ = page.evaluate(PICTURE_WIDTH, "bottom-view")
+                    assert bottom >= 0.3 * width, (name, bottom, width)
+                    views = ["front-view", "bottom-view", "flight-state"]
+                    seen = dict(page.evaluate(SEEN_WHOLE, views))
                     assert seen == dict.fromkeys(seen, "ok"), (name, seen)
             finally:
                 context.close()

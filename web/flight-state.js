@@ -59,7 +59,8 @@ function draw() {
     first_fix_retaken: `from first GPS fix (re-taken: ${alt.retaken_because})`,
     none: "no reference yet",
   }[alt.reference];
-  $("v-rel-alt-ref").textContent = ref === undefined ? "" : ref + by;
+  const refNote = $("v-rel-alt-ref");
+  refNote.textContent = refNote.title = ref === undefined ? "" : ref + by;
   const hb = reading("heartbeat").value;
   const armed = $("v-armed");
   armed.textContent = hb === null ? "--" : hb.armed ? "ARMED" : "disarmed";

@@ -12,7 +12,8 @@
 // trial counts (valid: no crash, no obstacle touched, landed on the pad), how far from
 // the pad's centre it landed, and which figures are better when lower (all as the
 // station's analysis gives them; after a restart, the newest of today's trials). The panel
-// sits in the right column under the flight state, so that the front camera keeps the
+// sits in the right column above the bottom camera (on a laptop or larger the flight
+// state moves to a strip under the front camera), so that the front camera keeps the
 // left column's height (the paper's large front view); its procedure, map and score are
 // seen whole without scrolling on a laptop, goggles' 1080p and a phone upright, and on a
 // phone on its side its essentials beside both cameras (style.css). Positions
