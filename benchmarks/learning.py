@@ -12,17 +12,12 @@ clone against the replay and random (Newcombe's interval of the success differen
 the machine, its load and the time taken; `--write-docs` puts them into docs/LEARNING.md
 between its benchmark markers.
 
-Conditions: "calm" is the scene's (still air, the pad's centre facing east); "wind" is a
-2 m/s mean from the south-west with 0.5 m/s gusts and 0.5 m/s turbulence, starting
-anywhere on the pad at any heading. Units run in `--jobs` processes.
+Conditions: benchmarks/learning_pipeline.py's. Units run in `--jobs` processes.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import re
 import sys
 import tempfile
 import time
@@ -32,47 +27,35 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-CONDITIONS = {
-    "calm": [],
-    "wind": ["--wind", "1.414,1.414", "--gusts", "0.5", "--turbulence", "0.5", "--random-start"],
-}
-DOCS = ROOT / "docs" / "LEARNING.md"
+from benchmarks.learning_pipeline import (  # noqa: E402
+    CONDITIONS,
+    air,
+    export_lerobot,
+    fly_demos,
+    machine,
+    run_cli,
+    write_docs,
+)
+
 BEGIN, END = "<!-- benchmarks/learning.py: begin -->", "<!-- benchmarks/learning.py: end -->"
 
 
 def unit(condition: str, task: int, demos: int, episodes: int) -> tuple[str, int, str, float]:
     """One condition and task: demos, export, clone, evaluation; (condition, task, Markdown,
     seconds)."""
-    import contextlib
-    import io
-
     from fpv_station.learn import evaluate as ev
     from fpv_station.learn.bc import BcPolicy
-    from fpv_station.learn.cli import air_options
-    from fpv_station.server.cli import main as cli
 
     t0 = time.perf_counter()
-    air = CONDITIONS[condition]
     with tempfile.TemporaryDirectory(prefix=f"learning-{condition}-{task}-") as tmp_name:
         tmp = Path(tmp_name)
-        quiet = io.StringIO()
-        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            argv = ["demos", "--task", str(task), "--count", str(demos), "--seed", "0"]
-            if cli([*argv, "--out", str(tmp / "demos"), *air]) != 0:
-                raise RuntimeError(f"demos failed: {quiet.getvalue()}")
-            sessions = sorted(str(p) for p in (tmp / "demos").iterdir() if p.is_dir())
-            argv = ["export", *sessions, "--format", "lerobot", "--out", str(tmp / "ds")]
-            if cli([*argv, "--no-progress"]) != 0:
-                raise RuntimeError(f"export failed: {quiet.getvalue()}")
-            if cli(["learn", "bc", str(tmp / "ds"), "--out", str(tmp / "policy.npz")]) != 0:
-                raise RuntimeError(f"learn bc failed: {quiet.getvalue()}")
+        sessions = fly_demos(tmp / "demos", task, demos, CONDITIONS[condition])
+        export_lerobot(sessions, tmp / "ds")
+        run_cli(["learn", "bc", str(tmp / "ds"), "--out", str(tmp / "policy.npz")])
         policy = BcPolicy.load(tmp / "policy.npz")
-        parser = argparse.ArgumentParser()
-        from fpv_station.learn.cli import add_air_arguments
-
-        add_air_arguments(parser)
-        options = air_options(parser.parse_args(air))
-        rows = ev.benchmark(policy, task, episodes, 1000, options, [Path(s) for s in sessions])
+        rows = ev.benchmark(
+            policy, task, episodes, 1000, air(condition), [Path(s) for s in sessions]
+        )
     by_name = {r.name: r for r in rows}
     lines = [
         f"Task {task} ({ev.TASK_NAMES[task]}), {condition}: {demos} demonstrations "
@@ -86,14 +69,6 @@ def unit(condition: str, task: int, demos: int, episodes: int) -> tuple[str, int
         ),
     ]
     return condition, task, "\n".join(lines), time.perf_counter() - t0
-
-
-def machine() -> str:
-    load = os.getloadavg()
-    return (
-        f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
-        f"load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f}"
-    )
 
 
 def main() -> int:
@@ -130,17 +105,6 @@ def main() -> int:
     if args.write_docs and not write_docs(text, BEGIN, END):
         return 1
     return 0
-
-
-def write_docs(text: str, begin: str, end: str) -> bool:
-    """Put `text` into docs/LEARNING.md between the markers `begin` and `end`."""
-    doc = DOCS.read_text()
-    if begin not in doc or end not in doc:
-        print(f"{DOCS} has no markers {begin} ... {end}", file=sys.stderr)
-        return False
-    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
-    DOCS.write_text(pattern.sub(lambda m: f"{begin}\n{text}\n{end}", doc))
-    return True
 
 
 if __name__ == "__main__":

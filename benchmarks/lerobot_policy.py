@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import io
 import os
 import platform
 import shutil
@@ -32,23 +31,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.learning_pipeline import export_lerobot, fly_demos, run_cli  # noqa: E402
+
 REPO_ID = "fpv-station/demonstrations"
 
 
 def load() -> str:
     one, five, fifteen = os.getloadavg()
     return f"load average {one:.1f} / {five:.1f} / {fifteen:.1f}"
-
-
-def run_cli(argv: list[str]) -> str:
-    from fpv_station.server.cli import main as cli
-
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-        rc = cli(argv)
-    if rc != 0:
-        raise RuntimeError(f"fpv-station {argv[0]} failed ({rc}): {out.getvalue()}")
-    return out.getvalue()
 
 
 def lerobot_train() -> str:
@@ -111,12 +101,10 @@ def main() -> int:
             work.mkdir(parents=True, exist_ok=True)
         demos, dataset, out = work / "demos", work / "dataset", work / "train"
         if not demos.is_dir():
-            argv = ["demos", "--task", "1", "--count", str(args.demos), "--seed", "0"]
-            run_cli([*argv, "--cameras", "--out", str(demos)])
+            fly_demos(demos, 1, args.demos, ["--cameras"])
         sessions = sorted(str(p) for p in demos.iterdir() if p.is_dir())[: args.demos]
         if not dataset.is_dir():
-            argv = ["export", *sessions, "--format", "lerobot", "--out", str(dataset)]
-            run_cli([*argv, "--task", "1", "--image-size", args.image_size, "--no-progress"])
+            export_lerobot(sessions, dataset, ["--task", "1", "--image-size", args.image_size])
         model = out / "checkpoints" / "last" / "pretrained_model"
         train_s = None
         if not model.is_dir():

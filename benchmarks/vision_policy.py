@@ -19,8 +19,6 @@ and the time; `--write-docs` puts them into docs/LEARNING.md between its markers
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import sys
 import tempfile
 import time
@@ -30,7 +28,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.learning import CONDITIONS, machine, write_docs  # noqa: E402
+from benchmarks.learning_pipeline import (  # noqa: E402
+    CONDITIONS,
+    air,
+    export_lerobot,
+    fly_demos,
+    machine,
+    run_cli,
+    write_docs,
+)
 
 TASK = 1
 SEED = 1000
@@ -42,33 +48,20 @@ def unit(condition: str, demos: int, episodes: int) -> tuple[str, str, float]:
     """One condition: demos, export, both policies, evaluation; (condition, Markdown, s)."""
     from fpv_station.learn import evaluate as ev
     from fpv_station.learn.bc import BcPolicy
-    from fpv_station.learn.cli import add_air_arguments, air_options
     from fpv_station.learn.vision import VisionPolicy
-    from fpv_station.server.cli import main as cli
 
     t0 = time.perf_counter()
-    air = CONDITIONS[condition]
     with tempfile.TemporaryDirectory(prefix=f"vision-{condition}-") as tmp_name:
         tmp = Path(tmp_name)
-        quiet = io.StringIO()
-        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            argv = ["demos", "--task", str(TASK), "--count", str(demos), "--seed", "0"]
-            argv += ["--cameras", "bottom", "--camera-fps", "10", "--out", str(tmp / "demos")]
-            if cli([*argv, *air]) != 0:
-                raise RuntimeError(f"demos failed: {quiet.getvalue()}")
-            sessions = sorted(str(p) for p in (tmp / "demos").iterdir() if p.is_dir())
-            argv = ["export", *sessions, "--format", "lerobot", "--out", str(tmp / "ds")]
-            argv += ["--cameras", "bottom", "--image-size", "160x120", "--no-progress"]
-            if cli(argv) != 0:
-                raise RuntimeError(f"export failed: {quiet.getvalue()}")
-            for kind, name in (("vision", "vision.npz"), ("bc", "bc.npz")):
-                if cli(["learn", kind, str(tmp / "ds"), "--out", str(tmp / name)]) != 0:
-                    raise RuntimeError(f"learn {kind} failed: {quiet.getvalue()}")
+        cameras = ["--cameras", "bottom"]
+        extra = [*cameras, "--camera-fps", "10", *CONDITIONS[condition]]
+        sessions = fly_demos(tmp / "demos", TASK, demos, extra)
+        export_lerobot(sessions, tmp / "ds", [*cameras, "--image-size", "160x120"])
+        for kind, name in (("vision", "vision.npz"), ("bc", "bc.npz")):
+            run_cli(["learn", kind, str(tmp / "ds"), "--out", str(tmp / name)])
         vision = VisionPolicy.load(tmp / "vision.npz")
         bc = BcPolicy.load(tmp / "bc.npz")
-        parser = argparse.ArgumentParser()
-        add_air_arguments(parser)
-        options = air_options(parser.parse_args(air))
+        options = air(condition)
         rows = ev.benchmark(vision, TASK, episodes, SEED, options, [Path(s) for s in sessions])
         clone = ev.evaluate(
             "behaviour cloning", lambda s: ev.policy_act(bc), TASK, episodes, SEED, options
