@@ -141,25 +141,27 @@ def test_osd_horizon_heading_values_messages_and_staleness(station, browser):
 
 
 # Ink (opaque pixels) in the heading tape's label rows (its upper half): in the first and
-# last two columns, and anywhere.
+# last two columns, in the first and last 8 % (where its end labels are), and anywhere.
 TAPE_LABEL_INK = """() => {
   const c = document.querySelector('[data-osd=heading]');
   const {width: W, height: H} = c;
   const img = c.getContext('2d').getImageData(0, 0, W, Math.floor(H / 2)).data;
-  let edge = 0, all = 0;
+  let edge = 0, left = 0, right = 0, all = 0;
   for (let i = 3; i < img.length; i += 4) {
     if (img[i] < 100) continue;
     all++;
     const x = ((i - 3) / 4) % W;
     if (x < 2 || x >= W - 2) edge++;
+    if (x < 0.08 * W) left++;
+    if (x >= 0.92 * W) right++;
   }
-  return {edge, all};
+  return {edge, left, right, all};
 }"""
 
 
 def test_heading_tape_draws_no_label_cut_at_its_ends(station, browser):
     """Heading 090: the tape spans 045..135, so NE and SE sit on its ends. A label cut in
-    half there misreads (NE as "E", SE as "S"): a label is drawn whole or not at all."""
+    half there misreads (NE as "E", SE as "S"): they are drawn whole, inside the tape."""
     vehicle, base = station
     page = browser.new_page(viewport={"width": 1280, "height": 800})
     page.goto(base + "/")
@@ -170,6 +172,7 @@ def test_heading_tape_draws_no_label_cut_at_its_ends(station, browser):
     ink = page.evaluate(TAPE_LABEL_INK)
     assert ink["all"] > 0, "the tape drew no labels"
     assert ink["edge"] == 0, ink
+    assert ink["left"] > 0 and ink["right"] > 0, ink  # NE and SE are there
 
 
 def test_a_quiet_group_lends_no_freshness_to_its_old_value(station, browser):

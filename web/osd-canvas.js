@@ -132,8 +132,11 @@ export function drawTape(c, hdg, dpr) {
   const W = c.width, H = c.height;
   ctx.clearRect(0, 0, W, H);
   if (hdg === null) return;
-  const pxPerDeg = W / 90; // the tape shows 90 degrees
   const px = Math.round(13 * dpr);
+  // The tape shows 90 degrees, its ends inset by half the widest label so that the labels
+  // there (NE and SE at 090) are drawn whole.
+  const inset = Math.ceil(label("000", px, true).width / 2);
+  const pxPerDeg = (W - 2 * inset) / 90;
   const ticks = new Path2D();
   const start = Math.ceil((hdg - 45) / 5) * 5;
   for (let d = start; d <= hdg + 45; d += 5) {
