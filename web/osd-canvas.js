@@ -139,16 +139,26 @@ export function drawTape(c, hdg, dpr) {
   const pxPerDeg = (W - 2 * inset) / 90;
   const ticks = new Path2D();
   const start = Math.ceil((hdg - 45) / 5) * 5;
+  const marks = []; // [label, left x], the compass points first
   for (let d = start; d <= hdg + 45; d += 5) {
     const x = W / 2 + (d - hdg) * pxPerDeg;
     const deg = ((d % 360) + 360) % 360;
     ticks.rect(x - dpr, H * 0.55, 2 * dpr, deg % 15 === 0 ? H * 0.4 : H * 0.2);
     if (deg % 15 === 0) {
-      // Only a label that fits whole: one cut at the tape's end misreads (NE as "E").
       const sprite = label(COMPASS[deg] ?? String(deg), px, true);
-      const left = x - sprite.width / 2;
-      if (left >= 0 && left + sprite.width <= W) ctx.drawImage(sprite, left, 0);
+      marks[COMPASS[deg] ? "unshift" : "push"]([sprite, x - sprite.width / 2]);
     }
+  }
+  // Only a label that fits whole (one cut at the tape's end misreads: NE as "E"), and on a
+  // narrow tape not one that would touch a label drawn already (a compass point's first).
+  const drawn = [];
+  const gap = 2 * dpr;
+  for (const [sprite, left] of marks) {
+    const right = left + sprite.width;
+    if (left < 0 || right > W) continue;
+    if (drawn.some(([l, r]) => left < r + gap && l < right + gap)) continue;
+    ctx.drawImage(sprite, left, 0);
+    drawn.push([left, right]);
   }
   ctx.fillStyle = "#fff";
   ctx.fill(ticks);
