@@ -148,6 +148,7 @@ def fly_demo(
         scene,
         sim_config(seed, config.env_options),
         mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}",
+        flight_log=False,  # the session is the record; nobody asks the twin for its logs
     )
     t0 = twin.sim.t_s
     framer, tracker = MavFramer(), StateTracker()
