@@ -182,6 +182,7 @@ def fly_episodes(
     scene: Scene | None = None,
     options: dict[str, Any] | None = None,
     control_hz: float = CONTROL_HZ,
+    max_episode_s: float | None = None,
 ) -> tuple[Outcome, ...]:
     """Episode k flown by `acts[k](obs, info)` (info: "t_s", "pos_enu_m"), all together
     in one batch (`fly_batch`)."""
@@ -197,7 +198,7 @@ def fly_episodes(
             ]
         )
 
-    return fly_batch(act, len(acts), task_id, seed, scene, options, control_hz)
+    return fly_batch(act, len(acts), task_id, seed, scene, options, control_hz, max_episode_s)
 
 
 def fly_batch(
@@ -208,20 +209,23 @@ def fly_batch(
     scene: Scene | None = None,
     options: dict[str, Any] | None = None,
     control_hz: float = CONTROL_HZ,
+    max_episode_s: float | None = None,
 ) -> tuple[Outcome, ...]:
     """`episodes` episodes flown together in one `TwinVectorEnv` batch seeded `seed` (no
     autoreset: vehicle k's air, start and sensor noise are the same whatever flies it),
-    each scored; `options` are the env's reset options. Each step, `act(obs, info)` gives
-    every vehicle's sticks (n, 4) from the observations (n, 18) and info: "t_s" (n,) since
-    arming, "pos_enu_m" (n, 3), "done" (n,) (an ended vehicle's sticks are ignored) and
-    "pose" (`pose(k)`: vehicle k's true pose, what its cameras see from)."""
+    each scored; `options` are the env's reset options; an episode still flying at
+    `max_episode_s` (default: the task's `MAX_EPISODE_S`) ends there. Each step,
+    `act(obs, info)` gives every vehicle's sticks (n, 4) from the observations (n, 18) and
+    info: "t_s" (n,) since arming, "pos_enu_m" (n, 3), "done" (n,) (an ended vehicle's
+    sticks are ignored) and "pose" (`pose(k)`: vehicle k's true pose, what its cameras
+    see from)."""
     scene = scene or load_scene()
     n = episodes
     env = TwinVectorEnv(
         num_envs=n,
         task=task_id,
         scene=scene,
-        max_episode_s=MAX_EPISODE_S.get(task_id, 180.0),
+        max_episode_s=max_episode_s or MAX_EPISODE_S.get(task_id, 180.0),
         control_hz=control_hz,
         autoreset=False,
     )
@@ -352,11 +356,13 @@ def evaluate(
     episodes: int = DEFAULT_EPISODES,
     seed: int = 0,
     options: dict[str, Any] | None = None,
+    max_episode_s: float | None = None,
 ) -> Row:
     """`episodes` episodes of one batch seeded `seed` (`fly_episodes`), episode k flown by
     `make_act(seed + k)`."""
     acts = [make_act(seed + k) for k in range(episodes)]
-    return Row(name, fly_episodes(acts, task_id, seed, load_scene(), options))
+    outcomes = fly_episodes(acts, task_id, seed, load_scene(), options, CONTROL_HZ, max_episode_s)
+    return Row(name, outcomes)
 
 
 def policy_row(
@@ -365,16 +371,21 @@ def policy_row(
     episodes: int = DEFAULT_EPISODES,
     seed: int = 0,
     options: dict[str, Any] | None = None,
+    max_episode_s: float | None = None,
 ) -> Row:
     """The row of the policy under evaluation: a `BatchPolicy` flown a batch at a time at
     its rate, else per episode (`policy_act`: behaviour cloning, or the vision policy
-    under its `row_name`)."""
+    under its `row_name`); episodes end at `max_episode_s` at the latest (`fly_batch`)."""
     if isinstance(policy, BatchPolicy):
         act = policy.batch_act(episodes)
-        outcomes = fly_batch(act, episodes, task_id, seed, load_scene(), options, policy.control_hz)
+        outcomes = fly_batch(
+            act, episodes, task_id, seed, load_scene(), options, policy.control_hz, max_episode_s
+        )
         return Row(policy.name, outcomes)
     name = getattr(policy, "row_name", "behaviour cloning")
-    return evaluate(name, lambda s: policy_act(policy), task_id, episodes, seed, options)
+    return evaluate(
+        name, lambda s: policy_act(policy), task_id, episodes, seed, options, max_episode_s
+    )
 
 
 def demonstrations(paths: Sequence[Path], task_id: int, name: str = "demonstrations") -> Row:
