@@ -26,7 +26,8 @@ def test_demos_bc_eval_on_the_hover(tmp_path: Path, capsys):
     assert len(sessions) == 4
     dataset = tmp_path / "dataset"
     argv = ["export", *map(str, sessions), "--format", "lerobot", "--out", str(dataset)]
-    assert cli_main([*argv, "--task", "1", "--no-progress"]) == 0
+    # One process: worker processes (tests/test_export.py) would each import the export.
+    assert cli_main([*argv, "--task", "1", "--workers", "1", "--no-progress"]) == 0
     policy = tmp_path / "policy.npz"
     assert cli_main(["learn", "bc", str(dataset), "--out", str(policy)]) == 0
     capsys.readouterr()
