@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import re
+import time
 
+import cv2
+import numpy as np
 from playwright.sync_api import expect
 
+from fpv_station.companion.video_frame import Frame
 from fpv_station.server.app import create_app
+from fpv_station.server.video_fanout import ws_message
 from tests.helpers import chromium, run_uvicorn, station_settings
 from tests.video_fixtures import write_images
 
@@ -53,3 +58,49 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
             ".length"
         )
         assert mjpeg == 0
+
+
+# Instruments the browser's decoder, not our code: counts the decodes started and holds
+# them until the test lets them go.
+HELD_DECODES = """
+  window.__decodes = 0;
+  let release; const gate = new Promise((r) => { release = r; });
+  window.__release = () => release();
+  const decode = window.createImageBitmap.bind(window);
+  window.createImageBitmap = (...args) => { window.__decodes += 1; return gate.then(() => decode(...args)); };
+"""
+
+
+def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(tmp_path):
+    """A burst of frames while one is being decoded: the page decodes that one and then
+    only the newest, and draws the newest (the frames between cost no decode)."""
+    jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
+    burst = 8
+    front = [
+        ws_message("front", Frame("front", seq, jpeg, 320, 240, 0.0, time.time()))
+        for seq in range(1, burst + 1)
+    ]
+    # Then one bottom frame: its decode starts once every front frame before it is in.
+    bottom = ws_message("bottom", Frame("bottom", 1, jpeg, 320, 240, 0.0, time.time()))
+
+    def station_socket(ws) -> None:  # /ws/video's side, at the protocol boundary
+        def on_message(text: str | bytes) -> None:
+            if isinstance(text, str) and "subscribe" in text:
+                for message in (*front, bottom):
+                    ws.send(message)
+
+        ws.on_message(on_message)
+
+    with run_uvicorn(create_app(station_settings("none"))) as base, chromium() as browser:
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
+        page.add_init_script(HELD_DECODES)
+        page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
+        page.goto(base + "/")
+        page.wait_for_function("() => window.__decodes >= 2", timeout=30_000)
+        assert page.evaluate("() => window.__decodes") == 2  # the first front, the bottom
+        page.evaluate("() => window.__release()")
+        page.wait_for_function(
+            f"() => (window.fpvDebug.cameras.frames.front || {{}}).seq === {burst}",
+            timeout=30_000,
+        )
+        assert page.evaluate("() => window.__decodes") == 3  # and the newest front

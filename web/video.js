@@ -21,8 +21,9 @@
 // holds one for good, and a few pages' streams then starve every page's /api requests.
 // The page subscribes to the cameras it shows (a hidden view, the goggles' hidden
 // picture-in-picture or a hidden tab is not streamed). Each binary message is one JPEG,
-// decoded off the main thread (createImageBitmap) and drawn onto the view's canvas in the
-// next animation frame; a newer frame of the same camera replaces one not yet drawn. The
+// decoded off the main thread (createImageBitmap, one decode per camera at a time) and
+// drawn onto the view's canvas in the next animation frame; a newer frame of the same
+// camera replaces one not yet decoded or not yet drawn. The
 // page acknowledges every second frame drawn (?ack=4): at most four frames are on their
 // way, so a busy page falls behind by frames skipped, never by a queue.
 //
@@ -118,9 +119,20 @@ function receive(buf) {
   const v = views[head.camera];
   if (!v) { done(1); return; }
   head.receivedMs = stationNowMs();
-  const blob = new Blob([new Uint8Array(buf, 2 + headLen)], { type: "image/jpeg" });
-  createImageBitmap(blob).then((bitmap) => {
-    // The newest frame wins (decodes may finish out of order).
+  const jpeg = new Uint8Array(buf, 2 + headLen);
+  // One decode per camera at a time; a frame that arrives meanwhile waits, and a newer
+  // one replaces it undecoded: a busy page spends no CPU on pictures it would not draw.
+  if (v.decoding) {
+    if (v.waiting) done(1);
+    v.waiting = { head, jpeg };
+    return;
+  }
+  decode(v, head, jpeg);
+}
+
+function decode(v, head, jpeg) {
+  v.decoding = true;
+  createImageBitmap(new Blob([jpeg], { type: "image/jpeg" })).then((bitmap) => {
     if (head.seq <= v.drawnSeq || (v.pending && v.pending.head.seq >= head.seq)) {
       bitmap.close();
       done(1);
@@ -129,7 +141,12 @@ function receive(buf) {
     if (v.pending) { v.pending.bitmap.close(); done(1); }
     v.pending = { head, bitmap };
     requestAnimationFrame(draw);
-  }, () => done(1));
+  }, () => done(1)).finally(() => {
+    v.decoding = false;
+    const next = v.waiting;
+    v.waiting = null;
+    if (next) decode(v, next.head, next.jpeg);
+  });
 }
 
 function done(n) {
