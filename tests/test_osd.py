@@ -367,6 +367,9 @@ def test_goggles_show_the_task_step_as_an_osd_line(station, browser):
     page.reload()
     # What to do next, not the step's name as done ("TASK Armed" while disarmed).
     expect(page.locator("[data-osd=task]")).to_have_text("next: arm", timeout=30_000)
+    # In the lines' column (under the latency's line when there is one), not over it.
+    line, column = (page.locator(s).bounding_box() for s in ("[data-osd=task]", ".osd-lines"))
+    assert column["height"] >= line["height"] > 0, (line, column)
     # Side-by-side stereo: the right eye shows the step too, from the moment it appears.
     page.keyboard.press("s")
     right = page.locator("#front-view-right [data-osd=task]")
