@@ -20,6 +20,12 @@ picture in the animation frame that draws it. Printed per run:
   frames drawn per second per video page, the frames whose code did not read, and the
                    fewest animation frames per second a page was given (headless
                    Chromium gives a tab that is not its window's active one about one);
+  stages           p50 / p99 ms of the path, frame by frame: the JPEG encode and the
+                   hand-off to the event loop (render stamp to the capture thread's
+                   publish, seen by a listener on the camera's frames), the fan-out and
+                   the socket into the page (publish to the page's message event), the
+                   wait for the camera's previous decode, the decode, and the wait for
+                   the animation frame that draws it;
   VID max          the largest video age the OSD of any page showed ("VID 0.3s"), and
                    per page;
   /api/status      p99 and largest time of the requests each page makes once a second
@@ -33,10 +39,12 @@ Chromium's pages and the station share its cores.
 from __future__ import annotations
 
 import argparse
+import collections
 import os
 import statistics
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -92,7 +100,39 @@ def pct(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
 
 
-def measure(base: str, browser, paths: list[str], windows: bool, seconds: float) -> dict:
+class Published:
+    """When the capture thread published each front frame: a listener on the camera's
+    `Latest[Frame]`, called in that thread (a bounded record, nothing more)."""
+
+    def __init__(self) -> None:
+        self.at: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=20_000)
+
+    def __call__(self, frame) -> None:
+        self.at.append((frame.seq, frame.t_wall, time.time()))
+
+    def by_seq(self) -> dict[int, tuple[float, float]]:
+        return {seq: (t_wall, t_pub) for seq, t_wall, t_pub in list(self.at)}
+
+
+def stages(stamped: list[dict], published: dict[int, tuple[float, float]]) -> dict:
+    """Each stamped frame's time split by stage (ms), see the module docstring."""
+    parts: dict[str, list[float]] = {k: [] for k in ("encode", "page", "wait", "decode", "raf")}
+    for r in stamped:
+        if "fromMs" not in r:
+            continue  # a page without the stage times (an older web/video.js)
+        if r["seq"] in published:  # the render stamp to the publish, then to the page
+            encode = published[r["seq"]][1] * 1000 - r["fromMs"]
+            parts["encode"].append(encode)
+            parts["page"].append(r["stationMs"] - encode)
+        parts["wait"].append(r["waitMs"])
+        parts["decode"].append(r["decodeMs"])
+        parts["raf"].append(r["totalMs"] - r["stationMs"] - r["waitMs"] - r["decodeMs"])
+    return parts
+
+
+def measure(
+    base: str, browser, paths: list[str], windows: bool, seconds: float, published: Published
+) -> dict:
     contexts, pages = [], []
     for path in paths:
         if windows or not contexts:
@@ -132,6 +172,7 @@ def measure(base: str, browser, paths: list[str], windows: bool, seconds: float)
         "station_share": statistics.median(
             [r["stationMs"] / r["totalMs"] for r in stamped if r["totalMs"] > 0] or [float("nan")]
         ),
+        "stages": stages(stamped, published.by_seq()),
         "vid_max": [(path, g["vidMax"]) for path, g in zip(paths, got, strict=True)],
         "api_n": len(api),
         "api_failed": sum(1 for a in api if a["status"] != 200),
@@ -150,6 +191,15 @@ def report(name: str, r: dict) -> None:
         f"{r['api_p99']:>7.0f} {r['api_max']:>7.0f} {r['api_n']:>4}"
         + (f" ({r['api_failed']} failed or unanswered)" if r["api_failed"] else "")
     )
+    text = ", ".join(
+        f"{name} {pct(v, 0.5):.1f} / {pct(v, 0.99):.1f}"
+        for name, v in zip(
+            ("encode", "to the page", "wait for a decode", "decode", "to the frame"),
+            r["stages"].values(),
+            strict=True,
+        )
+    )
+    print(f"{'':>9} stages p50 / p99 ms: {text}")
     if r["pages"] > 1:
         per_page = ", ".join(
             f"{path} {'--' if v is None else f'{v:.1f} s'}" for path, v in r["vid_max"]
@@ -178,7 +228,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         app = create_app(twin_station_settings(Path(tmp), overrides))
         with run_uvicorn(app) as base, chromium() as browser:
-            wait_until(lambda: app.state.station.cameras["front"].frames.get(), timeout=60)
+            front = app.state.station.cameras["front"].frames
+            wait_until(front.get, timeout=60)
+            published = Published()
+            front.add_listener(published)
             print(
                 f"twin front+bottom cameras {w}x{h} at {args.fps:g} fps; {args.seconds:g} s "
                 f"per run; ms from the render stamp; {os.cpu_count()} cores; 6 pages: "
@@ -193,7 +246,7 @@ def main() -> None:
                 load = os.getloadavg()
                 print(f"{'':>9} load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
                 paths = ["/"] if n == 1 else PAGES
-                report(name, measure(base, browser, paths, windows, args.seconds))
+                report(name, measure(base, browser, paths, windows, args.seconds, published))
     load = os.getloadavg()
     print(f"load average after {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
 

@@ -11,8 +11,8 @@
 //                       agree), width, height, drawn (count)}
 //   cameras.latency     camera name -> {kind ("render" or "capture"), p50, p99, stationP50,
 //                       stationP99, n}: milliseconds to the screen over the last WINDOW_MS
-//   cameras.log         null, or an array that every latency sample is appended to
-//                       (benchmarks/glass_to_glass.py)
+//   cameras.log         null, or an array that every latency sample is appended to, with
+//                       its wait for a decode and the decode (benchmarks/glass_to_glass.py)
 //   cameras.addTarget(camera, canvas)  another canvas showing a camera (the goggles'
 //                       right eye), drawn from the same decoded frames
 //
@@ -132,7 +132,9 @@ function receive(buf) {
 
 function decode(v, head, jpeg) {
   v.decoding = true;
+  head.decodeFromMs = stationNowMs();
   createImageBitmap(new Blob([jpeg], { type: "image/jpeg" })).then((bitmap) => {
+    head.decodedMs = stationNowMs();
     if (head.seq <= v.drawnSeq || (v.pending && v.pending.head.seq >= head.seq)) {
       bitmap.close();
       done(1);
@@ -248,7 +250,12 @@ function noteLatency(name, head, bitmap, drawnAt) {
   const list = (samples[name] = samples[name] || []);
   list.push(sample);
   while (list.length && list[0].at < drawnAt - WINDOW_MS) list.shift();
-  if (cameras.log) cameras.log.push({ camera: name, seq: head.seq, counter: code ? code.counter : null, ...sample });
+  if (cameras.log) {
+    cameras.log.push({
+      camera: name, seq: head.seq, counter: code ? code.counter : null, ...sample,
+      fromMs, waitMs: head.decodeFromMs - head.receivedMs, decodeMs: head.decodedMs - head.decodeFromMs,
+    });
+  }
 }
 
 function percentile(sorted, q) {
