@@ -13,25 +13,28 @@ from playwright.sync_api import expect
 from fpv_station.twin.pilot import Leg, Pilot, fly_twin
 from tests import synthetic as syn
 from tests.stations import no_link_station
-from tests.twin_flights import task_page_on_the_twin
+from tests.twin_flights import field_with_hold, task_page_on_the_twin
 
-HELD = 3  # "Held 10 s" in task 1's steps: Armed, Took off, Reached 4 m, Held 10 s, ...
+HELD = 3  # "Held 3 s" in task 1's steps: Armed, Took off, Reached 4 m, Held 3 s, ...
+HOLD_S = 3.0  # task 1's hold here (the field's is 10 s): the page counts it on the wall clock
 
 
 @pytest.mark.timeout(300)
 def test_held_lights_only_while_the_height_is_held_and_the_score_says_valid(tmp_path, browser):
-    with task_page_on_the_twin(browser, tmp_path, 1) as (app, _, page):
-        expect(page.locator("#task-steps li").nth(HELD)).to_have_text("Held 10 s")
-        # 11 s at 5.2 m (above the task's 4 m), then 4 m held, then the landing.
+    scene = field_with_hold(tmp_path, HOLD_S)
+    with task_page_on_the_twin(browser, tmp_path, 1, scene) as (app, _, page):
+        expect(page.locator("#task-steps li").nth(HELD)).to_have_text("Held 3 s")
+        # Longer than the hold at 5.2 m (above the task's 4 m), then 4 m held, then the
+        # landing: 10 s of hover window (analysis.tasks) before it, for a valid trial.
         legs = [
             Leg("arm"),
             Leg("hold", alt_m=0.0, seconds=1.5),  # recording starts at the armed beat
             Leg("climb", alt_m=5.2),
-            Leg("hold", alt_m=5.2, seconds=11.0),
-            Leg("hold", alt_m=4.0, seconds=13.0),
+            Leg("hold", alt_m=5.2, seconds=HOLD_S + 2.0),
+            Leg("hold", alt_m=4.0, seconds=HOLD_S + 3.0),
             Leg("land"),
         ]
-        pilot = Pilot(legs)
+        pilot = Pilot(legs, descent_mps=1.0)  # the vehicle's limit is 1.5 m/s
         flyer = threading.Thread(target=fly_twin, args=(app.state.station.twin, pilot, 120.0))
         flyer.start()
         held_by_leg: dict[int, set[bool]] = {}
@@ -44,7 +47,7 @@ def test_held_lights_only_while_the_height_is_held_and_the_score_says_valid(tmp_
         finally:
             flyer.join(130)
         assert pilot.done, pilot.log
-        assert held_by_leg[3] == {False}, held_by_leg  # 11 s at 5.2 m hold nothing
+        assert held_by_leg[3] == {False}, held_by_leg  # longer than the hold at 5.2 m: nothing
         assert True in held_by_leg[4] | held_by_leg.get(5, set()), held_by_leg
         result = page.locator("#task-result")
         expect(result).to_contain_text("Valid trial", timeout=60_000)

@@ -63,7 +63,7 @@ def test_pilot_flies_task_1_with_procedure_map_and_score(tmp_path, browser):
 
         legs = task_plan(twin.scene, 1)
         legs.insert(1, Leg("hold", alt_m=0.0, seconds=1.5))  # recording starts at the armed beat
-        pilot = Pilot(legs)
+        pilot = Pilot(legs, descent_mps=1.0)  # the vehicle's limit is 1.5 m/s
         stop = threading.Event()
         flyer = threading.Thread(
             target=fly_over_the_control_socket,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fpv_station.core.scene import DEFAULT_SCENE, load_scene
 from fpv_station.server.app import create_app
 from fpv_station.server.settings import load_settings
 from fpv_station.twin.pilot import Leg, Pilot, fly_twin, task_plan
@@ -87,15 +88,30 @@ def recorded_twin_flight(
         yield RecordedFlight(base, station, last.id, last.reason, Path(sessions_dir) / last.id)
 
 
+def field_with_hold(folder: Path, hold_s: float) -> Path:
+    """The built-in field as a scene file in `folder`, its task 1 holding the height for
+    `hold_s` instead: a page test flies the same procedure with a shorter wait (the page
+    counts the hold on the wall clock, so a faster twin would not shorten it)."""
+    text = DEFAULT_SCENE.read_text()
+    default = f"hold_s = {load_scene().task(1).hold_s}"
+    assert text.count(default) == 1, default
+    path = Path(folder) / f"field-hold-{hold_s:g}s.toml"
+    path.write_text(text.replace(default, f"hold_s = {hold_s}"))
+    assert load_scene(path).task(1).hold_s == hold_s
+    return path
+
+
 @contextlib.contextmanager
 def task_page_on_the_twin(
-    browser, sessions_dir: Path, task_id: int
+    browser, sessions_dir: Path, task_id: int, scene: Path | None = None
 ) -> Iterator[tuple[Any, str, Any]]:
-    """A station on the twin (no cameras) and its pilot page in Chromium with task
-    `task_id` chosen, once the task's map shows the vehicle: (the app, its base URL,
-    the page)."""
-    no_cameras = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
-    app = create_app(twin_station_settings(sessions_dir, no_cameras))
+    """A station on the twin (no cameras; `scene`: its scene file, else the built-in
+    field) and its pilot page in Chromium with task `task_id` chosen, once the task's map
+    shows the vehicle: (the app, its base URL, the page)."""
+    overrides: dict[str, Any] = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    if scene is not None:
+        overrides["twin.scene"] = str(scene)
+    app = create_app(twin_station_settings(sessions_dir, overrides))
     with run_uvicorn(app) as base:
         page = browser.new_page(viewport={"width": 1280, "height": 800})
         page.goto(f"{base}/")
