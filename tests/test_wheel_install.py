@@ -1,6 +1,7 @@
 """The wheel installs beside another project's top-level `core` and `server`.
 
-The wheel is built from this tree as `pip install .` builds it, then installed into a fresh
+The wheel is built from this tree by the build backend pyproject.toml names, at the version
+it requires, through the hook that builds it for `pip install .`, then installed into a fresh
 virtual environment after a small package of the test's own that has top-level `core`
 and `server` packages. There the installed station serves its pages, exports a Minari
 dataset, and another process recovers the twin from that dataset alone (its stored
@@ -45,22 +46,9 @@ OTHER_FILES = {
     "server/__init__.py": 'NAME = "other-server"\n',
 }
 
-CHECK_INSTALLED = """
+# Run once the dataset is exported: one fresh interpreter, as a lab's would start.
+INSTALLED = """
 import importlib, importlib.metadata as md, json, sys
-# The other project's names, by variable: no import line a rename would take for ours.
-core, engine, server = (importlib.import_module(n) for n in ("core", "core.engine", "server"))
-import fpv_station.server.app, fpv_station.twin.gym_env
-files = md.distribution("fpv-station").files
-print(json.dumps({
-    "top_level": sorted({f.parts[0] for f in files if f.parts[0] != ".."}),
-    "other": [core.NAME, engine.run(), server.NAME],
-    "ours": fpv_station.server.app.__file__,
-    "version": md.version("fpv-station"),
-}))
-"""
-
-RECOVER = """
-import json, sys
 import gymnasium as gym
 import minari
 import numpy as np
@@ -70,21 +58,31 @@ obs, _ = env.reset(seed=0)
 obs, reward, *_ = env.step(np.zeros(4, np.float32))
 # The registered id, through the module that registers it, in the same fresh process.
 by_id = gym.make("fpv_station.twin.gym_env:fpv_station/TwinEnv-v0", task=1)
+# The other project's names, by variable: no import line a rename would take for ours.
+core, engine, server = (importlib.import_module(n) for n in ("core", "core.engine", "server"))
+import fpv_station.server.app
+files = md.distribution("fpv-station").files
 print(json.dumps({
     "entry_point": ds.spec.env_spec.entry_point,
     "env_file": sys.modules[type(env.unwrapped).__module__].__file__,
     "obs": list(obs.shape), "reward": float(reward), "episodes": ds.total_episodes,
     "by_id": type(by_id.unwrapped).__name__,
+    "top_level": sorted({f.parts[0] for f in files if f.parts[0] != ".."}),
+    "other": [core.NAME, engine.run(), server.NAME],
+    "ours": fpv_station.server.app.__file__,
 }))
 """
 
 
-def run(*args: str | Path, env: dict | None = None, timeout: float = 300) -> str:
+def run(
+    *args: str | Path, env: dict | None = None, cwd: Path | None = None, timeout: float = 300
+) -> str:
     """Run a command without this checkout on its path (pip would see its metadata)."""
     base = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     done = subprocess.run(
         [str(a) for a in args],
         env={**base, **(env or {})},
+        cwd=cwd,
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -104,6 +102,25 @@ def source_copy(dst: Path) -> Path:
     for folder in sorted(set(pyproject["tool"]["setuptools"]["package-dir"].values())):
         shutil.copytree(ROOT / folder, dst / folder, ignore=skip)
     return dst
+
+
+def build_wheel(src: Path, out: Path) -> Path:
+    """Our wheel, built from `src` as pip builds it in its isolated build environment:
+    the backend pyproject.toml names, installed at the versions it requires into a
+    folder of its own, then its PEP 517 `build_wheel` hook run in the source folder (pip
+    asks the same backend first for its requirements and metadata, which the wheel
+    holds too; each of those is one more interpreter with the backend imported)."""
+    system = tomllib.loads((src / "pyproject.toml").read_text())["build-system"]
+    backend = src.parent / "build-backend"
+    run(sys.executable, "-m", "pip", "install", "-q", "--target", backend, *system["requires"])
+    hook = (
+        "import importlib, sys; sys.path.insert(0, sys.argv[1]); "
+        "print(importlib.import_module(sys.argv[2]).build_wheel(sys.argv[3]))"
+    )
+    out.mkdir()
+    # -S: no site-packages of ours, as in pip's isolated build environment.
+    name = run(sys.executable, "-S", "-c", hook, backend, system["build-backend"], out, cwd=src)
+    return out / name.splitlines()[-1].strip()
 
 
 def other_wheel(out: Path) -> Path:
@@ -138,10 +155,8 @@ def make_venv(where: Path) -> tuple[Path, Path]:
 
 
 def test_the_wheel_installs_and_runs_beside_other_core_and_server(tmp_path):
-    wheels = tmp_path / "wheels"
-    run(sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", wheels,
-        source_copy(tmp_path / "src"))  # fmt: skip
-    (ours,) = wheels.glob("fpv_station-*.whl")
+    ours = build_wheel(source_copy(tmp_path / "src"), tmp_path / "wheels")
+    assert ours.name.startswith("fpv_station-") and ours.suffix == ".whl"
     with zipfile.ZipFile(ours) as z:
         shipped = set(z.namelist())
     # Every source file of every package folder is in the wheel, pages and scenes too.
@@ -159,12 +174,6 @@ def test_the_wheel_installs_and_runs_beside_other_core_and_server(tmp_path):
     deps = [p for p in sys.path if p.endswith(("site-packages", "dist-packages"))]
     (site / "runner_dependencies.pth").write_text("\n".join(deps) + "\n")
 
-    got = json.loads(run(python, "-I", "-c", CHECK_INSTALLED).splitlines()[-1])
-    # The only importable name the station installs is its namespace.
-    assert [n for n in got["top_level"] if not n.endswith(".dist-info")] == ["fpv_station"]
-    assert got["other"] == ["other-core", "the other engine", "other-server"]
-    assert Path(got["ours"]).is_relative_to(site)  # the installed copy, not a checkout
-
     # The console script, as a Pi runs it: the twin on the link, pages from the wheel.
     script = python.parent / "fpv-station"
     with serve_station(["--source", "sim"], python=python, launcher=("-I", str(script))) as st:
@@ -181,7 +190,11 @@ def test_the_wheel_installs_and_runs_beside_other_core_and_server(tmp_path):
     run(python, "-I", script, "export", tlog, "--format", "minari", "--task", "1",
         "--fps", "5", "--out", datasets, "--dataset-id", dataset_id, "--no-progress")  # fmt: skip
     env = {"MINARI_DATASETS_PATH": str(datasets)}
-    got = json.loads(run(python, "-I", "-c", RECOVER, dataset_id, env=env).splitlines()[-1])
+    got = json.loads(run(python, "-I", "-c", INSTALLED, dataset_id, env=env).splitlines()[-1])
+    # The only importable name the station installs is its namespace.
+    assert [n for n in got["top_level"] if not n.endswith(".dist-info")] == ["fpv_station"]
+    assert got["other"] == ["other-core", "the other engine", "other-server"]
+    assert Path(got["ours"]).is_relative_to(site)  # the installed copy, not a checkout
     assert got["entry_point"] == "fpv_station.twin.gym_env:TwinEnv"
     assert Path(got["env_file"]).is_relative_to(site)
     assert got["obs"] == [18] and got["episodes"] == 3 and got["by_id"] == "TwinEnv"
