@@ -18,24 +18,26 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from fpv_station.learn.demos import DemoConfig, fly_demo
+from fpv_station.learn.demos import DemoConfig
 from fpv_station.learn.episodes import ChannelMap
 from fpv_station.learn.export import ExportOptions, export_recordings, recorded_task_id
 from fpv_station.learn.formats import FileLimits
 from fpv_station.server.cli import main as cli_main
 from tests import synthetic as syn
+from tests.demo_flights import shared_demo
 from tests.known_flights import three_sorties
 from tests.recording_fakes import as_format_1, recorded_frames
 
 FPS = 10
-# The module's fixtures fly a twin demo with both cameras and export it (~15 s alone);
-# on a shared machine the first test to use them can take minutes.
+# The module's fixtures fly a twin demo with both cameras (once for the whole run,
+# `shared_demo`) and export it (~15 s alone); on a shared machine the first test to use
+# them can take minutes.
 pytestmark = pytest.mark.timeout(600)
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory) -> Path:
-    return fly_demo(tmp_path_factory.mktemp("demo"), 3, DemoConfig(task_id=1, cameras=True))
+    return shared_demo(tmp_path_factory, 3, DemoConfig(task_id=1, cameras=True))
 
 
 @pytest.fixture(scope="module")

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 from fpv_station.learn import evaluate as ev
-from fpv_station.learn.demos import DemoConfig, fly_demo
+from fpv_station.learn.demos import DemoConfig
 from fpv_station.learn.lerobot_policy import LeRobotPolicy
 from fpv_station.learn.linear_policy import EPS, LinearPolicy
 from fpv_station.server.cli import main as cli_main
 from fpv_station.twin.gym_vector import TwinVectorEnv
+from tests.demo_flights import shared_demo
 
 FPS = 5  # not the env's 10 Hz: the policy must be asked at the dataset's rate
 SIZE = (64, 48)
@@ -35,7 +36,7 @@ pytestmark = pytest.mark.timeout(900)
 def dataset(tmp_path_factory) -> Path:
     # Pictures at the dataset's rate: the export takes no more of them.
     config = DemoConfig(task_id=1, cameras=True, camera_fps=FPS, hold_s=2.0)
-    demo = fly_demo(tmp_path_factory.mktemp("demo"), 7, config)
+    demo = shared_demo(tmp_path_factory, 7, config)
     out = tmp_path_factory.mktemp("lerobot")
     argv = ["export", str(demo), "--format", "lerobot", "--out", str(out), "--fps", str(FPS)]
     assert cli_main([*argv, "--image-size", "{}x{}".format(*SIZE), "--no-progress"]) == 0

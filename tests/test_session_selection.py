@@ -22,10 +22,10 @@ import pytest
 from playwright.sync_api import expect
 
 from fpv_station.companion.recording.meta import Demonstration, read_meta, write_meta
-from fpv_station.learn.demos import fly_demo
 from fpv_station.learn.evaluate import demonstration_rows
 from fpv_station.server.app import create_app
 from fpv_station.server.cli import main as cli_main
+from tests.demo_flights import shared_demo
 from tests.helpers import run_uvicorn, station_settings
 
 
@@ -41,8 +41,7 @@ def _retag(src: Path, root: Path, sid: str, kind: str, pilot: str, attempt: int)
 
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory) -> Path:
-    flown = tmp_path_factory.mktemp("flown")
-    valid, failed = fly_demo(flown, 7), fly_demo(flown, 8)
+    valid, failed = shared_demo(tmp_path_factory, 7), shared_demo(tmp_path_factory, 8)
     tag = read_meta(valid / "session.json").demonstration  # as the twin's pilot flew it
     assert tag is not None
     assert (tag.kind, tag.pilot, tag.attempt, tag.attempts) == ("scripted", "scripted", 1, 1)
