@@ -3,14 +3,13 @@ rows apart, and the open-loop replay, which passes in calm air and fails in wind
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from fpv_station.core.scene import load_scene
 from fpv_station.learn import evaluate as ev
-from fpv_station.learn.demos import DemoConfig, fly_demo
+from fpv_station.learn.demos import DemoConfig
+from tests.demo_flights import shared_demo
 
 
 def test_intervals_match_published_values() -> None:
@@ -51,11 +50,12 @@ WIND = ev.air_options((1.414, 1.414), 0.5, 0.5, random_start_deg=180.0)
 
 
 @pytest.mark.timeout(900)  # ~15 s alone
-def test_open_loop_replay_passes_calm_and_fails_in_wind(tmp_path: Path) -> None:
+def test_open_loop_replay_passes_calm_and_fails_in_wind(tmp_path_factory) -> None:
     """A demonstration's recorded sticks, replayed blind on other seeds, land on the pad
     in still air from the pad's centre; in wind, from anywhere on the pad at any heading,
     they do not. The scripted pilot, which looks, lands in both."""
-    session = fly_demo(tmp_path, seed=3, config=DemoConfig(task_id=2))
+    # The task-2 flight tests/test_one_reader.py reads too: flown once (`shared_demo`).
+    session = shared_demo(tmp_path_factory, 2, DemoConfig(task_id=2))
     (sticks,) = ev.recorded_sticks([session], 2, ev.CONTROL_HZ)
     replay = lambda s: ev.open_loop(sticks)  # noqa: E731
     calm = ev.evaluate("open-loop replay", replay, 2, episodes=3, seed=1000)

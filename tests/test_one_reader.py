@@ -15,6 +15,7 @@ recorded with them.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +25,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from fpv_station.analysis.flights import track_flights
 from fpv_station.analysis.track import load_track
 from fpv_station.core.mavlink.tlog_records import TlogReader, encode_record
-from fpv_station.learn.demos import DemoConfig, fly_demo
+from fpv_station.learn.demos import DemoConfig
 from fpv_station.server.cli import main as cli_main
 from tests import shaped_tlog
 from tests import synthetic as syn
+from tests.demo_flights import shared_demo
 
 TASKS = {1: "hover", 2: "a-to-b", 3: "obstacle", 4: "figure8"}
 
@@ -58,8 +60,12 @@ def add_second_vehicle(tlog: Path) -> int:
     return added
 
 
-def twin_flight(root: Path, task_id: int) -> Path:
-    folder = fly_demo(root, seed=task_id, config=DemoConfig(task_id=task_id))
+def twin_flight(tmp_path_factory, root: Path, task_id: int) -> Path:
+    """A copy under `root` of the task's demo (flown once for the run, `shared_demo`),
+    its tlog with the second vehicle."""
+    flown = shared_demo(tmp_path_factory, task_id, DemoConfig(task_id=task_id))
+    folder = root / flown.name
+    shutil.copytree(flown, folder)
     # Recorded as the recorder records: with the task it flew, as a pilot's choice is.
     meta = json.loads((folder / "session.json").read_text())
     assert meta["task"]["id"] == task_id and meta["status"] == "complete"
@@ -76,9 +82,9 @@ def analyze(path: Path, task: str, out: Path) -> tuple[list[str], list[dict]]:
 
 @pytest.mark.timeout(300)  # a figure 8 flown and analysed twice: ~10 s of CPU, more at load 8
 @pytest.mark.parametrize("task_id", sorted(TASKS))
-def test_a_session_analyses_the_same_from_its_csv_and_its_tlog(task_id, tmp_path):
+def test_a_session_analyses_the_same_from_its_csv_and_its_tlog(task_id, tmp_path, tmp_path_factory):
     task = TASKS[task_id]
-    folder = twin_flight(tmp_path / "sessions", task_id)
+    folder = twin_flight(tmp_path_factory, tmp_path / "sessions", task_id)
     figures, from_csv = analyze(folder, task, tmp_path / "csv")
     _, from_tlog = analyze(folder / "mavlink.tlog", task, tmp_path / "tlog")
     assert len(from_csv) == len(from_tlog) == 1  # one flight, however it is read
