@@ -4,6 +4,7 @@ recorded path with its time slider and frames. Pixels are checked, not just page
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import cv2
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from fpv_station.server.app import create_app
-from tests.helpers import chromium, panel_station_settings, run_uvicorn, wait_until
+from tests.helpers import panel_station_settings, run_uvicorn, wait_until
 from tests.pages import open_offline
 from tests.synthetic import SESSION_A, SESSION_B, state_at
 
@@ -35,7 +36,7 @@ def station(two_sessions_dir):
 
 
 @pytest.mark.timeout(300)  # the viser client renders in software here
-def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
+def test_pilot_page_3d_panel_draws_the_flown_path(station, browser, tmp_path):
     base, app = station
     # Feed a flight through the station's state slot, as the link does.
     slot = app.state.station.state
@@ -46,8 +47,8 @@ def test_pilot_page_3d_panel_draws_the_flown_path(station, tmp_path):
     assert wait_until(lambda: httpx.get(f"{base}/api/viser").json()["points"] > 50, 5.0)
     assert httpx.get(f"{base}/api/viser").json()["chunks"] == 0
     outside: list[str] = []
-    with chromium() as browser:
-        page = open_offline(browser, outside)
+    page = open_offline(browser, outside)
+    with contextlib.closing(page.context):  # the module's browser runs on
         page.goto(f"{base}/?token={TOKEN}")  # as the station prints it: the pilot's page
         panel = page.locator("#panel-3d")
         assert panel.is_hidden()
@@ -124,11 +125,11 @@ PLAY_PAST_12_S = """() => new Promise((resolve) => {
 
 
 @pytest.mark.timeout(300)  # the 3D replay panel renders in software here
-def test_replay_page_draws_sessions_with_slider_frames_and_play(station, tmp_path):
+def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser, tmp_path):
     base, app = station
     outside: list[str] = []
-    with chromium() as browser:
-        page = open_offline(browser, outside)
+    page = open_offline(browser, outside)
+    with contextlib.closing(page.context):  # the module's browser runs on
         # Replay: picked from the sessions page, a second session overlaid in the paper's frame.
         page.goto(f"{base}/sessions.html?token={TOKEN}")  # kept by lib.js
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
