@@ -104,3 +104,30 @@ def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(tmp_path)
             timeout=30_000,
         )
         assert page.evaluate("() => window.__decodes") == 3  # and the newest front
+
+
+def test_a_restarted_station_s_frames_are_drawn_though_they_count_from_1_again(tmp_path):
+    """The video socket closes and the page reconnects to a station whose frames count
+    from 1 again: they are drawn, not taken for old frames."""
+    jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
+    sockets = []
+
+    def station_socket(ws) -> None:  # /ws/video's side, at the protocol boundary
+        sockets.append(ws)
+        seq = 50 if len(sockets) == 1 else 1  # the first station, then the restarted one
+
+        def on_message(text: str | bytes) -> None:
+            if isinstance(text, str) and "subscribe" in text:
+                frame = Frame("front", seq, jpeg, 320, 240, 0.0, time.time())
+                ws.send(ws_message("front", frame))
+
+        ws.on_message(on_message)
+
+    drawn = "() => (window.fpvDebug.cameras.frames.front || {}).seq"
+    with run_uvicorn(create_app(station_settings("none"))) as base, chromium() as browser:
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
+        page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
+        page.goto(base + "/")
+        page.wait_for_function(f"{drawn} === 50", timeout=30_000)
+        sockets[0].close()
+        page.wait_for_function(f"{drawn} === 1", timeout=30_000)

@@ -83,6 +83,7 @@ function addTarget(name, canvas) {
 let ws = null;
 let handled = 0; // frames drawn or replaced by a newer one (what the acks count)
 let subscribed = "";
+let generation = 0; // one per connection: a decode started on an old one is dropped
 let clockOffset = { agree: false, offsetS: 0 };
 
 function shown(v) {
@@ -104,6 +105,13 @@ function connect() {
   ws = sock;
   handled = 0;
   subscribed = "";
+  generation += 1;
+  // A station that restarted counts its frames from 1 again.
+  for (const v of Object.values(views)) {
+    v.drawnSeq = -1;
+    v.waiting = null;
+    if (v.pending) { v.pending.bitmap.close(); v.pending = null; }
+  }
   sock.onopen = () => subscribe();
   sock.onmessage = (e) => { if (typeof e.data !== "string") receive(e.data); };
   sock.onclose = () => {
@@ -119,6 +127,7 @@ function receive(buf) {
   const v = views[head.camera];
   if (!v) { done(1); return; }
   head.receivedMs = stationNowMs();
+  head.generation = generation;
   const jpeg = new Uint8Array(buf, 2 + headLen);
   // One decode per camera at a time; a frame that arrives meanwhile waits, and a newer
   // one replaces it undecoded: a busy page spends no CPU on pictures it would not draw.
@@ -135,6 +144,7 @@ function decode(v, head, jpeg) {
   head.decodeFromMs = stationNowMs();
   createImageBitmap(new Blob([jpeg], { type: "image/jpeg" })).then((bitmap) => {
     head.decodedMs = stationNowMs();
+    if (head.generation !== generation) { bitmap.close(); return; }
     if (head.seq <= v.drawnSeq || (v.pending && v.pending.head.seq >= head.seq)) {
       bitmap.close();
       done(1);
@@ -143,7 +153,7 @@ function decode(v, head, jpeg) {
     if (v.pending) { v.pending.bitmap.close(); done(1); }
     v.pending = { head, bitmap };
     requestAnimationFrame(draw);
-  }, () => done(1)).finally(() => {
+  }, () => { if (head.generation === generation) done(1); }).finally(() => {
     v.decoding = false;
     const next = v.waiting;
     v.waiting = null;
