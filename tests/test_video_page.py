@@ -7,16 +7,17 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 from playwright.sync_api import expect
 
 from fpv_station.companion.video_frame import Frame
 from fpv_station.server.app import create_app
 from fpv_station.server.video_fanout import ws_message
-from tests.helpers import chromium, run_uvicorn, station_settings
+from tests.helpers import run_uvicorn, station_settings
 from tests.video_fixtures import write_images
 
 
-def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
+def test_page_shows_both_streams_with_fps_and_latency(tmp_path, browser):
     front = write_images(tmp_path / "front", 4, (320, 240))
     settings = station_settings(
         "none",
@@ -27,7 +28,7 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
             "cameras.bottom.height": 240,
         },
     )
-    with run_uvicorn(create_app(settings)) as base, chromium() as browser:
+    with run_uvicorn(create_app(settings)) as base:
         page = browser.new_page(viewport={"width": 1280, "height": 720})
         page.goto(base + "/")
         for name in ("front", "bottom"):
@@ -60,6 +61,13 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path):
         assert mjpeg == 0
 
 
+@pytest.fixture(scope="module")
+def bare_station():
+    """A station whose /ws/video each test replaces (`page.route_web_socket`)."""
+    with run_uvicorn(create_app(station_settings("none"))) as base:
+        yield base
+
+
 # Instruments the browser's decoder, not our code: counts the decodes started and holds
 # them until the test lets them go.
 HELD_DECODES = """
@@ -71,7 +79,7 @@ HELD_DECODES = """
 """
 
 
-def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(tmp_path):
+def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(bare_station, browser):
     """A burst of frames while one is being decoded: the page decodes that one and then
     only the newest, and draws the newest (the frames between cost no decode)."""
     jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
@@ -91,22 +99,24 @@ def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(tmp_path)
 
         ws.on_message(on_message)
 
-    with run_uvicorn(create_app(station_settings("none"))) as base, chromium() as browser:
-        page = browser.new_page(viewport={"width": 1280, "height": 720})
-        page.add_init_script(HELD_DECODES)
-        page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
-        page.goto(base + "/")
-        page.wait_for_function("() => window.__decodes >= 2", timeout=30_000)
-        assert page.evaluate("() => window.__decodes") == 2  # the first front, the bottom
-        page.evaluate("() => window.__release()")
-        page.wait_for_function(
-            f"() => (window.fpvDebug.cameras.frames.front || {{}}).seq === {burst}",
-            timeout=30_000,
-        )
-        assert page.evaluate("() => window.__decodes") == 3  # and the newest front
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.add_init_script(HELD_DECODES)
+    page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
+    page.goto(bare_station + "/")
+    page.wait_for_function("() => window.__decodes >= 2", timeout=30_000)
+    assert page.evaluate("() => window.__decodes") == 2  # the first front, the bottom
+    page.evaluate("() => window.__release()")
+    page.wait_for_function(
+        f"() => (window.fpvDebug.cameras.frames.front || {{}}).seq === {burst}",
+        timeout=30_000,
+    )
+    assert page.evaluate("() => window.__decodes") == 3  # and the newest front
+    page.close()
 
 
-def test_a_restarted_station_s_frames_are_drawn_though_they_count_from_1_again(tmp_path):
+def test_a_restarted_station_s_frames_are_drawn_though_they_count_from_1_again(
+    bare_station, browser
+):
     """The video socket closes and the page reconnects to a station whose frames count
     from 1 again: they are drawn, not taken for old frames."""
     jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
@@ -124,10 +134,10 @@ def test_a_restarted_station_s_frames_are_drawn_though_they_count_from_1_again(t
         ws.on_message(on_message)
 
     drawn = "() => (window.fpvDebug.cameras.frames.front || {}).seq"
-    with run_uvicorn(create_app(station_settings("none"))) as base, chromium() as browser:
-        page = browser.new_page(viewport={"width": 1280, "height": 720})
-        page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
-        page.goto(base + "/")
-        page.wait_for_function(f"{drawn} === 50", timeout=30_000)
-        sockets[0].close()
-        page.wait_for_function(f"{drawn} === 1", timeout=30_000)
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
+    page.goto(bare_station + "/")
+    page.wait_for_function(f"{drawn} === 50", timeout=30_000)
+    sockets[0].close()
+    page.wait_for_function(f"{drawn} === 1", timeout=30_000)
+    page.close()
