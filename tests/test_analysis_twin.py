@@ -31,7 +31,8 @@ def fly_to_session(task_id: int, folder: Path, timeout_s: float = 300.0) -> Path
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.setblocking(False)
-    twin = Twin(mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}")
+    # No flight log of its own (a ULog at the physics rate): only the MAVLink is recorded.
+    twin = Twin(mavlink=f"udpout:127.0.0.1:{rx.getsockname()[1]}", flight_log=False)
     folder.mkdir(parents=True)
     pilot = Pilot(task_plan(twin.scene, task_id))
     try:
