@@ -14,9 +14,10 @@ picture in the animation frame that draws it. Printed per run:
 
   render->screen   p50 / p99 ms: stamp to the animation frame that draws the picture
                    (the display shows it at its next refresh, up to one more refresh);
-  station share    p50 / p99 ms: stamp until the page received the message (render,
-                   JPEG encode, fan-out, the socket); the rest is the browser's decode
-                   and wait for its next animation frame;
+  station share    p50 / p99 ms: stamp until the page received the message (JPEG
+                   encode, hand-off, fan-out, the socket; the stamp is taken when the
+                   render is done); the rest is the browser's decode and wait for its
+                   next animation frame;
   frames drawn per second per video page, the frames whose code did not read, and the
                    fewest animation frames per second a page was given (headless
                    Chromium gives a tab that is not its window's active one about one);
