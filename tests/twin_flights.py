@@ -30,6 +30,11 @@ class RecordedFlight:
     folder: Path
 
 
+# The twin writes no ULog of its own (a sample every physics step) and the station asks
+# for none after the disarm (a download over the link): CPU a page test does not need.
+NO_ONBOARD_LOG = {"twin.flight_log": False, "onboard_log.after_disarm": False}
+
+
 def twin_station_settings(sessions_dir: Path, overrides: dict[str, Any] | None = None):
     """A `--source sim` station recording into `sessions_dir`, with a short tail."""
     return load_settings(
@@ -107,8 +112,13 @@ def task_page_on_the_twin(
 ) -> Iterator[tuple[Any, str, Any]]:
     """A station on the twin (no cameras; `scene`: its scene file, else the built-in
     field) and its pilot page in Chromium with task `task_id` chosen, once the task's map
-    shows the vehicle: (the app, its base URL, the page)."""
-    overrides: dict[str, Any] = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    shows the vehicle: (the app, its base URL, the page). The twin keeps no flight log
+    of its own (NO_ONBOARD_LOG): what a page shows does not come from it."""
+    overrides: dict[str, Any] = {
+        "cameras.front.spec": "none",
+        "cameras.bottom.spec": "none",
+        **NO_ONBOARD_LOG,
+    }
     if scene is not None:
         overrides["twin.scene"] = str(scene)
     app = create_app(twin_station_settings(sessions_dir, overrides))
