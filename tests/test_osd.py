@@ -351,6 +351,26 @@ def test_goggles_stereo_eyes_switch_osd_elements_together(station, browser):
     page.locator("#front-view [data-osd-toggle=battery]").check()
     for battery in eyes:
         expect(battery).to_be_visible()
+    # An eye is small: nose up or down, the pitch ladder draws nothing over the heading tape.
+    horizon = page.locator("#front-view [data-osd=horizon]")
+    for pitch in (2, 4, 6, 8, -4, -8):
+        vehicle.pitch_rad = math.radians(pitch)
+        expect(horizon).to_have_attribute("data-pitch", f"{pitch:.1f}")
+        assert page.evaluate(LADDER_INK_ON_TAPE) == 0, pitch
+    vehicle.pitch_rad = 0.0
+
+
+# Opaque pixels of the left eye's horizon canvas inside the heading tape's box.
+LADDER_INK_ON_TAPE = """() => {
+  const c = document.querySelector('#front-view [data-osd=horizon]');
+  const t = document.querySelector('#front-view [data-osd=heading]').getBoundingClientRect();
+  const b = c.getBoundingClientRect(), k = c.width / b.width;
+  const x = Math.round((t.left - b.left) * k), y = Math.round((t.top - b.top) * k);
+  const img = c.getContext('2d').getImageData(x, y, Math.round(t.width * k), Math.round(t.height * k));
+  let ink = 0;
+  for (let i = 3; i < img.data.length; i += 4) if (img.data[i] > 100) ink++;
+  return ink;
+}"""
 
 
 def test_goggles_show_the_task_step_as_an_osd_line(station, browser):

@@ -71,8 +71,9 @@ export function pictureOptics(cam, img, fit, c) {
 // Horizon and pitch ladder where the camera sees them: a pinhole camera `tiltDeg` above
 // the nose, its focal length `fPx`. The horizon is exact (a straight line, turned and
 // offset as the camera's axes point); a rung at elevation e lies f*tan(elevation of the
-// view's centre - e) from the centre, across the horizon.
-export function drawHorizon(c, roll, pitch, { tiltDeg, fPx }, dpr) {
+// view's centre - e) from the centre, across the horizon. The rungs stay near the centre,
+// their labels clear of the heading tape `reach` pixels above it.
+export function drawHorizon(c, roll, pitch, { tiltDeg, fPx }, dpr, reach) {
   const ctx = c.getContext("2d");
   const W = c.width, H = c.height;
   ctx.clearRect(0, 0, W, H);
@@ -95,10 +96,12 @@ export function drawHorizon(c, roll, pitch, { tiltDeg, fPx }, dpr) {
     solid.moveTo(W * 0.06, y0); solid.lineTo(W * 0.4, y0);
   }
   const labels = [];
+  const px = Math.round(12 * dpr);
+  const limit = Math.min(H * 0.4, reach - label("10", px).height / 2);
   for (let e = -50; e <= 50; e += 10) {
     if (e === 0 || Math.abs(centreElev - e) >= 89) continue;
     const y = offset(e);
-    if (Math.abs(y) > H * 0.4) continue; // only what is near the centre
+    if (Math.abs(y) > limit) continue;
     const path = e < 0 ? dashed : solid;
     path.moveTo(-W * 0.1, y); path.lineTo(-W * 0.04, y);
     path.moveTo(W * 0.04, y); path.lineTo(W * 0.1, y);
@@ -109,7 +112,7 @@ export function drawHorizon(c, roll, pitch, { tiltDeg, fPx }, dpr) {
   outlinedStroke(ctx, dashed, "#fff", 2 * dpr, dpr);
   ctx.setLineDash([]);
   for (const [e, y] of labels) {
-    const sprite = label(String(e), Math.round(12 * dpr));
+    const sprite = label(String(e), px);
     ctx.drawImage(sprite, W * 0.105, y - sprite.height / 2);
   }
   ctx.restore();

@@ -102,13 +102,13 @@ export function mountOsd(view, { menu = true } = {}) {
   const menuBox = elementsMenu(root, nodes, menu, () => { dirty = true; });
 
   function draw() {
-    const { dpr, optics, changed } = geometry();
+    const { dpr, optics, changed, reach } = geometry();
     if (changed) dirty = true;
     latencyLine(setLine);
     const msg = feed.latest;
     if (!msg) { setText(nodes.warning, feed.socketOpen ? "NO TELEMETRY" : "STATION UNREACHABLE"); return; }
     const cam = cameras.latest.front;
-    const f = { msg, s: msg.state, dpr, optics, dirty, cam, vAge: videoAge(cam) };
+    const f = { msg, s: msg.state, dpr, optics, reach, dirty, cam, vAge: videoAge(cam) };
     for (const part of parts) part(f);
     dirty = false;
   }
@@ -167,6 +167,7 @@ function elementNodes(root) {
 function pictureGeometry(view, horizon, heading) {
   let resized = true, sizeDpr = 0;
   let fit = "contain", opticsKey = ""; // how the picture sits in the view: its object-fit
+  let reach = 0; // how far from the centre the pitch ladder may go: to the heading tape's foot
   new ResizeObserver(() => { resized = true; }).observe(view);
   return () => {
     const dpr = window.devicePixelRatio || 1;
@@ -181,11 +182,12 @@ function pictureGeometry(view, horizon, heading) {
       }
       const img = view.querySelector(".video-stream");
       fit = img ? getComputedStyle(img).objectFit : "contain";
+      reach = horizon.height / 2 - (heading.offsetTop + heading.offsetHeight) * dpr;
       changed = true;
     }
     const optics = pictureOptics(cameras.latest.front, view.querySelector(".video-stream"), fit, horizon);
     if (optics.key !== opticsKey) { opticsKey = optics.key; changed = true; }
-    return { dpr, optics, changed };
+    return { dpr, optics, changed, reach };
   };
 }
 
@@ -193,14 +195,14 @@ function pictureGeometry(view, horizon, heading) {
 // picture changed; its values are the canvas' data- attributes and fallback text.
 function horizonLadder(canvas) {
   let key = "";
-  return ({ dpr, optics, dirty }) => {
+  return ({ dpr, optics, reach, dirty }) => {
     const r = reading("attitude"), att = r.value;
     const roll = att === null || att.roll_rad === null ? null : (att.roll_rad * 180) / Math.PI;
     const pitch = att === null || att.pitch_rad === null ? null : (att.pitch_rad * 180) / Math.PI;
     const k = `${fixed(roll, 1)},${fixed(pitch, 1)}`;
     if (!hidden.has("horizon") && (k !== key || dirty)) {
       key = k;
-      drawHorizon(canvas, roll, pitch, optics, dpr);
+      drawHorizon(canvas, roll, pitch, optics, dpr, reach);
       canvas.dataset.roll = fixed(roll, 1);
       canvas.dataset.pitch = fixed(pitch, 1);
       canvas.dataset.tilt = fixed(optics.tiltDeg, 1);
