@@ -52,7 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fpv_station.server.app import create_app  # noqa: E402
 from tests.helpers import chromium, run_uvicorn, wait_until  # noqa: E402
-from tests.test_video_tabs import PAGES  # noqa: E402
+from tests.pages import SIX_TABS as PAGES  # noqa: E402
 from tests.twin_flights import twin_station_settings  # noqa: E402
 
 VIDEO_PAGES = {"/", "/goggles.html"}

@@ -3,6 +3,10 @@ may reach only the station, as on the field's closed network, and boxes on a pag
 
 from __future__ import annotations
 
+# Every tab live (tests/test_video_tabs.py, benchmarks/glass_to_glass.py): three pilot
+# pages, two goggles and the sessions page, in one browser.
+SIX_TABS = ["/", "/", "/", "/goggles.html", "/goggles.html", "/sessions.html"]
+
 
 def open_offline(browser, outside: list[str]):
     """A page that may only reach the station (the Pi has no internet)."""

@@ -35,7 +35,9 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
     with open(folder / layout.TELEMETRY_CSV, newline="") as f:
         rows = list(csv.DictReader(f))
     t = np.array([float(r["t_s"]) for r in rows])
-    assert 15 < t[-1] < 45, t[-1]
+    # The flight: climb, 10 s held, landing. No upper bound: the twin flies in real time
+    # and a loaded box stretches it; the stop is the disarm's (`last.reason` above).
+    assert t[-1] > 15, t[-1]
     assert abs(np.median(np.diff(t)) - 1 / RATE_HZ) < 0.002
     # Rows on the configured grid; instants whose state is not known (the writer held
     # up past the state history) are skipped and counted, not bunched.

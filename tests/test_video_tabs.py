@@ -15,9 +15,9 @@ from playwright.sync_api import expect
 
 from fpv_station.server.app import create_app
 from tests.helpers import chromium, run_uvicorn, wait_until
+from tests.pages import SIX_TABS as PAGES
 from tests.twin_flights import twin_station_settings
 
-PAGES = ["/", "/", "/", "/goggles.html", "/goggles.html", "/sessions.html"]
 # Hang guards, generous: six pages and the twin on a loaded two-core machine.
 GUARD_MS = 120_000
 
