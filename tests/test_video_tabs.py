@@ -33,6 +33,9 @@ def station(tmp_path_factory):
         }
     app = create_app(twin_station_settings(tmp_path_factory.mktemp("sessions"), overrides))
     with run_uvicorn(app) as url:
+        # A flight task: the goggles' OSD shows its step as a line beside the latency's.
+        tasks = httpx.get(f"{url}/api/task", timeout=30).json()["tasks"]
+        httpx.post(f"{url}/api/task", json={"task_id": tasks[0]["id"]}, timeout=30)
         yield url
 
 
@@ -93,6 +96,12 @@ def test_six_tabs_in_one_browser_stay_live(station):
         for page in (pages[0], pages[3]):
             expect(page.locator(".osd-lines").first).to_contain_text(
                 re.compile(r"R2S \d+/\d+ms"), timeout=GUARD_MS
+            )
+        # Side-by-side stereo: both eyes show the same lines in the same order.
+        goggles.keyboard.press("s")
+        for eye in ("#front-view", "#front-view-right"):
+            expect(goggles.locator(f"{eye} .osd-lines")).to_have_text(
+                re.compile(r"^R2S \d+/\d+ms\s*next: arm$"), timeout=GUARD_MS
             )
         lat = pages[0].evaluate("() => window.fpvDebug.cameras.latency.front")
         assert lat["kind"] == "render" and 0 < lat["stationP50"] <= lat["p50"] <= lat["p99"], lat

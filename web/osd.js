@@ -90,7 +90,11 @@ export function mountOsd(view, { menu = true } = {}) {
   view.append(root);
   const setLine = (name, text) => {
     let node = lines.querySelector(`[data-osd="${name}"]`);
-    if (!node) { node = el("div", { class: "osd-item", "data-osd": name }); lines.append(node); }
+    if (!node) {
+      node = el("div", { class: "osd-item", "data-osd": name });
+      // The latency first, the page's lines after it: both eyes of stereo in one order.
+      if (name === "latency") lines.prepend(node); else lines.append(node);
+    }
     setText(node, text);
   };
   const parts = [horizonLadder(nodes.horizon), headingTape(nodes.heading), flightValues(nodes),
