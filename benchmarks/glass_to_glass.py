@@ -48,6 +48,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from playwright.sync_api import BrowserContext, Page
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fpv_station.server.app import create_app  # noqa: E402
@@ -134,7 +136,8 @@ def stages(stamped: list[dict], published: dict[int, tuple[float, float]]) -> di
 def measure(
     base: str, browser, paths: list[str], windows: bool, seconds: float, published: Published
 ) -> dict:
-    contexts, pages = [], []
+    contexts: list[BrowserContext] = []
+    pages: list[Page] = []
     for path in paths:
         if windows or not contexts:
             context = browser.new_context(viewport={"width": 1280, "height": 720})
