@@ -86,13 +86,16 @@ def test_twin_hover_flight_is_recorded_in_sync(tmp_path):
             assert r[f"{cam}.seq"] in want, (cam, r["t_s"], r[f"{cam}.seq"], want)
             assert not r[f"{cam}.seq"] or float(r[f"{cam}.skew_s"]) >= 0, (cam, r["t_s"])
         assert len(refs) > 50, len(refs)
+        # That rule, checked row by row above, is the recorder's whole promise. The skew
+        # is the named frame's age at the row; how large it is is the twin's delivery,
+        # uneven on a loaded box, so it is printed, not bounded.
+        t_of = dict(zip(seqs, t_cap, strict=True))
+        for r, t_row in zip(rows, t, strict=True):
+            if r[f"{cam}.seq"]:
+                age = t_row - t_of[int(r[f"{cam}.seq"])]
+                assert float(r[f"{cam}.skew_s"]) == pytest.approx(age, abs=2e-6), (cam, r)
         period = 1.0 / fps[cam]
         skews = np.array([float(r[f"{cam}.skew_s"]) for r in rows if r[f"{cam}.seq"]])
-        # The freshest frame is under one period old at the median row, a period of the
-        # frames as they came: the configured one on a quiet machine (20 ms here); a starved
-        # box renders fewer (20.8 of 30 fps once in CI, median 34.8 ms), and each is older.
-        # A recorder one frame behind would be at one and a half periods.
-        assert np.median(skews) < max(period, 1.0 / q["achieved_fps"]), (cam, q)
         print(
             f"{cam}: skew median {np.median(skews) * 1e3:.1f} ms, p99 "
             f"{q['skew_p99_s'] * 1e3:.1f} ms, frame period {period * 1e3:.1f} ms"
