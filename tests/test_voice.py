@@ -42,7 +42,15 @@ def said(page) -> list[str]:
 
 
 def wait_said(page, text: str) -> None:
-    page.wait_for_function("(t) => window.__said.includes(t)", arg=text, timeout=30_000)
+    """Wait (a hang guard) until the page has said `text`; if it never does, say what it
+    said and the station's state as the page last read it."""
+    try:
+        page.wait_for_function("(t) => window.__said.includes(t)", arg=text, timeout=60_000)
+    except Exception as exc:
+        seen = page.evaluate(
+            "() => ({said: window.__said, recording: window.fpvDebug.voice.recording})"
+        )
+        raise AssertionError(f"never said {text!r}: {seen}") from exc
 
 
 def open_page(browser, url: str):
@@ -50,8 +58,17 @@ def open_page(browser, url: str):
     context.add_init_script(STUB)
     page = context.new_page()
     page.goto(url)
-    page.wait_for_function("window.fpvDebug && window.fpvDebug.feed.flowing()", timeout=30_000)
+    page.wait_for_function("window.fpvDebug && window.fpvDebug.feed.flowing()", timeout=60_000)
     return page
+
+
+def wait_voice_ready(page) -> None:
+    """Until the callouts know the vehicle and the recording as the page found them:
+    what changes after that is news (a loaded box may run the first check late)."""
+    page.wait_for_function(
+        "() => window.fpvDebug.voice.heard && window.fpvDebug.voice.recording !== null",
+        timeout=60_000,
+    )
 
 
 @pytest.mark.timeout(180)
@@ -60,6 +77,7 @@ def test_goggles_say_what_happens(station, browser):
     on_the_ground(vehicle)
     assert httpx.post(f"{base}/api/task", json={"task_id": 1}).status_code == 200
     page = open_page(browser, f"{base}/goggles.html")
+    wait_voice_ready(page)
     wait_said(page, "Next: arm")  # the task's first step
     vehicle.arm()
     wait_said(page, "Armed")
@@ -117,6 +135,7 @@ def test_pilot_page_is_quiet_until_switched_on_and_each_callout_switches_off(sta
     on_the_ground(vehicle)
     httpx.post(f"{base}/api/task", json={"task_id": None})
     page = open_page(browser, f"{base}/")
+    wait_voice_ready(page)
     vehicle.arm()
     page.wait_for_function(
         "document.querySelector('[data-osd=armed]').textContent === 'ARMED'", timeout=30_000

@@ -11,6 +11,8 @@
 //                      (osd_frame_cost.py; with stats.raster set, the canvases are
 //                      rasterized inside the timing)
 //   fpvDebug.osdRight  the goggles' right eye's OSD, once stereo was switched on
+//   fpvDebug.voice     voice.js: {heard, recording}, what its callouts are news against
+//                      (nothing is said of the state a page finds on opening)
 export function expose(name, value) {
   window.fpvDebug = window.fpvDebug || {};
   window.fpvDebug[name] = value;

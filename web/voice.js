@@ -15,6 +15,7 @@
 // can be switched (a "Voice" menu in the header bar, or in the goggles' OSD menu), kept in
 // localStorage ("fpv.voice"): {on, off: [callouts], altStepM}.
 //   import { voiceControls } from "/voice.js";  parent.append(voiceControls());
+import { expose } from "/debug.js";
 import { $, el } from "/lib.js";
 import { feed } from "/telemetry.js";
 import { nextAction, onTaskStep } from "/task-panel.js";
@@ -119,6 +120,8 @@ window.addEventListener("fpv:telemetry", () => {
 setInterval(check, 500); // no message at all is news too (link lost)
 
 let recording = null;
+// What the callouts start from: the vehicle first heard, the recording state first read.
+expose("voice", { get heard() { return seen !== null; }, get recording() { return recording; } });
 window.addEventListener("fpv:status", (e) => {
   const rec = e.detail && e.detail.recording;
   if (!rec) return;
