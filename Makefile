@@ -30,8 +30,10 @@ browser:
 run: $(STAMP)
 	$(BIN)/fpv-station serve --source sim --host $(HOST) --port $(PORT)
 
+# Whole files to each of the two processes (--dist loadfile): a module's fixtures (a twin
+# station, a recorded flight, its Chromium) start once, not once in each process.
 test: $(STAMP) browser
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 2
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 2 --dist loadfile
 
 # One part alone by its marker (pyproject.toml): -m fast here; -m browser, -m twin,
 # -m subprocess, or "not browser and not twin" the same way.
