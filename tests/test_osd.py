@@ -496,9 +496,10 @@ def test_osd_horizon_lies_on_the_twins_rendered_horizon_in_a_level_hover(tmp_pat
     station = None
     with run_uvicorn(app) as base:
         station = app.state.station
-        front = next(
-            c for c in httpx.get(base + "/api/cameras").json()["cameras"] if c["name"] == "front"
-        )
+        # A hang guard: the twin builds its textures as the station starts, and on a
+        # loaded box that holds the interpreter for seconds (httpx's default is 5 s).
+        cameras = httpx.get(base + "/api/cameras", timeout=60).json()["cameras"]
+        front = next(c for c in cameras if c["name"] == "front")
         tilt, vfov = front["tilt_up_deg"], front["vfov_deg"]
         model = station.twin.optics("front")
         assert (tilt, vfov) == (model.tilt_up_deg, model.vfov_deg)
