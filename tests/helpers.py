@@ -286,14 +286,15 @@ PICTURE_WIDTH = """(view) => {
 
 
 def sticks_on(page, base: str) -> None:
-    """Open the pilot page of a station on the twin and turn the browser's sticks on."""
-    page.goto(base + "/")
-    page.wait_for_selector("#control-widget:not([hidden])", timeout=30_000)
+    """Open the pilot page of a station on the twin and turn the browser's sticks on (hang
+    guards: a twin station starting on a loaded box starves the page for seconds)."""
+    page.goto(base + "/", timeout=60_000)
+    page.wait_for_selector("#control-widget:not([hidden])", timeout=60_000)
     page.click("#ctl-toggle")
-    page.wait_for_function("window.fpvDebug.control.enabled === true", timeout=15_000)
+    page.wait_for_function("window.fpvDebug.control.enabled === true", timeout=60_000)
 
 
-def arm_and_climb(page, station, height_m: float = 1.5, timeout: float = 15.0) -> None:
+def arm_and_climb(page, station, height_m: float = 1.5, timeout: float = 60.0) -> None:
     """With the sticks on (sticks_on): Arm, then climb on ArrowUp until the twin is
     `height_m` up, and let go of the key."""
     armed = lambda: (latest := station.state.get()) and latest.value.heartbeat.armed  # noqa: E731

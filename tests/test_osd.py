@@ -513,7 +513,7 @@ def test_osd_horizon_lies_on_the_twins_rendered_horizon_in_a_level_hover(tmp_pat
             "(vfov) => Math.abs(document.querySelector('[data-osd=horizon]').dataset.vfov - vfov)"
             " < 0.1",
             arg=vfov,
-            timeout=15_000,
+            timeout=60_000,
         )
         # Level: the hover has settled (the OSD's own roll and pitch near zero).
         page.wait_for_function(
