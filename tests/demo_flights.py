@@ -1,10 +1,11 @@
 """Twin demonstrations (`learn.demos.fly_demo`) flown once per test run and shared.
 
 A demo flight costs seconds of CPU (minutes with cameras on a loaded machine), and
-pytest-xdist hands one module's tests to several workers, each of which would fly the
-module's demo again. `shared_demo` flies a (seed, config) once for the whole run: under
-xdist into the run's base folder that every worker sees, with a file lock so that one
-worker flies while the others wait, else into this process's base folder. The folder
+several modules fly the same one (test_one_reader's and test_learn_eval's task-2 demo),
+in whichever xdist worker gets each module. `shared_demo` flies a (seed, config) once
+for the whole run: under xdist into the run's base folder that every worker sees, with a
+file lock so that one worker flies while the others wait, else into this process's base
+folder. The folder
 it returns is shared: read it, or copy it before changing it.
 """
 
