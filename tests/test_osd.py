@@ -10,6 +10,7 @@ import time
 import httpx
 import numpy as np
 import pytest
+from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from playwright.sync_api import expect
 
 from fpv_station.server.app import create_app
@@ -246,18 +247,60 @@ def test_a_page_opened_mid_flight_shows_the_running_timer_and_the_vehicles_mah(s
     expect(osd1("timer")).to_have_text(held)
 
 
+# The pitch ladder's reach as drawn (the horizon canvas' data-reach) and where it should
+# be: from the centre to the heading tape's foot, or the top of the picture without the
+# tape; and the tape canvas' size against its box (both in canvas pixels).
+LADDER_REACH = """() => {
+  const h = document.querySelector('[data-osd=horizon]');
+  const t = document.querySelector('[data-osd=heading]');
+  const foot = t.hidden ? 0
+    : (t.getBoundingClientRect().bottom - h.getBoundingClientRect().top) * devicePixelRatio;
+  return {reach: Number(h.dataset.reach), expected: h.height / 2 - foot,
+    tape: [t.width, Math.round(t.clientWidth * devicePixelRatio)]};
+}"""
+
+
+def ladder_reach(page) -> dict:
+    """LADDER_REACH once the drawn reach is where it should be (a hang guard: a stale
+    reach stays put, and the assertion then shows both)."""
+    try:
+        page.wait_for_function(
+            f"() => {{ const r = ({LADDER_REACH})(); return Math.abs(r.reach - r.expected) <= 2; }}",
+            timeout=10_000,
+        )
+    except PlaywrightTimeout:
+        pass
+    got = page.evaluate(LADDER_REACH)
+    assert abs(got["reach"] - got["expected"]) <= 2, got
+    return got
+
+
 def test_osd_elements_switch_off_and_stay_off(station, browser):
+    """Switched off in the menu, an element stays off over a reload. The heading tape
+    switched off or on moves the pitch ladder's reach with it, without a resize."""
     vehicle, base = station
     page = browser.new_page()
     page.goto(base + "/")
     expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=30_000)
+    under_tape = ladder_reach(page)["reach"]
     page.locator(".osd-menu-button").click()
     page.locator("[data-osd-toggle=battery]").uncheck()
+    page.locator("[data-osd-toggle=heading]").uncheck()
     expect(page.locator("[data-osd=battery]")).to_be_hidden()
+    expect(page.locator("[data-osd=heading]")).to_be_hidden()
+    assert ladder_reach(page)["reach"] > under_tape
     page.reload()
     expect(page.locator("[data-osd=mode]")).to_have_text("POSCTL", timeout=30_000)
     expect(page.locator("[data-osd=battery]")).to_be_hidden()
     expect(page.locator("[data-osd=gps]")).to_be_visible()
+    ladder_reach(page)
+    # Off since the page opened, then on: the tape gets its size, the ladder stops under it.
+    page.locator(".osd-menu-button").click()
+    page.locator("[data-osd-toggle=heading]").check()
+    expect(page.locator("[data-osd=heading]")).to_be_visible()
+    back = ladder_reach(page)
+    assert abs(back["reach"] - under_tape) <= 1, back
+    assert back["tape"][0] == back["tape"][1] > 0, back
 
 
 # Pairs of visible OSD texts, the OSD button and the camera readout in `view` whose boxes

@@ -167,12 +167,15 @@ function elementNodes(root) {
 // The canvases' sizes and the picture's optics in the horizon canvas' pixels (focal length
 // and where the nose is), each frame; `changed`: the canvases must be redrawn. Sizes are
 // read only after a resize or a zoom: reading them every frame forces a layout whenever
-// anything on the page changed since the last.
+// anything on the page changed since the last. The canvases are watched as well as the
+// view: the menu switching one off or on resizes its box (to nothing and back), and the
+// ladder's reach follows the tape.
 function pictureGeometry(view, horizon, heading) {
   let resized = true, sizeDpr = 0;
   let fit = "contain", opticsKey = ""; // how the picture sits in the view: its object-fit
   let reach = 0; // how far from the centre the pitch ladder may go: to the heading tape's foot
-  new ResizeObserver(() => { resized = true; }).observe(view);
+  const observer = new ResizeObserver(() => { resized = true; });
+  for (const node of [view, horizon, heading]) observer.observe(node);
   return () => {
     const dpr = window.devicePixelRatio || 1;
     let changed = false;
@@ -196,7 +199,8 @@ function pictureGeometry(view, horizon, heading) {
 }
 
 // The horizon and pitch ladder: redrawn when the attitude (to a tenth of a degree) or the
-// picture changed; its values are the canvas' data- attributes and fallback text.
+// picture changed; its values are the canvas' data- attributes and fallback text (data-
+// reach: how far from the centre the ladder may go, in the canvas' pixels).
 function horizonLadder(canvas) {
   let key = "";
   return ({ dpr, optics, reach, dirty }) => {
@@ -211,6 +215,7 @@ function horizonLadder(canvas) {
       canvas.dataset.pitch = fixed(pitch, 1);
       canvas.dataset.tilt = fixed(optics.tiltDeg, 1);
       canvas.dataset.vfov = fixed(optics.vfovDeg, 1);
+      canvas.dataset.reach = fixed(reach, 0);
     }
     setValue(canvas, r, `roll ${fixed(roll, 0)}° pitch ${fixed(pitch, 0)}°`);
   };
