@@ -53,9 +53,8 @@ def unit(condition: str, task: int, demos: int, episodes: int) -> tuple[str, int
         export_lerobot(sessions, tmp / "ds")
         run_cli(["learn", "bc", str(tmp / "ds"), "--out", str(tmp / "policy.npz")])
         policy = BcPolicy.load(tmp / "policy.npz")
-        rows = ev.benchmark(
-            policy, task, episodes, 1000, air(condition), [Path(s) for s in sessions]
-        )
+        batch = ev.EpisodeBatch(task, episodes, 1000, air(condition))
+        rows = ev.benchmark(policy, batch, [Path(s) for s in sessions])
     by_name = {r.name: r for r in rows}
     lines = [
         f"Task {task} ({ev.TASK_NAMES[task]}), {condition}: {demos} demonstrations "

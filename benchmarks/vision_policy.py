@@ -61,11 +61,9 @@ def unit(condition: str, demos: int, episodes: int) -> tuple[str, str, float]:
             run_cli(["learn", kind, str(tmp / "ds"), "--out", str(tmp / name)])
         vision = VisionPolicy.load(tmp / "vision.npz")
         bc = BcPolicy.load(tmp / "bc.npz")
-        options = air(condition)
-        rows = ev.benchmark(vision, TASK, episodes, SEED, options, [Path(s) for s in sessions])
-        clone = ev.evaluate(
-            "behaviour cloning", lambda s: ev.policy_act(bc), TASK, episodes, SEED, options
-        )
+        batch = ev.EpisodeBatch(TASK, episodes, SEED, air(condition))
+        rows = ev.benchmark(vision, batch, [Path(s) for s in sessions])
+        clone = ev.evaluate("behaviour cloning", lambda s: ev.policy_act(bc), batch)
     rows.insert(1, clone)
     by_name = {r.name: r for r in rows}
     lines = [

@@ -397,15 +397,8 @@ def run_eval(args: argparse.Namespace) -> int:
         return 2
     options = air_options(args)
     try:
-        rows = ev.benchmark(
-            policy,
-            args.task,
-            args.episodes,
-            args.seed,
-            options,
-            args.demos,
-            baselines=not args.no_baselines,
-        )
+        batch = ev.EpisodeBatch(args.task, args.episodes, args.seed, options)
+        rows = ev.benchmark(policy, batch, args.demos, baselines=not args.no_baselines)
     except (ValueError, OSError) as exc:
         print(f"fpv-station learn eval: {exc}", file=sys.stderr)
         return 1

@@ -21,7 +21,7 @@ open-loop replay (a demonstration's recorded sticks replayed blind, frame by fra
 the arming: what a policy that ignores its observations scores), a uniformly random
 policy, and the demonstrations (recorded sessions), a row for each kind of pilot that
 flew them as session.json's `demonstration` says: human (per pilot when several),
-scripted. A row's episodes fly together, one batch of
+scripted. A row's episodes (`EpisodeBatch`) fly together, one batch of
 `TwinVectorEnv` seeded `seed`, and every flown row meets the same episodes (episode k
 has the same wind, gusts, turbulence, start and sensor noise in every row), so rows are
 compared pair by pair; what must differ is seeded apart (the random sticks per task and
@@ -90,6 +90,21 @@ class Outcome:
     time_s: float
     result: TaskResult | None  # None when the task's analysis does not hold
     why: str = ""
+
+
+@dataclass(frozen=True)
+class EpisodeBatch:
+    """The episodes a row is flown on, the same for every flown row: `episodes` episodes
+    of task `task_id` flown together in one `TwinVectorEnv` batch seeded `seed` (episode k
+    by the actor made for seed + k), reset with `options` (`air_options`; none: the
+    scene's wind and start); an episode still flying at `max_episode_s` (none: the task's
+    `MAX_EPISODE_S`) ends there."""
+
+    task_id: int
+    episodes: int = DEFAULT_EPISODES
+    seed: int = 0
+    options: dict[str, Any] | None = None
+    max_episode_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -177,15 +192,14 @@ def on_pad(scene: Scene, task_id: int, xy: np.ndarray) -> bool:
 
 def fly_episodes(
     acts: Sequence[Act],
-    task_id: int,
-    seed: int,
-    scene: Scene | None = None,
-    options: dict[str, Any] | None = None,
+    batch: EpisodeBatch,
     control_hz: float = CONTROL_HZ,
-    max_episode_s: float | None = None,
+    scene: Scene | None = None,
 ) -> tuple[Outcome, ...]:
-    """Episode k flown by `acts[k](obs, info)` (info: "t_s", "pos_enu_m"), all together
-    in one batch (`fly_batch`)."""
+    """Episode k of `batch` flown by `acts[k](obs, info)` (info: "t_s", "pos_enu_m"), all
+    together (`fly_batch`): one actor per episode."""
+    if len(acts) != batch.episodes:
+        raise ValueError(f"{len(acts)} actors for a batch of {batch.episodes} episodes")
     idle = np.zeros(4, np.float32)
 
     def act(obs: np.ndarray, info: dict[str, Any]) -> np.ndarray:
@@ -198,38 +212,32 @@ def fly_episodes(
             ]
         )
 
-    return fly_batch(act, len(acts), task_id, seed, scene, options, control_hz, max_episode_s)
+    return fly_batch(act, batch, control_hz, scene)
 
 
 def fly_batch(
     act: BatchAct,
-    episodes: int,
-    task_id: int,
-    seed: int,
-    scene: Scene | None = None,
-    options: dict[str, Any] | None = None,
+    batch: EpisodeBatch,
     control_hz: float = CONTROL_HZ,
-    max_episode_s: float | None = None,
+    scene: Scene | None = None,
 ) -> tuple[Outcome, ...]:
-    """`episodes` episodes flown together in one `TwinVectorEnv` batch seeded `seed` (no
-    autoreset: vehicle k's air, start and sensor noise are the same whatever flies it),
-    each scored; `options` are the env's reset options; an episode still flying at
-    `max_episode_s` (default: the task's `MAX_EPISODE_S`) ends there. Each step,
-    `act(obs, info)` gives every vehicle's sticks (n, 4) from the observations (n, 18) and
-    info: "t_s" (n,) since arming, "pos_enu_m" (n, 3), "done" (n,) (an ended vehicle's
-    sticks are ignored) and "pose" (`pose(k)`: vehicle k's true pose, what its cameras
-    see from)."""
+    """`batch`'s episodes flown together in one `TwinVectorEnv` (no autoreset: vehicle
+    k's air, start and sensor noise are the same whatever flies it), stepped at
+    `control_hz`, each scored. Each step, `act(obs, info)` gives every vehicle's sticks
+    (n, 4) from the observations (n, 18) and info: "t_s" (n,) since arming, "pos_enu_m"
+    (n, 3), "done" (n,) (an ended vehicle's sticks are ignored) and "pose" (`pose(k)`:
+    vehicle k's true pose, what its cameras see from)."""
     scene = scene or load_scene()
-    n = episodes
+    task_id, seed, n = batch.task_id, batch.seed, batch.episodes
     env = TwinVectorEnv(
         num_envs=n,
         task=task_id,
         scene=scene,
-        max_episode_s=max_episode_s or MAX_EPISODE_S.get(task_id, 180.0),
+        max_episode_s=batch.max_episode_s or MAX_EPISODE_S.get(task_id, 180.0),
         control_hz=control_hz,
         autoreset=False,
     )
-    obs, _ = env.reset(seed=seed, options=options)
+    obs, _ = env.reset(seed=seed, options=batch.options)
     t_s = np.zeros(n)
     t, pos, armed = [t_s], [env.sim.state.pos_m.copy()], [env.sim.commander.armed.copy()]
     done = np.zeros(n, bool)
@@ -349,43 +357,21 @@ def policy_act(policy, scene: Scene | None = None) -> Act:
     return lambda obs, info: policy.act(obs, info["t_s"])
 
 
-def evaluate(
-    name: str,
-    make_act: Callable[[int], Act],
-    task_id: int,
-    episodes: int = DEFAULT_EPISODES,
-    seed: int = 0,
-    options: dict[str, Any] | None = None,
-    max_episode_s: float | None = None,
-) -> Row:
-    """`episodes` episodes of one batch seeded `seed` (`fly_episodes`), episode k flown by
-    `make_act(seed + k)`."""
-    acts = [make_act(seed + k) for k in range(episodes)]
-    outcomes = fly_episodes(acts, task_id, seed, load_scene(), options, CONTROL_HZ, max_episode_s)
-    return Row(name, outcomes)
+def evaluate(name: str, make_act: Callable[[int], Act], batch: EpisodeBatch) -> Row:
+    """`batch` flown (`fly_episodes`), episode k by `make_act(batch.seed + k)`."""
+    acts = [make_act(batch.seed + k) for k in range(batch.episodes)]
+    return Row(name, fly_episodes(acts, batch, CONTROL_HZ, load_scene()))
 
 
-def policy_row(
-    policy,
-    task_id: int,
-    episodes: int = DEFAULT_EPISODES,
-    seed: int = 0,
-    options: dict[str, Any] | None = None,
-    max_episode_s: float | None = None,
-) -> Row:
+def policy_row(policy, batch: EpisodeBatch) -> Row:
     """The row of the policy under evaluation: a `BatchPolicy` flown a batch at a time at
     its rate, else per episode (`policy_act`: behaviour cloning, or the vision policy
-    under its `row_name`); episodes end at `max_episode_s` at the latest (`fly_batch`)."""
+    under its `row_name`)."""
     if isinstance(policy, BatchPolicy):
-        act = policy.batch_act(episodes)
-        outcomes = fly_batch(
-            act, episodes, task_id, seed, load_scene(), options, policy.control_hz, max_episode_s
-        )
-        return Row(policy.name, outcomes)
+        act = policy.batch_act(batch.episodes)
+        return Row(policy.name, fly_batch(act, batch, policy.control_hz, load_scene()))
     name = getattr(policy, "row_name", "behaviour cloning")
-    return evaluate(
-        name, lambda s: policy_act(policy), task_id, episodes, seed, options, max_episode_s
-    )
+    return evaluate(name, lambda s: policy_act(policy), batch)
 
 
 def demonstrations(paths: Sequence[Path], task_id: int, name: str = "demonstrations") -> Row:
@@ -522,49 +508,26 @@ def air_options(
 
 
 def benchmark(
-    policy,
-    task_id: int,
-    episodes: int = DEFAULT_EPISODES,
-    seed: int = 0,
-    options: dict[str, Any] | None = None,
-    demos: Sequence[Path] = (),
-    baselines: bool = True,
+    policy, batch: EpisodeBatch, demos: Sequence[Path] = (), baselines: bool = True
 ) -> list[Row]:
     """The rows of `learn eval`: the policy (`policy_row`), then (with `baselines`) the
     scripted pilot, the open-loop replay of `demos` (episode k replays flight k mod their
     count) and random sticks, then the demonstrations (by who flew them,
-    `demonstration_rows`); all flown rows on the same episodes."""
+    `demonstration_rows`); all flown rows on the same episodes, `batch`."""
     scene = load_scene()
-    rows = [policy_row(policy, task_id, episodes, seed, options)]
+    task_id, seed = batch.task_id, batch.seed
+    rows = [policy_row(policy, batch)]
     if baselines:
-        rows.append(
-            evaluate(
-                "scripted pilot",
-                lambda s: scripted_pilot(scene, task_id),
-                task_id,
-                episodes,
-                seed,
-                options,
-            )
-        )
+        rows.append(evaluate("scripted pilot", lambda s: scripted_pilot(scene, task_id), batch))
     sticks = recorded_sticks(demos, task_id, CONTROL_HZ) if demos else []
     if baselines and sticks:
         rows.append(
             evaluate(
-                "open-loop replay",
-                lambda s: open_loop(sticks[(s - seed) % len(sticks)]),
-                task_id,
-                episodes,
-                seed,
-                options,
+                "open-loop replay", lambda s: open_loop(sticks[(s - seed) % len(sticks)]), batch
             )
         )
     if baselines:
-        rows.append(
-            evaluate(
-                "random", lambda s: random_policy(s, task_id), task_id, episodes, seed, options
-            )
-        )
+        rows.append(evaluate("random", lambda s: random_policy(s, task_id), batch))
     if demos:
         rows += demonstration_rows(demos, task_id)
     return rows

@@ -58,10 +58,13 @@ def test_open_loop_replay_passes_calm_and_fails_in_wind(tmp_path_factory) -> Non
     session = shared_demo(tmp_path_factory, 2, DemoConfig(task_id=2))
     (sticks,) = ev.recorded_sticks([session], 2, ev.CONTROL_HZ)
     replay = lambda s: ev.open_loop(sticks)  # noqa: E731
-    calm = ev.evaluate("open-loop replay", replay, 2, episodes=3, seed=1000)
-    windy = ev.evaluate("open-loop replay", replay, 2, episodes=3, seed=1000, options=WIND)
+    calm = ev.evaluate("open-loop replay", replay, ev.EpisodeBatch(2, episodes=3, seed=1000))
+    windy_batch = ev.EpisodeBatch(2, episodes=3, seed=1000, options=WIND)
+    windy = ev.evaluate("open-loop replay", replay, windy_batch)
     assert calm.successes == 3, [o.why for o in calm.outcomes]
     assert windy.successes == 0
     scene = load_scene()
-    pilot = ev.evaluate("scripted pilot", lambda s: ev.scripted_pilot(scene, 2), 2, 2, 1000, WIND)
+    pilot = ev.evaluate(
+        "scripted pilot", lambda s: ev.scripted_pilot(scene, 2), ev.EpisodeBatch(2, 2, 1000, WIND)
+    )
     assert pilot.successes == 2, [o.why for o in pilot.outcomes]

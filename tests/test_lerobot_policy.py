@@ -100,7 +100,8 @@ def test_the_policy_sees_what_the_export_gave_it_and_flies_its_actions(dataset, 
     model = policy._runtime.policy
     select = model.select_action
     model.select_action = lambda batch: (seen.append(batch), select(batch))[1]
-    row = ev.policy_row(policy, 1, episodes=2, seed=SEED, max_episode_s=EPISODE_S)
+    batch = ev.EpisodeBatch(1, episodes=2, seed=SEED, max_episode_s=EPISODE_S)
+    row = ev.policy_row(policy, batch)
     assert row.name == "LeRobot fpv_linear"
 
     # The rate: one call per dataset frame (0.2 s of flight), until both episodes ended.
@@ -136,7 +137,7 @@ def test_the_policy_sees_what_the_export_gave_it_and_flies_its_actions(dataset, 
     def direct(obs: np.ndarray, info: dict) -> np.ndarray:
         return np.clip(K @ obs + c, -1, 1).astype(np.float32)
 
-    reference = ev.fly_episodes([direct, direct], 1, SEED, control_hz=FPS, max_episode_s=EPISODE_S)
+    reference = ev.fly_episodes([direct, direct], batch, control_hz=FPS)
     for got, want in zip(row.outcomes, reference, strict=True):
         assert got.result is not None and want.result is not None  # it reached 4 m
         assert got.time_s == want.time_s and got.crashed == want.crashed == False  # noqa: E712
