@@ -115,7 +115,7 @@ def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
     import httpx
 
     from fpv_station.server.cli import main as cli_main
-    from tests.twin_flights import recorded_twin_flight
+    from tests.twin_flights import NO_CAMERAS, recorded_twin_flight
 
     def choose_task_1(base: str) -> None:
         r = httpx.post(f"{base}/api/task", json={"task_id": 9}, timeout=5)
@@ -127,7 +127,7 @@ def test_station_on_the_twin_records_a_hover_that_analyses_over_rest(tmp_path):
         assert body["paper"]["twin"]["hover_distance_m"] == 0.1056
 
     # Real time (viser off, cameras off): the recorder stamps wall time.
-    overrides = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    overrides = NO_CAMERAS
     with recorded_twin_flight(tmp_path, 1, overrides, before_flight=choose_task_1) as flight:
         r = httpx.get(
             f"{flight.base_url}/api/sessions/{flight.session_id}/analysis",
@@ -171,13 +171,13 @@ def test_an_aborted_trial_says_why(tmp_path):
     import httpx
 
     from fpv_station.twin.pilot import Leg
-    from tests.twin_flights import recorded_twin_flight
+    from tests.twin_flights import NO_CAMERAS, recorded_twin_flight
 
     def choose(base: str) -> None:
         assert httpx.post(f"{base}/api/task", json={"task_id": 1}).status_code == 200
 
     legs = [Leg("arm"), Leg("climb", alt_m=2.0), Leg("hold", alt_m=2.0, seconds=2.0), Leg("land")]
-    overrides = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+    overrides = NO_CAMERAS
     with recorded_twin_flight(tmp_path, 1, overrides, before_flight=choose, legs=legs) as flight:
         assert wait_until(lambda: httpx.get(f"{flight.base_url}/api/task").json()["last_score"], 60)
         score = httpx.get(f"{flight.base_url}/api/task").json()["last_score"]

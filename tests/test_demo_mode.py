@@ -17,9 +17,7 @@ from websockets.sync.client import connect
 from fpv_station.companion.recording.meta import read_meta
 from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
-from tests.twin_flights import twin_station_settings
-
-NO_CAMERAS = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+from tests.twin_flights import NO_CAMERAS, twin_station_settings
 
 
 def _command(ws, cmd: str, tries: int = 40) -> None:

@@ -13,7 +13,7 @@ from playwright.sync_api import expect
 
 from fpv_station.server.app import create_app
 from tests.helpers import PICTURE_WIDTH, run_uvicorn, wait_until
-from tests.twin_flights import NO_ONBOARD_LOG, twin_station_settings
+from tests.twin_flights import NO_CAMERAS, NO_ONBOARD_LOG, twin_station_settings
 
 
 def state(app):
@@ -27,8 +27,7 @@ def station(tmp_path_factory):
         tmp_path_factory.mktemp("sessions"),
         {
             "recording.auto_record_on_arm": False,
-            "cameras.front.spec": "none",
-            "cameras.bottom.spec": "none",
+            **NO_CAMERAS,
             **NO_ONBOARD_LOG,
         },
     )

@@ -19,6 +19,7 @@ from fpv_station.server.guard import RedactTokens
 from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn, station_settings
 from tests.stations import no_link_station
+from tests.twin_flights import NO_CAMERAS
 
 
 @pytest.fixture(scope="module")
@@ -89,9 +90,7 @@ def test_websocket_parameters_are_bounded_with_a_reason(base):
 def test_a_binary_frame_on_the_control_socket_closes_it_cleanly(tmp_path):
     from websockets.exceptions import ConnectionClosed
 
-    settings = station_settings(
-        "sim", tmp_path, **{"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
-    )
+    settings = station_settings("sim", tmp_path, **NO_CAMERAS)
     with run_uvicorn(create_app(settings)) as url:
         with connect(url.replace("http", "ws") + "/ws/control", open_timeout=10) as ws:
             assert "hello" in ws.recv(timeout=5)

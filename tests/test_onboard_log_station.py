@@ -14,7 +14,7 @@ from pyulog import ULog
 
 from fpv_station.twin.pilot import Leg
 from tests.helpers import chromium, wait_until
-from tests.twin_flights import recorded_twin_flight
+from tests.twin_flights import NO_CAMERAS, recorded_twin_flight
 
 LEGS = [Leg("arm"), Leg("climb", alt_m=2.0), Leg("hold", alt_m=2.0, seconds=2.0), Leg("land")]
 
@@ -28,7 +28,7 @@ def _onboard(folder: Path) -> dict | None:
 # where the twin's loop, which sends the log, gets a slice of a core (10 kB/s seen).
 @pytest.mark.timeout(600)
 def test_twin_flight_ends_with_its_ulog_in_the_session(tmp_path: Path) -> None:
-    with recorded_twin_flight(tmp_path, 1, legs=LEGS) as flight:
+    with recorded_twin_flight(tmp_path, 1, NO_CAMERAS, legs=LEGS) as flight:
         assert flight.stop_reason == "disarmed"
         assert wait_until(lambda: _onboard(flight.folder) is not None, 300), httpx.get(
             f"{flight.base_url}/api/onboard_log"
@@ -72,6 +72,7 @@ def test_fetch_on_request_and_its_errors(tmp_path: Path) -> None:
     control token nothing starts. Then the sessions page: its fetch button starts the
     download, its row shows the progress and then the file."""
     overrides = {
+        **NO_CAMERAS,
         "onboard_log.after_disarm": False,
         "onboard_log.give_up_s": 200.0,
         "server.token": "secret",

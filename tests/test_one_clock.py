@@ -19,7 +19,7 @@ from fpv_station.companion.recording import layout
 from fpv_station.core.geodesy import geodetic_to_enu
 from tests.helpers import chromium, viser_viewer, wait_until
 from tests.pages import open_offline
-from tests.twin_flights import recorded_twin_flight
+from tests.twin_flights import SMALL_CAMERAS, recorded_twin_flight
 
 INSTANTS = 80  # sampled instants of the session clock
 
@@ -47,7 +47,12 @@ def last_at_or_before(times: np.ndarray, t: float) -> int:
 def flight(tmp_path_factory):
     """Task 2 flown on the twin by a real station that recorded it (rows at 20 Hz, its 3D
     panels on) and still runs: one flight read by both tests."""
-    overrides = {"viser.enabled": True, "viser.port": 0, "recording.rate_hz": 20.0}
+    overrides = {
+        "viser.enabled": True,
+        "viser.port": 0,
+        "recording.rate_hz": 20.0,
+        **SMALL_CAMERAS,
+    }
     with recorded_twin_flight(tmp_path_factory.mktemp("sessions"), 2, overrides) as flight:
         yield flight
 

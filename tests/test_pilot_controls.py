@@ -15,22 +15,18 @@ from tests.helpers import (
     sticks_on,
     wait_until,
 )
-from tests.twin_flights import NO_ONBOARD_LOG, twin_station_settings
-
-SMALL_CAMERA = {"width": 160, "height": 120, "fps": 5.0}
+from tests.twin_flights import NO_ONBOARD_LOG, SMALL_CAMERAS, twin_station_settings
 
 
 @pytest.fixture()
 def twin_station(tmp_path):
     # The twin at twice real time, flown by the page's sticks: no recording on arming.
-    # Small, slow cameras: the page shows their views and readouts, nothing reads pictures.
-    small = {f"cameras.{c}.{k}": v for c in ("front", "bottom") for k, v in SMALL_CAMERA.items()}
     settings = twin_station_settings(
         tmp_path,
         {
             "twin.realtime_factor": 2.0,
             "recording.auto_record_on_arm": False,
-            **small,
+            **SMALL_CAMERAS,
             **NO_ONBOARD_LOG,
         },
     )

@@ -19,9 +19,7 @@ from fpv_station.server.settings import load_settings
 from fpv_station.twin.pilot import Leg
 from tests import synthetic as syn
 from tests.helpers import run_uvicorn, wait_until
-from tests.twin_flights import recorded_twin_flight
-
-NO_CAMERAS = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+from tests.twin_flights import NO_CAMERAS, recorded_twin_flight
 
 
 def _choose(task_id: int):

@@ -17,9 +17,7 @@ import numpy as np
 import pytest
 
 from fpv_station.analysis.track import load_session_dir
-from tests.twin_flights import recorded_twin_flight
-
-NO_CAMERAS = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+from tests.twin_flights import NO_CAMERAS, recorded_twin_flight
 
 
 @contextlib.contextmanager

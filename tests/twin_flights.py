@@ -34,6 +34,17 @@ class RecordedFlight:
 # for none after the disarm (a download over the link): CPU a page test does not need.
 NO_ONBOARD_LOG = {"twin.flight_log": False, "onboard_log.after_disarm": False}
 
+# The twin renders no camera: two renders and JPEG encodes at 30 fps take about half a
+# core that a test of telemetry, recording rows or a page's panels does not need.
+NO_CAMERAS = {"cameras.front.spec": "none", "cameras.bottom.spec": "none"}
+# Small, slow cameras: for a test whose cameras must be there (views, readouts, recorded
+# frames on the session clock) but whose pictures nobody reads.
+SMALL_CAMERAS = {
+    f"cameras.{c}.{k}": v
+    for c in ("front", "bottom")
+    for k, v in {"width": 160, "height": 120, "fps": 10.0}.items()
+}
+
 
 def twin_station_settings(sessions_dir: Path, overrides: dict[str, Any] | None = None):
     """A `--source sim` station recording into `sessions_dir`, with a short tail."""
@@ -114,11 +125,7 @@ def task_page_on_the_twin(
     field) and its pilot page in Chromium with task `task_id` chosen, once the task's map
     shows the vehicle: (the app, its base URL, the page). The twin keeps no flight log
     of its own (NO_ONBOARD_LOG): what a page shows does not come from it."""
-    overrides: dict[str, Any] = {
-        "cameras.front.spec": "none",
-        "cameras.bottom.spec": "none",
-        **NO_ONBOARD_LOG,
-    }
+    overrides: dict[str, Any] = {**NO_CAMERAS, **NO_ONBOARD_LOG}
     if scene is not None:
         overrides["twin.scene"] = str(scene)
     app = create_app(twin_station_settings(sessions_dir, overrides))
