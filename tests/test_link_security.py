@@ -30,6 +30,7 @@ from fpv_station.server.settings import SettingsError
 from fpv_station.twin.runner import Twin
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
+from tests.twin_flights import NO_CAMERAS
 
 REAL_LAT, FORGED_LAT = 43.0021, 12.5
 PASSPHRASE = "field day 2026"
@@ -196,11 +197,16 @@ def key_file(tmp_path, passphrase: str = PASSPHRASE):
 
 def test_signed_twin_and_station_work_end_to_end(tmp_path) -> None:
     """`--source sim` with a key: the twin signs and obeys only signed packets; the
-    station's state follows it and its commands (arm, take-off) reach it."""
-    overrides = {"link.signing_key_file": str(key_file(tmp_path)), "twin.realtime_factor": 2.0}
+    station's state follows it and its commands (arm, take-off) reach it. The waits are
+    hang guards for a loaded machine, where the twin and the station share two cores."""
+    overrides = {
+        "link.signing_key_file": str(key_file(tmp_path)),
+        "twin.realtime_factor": 2.0,
+        **NO_CAMERAS,
+    }
     with station("sim", tmp_path, **overrides) as (app, base):
         twin = app.state.station.twin
-        assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=10)
+        assert wait_until(lambda: state(app) and state(app).gps.fix_type == 3, timeout=60)
         # Arming commands to the twin's own port, unsigned and with the wrong key: refused,
         # and its telemetry still goes to the station, not to the sender.
         twin_addr = twin.vehicle.sock.getsockname()
@@ -213,18 +219,18 @@ def test_signed_twin_and_station_work_end_to_end(tmp_path) -> None:
             arm = mav.command_long_encode(1, 1, 400, 0, 1, 21196, 0, 0, 0, 0, 0)
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
                 attacker.sendto(arm.pack(mav), twin_addr)
-                assert wait_until(lambda n=n: counts.unsigned + counts.bad_signature == n)
+                assert wait_until(lambda n=n: counts.unsigned + counts.bad_signature == n, 30)
         assert counts.unsigned == 1 and counts.bad_signature == 1
         assert not twin.sim.commander.armed[0]
         version = app.state.station.state.get().version
-        assert wait_until(lambda: app.state.station.state.get().version > version + 10)
+        assert wait_until(lambda: app.state.station.state.get().version > version + 10, 30)
         ws_url = base.replace("http", "ws")
         with connect(ws_url + "/ws/control") as ws:
-            json.loads(ws.recv(timeout=5))  # hello
+            json.loads(ws.recv(timeout=30))  # hello
             ws.send(json.dumps({"type": "arm"}))
-            reply = json.loads(ws.recv(timeout=5))
+            reply = json.loads(ws.recv(timeout=30))
             assert (reply["type"], reply["cmd"], reply["ok"]) == ("ack", "arm", True)
-            assert wait_until(lambda: state(app).heartbeat.armed, timeout=5)
+            assert wait_until(lambda: state(app).heartbeat.armed, timeout=30)
         sec = security(base)
         assert sec["signing"] is True and sec["signed"] > 20
         assert sec["unsigned_refused"] == sec["bad_signature_refused"] == 0

@@ -18,7 +18,8 @@ def test_no_token_in_any_log_line_of_a_run_whose_pilot_page_connected(tmp_path, 
     the twin; a script sends it in a query too. Then the whole log is read."""
     config = tmp_path / "config"
     log_path = tmp_path / "server.log"
-    args = ["--source", "sim", "--no-3d", "--sessions-dir", str(tmp_path / "sessions")]
+    args = ["--source", "sim", "--front", "none", "--bottom", "none", "--no-3d"]
+    args += ["--sessions-dir", str(tmp_path / "sessions")]
     env = {"XDG_CONFIG_HOME": str(config), "FPV_RECORDING__MIN_FREE_MB": "0"}
     with serve_station(args, env, log_path=log_path) as station:
         token = (config / "fpv-station" / "token").read_text().strip()

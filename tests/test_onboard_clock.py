@@ -23,6 +23,7 @@ from fpv_station.companion.recording import layout
 from fpv_station.server.app import create_app
 from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.mav_vehicle import MavVehicle
+from tests.twin_flights import SMALL_CAMERAS
 
 pytestmark = pytest.mark.timeout(600)  # the twin flight, on a loaded machine
 
@@ -75,6 +76,7 @@ def twin_session(tmp_path_factory):
             "recording.auto_record_on_arm": True,
             "recording.post_disarm_tail_s": 0.5,
             "recording.rate_hz": 30,
+            **SMALL_CAMERAS,
         },
     )
     app = create_app(settings)

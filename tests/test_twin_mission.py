@@ -15,6 +15,7 @@ from pymavlink import mavutil
 
 from fpv_station.server.app import create_app
 from tests.helpers import free_port, run_uvicorn, station_settings, wait_until
+from tests.twin_flights import NO_CAMERAS
 from tests.twin_gcs import MISSION, REL, download, drain, latlon, take_off, upload, wait_for
 
 mav = mavutil.mavlink
@@ -135,7 +136,12 @@ def test_a_ground_station_on_the_stations_forward_uploads_and_flies_a_mission(tm
         f"udpin:127.0.0.1:{port}", source_system=255, source_component=190
     )
     settings = station_settings(
-        "sim", **{"link.forward": [f"udpout:127.0.0.1:{port}"], "twin.realtime_factor": 4.0}
+        "sim",
+        **{
+            "link.forward": [f"udpout:127.0.0.1:{port}"],
+            "twin.realtime_factor": 4.0,
+            **NO_CAMERAS,
+        },
     )
     app = create_app(settings)
     try:

@@ -12,6 +12,7 @@ from websockets.sync.client import connect
 from fpv_station.server.app import create_app
 from fpv_station.server.settings import load_settings
 from tests.helpers import run_uvicorn, wait_until
+from tests.twin_flights import NO_CAMERAS
 
 
 def sim_app(**overrides):
@@ -22,6 +23,7 @@ def sim_app(**overrides):
             "twin.realtime_factor": 2.0,
             "recording.auto_record_on_arm": False,
             "viser.enabled": False,
+            **NO_CAMERAS,
             **overrides,
         },
         environ={},
