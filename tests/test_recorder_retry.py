@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import gc
 import json
 import os
 import shutil
@@ -46,8 +47,13 @@ def test_recording_goes_on_while_descriptors_run_out(tmp_path):
 
 @contextlib.contextmanager
 def descriptors_left(n: int):
-    """Every descriptor of this process taken but `n` (opening /dev/null until EMFILE)."""
+    """Every descriptor of this process taken but `n` (opening /dev/null until EMFILE).
+    The garbage collector is run first and held off meanwhile: a socket or file that an
+    earlier test in this process left unreferenced would otherwise be closed by a
+    collection inside the block, one more descriptor free than `n`."""
     hog: list[int] = []
+    gc.collect()
+    gc.disable()
     try:
         starve(hog)
         for _ in range(min(n, len(hog))):
@@ -56,6 +62,7 @@ def descriptors_left(n: int):
     finally:
         for fd in hog:
             os.close(fd)
+        gc.enable()
 
 
 def open_under(folder) -> list[str]:
