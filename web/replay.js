@@ -15,8 +15,9 @@ import { $, api } from "/lib.js";
 
 const params = new URLSearchParams(location.search);
 const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
-const r3d = { path: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null };
+const r3d = { path: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null, busy: false };
 const R3D_PERIOD_MS = 1000 / 15;
+const R3D_RETRY_MS = 1000; // after a PUT that failed
 
 function status(text) { $("replay-status").textContent = text; }
 
@@ -95,9 +96,10 @@ async function load3d(a, b) {
 }
 
 // Throttled: at most 15 PUTs a second while the slider moves or play runs, and the
-// last instant is always sent.
+// last instant is always sent. One PUT at a time: two in flight may reach the station in
+// either order and leave the panel at the older instant. A failed one is sent again.
 function send3dTime() {
-  if (!r3d.ready || r3d.sentT === view.t) return;
+  if (!r3d.ready || r3d.busy || r3d.sentT === view.t) return;
   const wait = r3d.lastSent + R3D_PERIOD_MS - performance.now();
   if (wait > 0) {
     if (!r3d.timer) r3d.timer = setTimeout(() => { r3d.timer = null; send3dTime(); }, wait);
@@ -105,7 +107,10 @@ function send3dTime() {
   }
   r3d.lastSent = performance.now();
   r3d.sentT = view.t;
-  api("/api/replay3d/time", { method: "PUT", body: { t_s: view.t } }).catch(() => { r3d.sentT = null; });
+  r3d.busy = true;
+  api("/api/replay3d/time", { method: "PUT", body: { t_s: view.t } })
+    .catch(() => { r3d.sentT = null; r3d.lastSent = performance.now() + R3D_RETRY_MS; })
+    .finally(() => { r3d.busy = false; send3dTime(); });
 }
 
 const duration = (tr) => tr.duration_s;
