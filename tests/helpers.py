@@ -170,14 +170,16 @@ class CountingSelector(selectors.DefaultSelector):
         return super().select(timeout)
 
 
-def wait_until(predicate, timeout: float = 5.0, interval: float = 0.02) -> bool:
-    """Poll `predicate` until it is true or `timeout` passes; returns its last value."""
+def wait_until(predicate, timeout: float = 5.0, interval: float = 0.02, sleep=time.sleep) -> bool:
+    """Poll `predicate` until it is true or `timeout` passes; returns its last value.
+    `sleep(seconds)` waits between polls: a page's `wait_for_timeout` when the predicate
+    needs Playwright's event handlers (a route's, a console listener's) to run meanwhile."""
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()
         if value or time.monotonic() > deadline:
             return value
-        time.sleep(interval)
+        sleep(interval)
 
 
 def station_settings(

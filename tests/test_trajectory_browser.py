@@ -188,6 +188,29 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser
             ),
             60.0,  # a hang guard: the page's last PUT of the time may come late under load
         )
+        # One instant in flight at a time. The PUT of 10 s is held at the network while the
+        # slider moves on to 20 s: a second PUT sent meanwhile would reach the station
+        # first and leave the panel at 10 s once the held one arrives.
+        held: list = []
+        second: list = []
+
+        def hold_first(route) -> None:
+            (second if held else held).append(route)
+            if len(held) + len(second) > 1:
+                route.continue_()
+
+        page.route("**/api/replay3d/time", hold_first)
+        slider.evaluate("el => { el.value = 100; el.dispatchEvent(new Event('input')); }")
+        # The route's handler runs inside Playwright's calls: wait in the page, not here.
+        in_page = lambda s: page.wait_for_timeout(s * 1000)  # noqa: E731
+        assert wait_until(lambda: bool(held), 30.0, 0.1, in_page), "no PUT of the time"
+        slider.evaluate("el => { el.value = 200; el.dispatchEvent(new Event('input')); }")
+        page.wait_for_timeout(1000)  # room for a second PUT, were one allowed in flight
+        assert second == [], "a second PUT went out while the first was in flight"
+        held[0].continue_()
+        at_20 = lambda: abs(replay3d.t_s - 20.0) < 1e-6  # noqa: E731
+        assert wait_until(at_20, 60.0, 0.1, in_page), replay3d.t_s
+        page.unroute("**/api/replay3d/time", hold_first)
         frame = next((f for f in page.frames if f.url.startswith(viser_url)), None)
         assert frame is not None, [f.url for f in page.frames]
         frame.locator("canvas").first.wait_for(timeout=90_000)
