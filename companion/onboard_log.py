@@ -4,11 +4,13 @@ The station asks for the list (LOG_REQUEST_LIST, answered by one LOG_ENTRY per l
 picks the log that covers the flight and asks for its bytes a window at a time
 (LOG_REQUEST_DATA from the first byte still missing; answered by LOG_DATA packets of 90
 bytes each), until every byte of the listed size is in, then says LOG_REQUEST_END. The
-window starts small and grows up to `window_bytes` while the link loses none of the
-autopilot's packets (their sequence numbers), and halves, with a pause, when it does:
-the download gives way to the flight state. A window lost on the way (a radio fade, a
-dropped link) is asked for again from its first missing byte after `request_timeout_s`
-without data; after `give_up_s` without one new byte the download stops as incomplete.
+window starts small, grows up to `window_bytes` after each window that came in whole
+while the link lost none of the autopilot's packets (their sequence numbers), and
+halves, with a pause, when the link lost some: the download gives way to the flight
+state. A window lost on the way (a radio fade, a dropped link) is asked for again from
+its first missing byte after `request_timeout_s` without data, at the same size: a
+window cut short says nothing about loss, as its lost packet may be among those not yet
+sent. After `give_up_s` without one new byte the download stops as incomplete.
 Only one window is outstanding, so what the vehicle sends for us is bounded, and its
 telemetry goes on between our windows and beside them (docs/PERFORMANCE.md measures
 it). A vehicle that does not answer the list, has no logs, or does not have the log
@@ -398,9 +400,9 @@ class LogDownload:
         part = self.folder / PART_NAME
         ranges = _Ranges(entry.size_bytes)
         max_chunks = max(1, s.window_bytes // CHUNK_BYTES)
-        # The window grows while the link loses nothing and halves when it loses the
-        # vehicle's packets (a receive buffer overflowing, a radio full), pausing as
-        # long as the window took: the flight state's packets go first.
+        # The window grows after one that came in whole with nothing lost, and halves when
+        # the link loses the vehicle's packets (a receive buffer overflowing, a radio
+        # full), pausing as long as the window took: the flight state's packets go first.
         window_chunks = min(max_chunks, _START_CHUNKS)
         mav = self.link.mav
         fd = os.open(part, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
@@ -421,7 +423,7 @@ class LogDownload:
                 window_t0 = time.monotonic()
                 lost_before = self.lost_packets
                 deadline = window_t0 + s.request_timeout_s
-                progressed = False
+                progressed = whole = False
                 while not self._cancel.is_set():
                     msg = self._next(max(deadline - time.monotonic(), 0.0))
                     if msg is None:
@@ -451,13 +453,14 @@ class LogDownload:
                         self._publish(received_bytes=ranges.received, re_requests=re_requests)
                     nxt = ranges.first_missing(first)
                     if nxt is None or nxt * CHUNK_BYTES >= window_end:
+                        whole = True
                         break  # the window is in: the next one
                 if ranges.complete or self._cancel.is_set():
                     break
                 if self.lost_packets > lost_before:
                     window_chunks = max(_MIN_CHUNKS, window_chunks // 2)
                     self._cancel.wait(min(time.monotonic() - window_t0, _MAX_PAUSE_S))
-                else:
+                elif whole:
                     window_chunks = min(max_chunks, window_chunks + _START_CHUNKS)
                 nxt = ranges.first_missing(first)
                 if not progressed or (nxt is not None and nxt * CHUNK_BYTES < window_end):

@@ -100,6 +100,22 @@ def test_dropped_link_mid_download_resumes(served, tmp_path: Path, dataflash: by
     assert vehicle.data_requests.count((2, 0, vehicle.data_requests[0][2])) == 1
 
 
+@pytest.mark.parametrize("served", [{"drop_after_bytes": 4_000, "drop_s": 2.0}], indirect=True)
+def test_window_cut_short_is_asked_again_at_its_size(served, tmp_path: Path) -> None:
+    """A window the link cut off is asked for again at the size it had: its rest timed
+    out (six times in a 2 s fade), which says nothing of loss, so the window does not grow
+    on it."""
+    vehicle, link = served
+    status = _download(link, tmp_path)
+    assert status.state == "complete" and status.re_requests >= 1, status
+    asked = [(ofs, count) for log_id, ofs, count in vehicle.data_requests if log_id == 2]
+    cut = next(i for i, (ofs, count) in enumerate(asked) if ofs <= 4_000 < ofs + count)
+    assert cut + 1 < len(asked), asked
+    again_ofs, again_count = asked[cut + 1]
+    assert asked[cut][0] < again_ofs < sum(asked[cut]), asked  # the rest of the window cut
+    assert again_count <= asked[cut][1], asked
+
+
 @pytest.mark.parametrize("served", [{"lose_every": 40}], indirect=True)
 def test_window_shrinks_when_the_link_loses_packets(
     served, tmp_path: Path, dataflash: bytes
