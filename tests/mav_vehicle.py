@@ -19,7 +19,8 @@ boot clock in ns, `ts1` mirrored, addressed to the asker; signed, MAVLink 1 or
 this host's monotonic clock (every `time_boot_ms`/`time_usec` it sends is on that clock).
 `command_results`: the COMMAND_ACK result it answers other COMMAND_LONGs with, by
 MAV_CMD (a command not in it, or mapped to None, is not answered), each after a
-STATUSTEXT of `command_texts[command]` if there is one, as PX4 says why it refuses.
+STATUSTEXT of `command_texts[command]` if there is one, as PX4 says why it refuses;
+`commands_lost`: that many of the next such commands are lost on the way (unanswered).
 `signing_key`: MAVLink 2 signing as pymavlink (and so MAVProxy) does it: everything sent
 is signed with the key; what arrives is checked by pymavlink and `signed(msg)` says
 whether it carried a good signature.
@@ -194,6 +195,7 @@ class MavVehicle:
         self.silent = False  # True: sends nothing (a vehicle gone out of range)
         self.command_results: dict[int, int | None] = {}
         self.command_texts: dict[int, str] = {}
+        self.commands_lost = 0  # the next this many answerable COMMAND_LONGs are lost
         self.received: collections.deque[mavlink.MAVLink_message] = collections.deque(maxlen=2000)
         self.sent: collections.Counter[str] = collections.Counter()
         self._lock = threading.Lock()
@@ -630,6 +632,9 @@ class MavVehicle:
     def _answer_command(self, msg: mavlink.MAVLink_message) -> None:
         result = self.command_results.get(msg.command)
         if result is None:
+            return
+        if self.commands_lost > 0:  # lost on the way: never heard, never answered
+            self.commands_lost -= 1
             return
         text = self.command_texts.get(msg.command)
         if text:

@@ -49,6 +49,14 @@ def commands(vehicle: MavVehicle, command: int) -> list:
     ]
 
 
+def sent_once_or_more(vehicle: MavVehicle, command: int):
+    """The first of `command`'s COMMAND_LONGs; a loaded station may have sent it again
+    before the answer came, each time with the next confirmation."""
+    sent = commands(vehicle, command)
+    assert [m.confirmation for m in sent] == list(range(len(sent))), sent
+    return sent[0]
+
+
 def control(base: str, token: str | None = TOKEN, origin: str | None = None):
     query = f"?token={token}" if token else ""
     headers = {"Origin": origin} if origin else None
@@ -79,7 +87,7 @@ def test_emergency_commands_reach_the_vehicle_and_its_answer_comes_back(station)
         ws.send(json.dumps({"type": "rtl"}))
         assert answer(ws) == {"type": "ack", "cmd": "rtl", "ok": True, "result": "ACCEPTED",
                               "text": "NAV_RETURN_TO_LAUNCH: ACCEPTED"}  # fmt: skip
-        (rtl,) = commands(vehicle, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+        rtl = sent_once_or_more(vehicle, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
         assert (rtl.target_system, rtl.target_component) == (SYSID, COMPID)
         assert (rtl.get_srcSystem(), rtl.get_srcComponent()) == (254, 190)  # the station
 
@@ -87,24 +95,37 @@ def test_emergency_commands_reach_the_vehicle_and_its_answer_comes_back(station)
         reply = answer(ws)
         assert (reply["cmd"], reply["ok"], reply["result"]) == ("land", False, "DENIED")
         assert reply["text"] == "Land denied: no position"  # the vehicle's own words
-        (land,) = commands(vehicle, mavlink.MAV_CMD_NAV_LAND)
+        land = sent_once_or_more(vehicle, mavlink.MAV_CMD_NAV_LAND)
         assert (land.target_system, land.target_component) == (SYSID, COMPID)
         assert math.isnan(land.param5) and math.isnan(land.param6)  # where it is
 
         # Disarm in flight: the page asked, and the force value goes with it.
         ws.send(json.dumps({"type": "disarm", "force": True}))
         assert answer(ws)["ok"] is True
-        (forced,) = commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+        forced = sent_once_or_more(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
         assert (forced.target_system, forced.target_component) == (SYSID, COMPID)
         assert (forced.param1, forced.param2) == (0.0, 21196.0)
 
-        # A vehicle that does not answer: said so, after the wait.
+        # A command lost on the way is sent again, its confirmation counted up, and the
+        # vehicle's answer to the second comes back.
+        before = len(commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM))
+        vehicle.commands_lost = 1
+        ws.send(json.dumps({"type": "disarm"}))
+        reply = answer(ws)
+        assert (reply["ok"], reply["result"]) == (True, "ACCEPTED"), reply
+        again = commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)[before:]
+        assert [m.confirmation for m in again] == [0, 1], again
+
+        # A vehicle that does not answer: sent three times, then said so.
         vehicle.command_results[mavlink.MAV_CMD_COMPONENT_ARM_DISARM] = None
+        before = len(commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM))
         ws.send(json.dumps({"type": "disarm"}))
         reply = answer(ws)
         assert (reply["ok"], reply["result"]) == (False, "NO_ANSWER"), reply
-        plain = commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)[-1]
-        assert (plain.param1, plain.param2) == (0.0, 0.0)
+        assert "sent 3 times" in reply["text"], reply
+        plain = commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)[before:]
+        assert [m.confirmation for m in plain] == [0, 1, 2], plain
+        assert all((m.param1, m.param2) == (0.0, 0.0) for m in plain)
 
         # Nothing else goes to a real vehicle: no sticks, no arming, no mode, no take-off.
         sent = len(vehicle.received_types())

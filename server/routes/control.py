@@ -31,7 +31,10 @@ Every command goes to the followed autopilot (its sysid and compid as heard on t
 and is answered with what the vehicle said, not with what the station sent: the ack waits
 (without holding up the sticks) for the vehicle's COMMAND_ACK, at most ACK_TIMEOUT_S, and
 carries its result and the vehicle's own words (STATUSTEXT since the command, e.g. PX4's
-"Arming denied: ..."):
+"Arming denied: ..."). A command not answered within ACK_TIMEOUT_S / COMMAND_SENDS is
+sent again with its `confirmation` counted up, as the MAVLink command protocol asks (a
+radio may lose it), at most COMMAND_SENDS times in all; each command here is one the
+vehicle may receive twice (arm when armed, land when landing). The ack:
     {"type": "ack", "cmd": "disarm", "ok": false, "result": "DENIED",
      "text": "Disarming denied: not landed"}
 `result` is "NO_ANSWER" when the vehicle did not answer in time.
@@ -41,9 +44,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import copy
+import functools
 import json
 import math
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Literal
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
@@ -134,9 +140,11 @@ async def _send_sticks(link: MavlinkLink, pilot: Pilot, target: int) -> None:
         await asyncio.sleep(max(0.0, next_t - time.monotonic()))
 
 
-def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
+def _command(
+    station: Station, link: MavlinkLink, cmd: Command
+) -> mavlink.MAVLink_command_long_message | None:
     """Send `cmd` to the followed autopilot as a COMMAND_LONG through the link, as for
-    any vehicle; returns the MAV_CMD sent (None for the twin's reset, done at once).
+    any vehicle; returns the message sent (None for the twin's reset, done at once).
     Only EMERGENCY commands come here for a real vehicle (the route refuses the rest)."""
     twin, mav = station.twin, link.mav
     if cmd.type == "reset":
@@ -181,7 +189,14 @@ def _command(station: Station, link: MavlinkLink, cmd: Command) -> int | None:
             *target, mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, nan, nan, nan, 0
         )
     link.send(msg)
-    return msg.command
+    return msg
+
+
+def _send_again(link: MavlinkLink, msg: mavlink.MAVLink_command_long_message, sends: int) -> None:
+    """`msg` sent once more: its `sends`-th time, `confirmation` = sends - 1."""
+    again = copy.copy(msg)
+    again.confirmation = sends - 1
+    link.send(again)
 
 
 ANOTHER_PAGE = "another page has the sticks; from here only Disarm, Land and RTL are carried out."
@@ -189,16 +204,37 @@ REAL_VEHICLE = (
     "the station sends a real vehicle only Disarm, Land and RTL from a page; fly it with its radio."
 )
 ACK_TIMEOUT_S = 3.0
+COMMAND_SENDS = 3
 REASON_GRACE_S = 0.3
 
 
-async def vehicle_answer(station: Station, command: int, since_mono: float) -> dict[str, Any]:
+async def vehicle_answer(
+    station: Station,
+    command: int,
+    since_mono: float,
+    send_again: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
     """The vehicle's COMMAND_ACK of `command` sent at `since_mono` (station clock), with
-    its STATUSTEXT since then: {"ok", "result", "text"}."""
+    its STATUSTEXT since then: {"ok", "result", "text"}. Until it answers, `send_again(n)`
+    sends the command an n-th time every ACK_TIMEOUT_S / COMMAND_SENDS."""
     name = mavlink.enums["MAV_CMD"][command].name.removeprefix("MAV_CMD_")
     deadline = since_mono + ACK_TIMEOUT_S
-    version, answer = 0, None
-    while (left := deadline - time.monotonic()) > 0:
+    every = ACK_TIMEOUT_S / COMMAND_SENDS
+    version, answer, sends = 0, None, 1
+    while True:
+        now = time.monotonic()
+        left = deadline - now
+        if send_again is not None and answer is None and sends < COMMAND_SENDS:
+            until_again = since_mono + sends * every - now
+            if until_again <= 0:
+                sends += 1
+                send_again(sends)
+                # Each send is given its time to be answered, late as a busy loop may be.
+                deadline = max(deadline, now + every)
+                continue
+            left = min(left, until_again)
+        if left <= 0:
+            break
         current = await station.state.wait_newer(version, timeout=left)
         if current is not None:
             version = current.version
@@ -218,7 +254,8 @@ async def vehicle_answer(station: Station, command: int, since_mono: float) -> d
     return {
         "ok": False,
         "result": "NO_ANSWER",
-        "text": f"The vehicle did not answer {name} within {ACK_TIMEOUT_S:g} s.",
+        "text": f"The vehicle did not answer {name}, sent {sends} times in "
+        f"{time.monotonic() - since_mono:.0f} s.",
     }
 
 
@@ -266,9 +303,12 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
         async with send_lock:
             await ws.send_text(text)
 
-    async def answer(cmd: Command, command: int, sent_at: float) -> None:
+    async def answer(
+        cmd: Command, msg: mavlink.MAVLink_command_long_message, sent_at: float
+    ) -> None:
         # Its own task: sticks keep flowing while the vehicle thinks it over.
-        reply = await vehicle_answer(station, command, sent_at)
+        again = functools.partial(_send_again, link, msg)
+        reply = await vehicle_answer(station, msg.command, sent_at, again)
         with contextlib.suppress(WebSocketDisconnect, RuntimeError, ConnectionError):
             await send(json.dumps({"type": "ack", "cmd": cmd.type, **reply}))
 
@@ -309,11 +349,11 @@ async def _serve_control(ws: WebSocket, station: Station) -> None:
                     await send(_error("Conflict", f"{cmd.type}: {refusal}"))
                     continue
                 sent_at = time.monotonic()
-                command = _command(station, link, cmd)
-                if command is None:  # done by the station itself (reset)
+                msg = _command(station, link, cmd)
+                if msg is None:  # done by the station itself (reset)
                     await send(json.dumps({"type": "ack", "cmd": cmd.type, "ok": True}))
                     continue
-                task = asyncio.create_task(answer(cmd, command, sent_at))
+                task = asyncio.create_task(answer(cmd, msg, sent_at))
                 answers.add(task)
                 task.add_done_callback(answers.discard)
             except (ValueError, ValidationError) as exc:
