@@ -298,10 +298,15 @@ def sticks_on(page, base: str) -> None:
 
 def arm_and_climb(page, station, height_m: float = 1.5, timeout: float = 60.0) -> None:
     """With the sticks on (sticks_on): Arm, then climb on ArrowUp until the twin is
-    `height_m` up, and let go of the key."""
+    `height_m` up, and let go of the key. Arm is pressed again every 10 s until the twin
+    is armed, as a pilot does after a toast of no answer (a twin starved by a loaded box)."""
     armed = lambda: (latest := station.state.get()) and latest.value.heartbeat.armed  # noqa: E731
-    page.click("#ctl-arm")
-    assert wait_until(armed, timeout=timeout), "the twin did not arm"
+    deadline = time.monotonic() + timeout
+    while True:
+        page.click("#ctl-arm")
+        if wait_until(armed, timeout=min(10.0, max(deadline - time.monotonic(), 0.0))):
+            break
+        assert time.monotonic() < deadline, "the twin did not arm"
     page.keyboard.down("ArrowUp")
     assert wait_until(lambda: station.twin.pose().pos_enu_m[2] > height_m, timeout=timeout)
     page.keyboard.up("ArrowUp")
