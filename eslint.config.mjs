@@ -31,6 +31,11 @@ export default [
     },
   },
   {
+    // A module worker (web/video.js starts it): a worker's globals, not a window's.
+    files: ["web/video-worker.js"],
+    languageOptions: { globals: globals.worker },
+  },
+  {
     files: ["web/debug.js"],
     rules: { "no-restricted-properties": "off" },
   },

@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import re
+import threading
 import time
+from collections.abc import Awaitable, Callable
 
 import cv2
 import numpy as np
 import pytest
 from playwright.sync_api import expect
+from starlette.routing import WebSocketRoute
+from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from fpv_station.companion.video_frame import Frame
 from fpv_station.server.app import create_app
 from fpv_station.server.video_fanout import ws_message
-from tests.helpers import run_uvicorn, station_settings
+from tests.helpers import run_uvicorn, station_settings, wait_until
 from tests.video_fixtures import write_images
 
 
@@ -61,27 +67,54 @@ def test_page_shows_both_streams_with_fps_and_latency(tmp_path, browser):
         assert mjpeg == 0
 
 
+class ScriptedVideo:
+    """The station's /ws/video replaced at the protocol boundary by a scripted one, on a
+    real socket: the page's video socket lives in a worker, which Playwright's
+    `route_web_socket` does not reach. `script(ws, n)` serves the n-th connection (from
+    1) on the event loop."""
+
+    def __init__(self) -> None:
+        self.script: Callable[[WebSocket, int], Awaitable[None]] | None = None
+        self.connections = 0
+
+    async def serve(self, ws: WebSocket) -> None:
+        await ws.accept()
+        self.connections += 1
+        assert self.script is not None
+        with contextlib.suppress(WebSocketDisconnect):
+            await self.script(ws, self.connections)
+
+
+async def until_subscribed(ws: WebSocket) -> None:
+    while "subscribe" not in await ws.receive_text():
+        pass
+
+
 @pytest.fixture(scope="module")
 def bare_station():
-    """A station whose /ws/video each test replaces (`page.route_web_socket`)."""
-    with run_uvicorn(create_app(station_settings("none"))) as base:
-        yield base
+    """A station without cameras whose /ws/video each test scripts (`ScriptedVideo`)."""
+    app = create_app(station_settings("none"))
+    video = ScriptedVideo()
+    app.router.routes.insert(0, WebSocketRoute("/ws/video", video.serve))
+    with run_uvicorn(app) as base:
+        yield base, video
 
 
-# Instruments the browser's decoder, not our code: counts the decodes started and holds
-# them until the test lets them go.
-HELD_DECODES = """
-  window.__decodes = 0;
+# Instruments the browser's decoder in the page's video worker, not our code: counts the
+# decodes started and holds them until the test lets them go.
+HELD_DECODES = """() => {
+  self.__decodes = 0;
   let release; const gate = new Promise((r) => { release = r; });
-  window.__release = () => release();
-  const decode = window.createImageBitmap.bind(window);
-  window.createImageBitmap = (...args) => { window.__decodes += 1; return gate.then(() => decode(...args)); };
-"""
+  self.__release = () => release();
+  const decode = self.createImageBitmap.bind(self);
+  self.createImageBitmap = (...args) => { self.__decodes += 1; return gate.then(() => decode(...args)); };
+}"""
 
 
 def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(bare_station, browser):
     """A burst of frames while one is being decoded: the page decodes that one and then
     only the newest, and draws the newest (the frames between cost no decode)."""
+    base, video = bare_station
     jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
     burst = 8
     front = [
@@ -90,27 +123,31 @@ def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(bare_stat
     ]
     # Then one bottom frame: its decode starts once every front frame before it is in.
     bottom = ws_message("bottom", Frame("bottom", 1, jpeg, 320, 240, 0.0, time.time()))
+    instrumented = threading.Event()
 
-    def station_socket(ws) -> None:  # /ws/video's side, at the protocol boundary
-        def on_message(text: str | bytes) -> None:
-            if isinstance(text, str) and "subscribe" in text:
-                for message in (*front, bottom):
-                    ws.send(message)
+    async def station_socket(ws: WebSocket, n: int) -> None:
+        await until_subscribed(ws)
+        assert await asyncio.to_thread(instrumented.wait, 60)
+        for message in (*front, bottom):
+            await ws.send_bytes(message)
+        while True:
+            await ws.receive_text()  # acks
 
-        ws.on_message(on_message)
-
+    video.script = station_socket
     page = browser.new_page(viewport={"width": 1280, "height": 720})
-    page.add_init_script(HELD_DECODES)
-    page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
-    page.goto(bare_station + "/")
-    page.wait_for_function("() => window.__decodes >= 2", timeout=30_000)
-    assert page.evaluate("() => window.__decodes") == 2  # the first front, the bottom
-    page.evaluate("() => window.__release()")
+    with page.expect_worker() as started:
+        page.goto(base + "/")
+    worker = started.value
+    worker.evaluate(HELD_DECODES)
+    instrumented.set()
+    wait_until(lambda: worker.evaluate("self.__decodes") >= 2, timeout=30)
+    assert worker.evaluate("self.__decodes") == 2  # the first front, the bottom
+    worker.evaluate("self.__release()")
     page.wait_for_function(
         f"() => (window.fpvDebug.cameras.frames.front || {{}}).seq === {burst}",
         timeout=30_000,
     )
-    assert page.evaluate("() => window.__decodes") == 3  # and the newest front
+    assert worker.evaluate("self.__decodes") == 3  # and the newest front
     page.close()
 
 
@@ -119,25 +156,29 @@ def test_a_restarted_station_s_frames_are_drawn_though_they_count_from_1_again(
 ):
     """The video socket closes and the page reconnects to a station whose frames count
     from 1 again: they are drawn, not taken for old frames."""
+    base, video = bare_station
     jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
-    sockets = []
+    restart = threading.Event()
+    first = video.connections + 1
 
-    def station_socket(ws) -> None:  # /ws/video's side, at the protocol boundary
-        sockets.append(ws)
-        seq = 50 if len(sockets) == 1 else 1  # the first station, then the restarted one
+    async def station_socket(ws: WebSocket, n: int) -> None:
+        seq = 50 if n == first else 1  # the first station, then the restarted one
+        await until_subscribed(ws)
+        await ws.send_bytes(
+            ws_message("front", Frame("front", seq, jpeg, 320, 240, 0.0, time.time()))
+        )
+        if n == first:
+            await asyncio.to_thread(restart.wait, 60)
+            await ws.close()
+            return
+        while True:
+            await ws.receive_text()
 
-        def on_message(text: str | bytes) -> None:
-            if isinstance(text, str) and "subscribe" in text:
-                frame = Frame("front", seq, jpeg, 320, 240, 0.0, time.time())
-                ws.send(ws_message("front", frame))
-
-        ws.on_message(on_message)
-
+    video.script = station_socket
     drawn = "() => (window.fpvDebug.cameras.frames.front || {}).seq"
     page = browser.new_page(viewport={"width": 1280, "height": 720})
-    page.route_web_socket(re.compile(r".*/ws/video.*"), station_socket)
-    page.goto(bare_station + "/")
+    page.goto(base + "/")
     page.wait_for_function(f"{drawn} === 50", timeout=30_000)
-    sockets[0].close()
+    restart.set()
     page.wait_for_function(f"{drawn} === 1", timeout=30_000)
     page.close()

@@ -20,10 +20,11 @@
 // MJPEG <img> per camera: Chromium gives a host six HTTP/1.1 connections, an MJPEG stream
 // holds one for good, and a few pages' streams then starve every page's /api requests.
 // The page subscribes to the cameras it shows (a hidden view, the goggles' hidden
-// picture-in-picture or a hidden tab is not streamed). Each binary message is one JPEG,
-// decoded off the main thread (createImageBitmap, one decode per camera at a time) and
-// drawn onto the view's canvas in the next animation frame; a newer frame of the same
-// camera replaces one not yet decoded or not yet drawn. The
+// picture-in-picture or a hidden tab is not streamed). The socket lives in a worker
+// (web/video-worker.js), which receives each binary message (one JPEG) and decodes it
+// (createImageBitmap, one decode per camera at a time) off the page's main thread; the
+// page draws the decoded picture onto the view's canvas in the next animation frame. A
+// newer frame of the same camera replaces one not yet decoded or not yet drawn. The
 // page acknowledges every second frame drawn (?ack=4): at most four frames are on their
 // way, so a busy page falls behind by frames skipped, never by a queue.
 //
@@ -55,7 +56,7 @@ for (const name of CAMERAS) {
   const canvas = videoCanvas(`${name} camera`, name);
   const readout = el("div", { class: "video-readout", id: `${name}-readout` }, "-- fps");
   $(`${name}-view`).append(canvas, readout);
-  views[name] = { targets: [canvas], readout, pending: null, drawnSeq: -1 };
+  views[name] = { targets: [canvas], readout, pending: null, drawnSeq: -1, last: null };
 }
 const frames = {};
 const samples = {}; // camera -> [{at, totalMs, stationMs}] over the last WINDOW_MS
@@ -80,10 +81,11 @@ function addTarget(name, canvas) {
 }
 
 // ---- the connection and the subscription ---------------------------------------------
-let ws = null;
+const worker = new Worker("/video-worker.js", { type: "module" });
+let open = false;
 let handled = 0; // frames drawn or replaced by a newer one (what the acks count)
 let subscribed = "";
-let generation = 0; // one per connection: a decode started on an old one is dropped
+let generation = 0; // the worker's connection: a frame decoded on an older one is dropped
 let clockOffset = { agree: false, offsetS: 0 };
 
 function shown(v) {
@@ -93,80 +95,65 @@ function shown(v) {
 function subscribe() {
   const want = Object.keys(views).filter((n) => shown(views[n]));
   const key = want.join(",");
-  if (!ws || ws.readyState !== WebSocket.OPEN || key === subscribed) return;
+  if (!open || key === subscribed) return;
   subscribed = key;
-  ws.send(JSON.stringify({ subscribe: want }));
+  worker.postMessage({ type: "send", message: { subscribe: want } });
 }
 
 function connect() {
   const proto = location.protocol === "https:" ? "wss:" : "ws:";
-  const sock = new WebSocket(`${proto}//${location.host}/ws/video?ack=${ACK_WINDOW}`);
-  sock.binaryType = "arraybuffer";
-  ws = sock;
-  handled = 0;
-  subscribed = "";
-  generation += 1;
-  // A station that restarted counts its frames from 1 again.
-  for (const v of Object.values(views)) {
-    v.drawnSeq = -1;
-    v.waiting = null;
-    if (v.pending) { v.pending.bitmap.close(); v.pending = null; }
-  }
-  sock.onopen = () => subscribe();
-  sock.onmessage = (e) => { if (typeof e.data !== "string") receive(e.data); };
-  sock.onclose = () => {
-    if (ws === sock) ws = null;
-    setTimeout(connect, 1000); // the station restarted, or the page was refused: retry
-  };
+  worker.postMessage({ type: "connect", url: `${proto}//${location.host}/ws/video?ack=${ACK_WINDOW}` });
 }
 
-const decoder = new TextDecoder();
-function receive(buf) {
-  const headLen = new DataView(buf).getUint16(0);
-  const head = JSON.parse(decoder.decode(new Uint8Array(buf, 2, headLen)));
+worker.onmessage = (e) => {
+  const m = e.data;
+  if (m.type === "frame") received(m.head, m.bitmap);
+  else if (m.type === "skipped") done(1);
+  else if (m.type === "open" && m.generation === generation) {
+    open = true;
+    subscribe();
+  } else if (m.type === "connecting") {
+    // A new connection: a station that restarted counts its frames from 1 again.
+    generation = m.generation;
+    open = false;
+    handled = 0;
+    subscribed = "";
+    for (const v of Object.values(views)) {
+      v.drawnSeq = -1;
+      if (v.pending) { v.pending.bitmap.close(); v.pending = null; }
+    }
+  }
+};
+
+// A decoded frame: drawn in the next animation frame, unless a newer one is drawn first.
+function received(head, bitmap) {
   const v = views[head.camera];
-  if (!v) { done(1); return; }
-  head.receivedMs = stationNowMs();
-  head.generation = generation;
-  const jpeg = new Uint8Array(buf, 2 + headLen);
-  // One decode per camera at a time; a frame that arrives meanwhile waits, and a newer
-  // one replaces it undecoded: a busy page spends no CPU on pictures it would not draw.
-  if (v.decoding) {
-    if (v.waiting) done(1);
-    v.waiting = { head, jpeg };
+  if (!v || head.generation !== generation) {
+    bitmap.close();
+    if (v) done(1);
     return;
   }
-  decode(v, head, jpeg);
-}
-
-function decode(v, head, jpeg) {
-  v.decoding = true;
-  head.decodeFromMs = stationNowMs();
-  createImageBitmap(new Blob([jpeg], { type: "image/jpeg" })).then((bitmap) => {
-    head.decodedMs = stationNowMs();
-    if (head.generation !== generation) { bitmap.close(); return; }
-    if (head.seq <= v.drawnSeq || (v.pending && v.pending.head.seq >= head.seq)) {
-      bitmap.close();
-      done(1);
-      return;
-    }
-    if (v.pending) { v.pending.bitmap.close(); done(1); }
-    v.pending = { head, bitmap };
-    requestAnimationFrame(draw);
-  }, () => { if (head.generation === generation) done(1); }).finally(() => {
-    v.decoding = false;
-    const next = v.waiting;
-    v.waiting = null;
-    if (next) decode(v, next.head, next.jpeg);
-  });
+  // The worker's times (ms since the epoch) on the station's clock.
+  const onStation = (epochMs) => stationNowMs(epochMs - performance.timeOrigin);
+  head.receivedMs = onStation(head.receivedAt);
+  head.decodeFromMs = onStation(head.decodeFrom);
+  head.decodedMs = onStation(head.decodedAt);
+  if (head.seq <= v.drawnSeq || (v.pending && v.pending.head.seq >= head.seq)) {
+    bitmap.close();
+    done(1);
+    return;
+  }
+  if (v.pending) { v.pending.bitmap.close(); done(1); }
+  v.pending = { head, bitmap };
+  requestAnimationFrame(draw);
 }
 
 function done(n) {
   const before = handled;
   handled += n;
   // Every second frame: the station reads half the acks for two more frames in flight.
-  if (Math.floor(before / 2) !== Math.floor(handled / 2) && ws && ws.readyState === WebSocket.OPEN) {
-    ws.send(JSON.stringify({ ack: handled }));
+  if (Math.floor(before / 2) !== Math.floor(handled / 2) && open) {
+    worker.postMessage({ type: "send", message: { ack: handled } });
   }
 }
 
