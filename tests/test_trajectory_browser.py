@@ -131,17 +131,37 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser
     page = open_offline(browser, outside)
     with contextlib.closing(page.context):  # the module's browser runs on
         # Replay: picked from the sessions page, a second session overlaid in the paper's frame.
+        # One load of the 3D panel in flight at a time: the first (the session alone) is
+        # held at the network while the overlay is picked; a second load sent meanwhile
+        # could reach the station first and be undone by the held one.
+        loads_held: list = []
+        loads_more: list = []
+
+        def hold_first_load(route) -> None:
+            (loads_more if loads_held else loads_held).append(route)
+            if len(loads_held) + len(loads_more) > 1:
+                route.continue_()
+
+        page.route("**/api/replay3d", hold_first_load)
         page.goto(f"{base}/sessions.html?token={TOKEN}")  # kept by lib.js
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
         page.wait_for_url(f"**/replay.html?session={SESSION_A}*")
         page.wait_for_function(
             "document.getElementById('replay-status').textContent.includes('fixes')", timeout=30_000
         )
+        # The route's handler runs inside Playwright's calls: wait in the page, not here.
+        in_page = lambda s: page.wait_for_timeout(s * 1000)  # noqa: E731
+        assert wait_until(lambda: bool(loads_held), 30.0, 0.1, in_page), "no 3D panel load"
         page.locator("#replay-compare").select_option(SESSION_B)  # also turns alignment on
         page.wait_for_function(
             "document.getElementById('replay-status').textContent.includes('overlay')",
             timeout=30_000,
         )
+        page.wait_for_timeout(1000)  # room for a second load, were one allowed in flight
+        assert loads_more == [], "a second 3D panel load went out while the first was in flight"
+        loads_held[0].continue_()
+        assert wait_until(lambda: bool(loads_more), 30.0, 0.1, in_page), "the overlay never loaded"
+        page.unroute("**/api/replay3d", hold_first_load)
         slider = page.locator("#replay-slider")
         assert slider.is_visible() and int(slider.get_attribute("max")) > 300
         slider.evaluate("el => { el.value = 300; el.dispatchEvent(new Event('input')); }")
@@ -201,8 +221,6 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser
 
         page.route("**/api/replay3d/time", hold_first)
         slider.evaluate("el => { el.value = 100; el.dispatchEvent(new Event('input')); }")
-        # The route's handler runs inside Playwright's calls: wait in the page, not here.
-        in_page = lambda s: page.wait_for_timeout(s * 1000)  # noqa: E731
         assert wait_until(lambda: bool(held), 30.0, 0.1, in_page), "no PUT of the time"
         slider.evaluate("el => { el.value = 200; el.dispatchEvent(new Event('input')); }")
         page.wait_for_timeout(1000)  # room for a second PUT, were one allowed in flight

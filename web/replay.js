@@ -15,7 +15,9 @@ import { $, api } from "/lib.js";
 
 const params = new URLSearchParams(location.search);
 const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
-const r3d = { path: null, gen: 0, ready: false, sentT: null, lastSent: 0, timer: null, busy: false };
+const r3d = {
+  path: null, loading: false, wanted: null, ready: false, sentT: null, lastSent: 0, timer: null, busy: false,
+};
 const R3D_PERIOD_MS = 1000 / 15;
 const R3D_RETRY_MS = 1000; // after a PUT that failed
 
@@ -73,6 +75,9 @@ async function init3d() {
   }
 }
 
+// One load at a time, as for the instant below: two in flight may reach the station in
+// either order and leave the panel on the older pick. A pick made meanwhile is sent
+// once the load in flight has answered; the newest pick wins.
 async function load3d(a, b) {
   if (!r3d.path) return;
   const frame = $("replay-3d");
@@ -82,17 +87,23 @@ async function load3d(a, b) {
     draw(); // the canvas just got narrower
   }
   r3d.ready = false;
-  const gen = ++r3d.gen; // a newer pick supersedes this one
-  try {
-    await api("/api/replay3d", { method: "PUT", body: { session: a, overlay: b || null,
-      align: $("replay-align").checked ? "farthest" : "none" } });
-    if (gen !== r3d.gen) return;
-    r3d.ready = true;
-    r3d.sentT = null;
-    send3dTime();
-  } catch (err) {
-    status(`${$("replay-status").textContent} (3D: ${err.message})`);
+  r3d.wanted = { session: a, overlay: b || null, align: $("replay-align").checked ? "farthest" : "none" };
+  if (r3d.loading) return;
+  r3d.loading = true;
+  while (r3d.wanted) {
+    const body = r3d.wanted;
+    r3d.wanted = null;
+    try {
+      await api("/api/replay3d", { method: "PUT", body });
+      if (r3d.wanted) continue; // a newer pick: load that first
+      r3d.ready = true;
+      r3d.sentT = null;
+      send3dTime();
+    } catch (err) {
+      status(`${$("replay-status").textContent} (3D: ${err.message})`);
+    }
   }
+  r3d.loading = false;
 }
 
 // Throttled: at most 15 PUTs a second while the slider moves or play runs, and the
