@@ -14,7 +14,7 @@
 import { $, api } from "/lib.js";
 
 const params = new URLSearchParams(location.search);
-const view = { a: null, b: null, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
+const view = { a: null, b: null, gen: 0, t: 0, playing: false, anchorT: 0, anchorWall: 0, frames: {} };
 const r3d = {
   path: null, loading: false, wanted: null, ready: false, sentT: null, lastSent: 0, timer: null, busy: false,
 };
@@ -47,16 +47,22 @@ async function load() {
   if ($("replay-align").checked) q.set("align", "1");
   history.replaceState(null, "", `${location.pathname}?${q}`);
   view.a = view.b = null;
+  const gen = ++view.gen; // a newer pick supersedes this one, whichever answers first
   if (!a) { status("No recorded session yet."); draw(); return; }
   status(`Loading ${a}...`);
+  let ta, tb;
   try {
-    view.a = await api(trajUrl(a));
-    view.b = b ? await api(trajUrl(b)) : null;
+    ta = await api(trajUrl(a));
+    tb = b ? await api(trajUrl(b)) : null;
   } catch (err) {
+    if (gen !== view.gen) return;
     status(`Cannot load the trajectory: ${err.message}`);
     draw();
     return;
   }
+  if (gen !== view.gen) return;
+  view.a = ta;
+  view.b = tb;
   load3d(a, b);
   const dur = duration(view.a);
   $("replay-slider").max = String(Math.max(1, Math.round(dur * 10)));
