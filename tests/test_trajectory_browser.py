@@ -20,6 +20,29 @@ from tests.synthetic import SESSION_A, SESSION_B, state_at
 TOKEN = "browser-test-token"
 
 
+class HeldFirst:
+    """The page's first request to `pattern` held at the network until `release()`; each
+    later one goes through and is noted in `later` (a request the page should not have
+    sent while the first was in flight). Playwright runs the handler inside its own calls,
+    so the test waits in the page (`page.wait_for_timeout`)."""
+
+    def __init__(self, page, pattern: str) -> None:
+        self.held: list = []
+        self.later: list = []
+        page.route(pattern, self._route)
+
+    def _route(self, route) -> None:
+        if not self.held:
+            self.held.append(route)
+            return
+        self.later.append(route)
+        route.continue_()
+
+    def release(self) -> None:
+        """Let the held request go (later ones already go as they come)."""
+        self.held[0].continue_()
+
+
 def saturated(png: bytes) -> np.ndarray:
     """Mask of strongly coloured pixels (paths and markers; not grids, text or white)."""
     decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
@@ -134,15 +157,7 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser
         # One load of the 3D panel in flight at a time: the first (the session alone) is
         # held at the network while the overlay is picked; a second load sent meanwhile
         # could reach the station first and be undone by the held one.
-        loads_held: list = []
-        loads_more: list = []
-
-        def hold_first_load(route) -> None:
-            (loads_more if loads_held else loads_held).append(route)
-            if len(loads_held) + len(loads_more) > 1:
-                route.continue_()
-
-        page.route("**/api/replay3d", hold_first_load)
+        loads = HeldFirst(page, "**/api/replay3d")
         page.goto(f"{base}/sessions.html?token={TOKEN}")  # kept by lib.js
         page.locator(f'tr[data-id="{SESSION_A}"] a.replay').click()
         page.wait_for_url(f"**/replay.html?session={SESSION_A}*")
@@ -151,17 +166,16 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser
         )
         # The route's handler runs inside Playwright's calls: wait in the page, not here.
         in_page = lambda s: page.wait_for_timeout(s * 1000)  # noqa: E731
-        assert wait_until(lambda: bool(loads_held), 30.0, 0.1, in_page), "no 3D panel load"
+        assert wait_until(lambda: bool(loads.held), 30.0, 0.1, in_page), "no 3D panel load"
         page.locator("#replay-compare").select_option(SESSION_B)  # also turns alignment on
         page.wait_for_function(
             "document.getElementById('replay-status').textContent.includes('overlay')",
             timeout=30_000,
         )
         page.wait_for_timeout(1000)  # room for a second load, were one allowed in flight
-        assert loads_more == [], "a second 3D panel load went out while the first was in flight"
-        loads_held[0].continue_()
-        assert wait_until(lambda: bool(loads_more), 30.0, 0.1, in_page), "the overlay never loaded"
-        page.unroute("**/api/replay3d", hold_first_load)
+        assert loads.later == [], "a second 3D panel load went out while the first was in flight"
+        loads.release()
+        assert wait_until(lambda: bool(loads.later), 30.0, 0.1, in_page), "the overlay never loaded"
         slider = page.locator("#replay-slider")
         assert slider.is_visible() and int(slider.get_attribute("max")) > 300
         slider.evaluate("el => { el.value = 300; el.dispatchEvent(new Event('input')); }")
@@ -211,24 +225,15 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser
         # One instant in flight at a time. The PUT of 10 s is held at the network while the
         # slider moves on to 20 s: a second PUT sent meanwhile would reach the station
         # first and leave the panel at 10 s once the held one arrives.
-        held: list = []
-        second: list = []
-
-        def hold_first(route) -> None:
-            (second if held else held).append(route)
-            if len(held) + len(second) > 1:
-                route.continue_()
-
-        page.route("**/api/replay3d/time", hold_first)
+        times = HeldFirst(page, "**/api/replay3d/time")
         slider.evaluate("el => { el.value = 100; el.dispatchEvent(new Event('input')); }")
-        assert wait_until(lambda: bool(held), 30.0, 0.1, in_page), "no PUT of the time"
+        assert wait_until(lambda: bool(times.held), 30.0, 0.1, in_page), "no PUT of the time"
         slider.evaluate("el => { el.value = 200; el.dispatchEvent(new Event('input')); }")
         page.wait_for_timeout(1000)  # room for a second PUT, were one allowed in flight
-        assert second == [], "a second PUT went out while the first was in flight"
-        held[0].continue_()
+        assert times.later == [], "a second PUT went out while the first was in flight"
+        times.release()
         at_20 = lambda: abs(replay3d.t_s - 20.0) < 1e-6  # noqa: E731
         assert wait_until(at_20, 60.0, 0.1, in_page), replay3d.t_s
-        page.unroute("**/api/replay3d/time", hold_first)
         frame = next((f for f in page.frames if f.url.startswith(viser_url)), None)
         assert frame is not None, [f.url for f in page.frames]
         frame.locator("canvas").first.wait_for(timeout=90_000)
