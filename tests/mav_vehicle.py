@@ -20,7 +20,10 @@ this host's monotonic clock (every `time_boot_ms`/`time_usec` it sends is on tha
 `command_results`: the COMMAND_ACK result it answers other COMMAND_LONGs with, by
 MAV_CMD (a command not in it, or mapped to None, is not answered), each after a
 STATUSTEXT of `command_texts[command]` if there is one, as PX4 says why it refuses;
-`commands_lost`: that many of the next such commands are lost on the way (unanswered).
+`commands_lost`: that many of the next such commands are lost on the way (unanswered);
+`commands_held`: that many are answered late, just before the next command's answer
+(as a slow link delivers them), and `repeat_result`, if set, answers a command sent
+again (confirmation above 0) instead of `command_results`.
 `signing_key`: MAVLink 2 signing as pymavlink (and so MAVProxy) does it: everything sent
 is signed with the key; what arrives is checked by pymavlink and `signed(msg)` says
 whether it carried a good signature.
@@ -196,6 +199,9 @@ class MavVehicle:
         self.command_results: dict[int, int | None] = {}
         self.command_texts: dict[int, str] = {}
         self.commands_lost = 0  # the next this many answerable COMMAND_LONGs are lost
+        self.commands_held = 0  # the next this many are answered with the one after them
+        self.repeat_result: int | None = None
+        self._held: list[mavlink.MAVLink_message] = []
         self.received: collections.deque[mavlink.MAVLink_message] = collections.deque(maxlen=2000)
         self.sent: collections.Counter[str] = collections.Counter()
         self._lock = threading.Lock()
@@ -636,16 +642,24 @@ class MavVehicle:
         if self.commands_lost > 0:  # lost on the way: never heard, never answered
             self.commands_lost -= 1
             return
+        if msg.confirmation > 0 and self.repeat_result is not None:
+            result = self.repeat_result
+        answer = []
         text = self.command_texts.get(msg.command)
         if text:
-            self.send_message(
-                self.mav.statustext_encode(mavlink.MAV_SEVERITY_WARNING, text.encode())
-            )
-        self.send_message(
+            answer.append(self.mav.statustext_encode(mavlink.MAV_SEVERITY_WARNING, text.encode()))
+        answer.append(
             self.mav.command_ack_encode(
                 msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
             )
         )
+        if self.commands_held > 0:
+            self.commands_held -= 1
+            self._held.extend(answer)
+            return
+        for m in self._held + answer:
+            self.send_message(m)
+        self._held = []
 
 
 @contextlib.contextmanager

@@ -116,6 +116,18 @@ def test_emergency_commands_reach_the_vehicle_and_its_answer_comes_back(station)
         again = commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)[before:]
         assert [m.confirmation for m in again] == [0, 1], again
 
+        # The first answer comes late, just before the answer to the second send, which
+        # refuses (a vehicle busy with the first): the vehicle carried the disarm out.
+        before = len(commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM))
+        vehicle.commands_held = 1
+        vehicle.repeat_result = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        ws.send(json.dumps({"type": "disarm"}))
+        reply = answer(ws)
+        assert (reply["ok"], reply["result"]) == (True, "ACCEPTED"), reply
+        late = commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM)[before:]
+        assert [m.confirmation for m in late] == [0, 1], late
+        vehicle.repeat_result = None
+
         # A vehicle that does not answer: sent three times, then said so.
         vehicle.command_results[mavlink.MAV_CMD_COMPONENT_ARM_DISARM] = None
         before = len(commands(vehicle, mavlink.MAV_CMD_COMPONENT_ARM_DISARM))

@@ -212,11 +212,12 @@ async def vehicle_answer(
     station: Station,
     command: int,
     since_mono: float,
-    send_again: Callable[[int], None] | None = None,
+    send_again: Callable[[int], None],
 ) -> dict[str, Any]:
     """The vehicle's COMMAND_ACK of `command` sent at `since_mono` (station clock), with
     its STATUSTEXT since then: {"ok", "result", "text"}. Until it answers, `send_again(n)`
-    sends the command an n-th time every ACK_TIMEOUT_S / COMMAND_SENDS."""
+    sends the command an n-th time every ACK_TIMEOUT_S / COMMAND_SENDS. Of several acks
+    (one per send), an accepting one wins: the vehicle carried the command out."""
     name = mavlink.enums["MAV_CMD"][command].name.removeprefix("MAV_CMD_")
     deadline = since_mono + ACK_TIMEOUT_S
     every = ACK_TIMEOUT_S / COMMAND_SENDS
@@ -224,7 +225,7 @@ async def vehicle_answer(
     while True:
         now = time.monotonic()
         left = deadline - now
-        if send_again is not None and answer is None and sends < COMMAND_SENDS:
+        if answer is None and sends < COMMAND_SENDS:
             until_again = since_mono + sends * every - now
             if until_again <= 0:
                 sends += 1
@@ -242,8 +243,9 @@ async def vehicle_answer(
             acks = [m for m in said if m.kind == "command_ack" and m.command == name]
             words = [m.text for m in said if m.kind == "statustext"]
             if acks:
-                ack = acks[-1]
-                ok = ack.result in ("ACCEPTED", "IN_PROGRESS")
+                accepting = [a for a in acks if a.result in ("ACCEPTED", "IN_PROGRESS")]
+                ack = (accepting or acks)[-1]
+                ok = bool(accepting)
                 answer = {"ok": ok, "result": ack.result, "text": "; ".join(words) or ack.text}
                 # A refusal's reason may follow it (ArduPilot sends it after the ack).
                 if ok or words:
