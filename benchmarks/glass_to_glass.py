@@ -6,7 +6,10 @@
 Starts a real twin station (uvicorn in this process) and, per run, opens pages in headless
 Chromium: 1 page is a pilot page; 6 pages are those of tests/test_video_tabs.py (pilot x3,
 goggles x2, sessions). `--tabs` opens them as tabs of one browser context, as that test
-does; `--windows` gives each page a context of its own, one window each. After a warm-up,
+does, and brings the first pilot page to the front: the tab the pilot looks at. The others
+are background tabs, which a real browser hides (a hidden page is not streamed) and which
+headless Chromium keeps "visible" but gives about one animation frame a second.
+`--windows` gives each page a context of its own, one window each, all shown. After a warm-up,
 it collects for `--seconds` every front-camera frame each page draws (web/video.js
 `cameras.log`, window.fpvDebug.cameras.log). The twin stamps each frame's render time
 into its corner (companion/cameras/frame_stamp.py); the page reads it from the decoded
@@ -18,6 +21,7 @@ picture in the animation frame that draws it. Printed per run:
                    encode, hand-off, fan-out, the socket; the stamp is taken when the
                    render is done); the rest is the browser's decode and wait for its
                    next animation frame;
+  front tab        with tabs, the same figures for the tab in front alone;
   frames drawn per second per video page, the frames whose code did not read, and the
                    fewest animation frames per second a page was given (headless
                    Chromium gives a tab that is not its window's active one about one);
@@ -25,8 +29,9 @@ picture in the animation frame that draws it. Printed per run:
                    hand-off to the event loop (render stamp to the capture thread's
                    publish, seen by a listener on the camera's frames), the fan-out and
                    the socket into the page (publish to the page's message event), the
-                   wait for the camera's previous decode, the decode, and the wait for
-                   the animation frame that draws it;
+                   wait in the worker (for the camera's previous decode, or for the page
+                   to draw one of the two pictures it holds), the decode, and the wait
+                   for the animation frame that draws it;
   VID max          the largest video age the OSD of any page showed ("VID 0.3s"), and
                    per page;
   /api/status      p99 and largest time of the requests each page makes once a second
@@ -146,6 +151,7 @@ def measure(
         page = contexts[-1].new_page()
         page.goto(base + path, timeout=120_000)
         pages.append(page)
+    pages[0].bring_to_front()  # with tabs, the one the pilot looks at
     for page, path in zip(pages, paths, strict=True):
         if path in VIDEO_PAGES:
             page.wait_for_function(
@@ -161,6 +167,9 @@ def measure(
         context.close()
     rows = [r for g in got for r in g["log"] if r["camera"] == "front"]
     stamped = [r for r in rows if r["kind"] == "render"]
+    in_front = [
+        r["totalMs"] for r in got[0]["log"] if r["camera"] == "front" and r["kind"] == "render"
+    ]
     api = [a for g in got for a in g["api"]]
     video = [g for g, path in zip(got, paths, strict=True) if path in VIDEO_PAGES]
     return {
@@ -173,6 +182,7 @@ def measure(
         "p99": pct([r["totalMs"] for r in stamped], 0.99),
         "station_p50": pct([r["stationMs"] for r in stamped], 0.5),
         "station_p99": pct([r["stationMs"] for r in stamped], 0.99),
+        "front": (len(in_front) / seconds, pct(in_front, 0.5), pct(in_front, 0.99)),
         "station_share": statistics.median(
             [r["stationMs"] / r["totalMs"] for r in stamped if r["totalMs"] > 0] or [float("nan")]
         ),
@@ -185,7 +195,7 @@ def measure(
     }
 
 
-def report(name: str, r: dict) -> None:
+def report(name: str, r: dict, windows: bool) -> None:
     shown = [v for _, v in r["vid_max"] if v is not None]
     print(
         f"{name:>9} {r['frames']:>7} {r['fps_per_page']:>8.1f} {r['raf_min']:>7.1f} "
@@ -198,12 +208,15 @@ def report(name: str, r: dict) -> None:
     text = ", ".join(
         f"{name} {pct(v, 0.5):.1f} / {pct(v, 0.99):.1f}"
         for name, v in zip(
-            ("encode", "to the page", "wait for a decode", "decode", "to the frame"),
+            ("encode", "to the page", "wait in the worker", "decode", "to the frame"),
             r["stages"].values(),
             strict=True,
         )
     )
     print(f"{'':>9} stages p50 / p99 ms: {text}")
+    if r["pages"] > 1 and not windows:
+        fps, p50, p99 = r["front"]
+        print(f"{'':>9} front tab: {fps:.1f} frames a second, p50 {p50:.1f} ms, p99 {p99:.1f} ms")
     if r["pages"] > 1:
         per_page = ", ".join(
             f"{path} {'--' if v is None else f'{v:.1f} s'}" for path, v in r["vid_max"]
@@ -250,7 +263,9 @@ def main() -> None:
                 load = os.getloadavg()
                 print(f"{'':>9} load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
                 paths = ["/"] if n == 1 else PAGES
-                report(name, measure(base, browser, paths, windows, args.seconds, published))
+                report(
+                    name, measure(base, browser, paths, windows, args.seconds, published), windows
+                )
     load = os.getloadavg()
     print(f"load average after {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
 

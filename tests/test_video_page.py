@@ -151,6 +151,63 @@ def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(bare_stat
     page.close()
 
 
+# Instruments the browser in the page, not our code: its animation frames are held while
+# `__holdFrames` is set (a page the browser gives no animation frames), and the decodes in
+# its video worker are counted.
+HELD_FRAMES = """() => {
+  const raf = window.requestAnimationFrame.bind(window);
+  const held = [];
+  window.__holdFrames = true;
+  window.requestAnimationFrame = (cb) => { if (!window.__holdFrames) return raf(cb); held.push(cb); return 0; };
+  window.__releaseFrames = () => { window.__holdFrames = false; for (const cb of held.splice(0)) raf(cb); };
+}"""
+COUNTED_DECODES = """() => {
+  self.__decodes = 0;
+  const decode = self.createImageBitmap.bind(self);
+  self.createImageBitmap = (...args) => { self.__decodes += 1; return decode(...args); };
+}"""
+
+
+def test_a_page_given_no_animation_frames_decodes_two_pictures_ahead_only(bare_station, browser):
+    """Frames keep coming at 30 fps to a page that draws none (a background tab that
+    still reads as visible): it decodes two and holds them, not every frame; when it
+    draws again it draws the newest."""
+    base, video = bare_station
+    jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
+    sent = 45
+    instrumented = threading.Event()
+
+    async def station_socket(ws: WebSocket, n: int) -> None:
+        await until_subscribed(ws)
+        assert await asyncio.to_thread(instrumented.wait, 60)
+        for seq in range(1, sent + 1):
+            frame = Frame("front", seq, jpeg, 320, 240, 0.0, time.time())
+            await ws.send_bytes(ws_message("front", frame))
+            await asyncio.sleep(1 / 30)
+        # Then one bottom frame: decoded once every front frame before it is in.
+        await ws.send_bytes(ws_message("bottom", Frame("bottom", 1, jpeg, 320, 240, 0.0, 0.0)))
+        while True:
+            await ws.receive_text()  # acks
+
+    video.script = station_socket
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    with page.expect_worker() as started:
+        page.goto(base + "/")
+    worker = started.value
+    worker.evaluate(COUNTED_DECODES)
+    page.evaluate(HELD_FRAMES)
+    instrumented.set()
+    wait_until(lambda: worker.evaluate("self.__decodes") >= 3, timeout=60)
+    assert worker.evaluate("self.__decodes") == 3  # two front frames, the bottom one
+    assert page.evaluate("window.fpvDebug.cameras.frames.front") is None  # none drawn
+    page.evaluate("window.__releaseFrames()")
+    page.wait_for_function(
+        f"() => (window.fpvDebug.cameras.frames.front || {{}}).seq === {sent}", timeout=30_000
+    )
+    assert worker.evaluate("self.__decodes") == 4  # and the newest front
+    page.close()
+
+
 def test_a_restarted_station_s_frames_are_drawn_though_they_count_from_1_again(
     bare_station, browser
 ):

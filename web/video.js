@@ -22,11 +22,12 @@
 // The page subscribes to the cameras it shows (a hidden view, the goggles' hidden
 // picture-in-picture or a hidden tab is not streamed). The socket lives in a worker
 // (web/video-worker.js), which receives each binary message (one JPEG) and decodes it
-// (createImageBitmap, one decode per camera at a time) off the page's main thread; the
-// page draws the decoded picture onto the view's canvas in the next animation frame. A
-// newer frame of the same camera replaces one not yet decoded or not yet drawn. The
-// page acknowledges every second frame drawn (?ack=4): at most four frames are on their
-// way, so a busy page falls behind by frames skipped, never by a queue.
+// (createImageBitmap) off the page's main thread; the page draws the decoded picture onto
+// the view's canvas in the next animation frame and tells the worker it is ready for more.
+// A newer frame replaces one not yet decoded or not yet drawn, and the worker decodes at
+// most two pictures ahead of the page's draws: a page decodes no faster than it draws. The page
+// acknowledges every second frame drawn or replaced (?ack=4): at most four frames are on
+// their way, so a busy page falls behind by frames skipped, never by a queue.
 //
 // Once a second one cheap GET /api/cameras gives every camera's delivered fps and settings,
 // and the station's clock (the reply's server_time checked against the request's round
@@ -56,7 +57,7 @@ for (const name of CAMERAS) {
   const canvas = videoCanvas(`${name} camera`, name);
   const readout = el("div", { class: "video-readout", id: `${name}-readout` }, "-- fps");
   $(`${name}-view`).append(canvas, readout);
-  views[name] = { targets: [canvas], readout, pending: null, drawnSeq: -1, last: null };
+  views[name] = { targets: [canvas], readout, pending: null, replaced: 0, drawnSeq: -1, last: null };
 }
 const frames = {};
 const samples = {}; // camera -> [{at, totalMs, stationMs}] over the last WINDOW_MS
@@ -85,7 +86,6 @@ const worker = new Worker("/video-worker.js", { type: "module" });
 let open = false;
 let handled = 0; // frames drawn or replaced by a newer one (what the acks count)
 let subscribed = "";
-let generation = 0; // the worker's connection: a frame decoded on an older one is dropped
 let clockOffset = { agree: false, offsetS: 0 };
 
 function shown(v) {
@@ -105,47 +105,56 @@ function connect() {
   worker.postMessage({ type: "connect", url: `${proto}//${location.host}/ws/video?ack=${ACK_WINDOW}` });
 }
 
+// Messages keep their order: the worker says "connecting" before any frame of a new
+// connection, and drops a decode of an older one that ends after it.
 worker.onmessage = (e) => {
   const m = e.data;
   if (m.type === "frame") received(m.head, m.bitmap);
   else if (m.type === "skipped") done(1);
-  else if (m.type === "open" && m.generation === generation) {
+  else if (m.type === "open") {
     open = true;
     subscribe();
   } else if (m.type === "connecting") {
     // A new connection: a station that restarted counts its frames from 1 again.
-    generation = m.generation;
     open = false;
     handled = 0;
     subscribed = "";
     for (const v of Object.values(views)) {
       v.drawnSeq = -1;
+      v.replaced = 0;
       if (v.pending) { v.pending.bitmap.close(); v.pending = null; }
     }
   }
 };
 
-// A decoded frame: drawn in the next animation frame, unless a newer one is drawn first.
+// A decoded frame: drawn in the next animation frame.
 function received(head, bitmap) {
   const v = views[head.camera];
-  if (!v || head.generation !== generation) {
-    bitmap.close();
-    if (v) done(1);
-    return;
-  }
+  if (!v) { bitmap.close(); return; }
   // The worker's times (ms since the epoch) on the station's clock.
   const onStation = (epochMs) => stationNowMs(epochMs - performance.timeOrigin);
   head.receivedMs = onStation(head.receivedAt);
   head.decodeFromMs = onStation(head.decodeFrom);
   head.decodedMs = onStation(head.decodedAt);
-  if (head.seq <= v.drawnSeq || (v.pending && v.pending.head.seq >= head.seq)) {
+  if (head.seq <= v.drawnSeq) { // not newer than the picture on screen
     bitmap.close();
+    ready(head, 1);
     done(1);
     return;
   }
-  if (v.pending) { v.pending.bitmap.close(); done(1); }
+  if (v.pending) {
+    // Replaced before its animation frame: the worker hears of it at the draw, so a page
+    // given few animation frames is given few pictures.
+    v.pending.bitmap.close();
+    v.replaced += 1;
+    done(1);
+  }
   v.pending = { head, bitmap };
   requestAnimationFrame(draw);
+}
+
+function ready(head, count) {
+  worker.postMessage({ type: "ready", camera: head.camera, generation: head.generation, count });
 }
 
 function done(n) {
@@ -163,6 +172,8 @@ function draw() {
     const p = v.pending;
     if (!p) continue;
     v.pending = null;
+    ready(p.head, 1 + v.replaced); // the worker decodes the next while this one is drawn
+    v.replaced = 0;
     for (const canvas of v.targets) if (canvas.getClientRects().length > 0) drawOn(canvas, p.bitmap);
     if (v.last) v.last.close();
     v.last = p.bitmap;
