@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import re
 import threading
 import time
@@ -170,12 +171,14 @@ COUNTED_DECODES = """() => {
 
 def test_a_page_given_no_animation_frames_decodes_two_pictures_ahead_only(bare_station, browser):
     """Frames keep coming at 30 fps to a page that draws none (a background tab that
-    still reads as visible): it decodes two and holds them, not every frame; when it
-    draws again it draws the newest."""
+    still reads as visible): it decodes two and holds them, not every frame, and
+    acknowledges none, so the station sends it no more; when it draws again it draws the
+    newest and acknowledges every frame."""
     base, video = bare_station
     jpeg = cv2.imencode(".jpg", np.full((240, 320, 3), 90, np.uint8))[1].tobytes()
     sent = 45
     instrumented = threading.Event()
+    acks: list[int] = []
 
     async def station_socket(ws: WebSocket, n: int) -> None:
         await until_subscribed(ws)
@@ -187,7 +190,9 @@ def test_a_page_given_no_animation_frames_decodes_two_pictures_ahead_only(bare_s
         # Then one bottom frame: decoded once every front frame before it is in.
         await ws.send_bytes(ws_message("bottom", Frame("bottom", 1, jpeg, 320, 240, 0.0, 0.0)))
         while True:
-            await ws.receive_text()  # acks
+            said = json.loads(await ws.receive_text())
+            if "ack" in said:
+                acks.append(said["ack"])
 
     video.script = station_socket
     page = browser.new_page(viewport={"width": 1280, "height": 720})
@@ -200,11 +205,14 @@ def test_a_page_given_no_animation_frames_decodes_two_pictures_ahead_only(bare_s
     wait_until(lambda: worker.evaluate("self.__decodes") >= 3, timeout=60)
     assert worker.evaluate("self.__decodes") == 3  # two front frames, the bottom one
     assert page.evaluate("window.fpvDebug.cameras.frames.front") is None  # none drawn
+    assert acks == []
     page.evaluate("window.__releaseFrames()")
     page.wait_for_function(
         f"() => (window.fpvDebug.cameras.frames.front || {{}}).seq === {sent}", timeout=30_000
     )
     assert worker.evaluate("self.__decodes") == 4  # and the newest front
+    # Every frame drawn, replaced or skipped is acknowledged (the page acks even counts).
+    assert wait_until(lambda: acks and acks[-1] == sent + 1, timeout=30), acks
     page.close()
 
 

@@ -25,9 +25,10 @@
 // (createImageBitmap) off the page's main thread; the page draws the decoded picture onto
 // the view's canvas in the next animation frame and tells the worker it is ready for more.
 // A newer frame replaces one not yet decoded or not yet drawn, and the worker decodes at
-// most two pictures ahead of the page's draws: a page decodes no faster than it draws. The page
-// acknowledges every second frame drawn or replaced (?ack=4): at most four frames are on
-// their way, so a busy page falls behind by frames skipped, never by a queue.
+// most two pictures ahead of the page's draws: a page decodes no faster than it draws.
+// The page acknowledges, in its animation frames, every second frame drawn or replaced
+// (?ack=4): at most four frames are on their way, so a busy page falls behind by frames
+// skipped, never by a queue, and a page given few animation frames is sent few frames.
 //
 // Once a second one cheap GET /api/cameras gives every camera's delivered fps and settings,
 // and the station's clock (the reply's server_time checked against the request's round
@@ -85,6 +86,8 @@ function addTarget(name, canvas) {
 const worker = new Worker("/video-worker.js", { type: "module" });
 let open = false;
 let handled = 0; // frames drawn or replaced by a newer one (what the acks count)
+let toAck = 0; // of those, the ones handled since the last animation frame
+let drawing = false; // an animation frame is requested
 let subscribed = "";
 let clockOffset = { agree: false, offsetS: 0 };
 
@@ -118,6 +121,7 @@ worker.onmessage = (e) => {
     // A new connection: a station that restarted counts its frames from 1 again.
     open = false;
     handled = 0;
+    toAck = 0;
     subscribed = "";
     for (const v of Object.values(views)) {
       v.drawnSeq = -1;
@@ -150,23 +154,25 @@ function received(head, bitmap) {
     done(1);
   }
   v.pending = { head, bitmap };
-  requestAnimationFrame(draw);
+  nextFrame();
+}
+
+function nextFrame() {
+  if (!drawing) { drawing = true; requestAnimationFrame(draw); }
 }
 
 function ready(head, count) {
   worker.postMessage({ type: "ready", camera: head.camera, generation: head.generation, count });
 }
 
+// A frame handled: acknowledged in the next animation frame.
 function done(n) {
-  const before = handled;
-  handled += n;
-  // Every second frame: the station reads half the acks for two more frames in flight.
-  if (Math.floor(before / 2) !== Math.floor(handled / 2) && open) {
-    worker.postMessage({ type: "send", message: { ack: handled } });
-  }
+  toAck += n;
+  nextFrame();
 }
 
 function draw() {
+  drawing = false;
   const drawnAt = performance.now();
   for (const [name, v] of Object.entries(views)) {
     const p = v.pending;
@@ -188,7 +194,14 @@ function draw() {
     };
     for (const canvas of v.targets) canvas.dataset.frames = String(frames[name].drawn);
     window.dispatchEvent(new CustomEvent("fpv:frame", { detail: { camera: name, bitmap: p.bitmap, drawnAt, wall } }));
-    done(1);
+    toAck += 1;
+  }
+  const before = handled;
+  handled += toAck;
+  toAck = 0;
+  // Every second frame: the station reads half the acks for two more frames in flight.
+  if (Math.floor(before / 2) !== Math.floor(handled / 2) && open) {
+    worker.postMessage({ type: "send", message: { ack: handled } });
   }
 }
 

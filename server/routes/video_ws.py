@@ -20,7 +20,9 @@ Latest frame wins, as for the MJPEG viewers: the send happens in the client's ow
 coroutine; a client that is slow to read sits in its send and then gets each camera's
 newest frame, skipping the ones it missed. `?ack=N` bounds what sits in socket buffers
 (which would otherwise hold seconds of video for a slow reader): at most N messages are
-unacknowledged; the pages use `?ack=4` and acknowledge every second frame they paint.
+unacknowledged; the pages use `?ack=4` and acknowledge, in their animation frames,
+every second frame they paint or skip, so a page the browser gives few animation frames
+(a background tab) is sent few frames.
 
 Host and Origin are checked by the guard (server/guard.py) as for every WebSocket; the
 connection takes one place among the video clients (server/client_limits.py).
