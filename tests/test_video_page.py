@@ -112,6 +112,14 @@ HELD_DECODES = """() => {
 }"""
 
 
+def pilot_page_and_worker(browser, base: str):
+    """A pilot page and its video worker, to instrument before the station sends frames."""
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    with page.expect_worker() as started:
+        page.goto(base + "/")
+    return page, started.value
+
+
 def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(bare_station, browser):
     """A burst of frames while one is being decoded: the page decodes that one and then
     only the newest, and draws the newest (the frames between cost no decode)."""
@@ -135,10 +143,7 @@ def test_frames_that_arrive_during_a_decode_are_skipped_but_the_newest(bare_stat
             await ws.receive_text()  # acks
 
     video.script = station_socket
-    page = browser.new_page(viewport={"width": 1280, "height": 720})
-    with page.expect_worker() as started:
-        page.goto(base + "/")
-    worker = started.value
+    page, worker = pilot_page_and_worker(browser, base)
     worker.evaluate(HELD_DECODES)
     instrumented.set()
     wait_until(lambda: worker.evaluate("self.__decodes") >= 2, timeout=30)
@@ -195,10 +200,7 @@ def test_a_page_given_no_animation_frames_decodes_two_pictures_ahead_only(bare_s
                 acks.append(said["ack"])
 
     video.script = station_socket
-    page = browser.new_page(viewport={"width": 1280, "height": 720})
-    with page.expect_worker() as started:
-        page.goto(base + "/")
-    worker = started.value
+    page, worker = pilot_page_and_worker(browser, base)
     worker.evaluate(COUNTED_DECODES)
     page.evaluate(HELD_FRAMES)
     instrumented.set()
