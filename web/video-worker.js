@@ -80,7 +80,7 @@ self.onmessage = (e) => {
   else if (m.type === "send" && ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(m.message));
   else if (m.type === "ready" && m.generation === generation && cameras[m.camera]) {
     const c = cameras[m.camera];
-    c.inPage = Math.max(0, c.inPage - m.count);
+    c.inPage -= m.count; // exact: a ready of an older connection is not counted
     next(c);
   }
 };

@@ -85,7 +85,7 @@ function addTarget(name, canvas) {
 // ---- the connection and the subscription ---------------------------------------------
 const worker = new Worker("/video-worker.js", { type: "module" });
 let open = false;
-let handled = 0; // frames drawn or replaced by a newer one (what the acks count)
+let handled = 0; // frames drawn, replaced or skipped by the worker (what the acks count)
 let toAck = 0; // of those, the ones handled since the last animation frame
 let drawing = false; // an animation frame is requested
 let subscribed = "";
@@ -113,7 +113,7 @@ function connect() {
 worker.onmessage = (e) => {
   const m = e.data;
   if (m.type === "frame") received(m.head, m.bitmap);
-  else if (m.type === "skipped") done(1);
+  else if (m.type === "skipped") done();
   else if (m.type === "open") {
     open = true;
     subscribe();
@@ -143,7 +143,7 @@ function received(head, bitmap) {
   if (head.seq <= v.drawnSeq) { // not newer than the picture on screen
     bitmap.close();
     ready(head, 1);
-    done(1);
+    done();
     return;
   }
   if (v.pending) {
@@ -151,7 +151,7 @@ function received(head, bitmap) {
     // given few animation frames is given few pictures.
     v.pending.bitmap.close();
     v.replaced += 1;
-    done(1);
+    done();
   }
   v.pending = { head, bitmap };
   nextFrame();
@@ -166,8 +166,8 @@ function ready(head, count) {
 }
 
 // A frame handled: acknowledged in the next animation frame.
-function done(n) {
-  toAck += n;
+function done() {
+  toAck += 1;
   nextFrame();
 }
 
