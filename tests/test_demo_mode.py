@@ -21,14 +21,15 @@ from tests.twin_flights import NO_CAMERAS, twin_station_settings
 
 
 def _command(ws, cmd: str, tries: int = 40) -> None:
-    """Send an arm or disarm until the twin accepts it (it refuses to arm without a fix)."""
+    """Send an arm or disarm until the twin accepts it: it refuses to arm without a fix,
+    and the station refuses any command before it has heard the twin's autopilot."""
     for _ in range(tries):
         ws.send(json.dumps({"type": cmd}))
         while True:
             reply = json.loads(ws.recv(timeout=10))
-            if reply.get("type") == "ack" and reply.get("cmd") == cmd:
+            if (reply.get("type") == "ack" and reply.get("cmd") == cmd) or "error" in reply:
                 break
-        if reply["ok"]:
+        if reply.get("ok"):
             return
         wait_until(lambda: False, timeout=0.5)
     raise AssertionError(f"the twin refused {cmd}: {reply}")

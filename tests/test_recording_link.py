@@ -40,8 +40,9 @@ def test_arm_records_disarm_stops_and_tlog_replays(tmp_path):
             v.arm()
             assert wait_until(lambda: status()["recording"], timeout=5)
             assert status()["trigger"] == "arm"
-            for _ in range(10):  # climb 4 m
+            for _ in range(10):  # climb 4 m, above home as an autopilot reports it
                 v.alt_m += 0.4
+                v.relative_alt_m += 0.4
                 time.sleep(0.1)
             time.sleep(0.5)
             v.silent = True  # out of range for a while

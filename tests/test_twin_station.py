@@ -266,7 +266,8 @@ def test_keyboard_arm_gesture_legend_select_and_release_on_blur(tmp_path) -> Non
         # The documented gesture, without Shift: full throttle down and full yaw right.
         page.keyboard.down("ArrowDown")
         page.keyboard.down("KeyE")
-        page.wait_for_function("window.fpvDebug.control.sticks.yaw === 1", timeout=2000)
+        # `sticks` is null until the first tick after the sticks are turned on.
+        page.wait_for_function("window.fpvDebug.control.sticks?.yaw === 1", timeout=2000)
         assert page.evaluate("window.fpvDebug.control.sticks.throttle") == 0
         assert wait_until(lambda: state(app).heartbeat.armed, timeout=8)
         page.keyboard.up("KeyE")
