@@ -418,10 +418,12 @@ class LogDownload:
                 chunks = ranges.missing_run(first, window_chunks)
                 ofs = first * CHUNK_BYTES
                 count = min(chunks * CHUNK_BYTES, entry.size_bytes - ofs)
-                self.link.send(mav.log_request_data_encode(*self.target, entry.id, ofs, count))
                 window_end = ofs + count
+                # Counted before the request goes out: the link's thread may take in the
+                # whole window (and count its losses) before this thread runs again.
                 window_t0 = time.monotonic()
                 lost_before = self.lost_packets
+                self.link.send(mav.log_request_data_encode(*self.target, entry.id, ofs, count))
                 deadline = window_t0 + s.request_timeout_s
                 progressed = whole = False
                 while not self._cancel.is_set():

@@ -9,21 +9,24 @@ from pathlib import Path
 
 import pytest
 from pymavlink import DFReader
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pyulog import ULog
 
 from fpv_station.companion.link import MavlinkLink
 from fpv_station.companion.link_settings import LinkSettings
 from fpv_station.companion.onboard_log import (
     DownloadStatus,
+    LinkLike,
     LogDownload,
     LogEntry,
     OnboardLogSettings,
     choose_log,
     log_file_name,
 )
+from fpv_station.core.mavlink.framing import message_id
 from fpv_station.twin.runner import Twin
 from tests.helpers import wait_until
-from tests.log_responder import LogResponder
+from tests.log_responder import CHUNK, LogResponder
 
 DATAFLASH = Path(__file__).parent / "data" / "dataflash" / "arducopter.bin"
 # Short retries: a lost window is asked for again within a fraction of a second; the
@@ -57,7 +60,7 @@ def served(
             link.stop()
 
 
-def _download(link: MavlinkLink, folder: Path, timeout_s: float = 90.0, **kwargs) -> DownloadStatus:
+def _download(link: LinkLike, folder: Path, timeout_s: float = 90.0, **kwargs) -> DownloadStatus:
     settings = OnboardLogSettings(**{**FAST, **kwargs.pop("settings", {})})
     dl = LogDownload(link, (1, 1), folder, settings, **kwargs)
     dl.start()
@@ -132,6 +135,48 @@ def test_window_shrinks_when_the_link_loses_packets(
     # largest window, which a clean link reaches (below).
     counts = [count for log_id, _, count in vehicle.data_requests if log_id == 2]
     assert max(counts) < OnboardLogSettings().window_bytes
+
+
+class _HeldAfterEachRequest:
+    """The station's link as the download sees it, with the download's thread held after
+    each LOG_REQUEST_DATA until the link has taken in the whole window: as a loaded
+    machine deschedules a thread while the link's reader runs on."""
+
+    def __init__(self, link: MavlinkLink) -> None:
+        self._link = link
+        self._log_data_seen = 0
+        link.add_packet_listener(self._on_packet)
+
+    def _on_packet(self, _t_wall: float, packet: bytes) -> None:
+        self._log_data_seen += message_id(packet) == mavlink.MAVLINK_MSG_ID_LOG_DATA
+
+    @property
+    def mav(self) -> mavlink.MAVLink:
+        return self._link.mav
+
+    def add_packet_listener(self, cb) -> None:
+        self._link.add_packet_listener(cb)
+
+    def remove_packet_listener(self, cb) -> None:
+        self._link.remove_packet_listener(cb)
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        seen = self._log_data_seen
+        self._link.send(msg)
+        if msg.get_type() == "LOG_REQUEST_DATA":
+            packets = -(-msg.count // CHUNK)
+            wait_until(lambda: self._log_data_seen >= seen + packets, 10)  # a hang guard
+
+
+@pytest.mark.parametrize("served", [{"lose_every": 40}], indirect=True)
+def test_losses_the_link_counted_first_still_shrink_the_window(served, tmp_path: Path) -> None:
+    """Losses the link counted before the download's thread ran again after its request
+    still belong to that window, so the window still shrinks."""
+    vehicle, link = served
+    status = _download(_HeldAfterEachRequest(link), tmp_path)
+    assert status.state == "complete" and status.lost_packets > 0, status
+    counts = [count for log_id, _, count in vehicle.data_requests if log_id == 2]
+    assert max(counts) < OnboardLogSettings().window_bytes, counts
 
 
 def test_window_grows_on_a_clean_link(served, tmp_path: Path) -> None:
