@@ -232,6 +232,16 @@ class StationWebSocketProtocol(WebSocketsSansIOProtocol):
             self.table.cap.give_back()
         super().connection_lost(exc)
 
+    def shutdown(self) -> None:
+        # The client's close came first: it was answered and the transport is closing
+        # (with bytes its client never took, it stays so until dropped). uvicorn would
+        # send a close of its own on it, which raises and ends the server's shutdown
+        # before the station's own (the recording's) runs.
+        if not self.close_sent and self.transport.is_closing():
+            self.stop_keepalive()
+            return
+        super().shutdown()
+
 
 def listening_socket(host: str, port: int, backlog: int = LISTEN_QUEUE) -> socket.socket:
     """A bound, listening TCP socket for `host:port` (IPv6 when host has a colon)."""
@@ -326,11 +336,10 @@ class StationServer(uvicorn.Server):
 
 def _unsent_bytes(conn: object) -> int:
     """Bytes a connection (HTTP or WebSocket) holds that its client has not taken: the
-    kernel's buffer is full, so the transport keeps them."""
+    kernel's buffer is full, so the transport keeps them. A closing transport counts too:
+    it waits for them to go before it closes."""
     transport = getattr(conn, "transport", None)
-    if transport is None or transport.is_closing():
-        return 0
-    return transport.get_write_buffer_size()
+    return 0 if transport is None else transport.get_write_buffer_size()
 
 
 def uvicorn_server(app, log_level: str = "info") -> uvicorn.Server:

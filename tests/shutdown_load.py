@@ -58,8 +58,21 @@ async def _stalled_client(port: int, request: bytes) -> socket.socket:
     return s
 
 
+# A client's close frame (1000, masked as a client's must be): sent by a stalled
+# WebSocket client whose tab is closed while the server's writes to it are backed up.
+_MASK = b"\x11\x22\x33\x44"
+CLOSE_FRAME = b"\x88\x82" + _MASK + bytes(a ^ b for a, b in zip(b"\x03\xe8", _MASK, strict=False))
+
+
 async def _load(
-    port: int, telemetry: int, viewers: int, stalled: int, ready: threading.Event, stop
+    port: int,
+    telemetry: int,
+    viewers: int,
+    stalled: int,
+    closing: int,
+    close_after_s: float,
+    ready: threading.Event,
+    stop,
 ) -> tuple:
     counts = [0] * telemetry
     url = f"ws://127.0.0.1:{port}/ws/telemetry"
@@ -70,12 +83,17 @@ async def _load(
     ]
     tasks += [asyncio.create_task(v.run(3600.0)) for v in watchers]
     socks = [await _stalled_client(port, STALLED_REQUESTS[i % 2]) for i in range(stalled)]
+    closers = [await _stalled_client(port, STALLED_REQUESTS[1]) for _ in range(closing)]
     # Ready once every client got something (counters: nothing to await).
     while not (all(counts) and all(v.parts for v in watchers)) and not stop.is_set():  # noqa: ASYNC110
         await asyncio.sleep(0.1)
     ready.set()
+    if closers:
+        await asyncio.sleep(close_after_s)
+        for s in closers:
+            s.send(CLOSE_FRAME)
     await asyncio.to_thread(stop.wait)  # until the server is gone (the clients end with it)
-    for s in socks:
+    for s in socks + closers:
         s.close()
     for t in tasks:
         t.cancel()
@@ -88,10 +106,13 @@ def sigterm_under_load(
     telemetry: int = 20,
     viewers: int = 10,
     stalled: int = 0,
+    closing: int = 0,
     hold_s: float = 3.0,
     guard_s: float = 60.0,
 ) -> ShutdownRun:
-    """Start the station, load it, record, SIGTERM it; `guard_s` only guards a hang."""
+    """Start the station, load it, record, SIGTERM it; `guard_s` only guards a hang.
+    `stalled` clients stop reading; `closing` WebSocket clients stop reading and, halfway
+    through `hold_s`, send their close frame (and read on no more)."""
     port = free_port()
     env = {
         "FPV_RECORDING__SESSIONS_DIR": str(tmp / "sessions"),
@@ -112,7 +133,7 @@ def sigterm_under_load(
     result: list[tuple] = []
     loader = threading.Thread(
         target=lambda: result.append(
-            asyncio.run(_load(port, telemetry, viewers, stalled, ready, gone))
+            asyncio.run(_load(port, telemetry, viewers, stalled, closing, hold_s / 2, ready, gone))
         ),
         daemon=True,
     )

@@ -1,6 +1,7 @@
 """SIGTERM under load: a real `fpv-station serve` on the twin, with its
-3D panels, recording, telemetry clients and MJPEG viewers reading and clients that stopped
-reading, ends with no traceback and the session complete. How long it takes is a figure
+3D panels, recording, telemetry clients and MJPEG viewers reading, clients that stopped
+reading, and WebSocket clients that closed while backed up, ends with no traceback and the
+session complete. How long it takes is a figure
 of benchmarks/shutdown.py (docs/PERFORMANCE.md), not asserted here."""
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from tests.shutdown_load import sigterm_under_load
 
 
 def test_sigterm_under_load_ends_cleanly_and_completes_the_session(tmp_path):
-    run = sigterm_under_load(tmp_path, telemetry=20, viewers=10, stalled=4, guard_s=60.0)
+    run = sigterm_under_load(tmp_path, telemetry=20, viewers=10, stalled=4, closing=2, guard_s=60.0)
     assert run.telemetry_msgs > 0 and run.video_parts > 0  # the load was real
     assert run.returncode in (0, -signal.SIGTERM), (run.returncode, run.output[-3000:])
     assert "Traceback" not in run.output, run.output
