@@ -22,6 +22,9 @@ picture in the animation frame that draws it. Printed per run:
                    render is done); the rest is the browser's decode and wait for its
                    next animation frame;
   front tab        with tabs, the same figures for the tab in front alone;
+  in turn          with tabs, then each video tab brought to the front in turn (as a
+                   pilot switches tabs): 1 s after, its frames drawn a second and its
+                   largest VID over 3 s;
   frames drawn per second per video page, the frames whose code did not read, and the
                    fewest animation frames per second a page was given (headless
                    Chromium gives a tab that is not its window's active one about one);
@@ -63,6 +66,9 @@ from tests.pages import SIX_TABS as PAGES  # noqa: E402
 from tests.twin_flights import twin_station_settings  # noqa: E402
 
 VIDEO_PAGES = {"/", "/goggles.html"}
+# Each video tab in front in turn: how long it is given to catch up, then measured.
+TURN_SETTLE_MS = 1000
+TURN_MS = 3000
 
 # In every page from its first script: the largest VID age its OSD shows, its animation
 # frames, and a GET /api/status once a second with its time. `__g2g.reset()` starts a count.
@@ -163,6 +169,7 @@ def measure(
         page.evaluate(f"() => {{ {start} window.__g2g.reset(); }}")
     pages[0].wait_for_timeout(seconds * 1000)
     got = [page.evaluate(COLLECT) for page in pages]
+    turns = [] if windows or len(pages) == 1 else in_front_in_turn(pages, paths)
     for context in contexts:
         context.close()
     rows = [r for g in got for r in g["log"] if r["camera"] == "front"]
@@ -188,11 +195,30 @@ def measure(
         ),
         "stages": stages(stamped, published.by_seq()),
         "vid_max": [(path, g["vidMax"]) for path, g in zip(paths, got, strict=True)],
+        "turns": turns,
         "api_n": len(api),
         "api_failed": sum(1 for a in api if a["status"] != 200),
         "api_p99": pct([a["ms"] for a in api], 0.99),
         "api_max": max((a["ms"] for a in api), default=float("nan")),
     }
+
+
+def in_front_in_turn(pages: list[Page], paths: list[str]) -> list[tuple[str, float, float]]:
+    """Each video tab brought to the front in turn, as a pilot switches tabs: after
+    `TURN_SETTLE_MS`, its front frames drawn a second and the largest VID its OSD shows
+    over `TURN_MS`."""
+    turns = []
+    for page, path in zip(pages, paths, strict=True):
+        if path not in VIDEO_PAGES:
+            continue
+        page.bring_to_front()
+        page.wait_for_timeout(TURN_SETTLE_MS)
+        page.evaluate("() => { window.fpvDebug.cameras.log = []; window.__g2g.reset(); }")
+        page.wait_for_timeout(TURN_MS)
+        g = page.evaluate(COLLECT)
+        drawn = sum(1 for r in g["log"] if r["camera"] == "front")
+        turns.append((path, drawn / (TURN_MS / 1000), g["vidMax"]))
+    return turns
 
 
 def report(name: str, r: dict, windows: bool) -> None:
@@ -217,6 +243,12 @@ def report(name: str, r: dict, windows: bool) -> None:
     if r["pages"] > 1 and not windows:
         fps, p50, p99 = r["front"]
         print(f"{'':>9} front tab: {fps:.1f} frames a second, p50 {p50:.1f} ms, p99 {p99:.1f} ms")
+    if r["turns"]:
+        text = ", ".join(
+            f"{path} {fps:.1f} fps VID {'--' if vid is None else f'{vid:.1f} s'}"
+            for path, fps, vid in r["turns"]
+        )
+        print(f"{'':>9} each video tab in front in turn: {text}")
     if r["pages"] > 1:
         per_page = ", ".join(
             f"{path} {'--' if v is None else f'{v:.1f} s'}" for path, v in r["vid_max"]
