@@ -3,9 +3,15 @@ may reach only the station, as on the field's closed network, and boxes on a pag
 
 from __future__ import annotations
 
+import re
+
 # Every tab live (tests/test_video_tabs.py, benchmarks/glass_to_glass.py): three pilot
 # pages, two goggles and the sessions page, in one browser.
 SIX_TABS = ["/", "/", "/", "/goggles.html", "/goggles.html", "/sessions.html"]
+
+
+# Any address but the station's (and the page's own data: and blob: URLs).
+NOT_LOCAL = re.compile(r"^(?!http://127\.0\.0\.1|ws://127\.0\.0\.1|data:|blob:)")
 
 
 def open_offline(browser, outside: list[str]):
@@ -16,14 +22,14 @@ def open_offline(browser, outside: list[str]):
     # hang guard, not a speed figure (benchmarks/trajectory3d.py has those).
     page.set_default_timeout(90_000)
 
-    def only_local(route):
-        if route.request.url.startswith(("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")):
-            route.continue_()
-        else:
-            outside.append(route.request.url)
-            route.abort()
+    def turned_away(route):
+        outside.append(route.request.url)
+        route.abort()
 
-    page.route("**/*", only_local)
+    # Only what is not the station's is routed: Playwright runs a route's handler only
+    # while the test's thread is in one of its calls, so a station request routed too
+    # would wait out any plain `time.sleep` of the test.
+    page.route(NOT_LOCAL, turned_away)
     return page
 
 

@@ -242,8 +242,5 @@ def test_path_rows_and_frames_agree_on_the_session_clock(flight):
                 else:
                     assert src is not None and src.endswith(files[j]), (t, cam, src)
             # A hang guard: the page sends an instant once the station answered the last.
-            # Waiting in the page: its requests pass open_offline's route, which Playwright
-            # runs only while this thread is in one of its calls.
-            at_t = lambda t=t: abs(station.replay3d.t_s - t) < 1e-6  # noqa: E731
-            assert wait_until(at_t, 60, 0.1, lambda s: page.wait_for_timeout(s * 1000))
+            assert wait_until(lambda t=t: abs(station.replay3d.t_s - t) < 1e-6, 60)
     assert outside == [], outside[:5]

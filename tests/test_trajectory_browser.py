@@ -221,8 +221,6 @@ def test_replay_page_draws_sessions_with_slider_frames_and_play(station, browser
                 and abs(replay3d.t_s - t_played) < 0.2
             ),
             60.0,  # a hang guard: the page's last PUT of the time may come late under load
-            0.1,
-            in_page,  # that PUT passes open_offline's route, which runs in Playwright's calls
         )
         # One instant in flight at a time. The PUT of 10 s is held at the network while the
         # slider moves on to 20 s: a second PUT sent meanwhile would reach the station
