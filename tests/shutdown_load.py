@@ -19,6 +19,7 @@ from pathlib import Path
 
 import httpx
 from websockets.asyncio.client import connect
+from websockets.frames import Close, Frame, Opcode
 
 from tests.helpers import free_port, wait_until
 from tests.mjpeg_client import Viewer
@@ -58,10 +59,9 @@ async def _stalled_client(port: int, request: bytes) -> socket.socket:
     return s
 
 
-# A client's close frame (1000, masked as a client's must be): sent by a stalled
-# WebSocket client whose tab is closed while the server's writes to it are backed up.
-_MASK = b"\x11\x22\x33\x44"
-CLOSE_FRAME = b"\x88\x82" + _MASK + bytes(a ^ b for a, b in zip(b"\x03\xe8", _MASK, strict=False))
+# A client's close frame (masked, as a client's must be): sent by a stalled WebSocket
+# client whose tab is closed while the server's writes to it are backed up.
+CLOSE_FRAME = Frame(Opcode.CLOSE, Close(1000, "").serialize()).serialize(mask=True)
 
 
 async def _load(
