@@ -165,8 +165,7 @@ def measure(
             )
     pages[0].wait_for_timeout(3000)  # warm-up: JIT, first layout, the twin's textures
     for page, path in zip(pages, paths, strict=True):
-        start = "window.fpvDebug.cameras.log = [];" if path in VIDEO_PAGES else ""
-        page.evaluate(f"() => {{ {start} window.__g2g.reset(); }}")
+        start_count(page, path)
     pages[0].wait_for_timeout(seconds * 1000)
     got = [page.evaluate(COLLECT) for page in pages]
     turns = [] if windows or len(pages) == 1 else in_front_in_turn(pages, paths)
@@ -203,6 +202,12 @@ def measure(
     }
 
 
+def start_count(page: Page, path: str) -> None:
+    """The page's counts start now: its probe's and, on a video page, its frame log."""
+    log = "window.fpvDebug.cameras.log = [];" if path in VIDEO_PAGES else ""
+    page.evaluate(f"() => {{ {log} window.__g2g.reset(); }}")
+
+
 def in_front_in_turn(pages: list[Page], paths: list[str]) -> list[tuple[str, float, float]]:
     """Each video tab brought to the front in turn, as a pilot switches tabs: after
     `TURN_SETTLE_MS`, its front frames drawn a second and the largest VID its OSD shows
@@ -213,7 +218,7 @@ def in_front_in_turn(pages: list[Page], paths: list[str]) -> list[tuple[str, flo
             continue
         page.bring_to_front()
         page.wait_for_timeout(TURN_SETTLE_MS)
-        page.evaluate("() => { window.fpvDebug.cameras.log = []; window.__g2g.reset(); }")
+        start_count(page, path)
         page.wait_for_timeout(TURN_MS)
         g = page.evaluate(COLLECT)
         drawn = sum(1 for r in g["log"] if r["camera"] == "front")
