@@ -8,6 +8,7 @@ its cameras here, on one socket, and its `/api` requests keep the HTTP connectio
 The client says which cameras it shows, whenever that changes:
 
     {"subscribe": ["front", "bottom"]}   only these from now on ([] for none)
+    {"max_fps": 5}                       each camera at most this often (null: as it comes)
     {"ack": n}                           n messages handled so far (see `?ack=`)
 
 and receives one binary message per frame of a subscribed camera (built once per frame
@@ -22,7 +23,9 @@ newest frame, skipping the ones it missed. `?ack=N` bounds what sits in socket b
 (which would otherwise hold seconds of video for a slow reader): at most N messages are
 unacknowledged; the pages use `?ack=4` and acknowledge, in their animation frames,
 every second frame they paint or skip, so a page the browser gives few animation frames
-(a background tab) is sent few frames.
+(a background tab) is sent few frames. A page whose animation frames starve (a tab that
+reads as visible but is not drawn: the browser gives it one a second) asks for
+`max_fps` and draws each frame as it comes, so the few frames it is sent are fresh.
 
 Host and Origin are checked by the guard (server/guard.py) as for every WebSocket; the
 connection takes one place among the video clients (server/client_limits.py).
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
@@ -44,6 +48,8 @@ router = APIRouter(tags=["video"])
 # A subscription or an ack is a few bytes (server/listen.py closes the socket with 1009
 # on a larger frame, before reading it).
 MAX_FRAME_BYTES = 1024
+# The slowest pace a client can ask for: a camera sent at least this often is still live.
+MIN_PACED_FPS = 0.5
 
 
 class _VideoClient:
@@ -53,6 +59,7 @@ class _VideoClient:
         self.known = known
         self.cameras: set[str] = set()
         self.acked = 0
+        self.interval_s = 0.0  # between two frames of a camera, at least (0: unpaced)
         self.gone = False
         self.wake = asyncio.Event()
 
@@ -68,6 +75,8 @@ class _VideoClient:
         subscribe = msg.get("subscribe")
         if isinstance(subscribe, list):
             self.cameras = {c for c in subscribe if isinstance(c, str) and c in self.known}
+        if "max_fps" in msg:
+            self.interval_s = interval_of(msg["max_fps"])
         ack = ack_of(msg)
         if ack is not None and ack > self.acked:
             self.acked = ack
@@ -79,6 +88,17 @@ class _VideoClient:
         finally:
             self.gone = True
             self.wake.set()
+
+
+def interval_of(max_fps: object) -> float:
+    """The time between two frames of a camera that `{"max_fps": x}` asks for: 0 (as the
+    frames come) for null or anything but a positive finite number; at most the
+    interval of MIN_PACED_FPS."""
+    if isinstance(max_fps, bool) or not isinstance(max_fps, int | float):
+        return 0.0
+    if not math.isfinite(max_fps) or max_fps <= 0:
+        return 0.0
+    return 1.0 / max(max_fps, MIN_PACED_FPS)
 
 
 @router.websocket("/ws/video")
@@ -102,7 +122,9 @@ async def _serve_video(ws: WebSocket, station: Station, window: int) -> None:
     held: dict[str, contextlib.ExitStack] = {}
     sent_version: dict[str, int] = {}
     served_at: dict[str, int] = {}  # the message count when each camera was last sent
+    sent_at: dict[str, float] = {}  # the loop's time when each camera was last sent
     sent = 0
+    loop = asyncio.get_running_loop()
     try:
         while not client.gone and not any(f.closed for f in fanouts.values()):
             for name in set(held) - client.cameras:  # no longer shown: stop sending
@@ -114,17 +136,23 @@ async def _serve_video(ws: WebSocket, station: Station, window: int) -> None:
                 camera = station.cameras[name]
                 stack.enter_context(fanout.listen(client.wake, camera.watching()))
                 held[name] = stack
-            due = [n for n in held if fanouts[n].version > sent_version.get(n, 0)]
+            new = [n for n in held if fanouts[n].version > sent_version.get(n, 0)]
+            # A paced client: a camera is due once its interval has passed.
+            next_at = {n: sent_at.get(n, -math.inf) + client.interval_s for n in new}
+            now = loop.time()
+            due = [n for n in new if next_at[n] <= now]
             if not due or (window and sent - client.acked >= window):
                 client.wake.clear()  # nothing awaited since the look: no wake-up is lost
-                await client.wake.wait()
+                paced = [next_at[n] - now for n in new if n not in due]
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(client.wake.wait(), min(paced) if paced else None)
                 continue
             # The camera served longest ago first: one camera cannot starve another.
             name = min(due, key=lambda n: served_at.get(n, -1))
             fanout = fanouts[name]
             version, message = fanout.version, fanout.ws_message()
             await ws.send_bytes(message)
-            sent_version[name], served_at[name] = version, sent
+            sent_version[name], served_at[name], sent_at[name] = version, sent, now
             sent += 1
     except (WebSocketDisconnect, RuntimeError, ConnectionError):
         pass  # the client went away mid-send
