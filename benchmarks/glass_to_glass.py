@@ -8,14 +8,16 @@ Chromium: 1 page is a pilot page; 6 pages are those of tests/test_video_tabs.py 
 goggles x2, sessions). `--tabs` opens them as tabs of one browser context, as that test
 does, and brings the first pilot page to the front: the tab the pilot looks at. The others
 are background tabs, which a real browser hides (a hidden page is not streamed) and which
-headless Chromium keeps "visible" but gives about one animation frame a second.
+headless Chromium keeps "visible" but does not draw: it gives them animation frames in
+bursts with a second between, and they draw as frames come at the pace a starved page
+asks for (web/video.js).
 `--windows` gives each page a context of its own, one window each, all shown. After a warm-up,
-it collects for `--seconds` every front-camera frame each page draws (web/video.js
+it collects for `--seconds` every front-camera frame each page shows (web/video.js
 `cameras.log`, window.fpvDebug.cameras.log). The twin stamps each frame's render time
 into its corner (companion/cameras/frame_stamp.py); the page reads it from the decoded
-picture in the animation frame that draws it. Printed per run:
+picture in the animation frame that shows it. Printed per run:
 
-  render->screen   p50 / p99 ms: stamp to the animation frame that draws the picture
+  render->screen   p50 / p99 ms: stamp to the animation frame that shows the picture
                    (the display shows it at its next refresh, up to one more refresh);
   station share    p50 / p99 ms: stamp until the page received the message (JPEG
                    encode, hand-off, fan-out, the socket; the stamp is taken when the
@@ -23,18 +25,17 @@ picture in the animation frame that draws it. Printed per run:
                    next animation frame;
   front tab        with tabs, the same figures for the tab in front alone;
   in turn          with tabs, then each video tab brought to the front in turn (as a
-                   pilot switches tabs): 1 s after, its frames drawn a second and its
+                   pilot switches tabs): 1 s after, its frames shown a second and its
                    largest VID over 3 s;
-  frames drawn per second per video page, the frames whose code did not read, and the
-                   fewest animation frames per second a page was given (headless
-                   Chromium gives a tab that is not its window's active one about one);
+  frames shown per second per video page, the frames whose code did not read, and the
+                   fewest animation frames per second a page was given;
   stages           p50 / p99 ms of the path, frame by frame: the JPEG encode and the
                    hand-off to the event loop (render stamp to the capture thread's
                    publish, seen by a listener on the camera's frames), the fan-out and
                    the socket into the page (publish to the page's message event), the
                    wait in the worker (for the camera's previous decode, or for the page
                    to draw one of the two pictures it holds), the decode, and the wait
-                   for the animation frame that draws it;
+                   for the animation frame that shows it;
   VID max          the largest video age the OSD of any page showed ("VID 0.3s"), and
                    per page;
   /api/status      p99 and largest time of the requests each page makes once a second
@@ -210,7 +211,7 @@ def start_count(page: Page, path: str) -> None:
 
 def in_front_in_turn(pages: list[Page], paths: list[str]) -> list[tuple[str, float, float]]:
     """Each video tab brought to the front in turn, as a pilot switches tabs: after
-    `TURN_SETTLE_MS`, its front frames drawn a second and the largest VID its OSD shows
+    `TURN_SETTLE_MS`, its front frames shown a second and the largest VID its OSD shows
     over `TURN_MS`."""
     turns = []
     for page, path in zip(pages, paths, strict=True):

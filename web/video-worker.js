@@ -16,8 +16,8 @@
 // Per camera, one decode at a time and at most IN_PAGE pictures in the page not yet drawn:
 // a frame that arrives meanwhile waits, and a newer one replaces it undecoded. So the next
 // picture is decoded while one waits for its animation frame, and a page decodes no
-// faster than it draws: one that is given few animation frames (a background tab that
-// still reads as visible, a busy phone) spends no CPU on pictures it would not draw.
+// faster than it draws: one that is given few animation frames (a busy phone) spends no
+// CPU on pictures it would not draw.
 const IN_PAGE = 2;
 const decoder = new TextDecoder();
 const cameras = {}; // name -> {decoding, inPage (pictures not yet drawn), waiting}

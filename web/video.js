@@ -11,6 +11,8 @@
 //                       agree), width, height, drawn (count)}
 //   cameras.latency     camera name -> {kind ("render" or "capture"), p50, p99, stationP50,
 //                       stationP99, n}: milliseconds to the screen over the last WINDOW_MS
+//   cameras.starved     the page's animation frames starve: it draws pictures as they
+//                       come, and is sent STARVED_FPS (see below)
 //   cameras.log         null, or an array that every latency sample is appended to, with
 //                       its wait for a decode and the decode (benchmarks/glass_to_glass.py)
 //   cameras.addTarget(camera, canvas)  another canvas showing a camera (the goggles'
@@ -30,6 +32,16 @@
 // (?ack=4): at most four frames are on their way, so a busy page falls behind by frames
 // skipped, never by a queue, and a page given few animation frames is sent few frames.
 //
+// A page whose animation frames starve is not left with old pictures. A tab that reads
+// as visible but is not drawn (a background tab of headless Chromium; a window the
+// compositor does not show) is given one animation frame a second: frames that waited
+// for it were a second old when drawn. When a picture has waited STARVED_MS for its
+// animation frame, the page draws it without one, asks the station for STARVED_FPS
+// ({"max_fps"}, server/routes/video_ws.py) and from then on draws each picture as it
+// is decoded, and acknowledges at once: its few pictures are fresh whenever the page
+// renders. Two animation frames within PROMPT_MS of each other end it (the tab is in
+// front again): full rate, drawn in animation frames.
+//
 // Once a second one cheap GET /api/cameras gives every camera's delivered fps and settings,
 // and the station's clock (the reply's server_time checked against the request's round
 // trip). A camera whose newest frame is older than STALLED_S reads "0 fps · stalled".
@@ -41,6 +53,8 @@
 // in; the display shows it at its next refresh. p50 and p99 over the last WINDOW_MS, and
 // the station's share (render or capture until the message arrived), are in
 // cameras.latency, on the camera's readout and, for the front camera, an OSD line (osd.js).
+// A picture drawn outside an animation frame (a starved page) reaches the screen with the
+// next one: its sample is taken then; one replaced before that was never shown.
 // Times are on the station's clock (the browser's, corrected by the offset /api/cameras
 // measures, when the two differ by more than its round trip).
 import { expose } from "/debug.js";
@@ -52,18 +66,26 @@ const CLOCK_SLACK_S = 0.02; // clocks "agree" if the offset is within RTT/2 + th
 const STALLED_S = 1.0; // no new frame for this long: the stream is stalled, whatever fps says
 const ACK_WINDOW = 4; // frames on their way at most (the station's ?ack=)
 const WINDOW_MS = 5000; // latency figures over this long
+// A page starves when a picture waits STARVED_MS for its animation frame, and starves no
+// more when two come within PROMPT_MS: a page given a few animation frames a second (a
+// busy phone) stays with them, and no rate between the two makes it switch back and forth.
+const STARVED_MS = 500;
+const PROMPT_MS = 250;
+const STARVED_FPS = 5; // a starved page asks for each camera this often
 
 const views = {};
 for (const name of CAMERAS) {
   const canvas = videoCanvas(`${name} camera`, name);
   const readout = el("div", { class: "video-readout", id: `${name}-readout` }, "-- fps");
   $(`${name}-view`).append(canvas, readout);
-  views[name] = { targets: [canvas], readout, pending: null, replaced: 0, drawnSeq: -1, last: null };
+  // pending: decoded, not yet drawn; last: the picture on the canvases, `unsampled` (its
+  // header) until an animation frame has shown it.
+  views[name] = { targets: [canvas], readout, pending: null, replaced: 0, drawnSeq: -1, last: null, unsampled: null };
 }
 const frames = {};
 const samples = {}; // camera -> [{at, totalMs, stationMs}] over the last WINDOW_MS
 const latency = {};
-export const cameras = { latest: {}, receivedAt: 0, frames, latency, log: null, addTarget };
+export const cameras = { latest: {}, receivedAt: 0, frames, latency, starved: false, log: null, addTarget };
 expose("cameras", cameras);
 
 function videoCanvas(label, name) {
@@ -88,6 +110,9 @@ let open = false;
 let handled = 0; // frames drawn, replaced or skipped by the worker (what the acks count)
 let toAck = 0; // of those, the ones handled since the last animation frame
 let drawing = false; // an animation frame is requested
+let starved = false; // the page draws pictures as they come, paced by the station
+let starveTimer = 0; // set while a picture waits for an animation frame
+let lastFrameAt = null; // performance.now() of the previous animation frame, while starved
 let subscribed = "";
 let clockOffset = { agree: false, offsetS: 0 };
 
@@ -97,10 +122,11 @@ function shown(v) {
 
 function subscribe() {
   const want = Object.keys(views).filter((n) => shown(views[n]));
-  const key = want.join(",");
+  const maxFps = starved ? STARVED_FPS : null;
+  const key = `${want.join(",")}@${maxFps}`;
   if (!open || key === subscribed) return;
   subscribed = key;
-  worker.postMessage({ type: "send", message: { subscribe: want } });
+  worker.postMessage({ type: "send", message: { subscribe: want, max_fps: maxFps } });
 }
 
 function connect() {
@@ -131,7 +157,7 @@ worker.onmessage = (e) => {
   }
 };
 
-// A decoded frame: drawn in the next animation frame.
+// A decoded frame: drawn in the next animation frame, or at once while the page starves.
 function received(head, bitmap) {
   const v = views[head.camera];
   if (!v) { bitmap.close(); return; }
@@ -154,25 +180,64 @@ function received(head, bitmap) {
     done();
   }
   v.pending = { head, bitmap };
-  nextFrame();
+  if (starved) {
+    drawPictures();
+  } else {
+    nextFrame();
+    if (!starveTimer) starveTimer = setTimeout(starving, STARVED_MS);
+  }
 }
 
 function nextFrame() {
-  if (!drawing) { drawing = true; requestAnimationFrame(draw); }
+  if (!drawing) { drawing = true; requestAnimationFrame(animationFrame); }
+}
+
+// A picture waited STARVED_MS and no animation frame came.
+function starving() {
+  starveTimer = 0;
+  if (!Object.values(views).some((v) => v.pending)) return;
+  setStarved(true);
+  drawPictures();
+}
+
+function setStarved(on) {
+  starved = cameras.starved = on;
+  lastFrameAt = null;
+  if (on) nextFrame(); // animation frames watched for the page's return to the front
+  subscribe();
 }
 
 function ready(head, count) {
   worker.postMessage({ type: "ready", camera: head.camera, generation: head.generation, count });
 }
 
-// A frame handled: acknowledged in the next animation frame.
+// A frame handled: acknowledged in the next animation frame (at once while starved).
 function done() {
   toAck += 1;
-  nextFrame();
+  if (starved) acknowledge(); else nextFrame();
 }
 
-function draw() {
+function animationFrame() {
   drawing = false;
+  const now = performance.now();
+  clearTimeout(starveTimer);
+  starveTimer = 0;
+  if (starved) {
+    if (lastFrameAt !== null && now - lastFrameAt < PROMPT_MS) setStarved(false);
+    else { lastFrameAt = now; nextFrame(); }
+  }
+  drawPictures();
+  // The pictures drawn since the last animation frame are shown with this one.
+  for (const [name, v] of Object.entries(views)) {
+    if (!v.unsampled) continue;
+    noteLatency(name, v.unsampled, v.last, now);
+    v.unsampled = null;
+  }
+}
+
+// Each camera's pending picture onto its canvases: in an animation frame, or as it comes
+// while the page starves.
+function drawPictures() {
   const drawnAt = performance.now();
   for (const [name, v] of Object.entries(views)) {
     const p = v.pending;
@@ -183,9 +248,9 @@ function draw() {
     for (const canvas of v.targets) if (canvas.getClientRects().length > 0) drawOn(canvas, p.bitmap);
     if (v.last) v.last.close();
     v.last = p.bitmap;
+    v.unsampled = p.head;
     v.drawnSeq = p.head.seq;
     const wall = (performance.timeOrigin + drawnAt) / 1000;
-    noteLatency(name, p.head, p.bitmap, drawnAt);
     const prev = frames[name];
     frames[name] = {
       seq: p.head.seq, t: p.head.t, signal: p.head.signal, drawnAt,
@@ -196,6 +261,10 @@ function draw() {
     window.dispatchEvent(new CustomEvent("fpv:frame", { detail: { camera: name, bitmap: p.bitmap, drawnAt, wall } }));
     toAck += 1;
   }
+  acknowledge();
+}
+
+function acknowledge() {
   const before = handled;
   handled += toAck;
   toAck = 0;
