@@ -121,6 +121,7 @@ def test_a_paced_page_is_sent_each_camera_at_most_max_fps(base):
         (0, 0.0),
         (-3, 0.0),
         (math.inf, 0.0),
+        (10**400, 0.0),
         (math.nan, 0.0),
         (True, 0.0),
         ("5", 0.0),

@@ -96,9 +96,13 @@ def interval_of(max_fps: object) -> float:
     interval of MIN_PACED_FPS."""
     if isinstance(max_fps, bool) or not isinstance(max_fps, int | float):
         return 0.0
-    if not math.isfinite(max_fps) or max_fps <= 0:
+    try:
+        fps = float(max_fps)
+    except OverflowError:  # an integer beyond any float
         return 0.0
-    return 1.0 / max(max_fps, MIN_PACED_FPS)
+    if not math.isfinite(fps) or fps <= 0:
+        return 0.0
+    return 1.0 / max(fps, MIN_PACED_FPS)
 
 
 @router.websocket("/ws/video")
