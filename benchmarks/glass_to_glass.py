@@ -222,8 +222,8 @@ def in_front_in_turn(pages: list[Page], paths: list[str]) -> list[tuple[str, flo
         start_count(page, path)
         page.wait_for_timeout(TURN_MS)
         g = page.evaluate(COLLECT)
-        drawn = sum(1 for r in g["log"] if r["camera"] == "front")
-        turns.append((path, drawn / (TURN_MS / 1000), g["vidMax"]))
+        shown = sum(1 for r in g["log"] if r["camera"] == "front")
+        turns.append((path, shown / (TURN_MS / 1000), g["vidMax"]))
     return turns
 
 

@@ -184,7 +184,7 @@ def test_a_page_given_no_animation_frames_asks_for_few_and_draws_them_as_they_co
     said: list[dict] = []
 
     async def station_socket(ws: WebSocket, n: int) -> None:
-        await until_subscribed(ws)
+        await until_subscribed(ws)  # the first subscription, every frame: not in `said`
         assert await asyncio.to_thread(instrumented.wait, 60)
         listener = asyncio.ensure_future(listen(ws))
         for seq in range(1, sent + 1):

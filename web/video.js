@@ -108,9 +108,8 @@ function addTarget(name, canvas) {
 const worker = new Worker("/video-worker.js", { type: "module" });
 let open = false;
 let handled = 0; // frames drawn, replaced or skipped by the worker (what the acks count)
-let toAck = 0; // of those, the ones handled since the last animation frame
+let toAck = 0; // frames handled since the last acknowledge(), not yet in `handled`
 let drawing = false; // an animation frame is requested
-let starved = false; // the page draws pictures as they come, paced by the station
 let starveTimer = 0; // set while a picture waits for an animation frame
 let lastFrameAt = null; // performance.now() of the previous animation frame, while starved
 let subscribed = "";
@@ -122,7 +121,7 @@ function shown(v) {
 
 function subscribe() {
   const want = Object.keys(views).filter((n) => shown(views[n]));
-  const maxFps = starved ? STARVED_FPS : null;
+  const maxFps = cameras.starved ? STARVED_FPS : null;
   const key = `${want.join(",")}@${maxFps}`;
   if (!open || key === subscribed) return;
   subscribed = key;
@@ -180,7 +179,7 @@ function received(head, bitmap) {
     done();
   }
   v.pending = { head, bitmap };
-  if (starved) {
+  if (cameras.starved) {
     drawPictures();
   } else {
     nextFrame();
@@ -201,7 +200,7 @@ function starving() {
 }
 
 function setStarved(on) {
-  starved = cameras.starved = on;
+  cameras.starved = on;
   lastFrameAt = null;
   if (on) nextFrame(); // animation frames watched for the page's return to the front
   subscribe();
@@ -214,7 +213,7 @@ function ready(head, count) {
 // A frame handled: acknowledged in the next animation frame (at once while starved).
 function done() {
   toAck += 1;
-  if (starved) acknowledge(); else nextFrame();
+  if (cameras.starved) acknowledge(); else nextFrame();
 }
 
 function animationFrame() {
@@ -222,7 +221,7 @@ function animationFrame() {
   const now = performance.now();
   clearTimeout(starveTimer);
   starveTimer = 0;
-  if (starved) {
+  if (cameras.starved) {
     if (lastFrameAt !== null && now - lastFrameAt < PROMPT_MS) setStarved(false);
     else { lastFrameAt = now; nextFrame(); }
   }
